@@ -1,0 +1,88 @@
+//! Skinware: a real-time middleware that acquires tactile data from large robot
+//! skins and hands it to any number of applications, in any process, without
+//! ever slowing acquisition.
+//!
+//! This crate is the core exchange. A [`Writer`] (one per layer or service)
+//! creates a named shared-memory channel and publishes frames into a seqlock
+//! ring of K buffers; [`Reader`]s in other processes attach by name and obtain
+//! the newest complete frame periodically ([`Reader::next_periodic`]), as soon
+//! as it is published ([`Reader::wait_newer`]) or on request
+//! ([`Reader::latest`], [`Reader::request`]).
+//!
+//! * The writer is wait-free and reads nothing readers write: its cost per frame
+//!   does not depend on how many readers exist or what they do.
+//! * Readers are lock-free, never see a torn frame, and keep no state in shared
+//!   memory on the data path: a reader killed or stopped mid-read harms no one.
+//! * A writer holds an open-file-description lock that the kernel drops when
+//!   its process dies, so readers can tell a gone writer; a new writer with the
+//!   same layout revives the channel and readers continue on it.
+//!
+//! ```
+//! use std::time::Duration;
+//! use skinware::{FrameStatus, Reader, Writer, WriterOptions};
+//!
+//! # let skin = format!("doc{}", std::process::id());
+//! // A driver process: a layer of 4 taxels, one u16 response each.
+//! let mut writer = Writer::create(&skin, "pressure", 2 * 4, b"4 taxels", &WriterOptions::default())?;
+//! // Any application process:
+//! let mut reader = Reader::open(&skin, "pressure")?;
+//!
+//! let mut frame = writer.begin(); // filled in place, in shared memory
+//! frame.write_responses(0, &[10, 20, 30, 40])?;
+//! frame.publish();
+//!
+//! let frame = reader.wait_newer(Duration::from_secs(1))?;
+//! assert_eq!(frame.responses(), &[10, 20, 30, 40]);
+//! assert_eq!(frame.seq(), 1);
+//! assert_eq!(frame.status(), FrameStatus::OK);
+//! # Ok::<(), skinware::Error>(())
+//! ```
+//!
+//! Cargo features: none yet; the crate depends only on `rustix`, `libc`,
+//! `thiserror`, `bytemuck` and `tracing`.
+
+#![cfg_attr(loom, allow(dead_code, unused_imports))]
+
+#[cfg(not(loom))]
+mod channel;
+#[cfg(loom)]
+#[path = "channel/ring.rs"]
+mod loom_ring;
+
+mod sync;
+
+#[cfg(not(loom))]
+mod error;
+#[cfg(not(loom))]
+mod frame;
+#[cfg(not(loom))]
+pub mod os;
+#[cfg(not(loom))]
+mod reader;
+#[cfg(not(loom))]
+pub mod rt;
+#[cfg(not(loom))]
+pub mod shm;
+#[cfg(not(loom))]
+mod stats;
+#[cfg(not(loom))]
+mod writer;
+
+#[cfg(not(loom))]
+pub use channel::ChannelKind;
+#[cfg(not(loom))]
+pub use channel::layout::{ABI_VERSION, MAX_SLOTS, MIN_SLOTS};
+#[cfg(not(loom))]
+pub use channel::registry::{ChannelInfo, list_channels, remove_stale_channels};
+#[cfg(not(loom))]
+pub use error::{Error, Result};
+#[cfg(not(loom))]
+pub use frame::{Frame, FrameStatus};
+#[cfg(not(loom))]
+pub use reader::{Reader, ReaderOptions};
+#[cfg(not(loom))]
+pub use rt::{RtOptions, Stop, Tick, Ticker};
+#[cfg(not(loom))]
+pub use stats::{ReaderStats, WriterState, WriterStats, histogram_quantile};
+#[cfg(not(loom))]
+pub use writer::{DEFAULT_SLOTS, FrameWriter, Writer, WriterOptions};

@@ -1,0 +1,165 @@
+//! Thin wrappers over the operating-system primitives the exchange relies on:
+//! the monotonic clock, futexes, open-file-description locks and real-time
+//! scheduling. The only `unsafe` here is the two `fcntl`/`sched_setscheduler`
+//! calls that `rustix` does not wrap.
+
+use std::io;
+use std::num::NonZeroU32;
+use std::os::fd::{AsFd, AsRawFd};
+use std::sync::atomic::AtomicU32;
+use std::time::Duration;
+
+use rustix::thread::futex;
+use rustix::time::{ClockId, Timespec, clock_gettime};
+
+/// Nanoseconds on CLOCK_MONOTONIC: the clock of every timestamp in a frame.
+pub fn monotonic_ns() -> u64 {
+    let now = clock_gettime(ClockId::Monotonic);
+    now.tv_sec as u64 * 1_000_000_000 + now.tv_nsec as u64
+}
+
+fn timespec_from_ns(ns: u64) -> Timespec {
+    Timespec {
+        tv_sec: (ns / 1_000_000_000) as i64,
+        tv_nsec: (ns % 1_000_000_000) as i64,
+    }
+}
+
+/// How a futex wait ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Wake {
+    /// Woken, interrupted, or the word no longer held the expected value: re-check.
+    Recheck,
+    /// The timeout or deadline passed.
+    TimedOut,
+}
+
+fn wake_from(result: rustix::io::Result<()>) -> io::Result<Wake> {
+    use rustix::io::Errno;
+    match result {
+        Ok(()) | Err(Errno::AGAIN) | Err(Errno::INTR) => Ok(Wake::Recheck),
+        Err(Errno::TIMEDOUT) => Ok(Wake::TimedOut),
+        Err(e) => Err(e.into()),
+    }
+}
+
+/// Sleeps while the process-shared futex `word` holds `expected`, at most `timeout`.
+pub(crate) fn futex_wait_shared(
+    word: &AtomicU32,
+    expected: u32,
+    timeout: Duration,
+) -> io::Result<Wake> {
+    let timeout = timespec_from_ns(timeout.as_nanos().min(u64::MAX as u128) as u64);
+    wake_from(futex::wait(
+        word,
+        futex::Flags::empty(),
+        expected,
+        Some(&timeout),
+    ))
+}
+
+/// Wakes every process sleeping on the process-shared futex `word`.
+pub(crate) fn futex_wake_shared(word: &AtomicU32) {
+    // A failed wake can only be EFAULT on a bad address, which a mapped word is not.
+    let _ = futex::wake(word, futex::Flags::empty(), i32::MAX as u32);
+}
+
+/// Sleeps while the process-private futex `word` holds `expected`, until the
+/// absolute CLOCK_MONOTONIC `deadline_ns`.
+pub(crate) fn futex_wait_private_until(
+    word: &AtomicU32,
+    expected: u32,
+    deadline_ns: u64,
+) -> io::Result<Wake> {
+    let deadline = timespec_from_ns(deadline_ns);
+    let any = NonZeroU32::new(u32::MAX).unwrap_or(NonZeroU32::MIN);
+    wake_from(futex::wait_bitset(
+        word,
+        futex::Flags::PRIVATE,
+        expected,
+        Some(&deadline),
+        any,
+    ))
+}
+
+/// Wakes every thread of this process sleeping on the private futex `word`.
+pub(crate) fn futex_wake_private(word: &AtomicU32) {
+    let _ = futex::wake(word, futex::Flags::PRIVATE, i32::MAX as u32);
+}
+
+fn ofd_lock_request(kind: libc::c_short) -> libc::flock {
+    libc::flock {
+        l_type: kind,
+        l_whence: libc::SEEK_SET as libc::c_short,
+        l_start: 0,
+        l_len: 1,
+        l_pid: 0,
+    }
+}
+
+/// Takes the writer's liveness lock: an exclusive open-file-description lock on
+/// byte 0. The kernel drops it when the last descriptor of that open file closes,
+/// in particular when the process dies, however it dies. Returns `false` if
+/// another open file description holds it.
+pub(crate) fn try_lock_writer(fd: impl AsFd) -> io::Result<bool> {
+    let mut request = ofd_lock_request(libc::F_WRLCK as libc::c_short);
+    // SAFETY: `fd` is a valid open descriptor for the duration of the call, and
+    // `request` is a valid, initialised `struct flock` that F_OFD_SETLK only reads.
+    let rc = unsafe { libc::fcntl(fd.as_fd().as_raw_fd(), libc::F_OFD_SETLK, &mut request) };
+    if rc == 0 {
+        return Ok(true);
+    }
+    let err = io::Error::last_os_error();
+    match err.raw_os_error() {
+        Some(libc::EAGAIN) | Some(libc::EACCES) => Ok(false),
+        _ => Err(err),
+    }
+}
+
+/// Whether some open file description holds the writer's liveness lock. It only
+/// asks (F_OFD_GETLK), so probing can never get in a reviving writer's way.
+pub(crate) fn writer_lock_held(fd: impl AsFd) -> io::Result<bool> {
+    let mut request = ofd_lock_request(libc::F_RDLCK as libc::c_short);
+    // SAFETY: `fd` is a valid open descriptor for the duration of the call, and
+    // `request` is a valid `struct flock` that F_OFD_GETLK reads and overwrites.
+    let rc = unsafe { libc::fcntl(fd.as_fd().as_raw_fd(), libc::F_OFD_GETLK, &mut request) };
+    if rc != 0 {
+        return Err(io::Error::last_os_error());
+    }
+    Ok(request.l_type != libc::F_UNLCK as libc::c_short)
+}
+
+/// Puts the calling thread in SCHED_FIFO at `priority` (1..=99).
+pub fn set_fifo_priority(priority: u8) -> io::Result<()> {
+    let param = libc::sched_param {
+        sched_priority: i32::from(priority),
+    };
+    // SAFETY: `param` is a valid `sched_param`; pid 0 names the calling thread.
+    let rc = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
+    if rc == 0 {
+        Ok(())
+    } else {
+        Err(io::Error::last_os_error())
+    }
+}
+
+/// Locks all current and future pages of the process in RAM.
+pub fn lock_memory() -> io::Result<()> {
+    use rustix::mm::{MlockAllFlags, mlockall};
+    mlockall(MlockAllFlags::CURRENT | MlockAllFlags::FUTURE).map_err(Into::into)
+}
+
+/// Pins the calling thread to the given CPUs.
+pub fn pin_to_cpus(cpus: &[usize]) -> io::Result<()> {
+    let mut set = rustix::thread::CpuSet::new();
+    for &cpu in cpus {
+        if cpu >= rustix::thread::CpuSet::MAX_CPU {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                format!("CPU {cpu} does not exist"),
+            ));
+        }
+        set.set(cpu);
+    }
+    rustix::thread::sched_setaffinity(None, &set).map_err(Into::into)
+}

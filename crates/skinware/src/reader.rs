@@ -1,0 +1,315 @@
+//! The reader: attaches to a channel by name and obtains its newest frames,
+//! periodically, as soon as they are published, or on request.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::Duration;
+
+use crate::channel::ring::{Meta, ReadFailure};
+use crate::channel::{self, ChannelKind, Shared};
+use crate::error::{Error, Result};
+use crate::frame::Frame;
+use crate::os::{self, Wake};
+use crate::rt::{Stop, Ticker};
+use crate::shm;
+use crate::stats::{ReaderStats, WriterState, WriterStats};
+
+/// How a reader attaches.
+#[derive(Clone, Debug, Default)]
+pub struct ReaderOptions {
+    /// Attach even if the channel's writer is gone (to wait for its revival,
+    /// or to inspect it). By default a gone writer is an error.
+    pub allow_gone: bool,
+    /// Require this payload schema (name, version).
+    pub expect_schema: Option<(String, u32)>,
+    /// Directory of the segments; `None` for [`shm::segment_dir`].
+    pub dir: Option<PathBuf>,
+}
+
+/// Consecutive laps after which a read gives up with [`Error::Lapped`]. With
+/// K ≥ 2 buffers each lap means the writer published K-1 frames during one
+/// copy, so this only trips for a reader that is practically stalled.
+const MAX_READ_ATTEMPTS: u32 = 1000;
+
+/// A reader of one channel. Its frames are private copies: nothing the reader
+/// does, including dying in the middle of a read, affects the writer or other
+/// readers. It maps the frames read-only.
+pub struct Reader {
+    shared: Arc<Shared>,
+    buffer: Vec<u64>,
+    last: Meta,
+    stats: ReaderStats,
+    stop: Stop,
+}
+
+impl std::fmt::Debug for Reader {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Reader")
+            .field("channel", &self.shared.label)
+            .field("last_seq", &self.last.seq)
+            .finish()
+    }
+}
+
+impl Reader {
+    /// Attaches to `skin`/`channel`, whose writer must be alive.
+    pub fn open(skin: &str, channel: &str) -> Result<Reader> {
+        Reader::open_with(skin, channel, &ReaderOptions::default())
+    }
+
+    /// Attaches with options.
+    pub fn open_with(skin: &str, channel: &str, options: &ReaderOptions) -> Result<Reader> {
+        let dir = options.dir.clone().unwrap_or_else(shm::segment_dir);
+        let shared = channel::open_segment(&dir, skin, channel, false)?;
+        let header = shared.header();
+        if !options.allow_gone {
+            let alive = shared.writer_alive().map_err(|source| Error::Os {
+                op: "lock query",
+                path: shared.path.clone(),
+                source,
+            })?;
+            if !alive || header.state.load(Ordering::Acquire) == WriterState::STOPPED {
+                return Err(Error::WriterGone {
+                    channel: shared.label.clone(),
+                    pid: header.writer_pid.load(Ordering::Relaxed),
+                });
+            }
+        }
+        if let Some((expected, expected_version)) = &options.expect_schema {
+            let found = crate::channel::layout::decode_schema(&header.schema_name);
+            let found_version = header.schema_version.load(Ordering::Relaxed);
+            if &found != expected || found_version != *expected_version {
+                return Err(Error::SchemaMismatch {
+                    channel: shared.label.clone(),
+                    found,
+                    found_version,
+                    expected: expected.clone(),
+                    expected_version: *expected_version,
+                });
+            }
+        }
+        let words = shared.ring().payload_words();
+        let shared = Arc::new(shared);
+        let stop = Stop::new();
+        stop.watch(&shared);
+        Ok(Reader {
+            shared,
+            buffer: vec![0; words],
+            last: Meta::default(),
+            stats: ReaderStats::default(),
+            stop,
+        })
+    }
+
+    /// `skin/channel`.
+    pub fn label(&self) -> &str {
+        &self.shared.label
+    }
+
+    /// The segment file.
+    pub fn path(&self) -> &Path {
+        &self.shared.path
+    }
+
+    /// What the channel carries.
+    pub fn kind(&self) -> ChannelKind {
+        self.shared.kind
+    }
+
+    /// Payload bytes of one frame.
+    pub fn payload_bytes(&self) -> usize {
+        self.shared.layout.payload_bytes as usize
+    }
+
+    /// Frame buffers in the channel (K).
+    pub fn slots(&self) -> usize {
+        self.shared.layout.slot_count as usize
+    }
+
+    /// The channel's static description (the topology, for a layer).
+    pub fn description(&self) -> Vec<u8> {
+        self.shared.description()
+    }
+
+    /// The payload schema (name, version).
+    pub fn schema(&self) -> (String, u32) {
+        let header = self.shared.header();
+        (
+            crate::channel::layout::decode_schema(&header.schema_name),
+            header.schema_version.load(Ordering::Relaxed),
+        )
+    }
+
+    /// The writer's nominal period, or `None` for a sporadic writer.
+    pub fn writer_period(&self) -> Option<Duration> {
+        match self.shared.header().period_ns.load(Ordering::Relaxed) {
+            0 => None,
+            ns => Some(Duration::from_nanos(ns)),
+        }
+    }
+
+    /// Whether the writer is running, paused, faulted or gone. One `fcntl`
+    /// query; not part of reading frames.
+    pub fn writer_state(&self) -> WriterState {
+        let alive = self.shared.writer_alive().unwrap_or(false);
+        WriterState::from_code(self.shared.header().state.load(Ordering::Acquire), alive)
+    }
+
+    /// The process id of the current (or last) writer.
+    pub fn writer_pid(&self) -> u32 {
+        self.shared.header().writer_pid.load(Ordering::Relaxed)
+    }
+
+    /// How many writers have owned the channel (revivals add one each).
+    pub fn writer_generation(&self) -> u64 {
+        self.shared.header().generation.load(Ordering::Relaxed)
+    }
+
+    /// The writer's statistics.
+    pub fn writer_stats(&self) -> WriterStats {
+        WriterStats::load(&self.shared.header().stats)
+    }
+
+    /// This reader's statistics.
+    pub fn stats(&self) -> &ReaderStats {
+        &self.stats
+    }
+
+    /// Sequence number of the newest published frame, without reading it.
+    pub fn published_seq(&self) -> u64 {
+        self.shared.ring().published()
+    }
+
+    /// Makes `stop` interrupt this reader's blocking calls (in addition to its own).
+    pub fn set_stop(&mut self, stop: &Stop) {
+        stop.watch(&self.shared);
+        self.stop = stop.clone();
+    }
+
+    /// The stop signal this reader's blocking calls watch.
+    pub fn stop_signal(&self) -> &Stop {
+        &self.stop
+    }
+
+    /// On request: the newest complete frame, now. Lock-free; never blocks.
+    pub fn latest(&mut self) -> Result<Frame<'_>> {
+        let started = os::monotonic_ns();
+        match self
+            .shared
+            .ring()
+            .read_latest(&mut self.buffer, MAX_READ_ATTEMPTS)
+        {
+            Ok((meta, retries)) => {
+                let fresh = meta.seq != self.last.seq;
+                let skipped = if fresh && self.last.seq != 0 {
+                    meta.seq.saturating_sub(self.last.seq + 1)
+                } else {
+                    0
+                };
+                self.stats
+                    .record(os::monotonic_ns() - started, retries, skipped);
+                self.last = meta;
+                Ok(self.frame(skipped, fresh))
+            }
+            Err(ReadFailure::Empty) => Err(Error::NoFrameYet {
+                channel: self.shared.label.clone(),
+            }),
+            Err(ReadFailure::Lapped(retries)) => {
+                self.stats.retries += u64::from(retries);
+                Err(Error::Lapped {
+                    channel: self.shared.label.clone(),
+                    retries,
+                    slots: self.slots() as u32,
+                })
+            }
+        }
+    }
+
+    fn frame(&self, skipped: u64, fresh: bool) -> Frame<'_> {
+        let bytes: &[u8] = bytemuck::cast_slice(&self.buffer);
+        Frame {
+            meta: self.last,
+            skipped,
+            fresh,
+            payload: &bytes[..self.payload_bytes()],
+        }
+    }
+
+    /// As soon as available: waits (asleep on a futex, no spinning) for a frame
+    /// newer than the last one this reader obtained, then returns it.
+    pub fn wait_newer(&mut self, timeout: Duration) -> Result<Frame<'_>> {
+        let after = self.last.seq;
+        self.wait_beyond(after, timeout)?;
+        self.latest()
+    }
+
+    /// On request: asks for a frame newer than any published now and waits for
+    /// it. A sporadic writer acquires one on the request; a periodic writer's
+    /// next frame answers it.
+    pub fn request(&mut self, timeout: Duration) -> Result<Frame<'_>> {
+        let after = self.published_seq();
+        if self.writer_period().is_none() {
+            let requests = &self.shared.doorbell().requests;
+            requests.fetch_add(1, Ordering::Release);
+            os::futex_wake_shared(requests);
+        }
+        self.wait_beyond(after, timeout)?;
+        self.latest()
+    }
+
+    /// Periodic: waits for the next tick of `ticker` (absolute time), then
+    /// returns the newest frame, which may be the same as last time
+    /// ([`Frame::is_fresh`] tells).
+    pub fn next_periodic(&mut self, ticker: &mut Ticker) -> Result<Frame<'_>> {
+        if ticker.wait(&self.stop).is_none() {
+            return Err(Error::Stopped {
+                channel: self.shared.label.clone(),
+            });
+        }
+        self.latest()
+    }
+
+    /// Sleeps until a frame with sequence number above `after` is published.
+    fn wait_beyond(&self, after: u64, timeout: Duration) -> Result<()> {
+        let ring = self.shared.ring();
+        let notify = &self.shared.doorbell().notify;
+        let deadline = os::monotonic_ns().saturating_add(timeout.as_nanos() as u64);
+        loop {
+            if self.stop.is_stopped() {
+                return Err(Error::Stopped {
+                    channel: self.shared.label.clone(),
+                });
+            }
+            let seen = notify.load(Ordering::Acquire);
+            if ring.published() > after {
+                return Ok(());
+            }
+            // Announce ourselves, then re-check: a publish between our check and
+            // the announcement changed the word, so the futex wait below returns
+            // at once instead of missing it.
+            let announced = notify.fetch_or(1, Ordering::AcqRel);
+            if announced >> 1 != seen >> 1 || ring.published() > after {
+                continue;
+            }
+            let now = os::monotonic_ns();
+            if now >= deadline {
+                return Err(Error::Timeout {
+                    channel: self.shared.label.clone(),
+                    timeout,
+                });
+            }
+            match os::futex_wait_shared(notify, announced | 1, Duration::from_nanos(deadline - now))
+            {
+                Ok(Wake::Recheck) | Ok(Wake::TimedOut) => {}
+                Err(source) => {
+                    return Err(Error::Os {
+                        op: "futex wait",
+                        path: self.shared.path.clone(),
+                        source,
+                    });
+                }
+            }
+        }
+    }
+}

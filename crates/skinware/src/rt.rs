@@ -1,0 +1,258 @@
+//! Real-time helpers: absolute-time periodic scheduling, a stop signal that
+//! interrupts every blocking call, and real-time thread set-up.
+
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::{Arc, Mutex, Weak};
+use std::time::Duration;
+
+use crate::channel::Shared;
+use crate::os::{self, Wake};
+
+/// A cloneable signal that stops blocking calls: [`Ticker::wait`],
+/// [`Reader::wait_newer`](crate::Reader::wait_newer), [`Reader::request`](crate::Reader::request),
+/// [`Writer::wait_request`](crate::Writer::wait_request) and the periodic loops.
+///
+/// Stopping wakes sleepers at once (it does not wait for their timeouts).
+#[derive(Clone, Default)]
+pub struct Stop {
+    inner: Arc<StopInner>,
+}
+
+#[derive(Default)]
+struct StopInner {
+    /// 0 while running, 1 once stopped; also the futex word tickers sleep on.
+    word: AtomicU32,
+    /// Channels whose futex words must be woken too.
+    channels: Mutex<Vec<Weak<Shared>>>,
+}
+
+impl std::fmt::Debug for Stop {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Stop")
+            .field("stopped", &self.is_stopped())
+            .finish()
+    }
+}
+
+impl Stop {
+    /// A new signal, not yet stopped.
+    pub fn new() -> Stop {
+        Stop::default()
+    }
+
+    /// Stops every blocking call that watches this signal, now and later.
+    pub fn stop(&self) {
+        self.inner.word.store(1, Ordering::Release);
+        os::futex_wake_private(&self.inner.word);
+        let channels = self
+            .inner
+            .channels
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        for shared in channels.iter().filter_map(Weak::upgrade) {
+            os::futex_wake_shared(&shared.doorbell().notify);
+            os::futex_wake_shared(&shared.doorbell().requests);
+        }
+    }
+
+    /// Whether [`stop`](Self::stop) was called.
+    pub fn is_stopped(&self) -> bool {
+        self.inner.word.load(Ordering::Acquire) != 0
+    }
+
+    /// Makes `stop` also wake sleepers on this channel's futex words.
+    pub(crate) fn watch(&self, shared: &Arc<Shared>) {
+        let mut channels = self
+            .inner
+            .channels
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        channels.retain(|weak| weak.strong_count() > 0);
+        channels.push(Arc::downgrade(shared));
+    }
+
+    /// Sleeps until the absolute CLOCK_MONOTONIC `deadline_ns`; `false` if stopped first.
+    pub fn sleep_until(&self, deadline_ns: u64) -> bool {
+        loop {
+            if self.is_stopped() {
+                return false;
+            }
+            if os::monotonic_ns() >= deadline_ns {
+                return true;
+            }
+            match os::futex_wait_private_until(&self.inner.word, 0, deadline_ns) {
+                Ok(Wake::TimedOut) => return !self.is_stopped(),
+                Ok(Wake::Recheck) => {}
+                // Only EFAULT/EINVAL are possible, neither with a valid word and
+                // deadline; fall back to the plain sleep rather than spin.
+                Err(_) => std::thread::sleep(Duration::from_nanos(
+                    deadline_ns.saturating_sub(os::monotonic_ns()),
+                )),
+            }
+        }
+    }
+}
+
+/// One periodic wake-up.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Tick {
+    /// The deadline this tick stands for (CLOCK_MONOTONIC ns).
+    pub deadline_ns: u64,
+    /// How late after its deadline the tick started, ns.
+    pub lateness_ns: u64,
+    /// Whether the previous period's work ran past this deadline (an overrun).
+    pub overrun: bool,
+    /// Whole periods skipped because of that overrun.
+    pub missed: u64,
+}
+
+/// An absolute-time periodic schedule: deadlines lie on a fixed grid
+/// `start + k * period`, so lateness never accumulates into drift.
+#[derive(Clone, Debug)]
+pub struct Ticker {
+    period_ns: u64,
+    next_ns: u64,
+}
+
+impl Ticker {
+    /// A schedule whose first deadline is now.
+    pub fn new(period: Duration) -> Ticker {
+        Ticker::starting_at(period, os::monotonic_ns())
+    }
+
+    /// A schedule whose first deadline is `start_ns` (CLOCK_MONOTONIC).
+    pub fn starting_at(period: Duration, start_ns: u64) -> Ticker {
+        let period_ns = (period.as_nanos().min(u64::MAX as u128) as u64).max(1);
+        Ticker {
+            period_ns,
+            next_ns: start_ns,
+        }
+    }
+
+    /// A schedule at `hz` frames per second (at least one per ~584 years).
+    pub fn from_hz(hz: f64) -> Ticker {
+        Ticker::new(Duration::from_secs_f64(1.0 / hz.max(1e-9)))
+    }
+
+    /// The period.
+    pub fn period(&self) -> Duration {
+        Duration::from_nanos(self.period_ns)
+    }
+
+    /// Waits for the next deadline, or returns at once if it already passed
+    /// (an overrun: the deadlines that passed are skipped, not made up for).
+    /// `None` if `stop` was signalled.
+    pub fn wait(&mut self, stop: &Stop) -> Option<Tick> {
+        let deadline = self.next_ns;
+        let called = os::monotonic_ns();
+        let tick = if called <= deadline {
+            if !stop.sleep_until(deadline) {
+                return None;
+            }
+            Tick {
+                deadline_ns: deadline,
+                lateness_ns: os::monotonic_ns() - deadline,
+                overrun: false,
+                missed: 0,
+            }
+        } else {
+            if stop.is_stopped() {
+                return None;
+            }
+            let missed = (called - deadline) / self.period_ns;
+            let grid = deadline + missed * self.period_ns;
+            Tick {
+                deadline_ns: grid,
+                lateness_ns: called - grid,
+                overrun: true,
+                missed,
+            }
+        };
+        self.next_ns = tick.deadline_ns + self.period_ns;
+        Some(tick)
+    }
+}
+
+/// Real-time settings for a writer or reader thread.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct RtOptions {
+    /// SCHED_FIFO priority (1..=99), or `None` to stay in the normal scheduler.
+    pub fifo_priority: Option<u8>,
+    /// Lock the whole process in RAM (mlockall), so that page faults cannot stall it.
+    pub lock_memory: bool,
+    /// CPUs to pin the thread to; empty for no pinning.
+    pub cpus: Vec<usize>,
+}
+
+impl RtOptions {
+    /// Applies the settings to the calling thread. Settings the system refuses
+    /// (no privilege, no such CPU) are skipped; each refusal is returned as a
+    /// message, so the caller can warn once and carry on.
+    pub fn apply(&self) -> Vec<String> {
+        let mut refused = Vec::new();
+        if let Some(priority) = self.fifo_priority {
+            if let Err(e) = os::set_fifo_priority(priority) {
+                refused.push(format!(
+                    "SCHED_FIFO priority {priority} refused ({e}); running in the normal scheduler (run as root or grant CAP_SYS_NICE / an rtprio limit)"
+                ));
+            }
+        }
+        if self.lock_memory {
+            if let Err(e) = os::lock_memory() {
+                refused.push(format!("mlockall refused ({e}); memory may be paged (raise RLIMIT_MEMLOCK or run as root)"));
+            }
+        }
+        if !self.cpus.is_empty() {
+            if let Err(e) = os::pin_to_cpus(&self.cpus) {
+                refused.push(format!(
+                    "pinning to CPUs {:?} refused ({e}); the thread may run on any CPU",
+                    self.cpus
+                ));
+            }
+        }
+        refused
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ticker_counts_an_overrun_and_stays_on_its_grid() {
+        let start = os::monotonic_ns();
+        let period = Duration::from_millis(2);
+        let mut ticker = Ticker::starting_at(period, start);
+        let stop = Stop::new();
+        let first = ticker.wait(&stop).unwrap();
+        assert_eq!(first.deadline_ns, start);
+        // Overrun: work that takes more than two periods.
+        std::thread::sleep(Duration::from_millis(5));
+        let late = ticker.wait(&stop).unwrap();
+        assert!(late.overrun);
+        assert!(late.missed >= 1, "{late:?}");
+        assert_eq!(
+            (late.deadline_ns - start) % 2_000_000,
+            0,
+            "left the grid: {late:?}"
+        );
+        let next = ticker.wait(&stop).unwrap();
+        assert_eq!(next.deadline_ns, late.deadline_ns + 2_000_000);
+    }
+
+    #[test]
+    fn stop_interrupts_a_long_sleep() {
+        let stop = Stop::new();
+        let mut ticker = Ticker::starting_at(
+            Duration::from_secs(3600),
+            os::monotonic_ns() + 3_600_000_000_000,
+        );
+        let stopper = stop.clone();
+        let started = std::time::Instant::now();
+        let sleeper = std::thread::spawn(move || ticker.wait(&stop));
+        std::thread::sleep(Duration::from_millis(20));
+        stopper.stop();
+        assert_eq!(sleeper.join().unwrap(), None);
+        assert!(started.elapsed() < Duration::from_secs(60));
+    }
+}

@@ -1,0 +1,665 @@
+//! The writer: creates (or revives) a channel and publishes frames into it.
+
+use std::fs::File;
+use std::os::unix::fs::MetadataExt;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+
+use crate::channel::layout::Layout;
+use crate::channel::ring::{self, Meta};
+use crate::channel::{self, ChannelKind, SegmentInit, Shared};
+use crate::error::{Error, Result};
+use crate::frame::FrameStatus;
+use crate::os::{self, Wake};
+use crate::rt::{Stop, Ticker};
+use crate::shm;
+use crate::stats::{self, WriterState, WriterStats};
+
+/// How a channel is created.
+#[derive(Clone, Debug)]
+pub struct WriterOptions {
+    /// Frame buffers, K (2..=64). With K buffers a reader has K-1 whole frame
+    /// periods to copy a frame before the writer comes back to its buffer.
+    pub slots: usize,
+    /// The nominal period of a periodic writer, or `None` for a sporadic one
+    /// (which publishes when pushed or when a reader requests a frame).
+    pub period: Option<Duration>,
+    /// What the channel carries.
+    pub kind: ChannelKind,
+    /// Payload schema name (at most 32 bytes) that readers may check.
+    pub schema_name: String,
+    /// Payload schema version.
+    pub schema_version: u32,
+    /// Create the segment `0660` (owner and group) instead of `0600`.
+    pub group_access: bool,
+    /// Remove the segment when the writer is dropped. A writer that dies
+    /// without dropping leaves it for a successor to revive.
+    pub unlink_on_drop: bool,
+    /// Directory of the segments; `None` for [`shm::segment_dir`].
+    pub dir: Option<PathBuf>,
+}
+
+impl Default for WriterOptions {
+    fn default() -> Self {
+        WriterOptions {
+            slots: DEFAULT_SLOTS,
+            period: None,
+            kind: ChannelKind::Layer,
+            schema_name: String::new(),
+            schema_version: 0,
+            group_access: false,
+            unlink_on_drop: true,
+            dir: None,
+        }
+    }
+}
+
+/// Default number of frame buffers. Three lets a reader take up to two whole
+/// periods to copy a frame before it is lapped, while one buffer is being
+/// written; more only costs memory.
+pub const DEFAULT_SLOTS: usize = 3;
+
+/// The single writer of a channel.
+///
+/// Publishing is wait-free: it never takes a lock, never waits for a reader and
+/// reads nothing readers write; the only syscall it may make is one futex wake,
+/// and only when a reader is sleeping on the channel.
+pub struct Writer {
+    shared: Arc<Shared>,
+    next_seq: u64,
+    served_requests: u32,
+    stop: Stop,
+    unlink_on_drop: bool,
+    revived: bool,
+    identity: (u64, u64),
+}
+
+impl std::fmt::Debug for Writer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Writer")
+            .field("channel", &self.shared.label)
+            .field("next_seq", &self.next_seq)
+            .finish()
+    }
+}
+
+fn file_identity(file: &File, path: &Path) -> Result<(u64, u64)> {
+    let meta = file.metadata().map_err(|source| Error::Os {
+        op: "stat",
+        path: path.to_owned(),
+        source,
+    })?;
+    Ok((meta.dev(), meta.ino()))
+}
+
+fn path_identity(path: &Path) -> Option<(u64, u64)> {
+    std::fs::metadata(path)
+        .ok()
+        .map(|meta| (meta.dev(), meta.ino()))
+}
+
+impl Writer {
+    /// Creates channel `skin`/`channel` with frames of `payload_bytes` and the
+    /// given description, or takes over ("revives") the channel of a dead
+    /// writer with the same layout, continuing its sequence numbers so that
+    /// its readers go on without re-opening.
+    pub fn create(
+        skin: &str,
+        channel: &str,
+        payload_bytes: usize,
+        description: &[u8],
+        options: &WriterOptions,
+    ) -> Result<Writer> {
+        shm::validate_name("skin", skin)?;
+        shm::validate_name("channel", channel)?;
+        let label = channel::label(skin, channel);
+        let layout = Layout::compute(
+            payload_bytes as u64,
+            options.slots as u64,
+            description.len() as u64,
+        )
+        .map_err(|reason| Error::InvalidLayout {
+            channel: label.clone(),
+            reason,
+        })?;
+        if options.schema_name.len() > crate::channel::layout::SCHEMA_NAME_BYTES {
+            return Err(Error::InvalidLayout {
+                channel: label,
+                reason: format!(
+                    "schema name {:?} is longer than 32 bytes",
+                    options.schema_name
+                ),
+            });
+        }
+        let dir = options.dir.clone().unwrap_or_else(shm::segment_dir);
+        let path = shm::segment_path(&dir, skin, channel);
+        let init = SegmentInit {
+            kind: options.kind,
+            description,
+            schema_name: &options.schema_name,
+            schema_version: options.schema_version,
+            mode: if options.group_access { 0o660 } else { 0o600 },
+        };
+        // A bounded loop: each pass either creates, revives, or loses a race with
+        // another creator or a cleaner and tries again.
+        for _ in 0..16 {
+            if let Some((shared, revived)) = Writer::try_revive(&path, &label, &layout, &init)? {
+                return Writer::start(shared, revived, options);
+            }
+            let temp = dir.join(format!(
+                "{}{skin}.{channel}.{}.{}",
+                shm::TEMP_PREFIX,
+                std::process::id(),
+                os::monotonic_ns()
+            ));
+            let mut shared = channel::create_segment(&temp, label.clone(), layout, &init)?;
+            match rustix::fs::renameat_with(
+                rustix::fs::CWD,
+                &temp,
+                rustix::fs::CWD,
+                &path,
+                rustix::fs::RenameFlags::NOREPLACE,
+            ) {
+                Ok(()) => {
+                    shared.path = path;
+                    return Writer::start(shared, false, options);
+                }
+                Err(rustix::io::Errno::EXIST) => {
+                    let _ = std::fs::remove_file(&temp);
+                }
+                Err(e) => {
+                    let _ = std::fs::remove_file(&temp);
+                    return Err(Error::Os {
+                        op: "rename",
+                        path,
+                        source: e.into(),
+                    });
+                }
+            }
+        }
+        Err(Error::Os {
+            op: "create",
+            path,
+            source: std::io::ErrorKind::ResourceBusy.into(),
+        })
+    }
+
+    /// Takes over an existing segment if its writer is dead and its layout
+    /// matches. `Ok(None)` if there is no segment (any more).
+    fn try_revive(
+        path: &Path,
+        label: &str,
+        layout: &Layout,
+        init: &SegmentInit<'_>,
+    ) -> Result<Option<(Shared, bool)>> {
+        let file = match File::options().read(true).write(true).open(path) {
+            Ok(file) => file,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(source) => {
+                return Err(Error::Os {
+                    op: "open",
+                    path: path.to_owned(),
+                    source,
+                });
+            }
+        };
+        let locked = os::try_lock_writer(&file).map_err(|source| Error::Os {
+            op: "lock",
+            path: path.to_owned(),
+            source,
+        })?;
+        if !locked {
+            let pid = channel::map_validated(label.to_owned(), path.to_owned(), file, false)
+                .map(|shared| shared.header().writer_pid.load(Ordering::Relaxed))
+                .unwrap_or(0);
+            return Err(Error::Busy {
+                channel: label.to_owned(),
+                pid,
+            });
+        }
+        // A cleaner may have unlinked the file between our open and our lock.
+        if path_identity(path) != Some(file_identity(&file, path)?) {
+            return Ok(None);
+        }
+        let shared = channel::map_validated(label.to_owned(), path.to_owned(), file, true)?;
+        let mismatch =
+            |field: &'static str, existing: String, wanted: String| Error::LayoutMismatch {
+                channel: label.to_owned(),
+                field,
+                existing,
+                wanted,
+            };
+        let existing = shared.layout;
+        if existing.payload_bytes != layout.payload_bytes {
+            return Err(mismatch(
+                "frame bytes",
+                existing.payload_bytes.to_string(),
+                layout.payload_bytes.to_string(),
+            ));
+        }
+        if existing.slot_count != layout.slot_count {
+            return Err(mismatch(
+                "frame buffers",
+                existing.slot_count.to_string(),
+                layout.slot_count.to_string(),
+            ));
+        }
+        if shared.kind != init.kind {
+            return Err(mismatch(
+                "kind",
+                format!("{:?}", shared.kind),
+                format!("{:?}", init.kind),
+            ));
+        }
+        let header = shared.header();
+        let schema = crate::channel::layout::decode_schema(&header.schema_name);
+        let schema_version = header.schema_version.load(Ordering::Relaxed);
+        if schema != init.schema_name || schema_version != init.schema_version {
+            return Err(mismatch(
+                "schema",
+                format!("{schema} v{schema_version}"),
+                format!("{} v{}", init.schema_name, init.schema_version),
+            ));
+        }
+        if shared.description() != init.description {
+            return Err(mismatch(
+                "description (topology)",
+                format!("{} bytes", existing.description_bytes),
+                format!("{} different bytes", init.description.len()),
+            ));
+        }
+        Ok(Some((shared, true)))
+    }
+
+    fn start(shared: Shared, revived: bool, options: &WriterOptions) -> Result<Writer> {
+        let identity = file_identity(&shared.file, &shared.path)?;
+        let header = shared.header();
+        header
+            .writer_pid
+            .store(std::process::id(), Ordering::Relaxed);
+        header.period_ns.store(
+            options.period.map_or(0, |p| p.as_nanos() as u64),
+            Ordering::Relaxed,
+        );
+        stats::bump(&header.generation, 1);
+        header
+            .state_changed_ns
+            .store(os::monotonic_ns(), Ordering::Relaxed);
+        header.state.store(WriterState::RUNNING, Ordering::Release);
+        let served_requests = shared.doorbell().requests.load(Ordering::Acquire);
+        let next_seq = shared.ring().next_seq();
+        let shared = Arc::new(shared);
+        let stop = Stop::new();
+        stop.watch(&shared);
+        if revived {
+            tracing::info!(channel = %shared.label, next_seq, "revived the channel of a dead writer");
+        }
+        Ok(Writer {
+            shared,
+            next_seq,
+            served_requests,
+            stop,
+            unlink_on_drop: options.unlink_on_drop,
+            revived,
+            identity,
+        })
+    }
+
+    /// `skin/channel`.
+    pub fn label(&self) -> &str {
+        &self.shared.label
+    }
+
+    /// The segment file.
+    pub fn path(&self) -> &Path {
+        &self.shared.path
+    }
+
+    /// Whether this writer took over a dead writer's channel.
+    pub fn revived(&self) -> bool {
+        self.revived
+    }
+
+    /// Payload bytes of one frame.
+    pub fn payload_bytes(&self) -> usize {
+        self.shared.layout.payload_bytes as usize
+    }
+
+    /// Sequence number of the last frame published (0 if none).
+    pub fn last_seq(&self) -> u64 {
+        self.next_seq - 1
+    }
+
+    /// Opens the next frame for filling, in place in shared memory. The frame is
+    /// published when the returned guard is dropped or [`FrameWriter::publish`]ed,
+    /// and abandoned (never seen by any reader) with [`FrameWriter::discard`].
+    pub fn begin(&mut self) -> FrameWriter<'_> {
+        let started_ns = os::monotonic_ns();
+        let Writer {
+            shared, next_seq, ..
+        } = self;
+        let ring = shared.ring();
+        let payload = ring.begin(*next_seq);
+        FrameWriter {
+            shared,
+            next_seq,
+            payload,
+            payload_bytes: shared.layout.payload_bytes as usize,
+            started_ns,
+            acquired_ns: None,
+            status: FrameStatus::OK,
+            finished: false,
+        }
+    }
+
+    /// Publishes one frame copied from `bytes` (a convenience over [`begin`](Self::begin)).
+    pub fn publish_bytes(&mut self, bytes: &[u8], status: FrameStatus) -> Result<u64> {
+        let mut frame = self.begin();
+        if let Err(e) = frame.write_bytes(0, bytes) {
+            frame.discard();
+            return Err(e);
+        }
+        frame.set_status(status);
+        Ok(frame.publish())
+    }
+
+    /// Tells readers what the writer is doing: running, paused or faulted.
+    /// (`Gone` is what readers see once the writer is dropped or dies.)
+    pub fn set_state(&self, state: WriterState) {
+        let header = self.shared.header();
+        if header.state.swap(state.code(), Ordering::Release) != state.code() {
+            header
+                .state_changed_ns
+                .store(os::monotonic_ns(), Ordering::Relaxed);
+        }
+    }
+
+    /// The state this writer last set.
+    pub fn state(&self) -> WriterState {
+        WriterState::from_code(self.shared.header().state.load(Ordering::Acquire), true)
+    }
+
+    /// The writer statistics in shared memory.
+    pub fn stats(&self) -> WriterStats {
+        WriterStats::load(&self.shared.header().stats)
+    }
+
+    /// Counts a failed acquisition (when no frame is published for it).
+    pub fn record_fault(&self) {
+        stats::bump(&self.shared.header().stats.faults, 1);
+    }
+
+    /// Makes `stop` interrupt this writer's blocking calls (in addition to its own).
+    pub fn set_stop(&mut self, stop: &Stop) {
+        stop.watch(&self.shared);
+        self.stop = stop.clone();
+    }
+
+    /// The stop signal this writer's blocking calls watch.
+    pub fn stop_signal(&self) -> &Stop {
+        &self.stop
+    }
+
+    /// Sporadic writers: waits until a reader requests a frame. `Ok(true)` on a
+    /// request, `Ok(false)` on timeout, [`Error::Stopped`] when stopped.
+    pub fn wait_request(&mut self, timeout: Duration) -> Result<bool> {
+        let deadline = os::monotonic_ns().saturating_add(timeout.as_nanos() as u64);
+        let requests = &self.shared.doorbell().requests;
+        loop {
+            if self.stop.is_stopped() {
+                return Err(Error::Stopped {
+                    channel: self.shared.label.clone(),
+                });
+            }
+            let seen = requests.load(Ordering::Acquire);
+            if seen != self.served_requests {
+                self.served_requests = seen;
+                return Ok(true);
+            }
+            let now = os::monotonic_ns();
+            if now >= deadline {
+                return Ok(false);
+            }
+            match os::futex_wait_shared(requests, seen, Duration::from_nanos(deadline - now)) {
+                Ok(Wake::Recheck) | Ok(Wake::TimedOut) => {}
+                Err(source) => {
+                    return Err(Error::Os {
+                        op: "futex wait",
+                        path: self.shared.path.clone(),
+                        source,
+                    });
+                }
+            }
+        }
+    }
+
+    /// Runs a periodic acquisition loop until the stop signal: on every tick of
+    /// `ticker` (absolute time, no drift) it calls `fill` on a new frame. `Ok`
+    /// publishes it; `Err` discards it, counts a fault and marks the channel
+    /// faulted until a fill succeeds again. Overruns and lateness are recorded
+    /// in the shared statistics.
+    pub fn run_periodic<E, F>(&mut self, mut ticker: Ticker, mut fill: F) -> Result<()>
+    where
+        E: std::fmt::Display,
+        F: FnMut(&mut FrameWriter<'_>) -> Result<(), E>,
+    {
+        let stop = self.stop.clone();
+        while let Some(tick) = ticker.wait(&stop) {
+            stats::record_tick(&self.shared.header().stats, &tick);
+            self.fill_once(&mut fill);
+        }
+        Ok(())
+    }
+
+    /// Runs a sporadic loop until the stop signal: every reader request produces
+    /// one frame through `fill`, handled as in [`run_periodic`](Self::run_periodic).
+    pub fn run_sporadic<E, F>(&mut self, mut fill: F) -> Result<()>
+    where
+        E: std::fmt::Display,
+        F: FnMut(&mut FrameWriter<'_>) -> Result<(), E>,
+    {
+        loop {
+            match self.wait_request(Duration::from_secs(3600)) {
+                Ok(true) => self.fill_once(&mut fill),
+                Ok(false) => {}
+                Err(Error::Stopped { .. }) => return Ok(()),
+                Err(other) => return Err(other),
+            }
+        }
+    }
+
+    fn fill_once<E, F>(&mut self, fill: &mut F)
+    where
+        E: std::fmt::Display,
+        F: FnMut(&mut FrameWriter<'_>) -> Result<(), E>,
+    {
+        let mut frame = self.begin();
+        match fill(&mut frame) {
+            Ok(()) => {
+                frame.publish();
+                if self.state() == WriterState::Faulted {
+                    tracing::info!(channel = %self.shared.label, "acquisition recovered");
+                    self.set_state(WriterState::Running);
+                }
+            }
+            Err(e) => {
+                frame.discard();
+                self.record_fault();
+                if self.state() != WriterState::Faulted {
+                    tracing::warn!(channel = %self.shared.label, error = %e, "acquisition failed; channel faulted");
+                    self.set_state(WriterState::Faulted);
+                }
+            }
+        }
+    }
+}
+
+impl Drop for Writer {
+    fn drop(&mut self) {
+        let header = self.shared.header();
+        header.state.store(WriterState::STOPPED, Ordering::Release);
+        header
+            .state_changed_ns
+            .store(os::monotonic_ns(), Ordering::Relaxed);
+        // Wake sleeping readers so that they can notice at once.
+        os::futex_wake_shared(&self.shared.doorbell().notify);
+        if self.unlink_on_drop && path_identity(&self.shared.path) == Some(self.identity) {
+            let _ = std::fs::remove_file(&self.shared.path);
+        }
+    }
+}
+
+/// A frame being filled in place in shared memory. Dropping it publishes it.
+///
+/// Responses are stored with atomic stores because readers may be copying an
+/// older frame out of the same buffer at the same moment (they then discard
+/// their copy); handing out a plain `&mut [u16]` would make that a data race.
+pub struct FrameWriter<'w> {
+    shared: &'w Shared,
+    next_seq: &'w mut u64,
+    payload: &'w [AtomicU64],
+    payload_bytes: usize,
+    started_ns: u64,
+    acquired_ns: Option<u64>,
+    status: FrameStatus,
+    finished: bool,
+}
+
+impl FrameWriter<'_> {
+    /// The sequence number this frame will have.
+    pub fn seq(&self) -> u64 {
+        *self.next_seq
+    }
+
+    /// Payload bytes of the frame.
+    pub fn len_bytes(&self) -> usize {
+        self.payload_bytes
+    }
+
+    /// Number of `u16` responses the frame holds.
+    pub fn len_responses(&self) -> usize {
+        self.payload_bytes / 2
+    }
+
+    fn too_large(&self, given: usize) -> Error {
+        Error::PayloadTooLarge {
+            channel: self.shared.label.clone(),
+            given,
+            capacity: self.payload_bytes,
+        }
+    }
+
+    /// Sets response `index`.
+    pub fn set_response(&mut self, index: usize, value: u16) -> Result<()> {
+        if index >= self.len_responses() {
+            return Err(self.too_large((index + 1) * 2));
+        }
+        let word = &self.payload[index / 4];
+        let shift = (index % 4) * 16;
+        let current = word.load(Ordering::Relaxed);
+        let updated = (current & !(0xffff << shift)) | (u64::from(value) << shift);
+        word.store(updated, Ordering::Relaxed);
+        Ok(())
+    }
+
+    /// Writes `values` as responses `first..first + values.len()`.
+    pub fn write_responses(&mut self, first: usize, values: &[u16]) -> Result<()> {
+        if first.saturating_add(values.len()) > self.len_responses() {
+            return Err(self.too_large((first + values.len()) * 2));
+        }
+        if first % 4 == 0 {
+            let mut chunks = values.chunks_exact(4);
+            for (word, chunk) in self.payload[first / 4..].iter().zip(&mut chunks) {
+                let value = u64::from(chunk[0])
+                    | u64::from(chunk[1]) << 16
+                    | u64::from(chunk[2]) << 32
+                    | u64::from(chunk[3]) << 48;
+                word.store(value, Ordering::Relaxed);
+            }
+            let done = values.len() - chunks.remainder().len();
+            for (i, &value) in chunks.remainder().iter().enumerate() {
+                self.set_response(first + done + i, value)?;
+            }
+        } else {
+            for (i, &value) in values.iter().enumerate() {
+                self.set_response(first + i, value)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes raw payload bytes at byte `offset`.
+    pub fn write_bytes(&mut self, offset: usize, bytes: &[u8]) -> Result<()> {
+        if offset.saturating_add(bytes.len()) > self.payload_bytes {
+            return Err(self.too_large(offset + bytes.len()));
+        }
+        ring::store_bytes(self.payload, offset, bytes);
+        Ok(())
+    }
+
+    /// Writes a plain-old-data value at the start of the payload.
+    pub fn write_pod<T: bytemuck::NoUninit>(&mut self, value: &T) -> Result<()> {
+        self.write_bytes(0, bytemuck::bytes_of(value))
+    }
+
+    /// Sets the acquisition time (CLOCK_MONOTONIC ns); by default, the moment
+    /// the frame was begun.
+    pub fn set_acquired_ns(&mut self, ns: u64) {
+        self.acquired_ns = Some(ns);
+    }
+
+    /// Sets the frame's status flags.
+    pub fn set_status(&mut self, status: FrameStatus) {
+        self.status = status;
+    }
+
+    /// Publishes the frame and returns its sequence number.
+    pub fn publish(mut self) -> u64 {
+        self.finish()
+    }
+
+    /// Abandons the frame: readers keep seeing the previous one.
+    pub fn discard(mut self) {
+        self.finished = true;
+    }
+
+    fn finish(&mut self) -> u64 {
+        self.finished = true;
+        let seq = *self.next_seq;
+        let published_ns = os::monotonic_ns();
+        self.shared.ring().publish(&Meta {
+            seq,
+            acquired_ns: self.acquired_ns.unwrap_or(self.started_ns),
+            published_ns,
+            status: self.status.0,
+        });
+        *self.next_seq += 1;
+        // Wake sleeping readers only if one announced itself; the swap also clears
+        // the announcement, so a reader that died asleep costs one wake at most.
+        let announced = self
+            .shared
+            .doorbell()
+            .notify
+            .swap((seq as u32) << 1, Ordering::Release);
+        if announced & 1 != 0 {
+            os::futex_wake_shared(&self.shared.doorbell().notify);
+        }
+        let header = self.shared.header();
+        stats::record_write(
+            &header.stats,
+            os::monotonic_ns() - self.started_ns,
+            self.status.is_fault(),
+        );
+        seq
+    }
+}
+
+impl Drop for FrameWriter<'_> {
+    fn drop(&mut self) {
+        if !self.finished {
+            self.finish();
+        }
+    }
+}
