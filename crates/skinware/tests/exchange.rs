@@ -1,0 +1,393 @@
+//! The exchange between a writer and readers in one process: reader modes,
+//! writer modes, statistics, liveness, revival, read-only mapping, cleaning.
+
+mod common;
+
+use std::time::{Duration, Instant};
+
+use common::SegmentDir;
+use skinware::{
+    Error, FrameStatus, Reader, ReaderOptions, Stop, Ticker, Writer, WriterOptions, WriterState,
+};
+
+fn publish(writer: &mut Writer, value: u16) -> u64 {
+    let mut frame = writer.begin();
+    let n = frame.len_responses();
+    frame.write_responses(0, &vec![value; n]).unwrap();
+    frame.publish()
+}
+
+#[test]
+fn latest_returns_newest_with_metadata_and_skips() {
+    let dir = SegmentDir::new("latest");
+    let mut writer = Writer::create("skin", "layer", 16, b"", &dir.writer()).unwrap();
+    let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+    assert!(matches!(reader.latest(), Err(Error::NoFrameYet { .. })));
+    publish(&mut writer, 1);
+    let first = reader.latest().unwrap();
+    assert_eq!(
+        (first.seq(), first.skipped(), first.is_fresh()),
+        (1, 0, true)
+    );
+    for value in 2..=5 {
+        publish(&mut writer, value);
+    }
+    let frame = reader.latest().unwrap();
+    assert_eq!(frame.seq(), 5);
+    assert_eq!(frame.skipped(), 3);
+    assert_eq!(frame.responses(), &[5; 8]);
+    assert!(frame.published_ns() >= frame.acquired_ns());
+    let again = reader.latest().unwrap();
+    assert!(!again.is_fresh());
+    assert_eq!(reader.stats().reads, 3);
+    assert_eq!(reader.stats().skipped, 3);
+    assert!(reader.stats().read_ns_max >= reader.stats().read_ns_min);
+}
+
+#[test]
+fn frames_carry_status_and_acquisition_time() {
+    let dir = SegmentDir::new("status");
+    let mut writer = Writer::create("skin", "layer", 8, b"", &dir.writer()).unwrap();
+    let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+    let mut frame = writer.begin();
+    frame.set_acquired_ns(42);
+    frame.set_status(FrameStatus::PARTIAL);
+    drop(frame); // dropping the guard publishes
+    let frame = reader.latest().unwrap();
+    assert_eq!(frame.acquired_ns(), 42);
+    assert_eq!(frame.status(), FrameStatus::PARTIAL);
+    assert_eq!(writer.stats().frames, 1);
+}
+
+#[test]
+fn discarded_frame_is_never_seen() {
+    let dir = SegmentDir::new("discard");
+    let mut writer = Writer::create("skin", "layer", 8, b"", &dir.writer()).unwrap();
+    let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+    publish(&mut writer, 7);
+    let mut frame = writer.begin();
+    frame.write_responses(0, &[9, 9, 9, 9]).unwrap();
+    frame.discard();
+    let frame = reader.latest().unwrap();
+    assert_eq!((frame.seq(), frame.responses()), (1, &[7u16, 7, 7, 7][..]));
+    assert_eq!(
+        publish(&mut writer, 8),
+        2,
+        "a discarded frame used up a sequence number"
+    );
+}
+
+#[test]
+fn as_soon_as_available_reader_wakes_on_publish() {
+    let dir = SegmentDir::new("asap");
+    let mut writer = Writer::create("skin", "layer", 8, b"", &dir.writer()).unwrap();
+    let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+    let waiter = std::thread::spawn(move || {
+        let started = Instant::now();
+        let seq = reader.wait_newer(Duration::from_secs(20)).unwrap().seq();
+        (seq, started.elapsed())
+    });
+    std::thread::sleep(Duration::from_millis(100));
+    publish(&mut writer, 3);
+    let (seq, waited) = waiter.join().unwrap();
+    assert_eq!(seq, 1);
+    assert!(
+        waited >= Duration::from_millis(90),
+        "returned before the publish: {waited:?}"
+    );
+    assert!(
+        waited < Duration::from_secs(10),
+        "missed the wake-up: {waited:?}"
+    );
+}
+
+#[test]
+fn as_soon_as_available_reader_times_out_and_can_be_stopped() {
+    let dir = SegmentDir::new("asap-timeout");
+    let _writer = Writer::create("skin", "layer", 8, b"", &dir.writer()).unwrap();
+    let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+    let started = Instant::now();
+    let err = reader.wait_newer(Duration::from_millis(50)).unwrap_err();
+    assert!(matches!(err, Error::Timeout { .. }), "{err}");
+    assert!(started.elapsed() >= Duration::from_millis(50));
+
+    let stop = Stop::new();
+    reader.set_stop(&stop);
+    let waiter = std::thread::spawn(move || {
+        reader
+            .wait_newer(Duration::from_secs(3600))
+            .map(|f| f.seq())
+    });
+    std::thread::sleep(Duration::from_millis(50));
+    let stopped_at = Instant::now();
+    stop.stop();
+    let result = waiter.join().unwrap();
+    assert!(matches!(result, Err(Error::Stopped { .. })), "{result:?}");
+    assert!(stopped_at.elapsed() < Duration::from_secs(5));
+}
+
+#[test]
+fn request_triggers_a_sporadic_acquisition() {
+    let dir = SegmentDir::new("request");
+    let mut writer = Writer::create("skin", "sporadic", 8, b"", &dir.writer()).unwrap();
+    let stop = Stop::new();
+    writer.set_stop(&stop);
+    let acquisitions = std::thread::spawn(move || {
+        let mut count = 0u16;
+        writer
+            .run_sporadic(|frame| {
+                count += 1;
+                frame.write_responses(0, &[count; 4])
+            })
+            .unwrap();
+        count
+    });
+    let mut reader = Reader::open_with("skin", "sporadic", &dir.reader()).unwrap();
+    assert_eq!(reader.writer_period(), None);
+    for expected in 1..=3u16 {
+        let frame = reader.request(Duration::from_secs(20)).unwrap();
+        assert_eq!(frame.responses(), &[expected; 4]);
+        assert_eq!(frame.seq(), u64::from(expected));
+    }
+    stop.stop();
+    assert_eq!(
+        acquisitions.join().unwrap(),
+        3,
+        "each request should cause exactly one acquisition"
+    );
+}
+
+#[test]
+fn request_on_a_periodic_writer_waits_for_its_next_frame() {
+    let dir = SegmentDir::new("request-periodic");
+    let options = WriterOptions {
+        period: Some(Duration::from_millis(5)),
+        ..dir.writer()
+    };
+    let mut writer = Writer::create("skin", "periodic", 8, b"", &options).unwrap();
+    let stop = Stop::new();
+    writer.set_stop(&stop);
+    let running = std::thread::spawn(move || {
+        let mut value = 0u16;
+        writer
+            .run_periodic(Ticker::new(Duration::from_millis(5)), |frame| {
+                value += 1;
+                frame.write_responses(0, &[value; 4])
+            })
+            .unwrap();
+        writer.stats()
+    });
+    let mut reader = Reader::open_with("skin", "periodic", &dir.reader()).unwrap();
+    let before = reader.published_seq();
+    let frame = reader.request(Duration::from_secs(20)).unwrap();
+    assert!(frame.seq() > before);
+    let mut ticker = Ticker::new(Duration::from_millis(20));
+    let mut last = 0;
+    for _ in 0..5 {
+        let frame = reader.next_periodic(&mut ticker).unwrap();
+        assert!(frame.seq() >= last);
+        last = frame.seq();
+    }
+    stop.stop();
+    let stats = running.join().unwrap();
+    assert!(stats.frames >= 10, "{stats:?}");
+    assert!(stats.write_ns_max >= stats.write_ns_min);
+    assert_eq!(stats.write_histogram.iter().sum::<u64>(), stats.frames);
+}
+
+#[test]
+fn periodic_writer_counts_overruns() {
+    let dir = SegmentDir::new("overrun");
+    let mut writer = Writer::create("skin", "slow", 8, b"", &dir.writer()).unwrap();
+    let stop = Stop::new();
+    writer.set_stop(&stop);
+    let mut frames = 0;
+    let stopper = stop.clone();
+    writer
+        .run_periodic(Ticker::new(Duration::from_millis(2)), |_frame| {
+            frames += 1;
+            if frames == 3 {
+                std::thread::sleep(Duration::from_millis(10)); // a slow acquisition
+            }
+            if frames == 6 {
+                stopper.stop();
+            }
+            Ok::<(), String>(())
+        })
+        .unwrap();
+    let stats = writer.stats();
+    assert!(stats.overruns >= 1, "{stats:?}");
+    assert!(stats.missed_periods >= 3, "{stats:?}");
+}
+
+#[test]
+fn failed_acquisition_marks_the_channel_faulted_until_it_recovers() {
+    let dir = SegmentDir::new("faulted");
+    let mut writer = Writer::create("skin", "flaky", 8, b"", &dir.writer()).unwrap();
+    let reader = Reader::open_with("skin", "flaky", &dir.reader()).unwrap();
+    let stop = Stop::new();
+    writer.set_stop(&stop);
+    let stopper = stop.clone();
+    let mut calls = 0;
+    let mut states = Vec::new();
+    writer
+        .run_periodic(Ticker::new(Duration::from_millis(1)), |_frame| {
+            calls += 1;
+            states.push(reader.writer_state());
+            match calls {
+                2 | 3 => Err("cable pulled"),
+                5 => {
+                    stopper.stop();
+                    Ok(())
+                }
+                _ => Ok(()),
+            }
+        })
+        .unwrap();
+    // The state seen during call n reflects calls before it.
+    assert_eq!(
+        states,
+        [
+            WriterState::Running,
+            WriterState::Running,
+            WriterState::Faulted,
+            WriterState::Faulted,
+            WriterState::Running
+        ]
+    );
+    assert_eq!(writer.stats().faults, 2);
+    assert_eq!(writer.last_seq(), 3, "failed acquisitions must not publish");
+}
+
+#[test]
+fn liveness_paused_and_gone() {
+    let dir = SegmentDir::new("liveness");
+    let writer = Writer::create("skin", "layer", 8, b"", &dir.writer()).unwrap();
+    let reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+    assert_eq!(reader.writer_state(), WriterState::Running);
+    writer.set_state(WriterState::Paused);
+    assert_eq!(reader.writer_state(), WriterState::Paused);
+    drop(writer);
+    assert_eq!(reader.writer_state(), WriterState::Gone);
+    assert!(dir.files().is_empty(), "the writer left {:?}", dir.files());
+}
+
+#[test]
+fn revival_continues_the_sequence_for_existing_readers() {
+    let dir = SegmentDir::new("revival");
+    let keep = WriterOptions {
+        unlink_on_drop: false,
+        ..dir.writer()
+    };
+    let mut first = Writer::create("skin", "layer", 8, b"topology", &keep).unwrap();
+    let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+    for value in 1..=4 {
+        publish(&mut first, value);
+    }
+    assert_eq!(reader.latest().unwrap().seq(), 4);
+    drop(first);
+    assert_eq!(reader.writer_state(), WriterState::Gone);
+
+    let mut second = Writer::create("skin", "layer", 8, b"topology", &dir.writer()).unwrap();
+    assert!(second.revived());
+    assert_eq!(reader.writer_state(), WriterState::Running);
+    assert_eq!(reader.writer_generation(), 2);
+    publish(&mut second, 50);
+    let frame = reader.wait_newer(Duration::from_secs(5)).unwrap();
+    assert_eq!(
+        frame.seq(),
+        5,
+        "the revived writer must continue the sequence"
+    );
+    assert_eq!(frame.responses(), &[50; 4]);
+}
+
+#[test]
+fn readers_map_frames_read_only() {
+    let dir = SegmentDir::new("readonly");
+    let _writer = Writer::create("skin", "layer", 30_848 * 2, b"", &dir.writer()).unwrap();
+    let reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+    let maps = std::fs::read_to_string("/proc/self/maps").unwrap();
+    let path = reader.path().to_string_lossy().into_owned();
+    let ours: Vec<&str> = maps
+        .lines()
+        .filter(|line| line.ends_with(path.as_str()))
+        .collect();
+    // The writer's read-write mapping, its doorbell, the reader's read-only
+    // mapping of everything and the reader's doorbell.
+    let read_only: Vec<&&str> = ours
+        .iter()
+        .filter(|l| l.split_whitespace().nth(1) == Some("r--s"))
+        .collect();
+    assert_eq!(read_only.len(), 1, "{ours:#?}");
+    let size = |line: &str| {
+        let (start, end) = line
+            .split_whitespace()
+            .next()
+            .unwrap()
+            .split_once('-')
+            .unwrap();
+        u64::from_str_radix(end, 16).unwrap() - u64::from_str_radix(start, 16).unwrap()
+    };
+    assert!(
+        size(read_only[0]) > 60_000,
+        "the read-only mapping must cover the frames"
+    );
+    for line in ours
+        .iter()
+        .filter(|l| l.split_whitespace().nth(1) == Some("rw-s"))
+    {
+        let is_doorbell = size(line) == 4096;
+        let is_writer = size(line) == size(read_only[0]);
+        assert!(
+            is_doorbell || is_writer,
+            "unexpected writable mapping {line}"
+        );
+    }
+}
+
+#[test]
+fn stale_channels_are_listed_and_removed() {
+    let dir = SegmentDir::new("clean");
+    let keep = WriterOptions {
+        unlink_on_drop: false,
+        ..dir.writer()
+    };
+    drop(Writer::create("dead", "layer", 8, b"", &keep).unwrap());
+    let _alive = Writer::create("live", "layer", 8, b"", &dir.writer()).unwrap();
+    std::fs::write(dir.segment("junk", "layer"), b"not a channel at all").unwrap();
+
+    let listed = skinware::list_channels(&dir.path).unwrap();
+    let summary: Vec<(String, WriterState, bool)> = listed
+        .iter()
+        .map(|c| (c.skin.clone(), c.state, c.problem.is_some()))
+        .collect();
+    assert_eq!(
+        summary,
+        [
+            ("dead".to_string(), WriterState::Gone, false),
+            ("junk".to_string(), WriterState::Gone, true),
+            ("live".to_string(), WriterState::Running, false)
+        ]
+    );
+
+    let removed = skinware::remove_stale_channels(&dir.path, false).unwrap();
+    assert_eq!(removed, [dir.segment("dead", "layer")]);
+    assert_eq!(dir.files(), ["skinware.junk.layer", "skinware.live.layer"]);
+    let removed = skinware::remove_stale_channels(&dir.path, true).unwrap();
+    assert_eq!(removed, [dir.segment("junk", "layer")]);
+    assert_eq!(
+        dir.files(),
+        ["skinware.live.layer"],
+        "a live writer's channel was removed"
+    );
+}
+
+#[test]
+fn description_is_published_to_readers() {
+    let dir = SegmentDir::new("description");
+    let description: Vec<u8> = (0..=255).cycle().take(5000).collect();
+    let _writer = Writer::create("skin", "layer", 8, &description, &dir.writer()).unwrap();
+    let reader = Reader::open_with("skin", "layer", &ReaderOptions { ..dir.reader() }).unwrap();
+    assert_eq!(reader.description(), description);
+}
