@@ -1,6 +1,8 @@
 //! Typed errors of the library. Every variant names the channel it concerns and,
 //! where there is one, says what to do about it.
 
+#![forbid(unsafe_code)]
+
 use std::path::PathBuf;
 
 /// Everything that can go wrong when creating, opening, writing or reading a channel.

@@ -1,5 +1,7 @@
 //! What a reader gets: one frame, with its metadata, borrowed from the reader.
 
+#![forbid(unsafe_code)]
+
 use crate::channel::ring::Meta;
 
 /// Status flags carried by every frame.

@@ -43,6 +43,11 @@
 
 #![cfg_attr(loom, allow(dead_code, unused_imports))]
 
+/// The README's examples, compiled as doc-tests.
+#[cfg(doctest)]
+#[doc = include_str!("../../../README.md")]
+pub struct ReadmeExamples;
+
 #[cfg(not(loom))]
 mod channel;
 #[cfg(loom)]

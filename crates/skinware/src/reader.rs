@@ -1,6 +1,8 @@
 //! The reader: attaches to a channel by name and obtains its newest frames,
 //! periodically, as soon as they are published, or on request.
 
+#![forbid(unsafe_code)]
+
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::Ordering;

@@ -1,6 +1,8 @@
 //! Real-time helpers: absolute-time periodic scheduling, a stop signal that
 //! interrupts every blocking call, and real-time thread set-up.
 
+#![forbid(unsafe_code)]
+
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex, Weak};
 use std::time::Duration;

@@ -1,6 +1,8 @@
 //! Statistics: the writer's (in shared memory, readable by any process) and a
 //! reader's (local to it).
 
+#![forbid(unsafe_code)]
+
 use std::sync::atomic::Ordering::Relaxed;
 
 use crate::channel::layout::{HISTOGRAM_BUCKETS, SharedStats};

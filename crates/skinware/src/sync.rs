@@ -3,6 +3,8 @@
 //! Under `--cfg loom` the seqlock ring is compiled against loom's atomics and
 //! checked exhaustively; everything that maps real shared memory is compiled out.
 
+#![forbid(unsafe_code)]
+
 #[cfg(loom)]
 pub(crate) use loom::sync::atomic::{AtomicU64, Ordering, fence};
 

@@ -1,5 +1,7 @@
 //! The writer: creates (or revives) a channel and publishes frames into it.
 
+#![forbid(unsafe_code)]
+
 use std::fs::File;
 use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};

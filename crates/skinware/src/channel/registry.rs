@@ -1,6 +1,8 @@
 //! The segment directory as a registry: which channels exist, who writes them,
 //! and removing the ones whose writers are dead.
 
+#![forbid(unsafe_code)]
+
 use std::fs::File;
 use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};

@@ -19,6 +19,8 @@
 //! fences), so a reader racing a writer is a benign race in Rust's memory model
 //! rather than undefined behaviour; the stamp check throws such a copy away.
 
+#![forbid(unsafe_code)]
+
 use crate::sync::{AtomicU64, Ordering, fence};
 
 /// Word index of the seqlock stamp in a slot.
