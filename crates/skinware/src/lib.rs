@@ -57,6 +57,8 @@ mod loom_ring;
 mod sync;
 
 #[cfg(not(loom))]
+pub mod driver;
+#[cfg(not(loom))]
 mod error;
 #[cfg(not(loom))]
 mod frame;
@@ -71,6 +73,8 @@ pub mod shm;
 #[cfg(not(loom))]
 mod stats;
 #[cfg(not(loom))]
+pub mod topology;
+#[cfg(not(loom))]
 mod writer;
 
 #[cfg(not(loom))]
@@ -79,6 +83,8 @@ pub use channel::ChannelKind;
 pub use channel::layout::{ABI_VERSION, MAX_SLOTS, MIN_SLOTS};
 #[cfg(not(loom))]
 pub use channel::registry::{ChannelInfo, list_channels, remove_stale_channels};
+#[cfg(not(loom))]
+pub use driver::{Driver, DriverError, DriverHandler, HandlerOptions, LayerSource, LayerSpec};
 #[cfg(not(loom))]
 pub use error::{Error, Result};
 #[cfg(not(loom))]
@@ -90,4 +96,6 @@ pub use rt::{RtOptions, Stop, Tick, Ticker};
 #[cfg(not(loom))]
 pub use stats::{ReaderStats, WriterState, WriterStats, histogram_quantile};
 #[cfg(not(loom))]
-pub use writer::{DEFAULT_SLOTS, FrameWriter, Writer, WriterOptions};
+pub use topology::{LayerTopology, TopologyBuilder, TopologyError};
+#[cfg(not(loom))]
+pub use writer::{DEFAULT_SLOTS, FrameWriter, Writer, WriterOptions, WriterStateHandle};

@@ -134,6 +134,11 @@ impl Reader {
         self.shared.description()
     }
 
+    /// The layer topology published by the writer (for a layer channel).
+    pub fn topology(&self) -> Result<crate::LayerTopology, crate::TopologyError> {
+        crate::LayerTopology::decode(&self.shared.description(), &self.shared.label)
+    }
+
     /// The payload schema (name, version).
     pub fn schema(&self) -> (String, u32) {
         let header = self.shared.header();

@@ -383,6 +383,13 @@ impl Writer {
         WriterState::from_code(self.shared.header().state.load(Ordering::Acquire), true)
     }
 
+    /// A handle that sets this writer's state from another thread (a watchdog).
+    pub fn state_handle(&self) -> WriterStateHandle {
+        WriterStateHandle {
+            shared: self.shared.clone(),
+        }
+    }
+
     /// The writer statistics in shared memory.
     pub fn stats(&self) -> WriterStats {
         WriterStats::load(&self.shared.header().stats)
@@ -495,6 +502,38 @@ impl Writer {
                 }
             }
         }
+    }
+}
+
+fn set_state(shared: &Shared, state: WriterState) {
+    let header = shared.header();
+    if header.state.swap(state.code(), Ordering::Release) != state.code() {
+        header
+            .state_changed_ns
+            .store(os::monotonic_ns(), Ordering::Relaxed);
+    }
+}
+
+/// Sets a live writer's state from another thread (see [`Writer::state_handle`]).
+#[derive(Clone)]
+pub struct WriterStateHandle {
+    shared: Arc<Shared>,
+}
+
+impl WriterStateHandle {
+    /// Sets the state readers see.
+    pub fn set(&self, state: WriterState) {
+        set_state(&self.shared, state);
+    }
+
+    /// The state last set.
+    pub fn get(&self) -> WriterState {
+        WriterState::from_code(self.shared.header().state.load(Ordering::Acquire), true)
+    }
+
+    /// `skin/channel`.
+    pub fn label(&self) -> &str {
+        &self.shared.label
     }
 }
 

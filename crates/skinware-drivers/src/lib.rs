@@ -1,0 +1,14 @@
+//! Skinware drivers.
+//!
+//! * [`virtual_skin`]: the paper's virtual skin, a humanoid covered with (by
+//!   default) 30,848 taxels, 12 per module, 4-16 modules per patch, split over
+//!   L layers, with pressure blobs that press, slide and release, noise, slow
+//!   baseline drift, and cable pulls on a schedule or on command.
+//!
+//! No cargo features yet; UDP, serial and SocketCAN drivers come later.
+
+#![forbid(unsafe_code)]
+
+pub mod virtual_skin;
+
+pub use virtual_skin::{CablePull, Rate, VirtualSkin, VirtualSkinConfig};

@@ -1,0 +1,322 @@
+//! Drivers and the driver handler: a driver describes its layers and fills
+//! their frames; the handler runs one writer thread per layer, each at its own
+//! rate, and contains the driver's failures to the layer they happen in.
+
+#![forbid(unsafe_code)]
+
+use std::panic::AssertUnwindSafe;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use crate::error::Error;
+use crate::os;
+use crate::rt::{RtOptions, Stop, Ticker};
+use crate::stats::WriterState;
+use crate::topology::LayerTopology;
+use crate::writer::{FrameWriter, Writer, WriterOptions, WriterStateHandle};
+
+/// Whatever a driver's hardware access can fail with.
+pub type DriverError = Box<dyn std::error::Error + Send + Sync>;
+
+/// One layer a driver provides.
+#[derive(Clone, Debug)]
+pub struct LayerSpec {
+    /// Its topology; `topology.name` is the channel name and `topology.rate_hz`
+    /// the acquisition rate (0 for a sporadic layer, acquired on request).
+    pub topology: LayerTopology,
+    /// Real-time settings of its writer thread.
+    pub rt: RtOptions,
+}
+
+/// A driver: knows one network, reports its layers and fills their frames.
+pub trait Driver: Send {
+    /// A short name for logs.
+    fn name(&self) -> &str;
+
+    /// The layers this driver provides.
+    fn layers(&self) -> Vec<LayerSpec>;
+
+    /// Start hook: connects to the hardware and returns one source per layer,
+    /// in the order of [`layers`](Self::layers). Each source is moved to that
+    /// layer's writer thread.
+    fn start(&mut self) -> Result<Vec<Box<dyn LayerSource>>, DriverError>;
+
+    /// Stop hook, called after every writer thread has stopped.
+    fn stop(&mut self) {}
+}
+
+/// The acquisition of one layer.
+pub trait LayerSource: Send {
+    /// Fills `frame` (one `u16` response per sensor, in topology order) in
+    /// place. An error marks the layer faulted until an acquisition succeeds.
+    fn acquire(&mut self, frame: &mut FrameWriter<'_>) -> Result<(), DriverError>;
+}
+
+/// Errors of the driver handler.
+#[derive(Debug, thiserror::Error)]
+pub enum HandlerError {
+    /// A layer's channel could not be created or revived.
+    #[error("driver {driver}: layer {layer}: {source}")]
+    Channel {
+        /// Driver name.
+        driver: String,
+        /// Layer name.
+        layer: String,
+        /// The channel error.
+        #[source]
+        source: Error,
+    },
+    /// The driver's start hook failed.
+    #[error("driver {driver} failed to start: {source}")]
+    Start {
+        /// Driver name.
+        driver: String,
+        /// Its error.
+        #[source]
+        source: DriverError,
+    },
+    /// The driver returned a different number of sources than layers.
+    #[error(
+        "driver {driver} describes {layers} layers but started {sources} sources; it must start one per layer"
+    )]
+    SourceCount {
+        /// Driver name.
+        driver: String,
+        /// Layers described.
+        layers: usize,
+        /// Sources started.
+        sources: usize,
+    },
+}
+
+/// How the handler runs a driver.
+#[derive(Clone, Debug)]
+pub struct HandlerOptions {
+    /// Frame buffers per layer channel.
+    pub slots: usize,
+    /// An acquisition running longer than this many periods marks its layer
+    /// faulted (it cannot be interrupted, but readers learn of it).
+    pub timeout_periods: u32,
+    /// Segment directory; `None` for the default.
+    pub dir: Option<PathBuf>,
+    /// Create channels with group access.
+    pub group_access: bool,
+    /// Remove the channels when the handler stops (a crash leaves them for revival).
+    pub unlink_on_stop: bool,
+}
+
+impl Default for HandlerOptions {
+    fn default() -> Self {
+        HandlerOptions {
+            slots: crate::writer::DEFAULT_SLOTS,
+            timeout_periods: 10,
+            dir: None,
+            group_access: false,
+            unlink_on_stop: true,
+        }
+    }
+}
+
+/// A running driver: one writer thread per layer, plus a watchdog.
+pub struct DriverHandler {
+    driver: Box<dyn Driver>,
+    stop: Stop,
+    writers: Vec<JoinHandle<()>>,
+    watchdog: Option<JoinHandle<()>>,
+    layers: Vec<String>,
+}
+
+struct LayerWatch {
+    state: WriterStateHandle,
+    /// CLOCK_MONOTONIC ns when the current acquisition began; 0 when idle.
+    busy_since: Arc<AtomicU64>,
+    timeout_ns: u64,
+}
+
+impl DriverHandler {
+    /// Creates (or revives) every layer's channel under `skin` and starts acquiring.
+    pub fn start(
+        skin: &str,
+        mut driver: Box<dyn Driver>,
+        options: &HandlerOptions,
+    ) -> Result<DriverHandler, HandlerError> {
+        let name = driver.name().to_owned();
+        let specs = driver.layers();
+        let mut writers = Vec::with_capacity(specs.len());
+        for spec in &specs {
+            let topology = &spec.topology;
+            let period =
+                (topology.rate_hz > 0.0).then(|| Duration::from_secs_f64(1.0 / topology.rate_hz));
+            let writer_options = WriterOptions {
+                slots: options.slots,
+                period,
+                group_access: options.group_access,
+                unlink_on_drop: options.unlink_on_stop,
+                dir: options.dir.clone(),
+                ..WriterOptions::default()
+            };
+            let writer = Writer::create(
+                skin,
+                &topology.name,
+                topology.frame_bytes(),
+                &topology.encode(),
+                &writer_options,
+            )
+            .map_err(|source| HandlerError::Channel {
+                driver: name.clone(),
+                layer: topology.name.clone(),
+                source,
+            })?;
+            writers.push(writer);
+        }
+        let sources = driver.start().map_err(|source| HandlerError::Start {
+            driver: name.clone(),
+            source,
+        })?;
+        if sources.len() != specs.len() {
+            return Err(HandlerError::SourceCount {
+                driver: name,
+                layers: specs.len(),
+                sources: sources.len(),
+            });
+        }
+        let stop = Stop::new();
+        let mut threads = Vec::new();
+        let mut watches = Vec::new();
+        for ((mut writer, source), spec) in writers.into_iter().zip(sources).zip(&specs) {
+            writer.set_stop(&stop);
+            let busy_since = Arc::new(AtomicU64::new(0));
+            let period_ns = if spec.topology.rate_hz > 0.0 {
+                (1e9 / spec.topology.rate_hz) as u64
+            } else {
+                1_000_000_000
+            };
+            watches.push(LayerWatch {
+                state: writer.state_handle(),
+                busy_since: busy_since.clone(),
+                timeout_ns: period_ns.saturating_mul(u64::from(options.timeout_periods.max(1))),
+            });
+            let rt = spec.rt.clone();
+            let rate_hz = spec.topology.rate_hz;
+            let thread_name = format!("writer-{}", spec.topology.name);
+            let thread = std::thread::Builder::new()
+                .name(thread_name)
+                .spawn(move || run_layer(writer, source, rt, rate_hz, busy_since))
+                .map_err(|e| HandlerError::Start {
+                    driver: driver.name().to_owned(),
+                    source: Box::new(e),
+                })?;
+            threads.push(thread);
+        }
+        let watchdog_stop = stop.clone();
+        let watchdog = std::thread::Builder::new()
+            .name("driver-watchdog".into())
+            .spawn(move || watch_layers(watches, watchdog_stop))
+            .ok();
+        let layers = specs.into_iter().map(|s| s.topology.name).collect();
+        Ok(DriverHandler {
+            driver,
+            stop,
+            writers: threads,
+            watchdog,
+            layers,
+        })
+    }
+
+    /// Names of the layers being acquired.
+    pub fn layers(&self) -> &[String] {
+        &self.layers
+    }
+
+    /// The signal that stops this handler (e.g. from a SIGTERM handler).
+    pub fn stop_signal(&self) -> &Stop {
+        &self.stop
+    }
+
+    /// Blocks until the stop signal, then stops every layer and the driver.
+    pub fn run_until_stopped(self) {
+        while self.stop.sleep_until(u64::MAX) {}
+        self.stop();
+    }
+
+    /// Stops every writer thread, calls the driver's stop hook and, with
+    /// `unlink_on_stop`, removes the layers' channels.
+    pub fn stop(mut self) {
+        self.stop.stop();
+        for thread in self.writers.drain(..) {
+            let _ = thread.join();
+        }
+        if let Some(watchdog) = self.watchdog.take() {
+            let _ = watchdog.join();
+        }
+        self.driver.stop();
+    }
+}
+
+fn run_layer(
+    mut writer: Writer,
+    mut source: Box<dyn LayerSource>,
+    rt: RtOptions,
+    rate_hz: f64,
+    busy: Arc<AtomicU64>,
+) {
+    for refusal in rt.apply() {
+        tracing::warn!(layer = %writer.label(), "{refusal}");
+    }
+    let mut acquire = |frame: &mut FrameWriter<'_>| -> Result<(), String> {
+        busy.store(os::monotonic_ns(), Ordering::Relaxed);
+        let result = std::panic::catch_unwind(AssertUnwindSafe(|| source.acquire(frame)));
+        busy.store(0, Ordering::Relaxed);
+        match result {
+            Ok(Ok(())) => Ok(()),
+            Ok(Err(e)) => Err(e.to_string()),
+            Err(panic) => {
+                let message = panic
+                    .downcast_ref::<&str>()
+                    .map(|s| s.to_string())
+                    .or_else(|| panic.downcast_ref::<String>().cloned())
+                    .unwrap_or_else(|| "unknown panic".into());
+                Err(format!("driver panicked: {message}"))
+            }
+        }
+    };
+    let result = if rate_hz > 0.0 {
+        writer.run_periodic(Ticker::from_hz(rate_hz), &mut acquire)
+    } else {
+        writer.run_sporadic(&mut acquire)
+    };
+    if let Err(e) = result {
+        tracing::error!(layer = %writer.label(), error = %e, "writer stopped");
+        writer.set_state(WriterState::Faulted);
+    }
+}
+
+fn watch_layers(watches: Vec<LayerWatch>, stop: Stop) {
+    let tick = watches
+        .iter()
+        .map(|w| w.timeout_ns / 4)
+        .min()
+        .unwrap_or(100_000_000)
+        .clamp(1_000_000, 100_000_000);
+    let mut next = os::monotonic_ns();
+    loop {
+        next += tick;
+        if !stop.sleep_until(next) {
+            return;
+        }
+        let now = os::monotonic_ns();
+        for watch in &watches {
+            let since = watch.busy_since.load(Ordering::Relaxed);
+            if since != 0
+                && now.saturating_sub(since) > watch.timeout_ns
+                && watch.state.get() != WriterState::Faulted
+            {
+                tracing::warn!(layer = %watch.state.label(), "acquisition timed out; layer faulted");
+                watch.state.set(WriterState::Faulted);
+            }
+        }
+    }
+}
