@@ -1,1 +1,82 @@
-fn main() {}
+//! `skin`: run a skin (drivers under a supervisor) and look at it.
+
+#![forbid(unsafe_code)]
+
+mod commands;
+mod config;
+mod layers;
+
+use std::path::PathBuf;
+
+use clap::{Parser, Subcommand};
+
+/// Skinware: real-time acquisition of tactile data from large robot skins.
+#[derive(Parser)]
+#[command(name = "skin", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Start the drivers of CONFIG, each in its own supervised process.
+    Run {
+        /// The TOML configuration (see examples/).
+        config: PathBuf,
+    },
+    /// List the layers of a skin: patches, modules, sensors, state and rate.
+    Ls(commands::ls::Args),
+    /// Live per-layer rate, latency, overruns, faults and restarts.
+    Top(commands::top::Args),
+    /// Print a layer's frames, in any reader mode.
+    Echo(commands::echo::Args),
+    /// Remove the channels of dead writers.
+    Clean(commands::clean::Args),
+    /// Pull (or plug back) a virtual layer's cable, as a fault injection.
+    Pull(commands::pull::Args),
+    /// Run one driver of CONFIG in this process (what `skin run` starts).
+    #[command(hide = true)]
+    Driver {
+        /// The TOML configuration.
+        config: PathBuf,
+        /// The driver's name in it.
+        #[arg(long)]
+        name: String,
+    },
+}
+
+fn main() -> std::process::ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Run { config } => commands::run::run(&config),
+        Command::Ls(args) => commands::ls::run(&args),
+        Command::Top(args) => commands::top::run(&args),
+        Command::Echo(args) => commands::echo::run(&args),
+        Command::Clean(args) => commands::clean::run(&args),
+        Command::Pull(args) => commands::pull::run(&args),
+        Command::Driver { config, name } => commands::driver::run(&config, &name),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) if is_broken_pipe(&e) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("skin: error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn is_broken_pipe(error: &anyhow::Error) -> bool {
+    error.chain().any(|cause| {
+        cause
+            .downcast_ref::<std::io::Error>()
+            .is_some_and(|e| e.kind() == std::io::ErrorKind::BrokenPipe)
+    })
+}

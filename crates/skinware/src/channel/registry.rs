@@ -125,6 +125,12 @@ pub fn remove_stale_channels(dir: &Path, include_invalid: bool) -> Result<Vec<Pa
     Ok(removed)
 }
 
+/// Removes one segment if no live writer holds it (race-free against a writer
+/// reviving it). `Ok(false)` if a writer holds it or it is already gone.
+pub fn remove_channel_if_stale(path: &Path) -> Result<bool> {
+    remove_if_unowned(path)
+}
+
 fn remove_if_unowned(path: &Path) -> Result<bool> {
     let file = match File::options().read(true).write(true).open(path) {
         Ok(file) => file,

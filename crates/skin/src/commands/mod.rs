@@ -1,0 +1,9 @@
+//! One file per verb.
+
+pub mod clean;
+pub mod driver;
+pub mod echo;
+pub mod ls;
+pub mod pull;
+pub mod run;
+pub mod top;

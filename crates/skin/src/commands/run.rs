@@ -1,0 +1,164 @@
+//! `skin run CONFIG`: the supervisor. Each driver runs in its own process, so
+//! that a crash stays contained; a driver that exits is restarted with
+//! exponential backoff, and its layers are revived by the new process.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::process::{Child, Command};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+
+use crate::config::{Config, DriverConfig};
+
+struct Supervised {
+    config: DriverConfig,
+    child: Option<Child>,
+    started: Instant,
+    restart_at: Option<Instant>,
+    backoff_s: f64,
+    restarts: u32,
+}
+
+fn spawn_driver(config_path: &Path, name: &str) -> Result<Child> {
+    Command::new(std::env::current_exe().context("cannot find the skin executable")?)
+        .arg("driver")
+        .arg(config_path)
+        .arg("--name")
+        .arg(name)
+        .spawn()
+        .with_context(|| format!("cannot start driver {name}"))
+}
+
+/// Runs the supervisor until SIGINT or SIGTERM.
+pub fn run(config_path: &Path) -> Result<()> {
+    let config = Config::load(config_path)?;
+    let config_path = std::fs::canonicalize(config_path)?;
+    let shutdown = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, shutdown.clone())
+            .context("cannot install signal handlers")?;
+    }
+    let mut drivers = Vec::new();
+    for driver in &config.drivers {
+        let child = spawn_driver(&config_path, &driver.name)?;
+        tracing::info!(driver = %driver.name, pid = child.id(), "driver started");
+        drivers.push(Supervised {
+            config: driver.clone(),
+            child: Some(child),
+            started: Instant::now(),
+            restart_at: None,
+            backoff_s: driver.restart.min_backoff_s,
+            restarts: 0,
+        });
+    }
+    println!(
+        "skin {}: {} driver(s) running; Ctrl-C to stop",
+        config.skin,
+        drivers.len()
+    );
+    let mut layer_states: HashMap<String, &'static str> = HashMap::new();
+    let mut next_state_poll = Instant::now();
+    while !shutdown.load(Ordering::Relaxed) {
+        let now = Instant::now();
+        for driver in &mut drivers {
+            let name = &driver.config.name;
+            if let Some(child) = &mut driver.child {
+                if let Some(status) = child.try_wait()? {
+                    tracing::warn!(driver = %name, %status, backoff_s = driver.backoff_s, "driver exited; restarting");
+                    driver.child = None;
+                    driver.restart_at = Some(now + Duration::from_secs_f64(driver.backoff_s));
+                    driver.backoff_s =
+                        (driver.backoff_s * 2.0).min(driver.config.restart.max_backoff_s);
+                } else if now.duration_since(driver.started) > Duration::from_secs(30) {
+                    driver.backoff_s = driver.config.restart.min_backoff_s;
+                }
+            } else if driver.restart_at.is_some_and(|at| at <= now) {
+                match spawn_driver(&config_path, name) {
+                    Ok(child) => {
+                        driver.restarts += 1;
+                        tracing::info!(driver = %name, pid = child.id(), restarts = driver.restarts, "driver restarted");
+                        driver.child = Some(child);
+                        driver.started = now;
+                        driver.restart_at = None;
+                    }
+                    Err(e) => {
+                        tracing::error!(driver = %name, "{e:#}");
+                        driver.restart_at = Some(now + Duration::from_secs_f64(driver.backoff_s));
+                    }
+                }
+            }
+        }
+        if now >= next_state_poll {
+            next_state_poll = now + Duration::from_millis(100);
+            log_layer_changes(&config.skin, &mut layer_states);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+
+    tracing::info!("shutting down");
+    for driver in &drivers {
+        if let Some(child) = &driver.child {
+            if let Some(pid) = rustix::process::Pid::from_raw(child.id() as i32) {
+                let _ = rustix::process::kill_process(pid, rustix::process::Signal::TERM);
+            }
+        }
+    }
+    let deadline = Instant::now() + Duration::from_secs(5);
+    for driver in &mut drivers {
+        if let Some(child) = &mut driver.child {
+            while child.try_wait()?.is_none() {
+                if Instant::now() > deadline {
+                    tracing::warn!(driver = %driver.config.name, "driver did not stop in 5 s; killing it");
+                    let _ = child.kill();
+                    let _ = child.wait();
+                    break;
+                }
+                std::thread::sleep(Duration::from_millis(10));
+            }
+        }
+    }
+    remove_skin_channels(&config)?;
+    println!("skin {}: stopped, channels removed", config.skin);
+    Ok(())
+}
+
+fn log_layer_changes(skin: &str, states: &mut HashMap<String, &'static str>) {
+    let Ok(channels) = skinware::list_channels(&skinware::shm::segment_dir()) else {
+        return;
+    };
+    for channel in channels.into_iter().filter(|c| c.skin == skin) {
+        let state = channel.state.as_str();
+        let previous = states.insert(channel.channel.clone(), state);
+        if previous != Some(state) {
+            tracing::info!(layer = %channel.channel, from = previous.unwrap_or("absent"), to = state, "layer state");
+        }
+    }
+}
+
+/// Removes the channels of this skin (their writers are stopped) and its
+/// cable-pull control files.
+fn remove_skin_channels(config: &Config) -> Result<()> {
+    let dir = skinware::shm::segment_dir();
+    for channel in skinware::list_channels(&dir)?
+        .into_iter()
+        .filter(|c| c.skin == config.skin)
+    {
+        if !skinware::remove_channel_if_stale(&channel.path)? {
+            tracing::warn!(channel = %channel.path.display(), "still has a live writer; left in place");
+        }
+    }
+    for driver in &config.drivers {
+        if let Ok(built) = driver.build(&config.skin) {
+            for spec in skinware::Driver::layers(&built) {
+                let _ = std::fs::remove_file(crate::config::pull_file(
+                    &config.skin,
+                    &spec.topology.name,
+                ));
+            }
+        }
+    }
+    Ok(())
+}

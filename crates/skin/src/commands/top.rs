@@ -1,0 +1,72 @@
+//! `skin top`: live per-layer statistics.
+
+use std::io::Write;
+use std::time::Duration;
+
+use anyhow::Result;
+
+/// Arguments of `skin top`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Only this skin.
+    #[arg(long)]
+    skin: Option<String>,
+    /// Print one sample and exit.
+    #[arg(long)]
+    once: bool,
+    /// Print JSON for scripts (one document per sample).
+    #[arg(long)]
+    json: bool,
+    /// Seconds between samples.
+    #[arg(long, default_value_t = 1.0)]
+    interval: f64,
+}
+
+/// Runs `skin top`.
+pub fn run(args: &Args) -> Result<()> {
+    let window = Duration::from_secs_f64(args.interval.clamp(0.05, 3600.0));
+    loop {
+        let layers = crate::layers::gather(args.skin.as_deref(), window)?;
+        let mut out = std::io::stdout().lock();
+        if args.json {
+            serde_json::to_writer(&mut out, &serde_json::json!({ "layers": layers }))?;
+            writeln!(out)?;
+        } else {
+            if !args.once {
+                write!(out, "\x1b[2J\x1b[H")?;
+            }
+            writeln!(
+                out,
+                "{:<24} {:<8} {:>8} {:>9} {:>10} {:>10} {:>9} {:>7} {:>8}",
+                "LAYER",
+                "STATE",
+                "SENSORS",
+                "RATE Hz",
+                "WRITE us",
+                "WORST us",
+                "OVERRUNS",
+                "FAULTS",
+                "RESTARTS"
+            )?;
+            for l in &layers {
+                writeln!(
+                    out,
+                    "{:<24} {:<8} {:>8} {:>9.1} {:>10.1} {:>10.1} {:>9} {:>7} {:>8}",
+                    format!("{}/{}", l.skin, l.name),
+                    l.state,
+                    l.sensors,
+                    l.rate_hz,
+                    l.write_ns_mean as f64 / 1e3,
+                    l.write_ns_max as f64 / 1e3,
+                    l.overruns,
+                    l.faults,
+                    l.restarts
+                )?;
+            }
+        }
+        out.flush()?;
+        if args.once {
+            return Ok(());
+        }
+    }
+}

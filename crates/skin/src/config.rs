@@ -1,0 +1,257 @@
+//! The TOML configuration of `skin run`. See `examples/README.md` for the format.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use serde::Deserialize;
+use skinware_drivers::{CablePull, Rate, VirtualSkin, VirtualSkinConfig};
+
+/// A whole configuration file.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    /// Skin name: the prefix of every channel.
+    #[serde(default = "default_skin")]
+    pub skin: String,
+    /// Create channels readable by the group too.
+    #[serde(default)]
+    pub group_access: bool,
+    /// Drivers, each run in its own process.
+    #[serde(rename = "driver", default)]
+    pub drivers: Vec<DriverConfig>,
+}
+
+fn default_skin() -> String {
+    "default".into()
+}
+
+/// The kinds of driver.
+#[derive(Debug, Deserialize, Clone, Copy, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum DriverKind {
+    /// The virtual skin.
+    Virtual,
+}
+
+/// Real-time settings of a driver's writer threads.
+#[derive(Debug, Deserialize, Default, Clone)]
+#[serde(deny_unknown_fields)]
+pub struct RtConfig {
+    pub fifo_priority: Option<u8>,
+    #[serde(default)]
+    pub lock_memory: bool,
+    #[serde(default)]
+    pub cpus: Vec<usize>,
+}
+
+/// Restart policy of a driver process.
+#[derive(Debug, Deserialize, Clone)]
+#[serde(deny_unknown_fields)]
+pub struct RestartConfig {
+    pub min_backoff_s: f64,
+    pub max_backoff_s: f64,
+}
+
+impl Default for RestartConfig {
+    fn default() -> Self {
+        RestartConfig {
+            min_backoff_s: 0.2,
+            max_backoff_s: 5.0,
+        }
+    }
+}
+
+/// One `[[driver]]` table.
+#[derive(Debug, Deserialize, Clone)]
+#[serde(deny_unknown_fields)]
+pub struct DriverConfig {
+    pub name: String,
+    pub kind: DriverKind,
+    #[serde(default)]
+    pub rt: RtConfig,
+    #[serde(default)]
+    pub restart: RestartConfig,
+    /// Frame buffers per layer channel.
+    #[serde(default = "default_slots")]
+    pub slots: usize,
+    // Virtual skin parameters.
+    pub sensors: Option<usize>,
+    pub layers: Option<usize>,
+    pub sensors_per_module: Option<usize>,
+    pub modules_per_patch: Option<[usize; 2]>,
+    pub rate_hz: Option<Rate>,
+    pub seed: Option<u64>,
+    #[serde(default, rename = "cable_pull")]
+    pub cable_pulls: Vec<CablePull>,
+}
+
+fn default_slots() -> usize {
+    skinware::DEFAULT_SLOTS
+}
+
+/// The file whose existence pulls the cable of `layer` (see `skin pull`).
+pub fn pull_file(skin: &str, layer: &str) -> PathBuf {
+    skinware::shm::segment_dir().join(format!("skinware-ctl.{skin}.{layer}.pulled"))
+}
+
+impl Config {
+    /// Reads and checks a configuration file: syntax errors come with
+    /// file:line:column, and every driver is built once to check its topology.
+    pub fn load(path: &Path) -> Result<Config> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read config {}", path.display()))?;
+        let config: Config = toml::from_str(&text).map_err(|e| {
+            let (line, column) = e
+                .span()
+                .map(|span| line_column(&text, span.start))
+                .unwrap_or((1, 1));
+            anyhow::anyhow!("{}:{line}:{column}: {}", path.display(), e.message())
+        })?;
+        skinware::shm::validate_name("skin", &config.skin)
+            .with_context(|| format!("{}: `skin`", path.display()))?;
+        if config.drivers.is_empty() {
+            bail!(
+                "{}: no [[driver]] table; add at least one driver (see examples/)",
+                path.display()
+            );
+        }
+        let mut names = std::collections::HashSet::new();
+        for driver in &config.drivers {
+            if !names.insert(&driver.name) {
+                bail!(
+                    "{}: driver name {:?} is used twice; driver names must be unique",
+                    path.display(),
+                    driver.name
+                );
+            }
+            driver
+                .build(&config.skin)
+                .with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
+        }
+        Ok(config)
+    }
+
+    /// The driver called `name`.
+    pub fn driver(&self, name: &str) -> Result<&DriverConfig> {
+        self.drivers
+            .iter()
+            .find(|d| d.name == name)
+            .with_context(|| format!("no driver {name:?} in the config"))
+    }
+}
+
+fn line_column(text: &str, offset: usize) -> (usize, usize) {
+    let before = &text[..offset.min(text.len())];
+    let line = before.matches('\n').count() + 1;
+    let column = before
+        .rfind('\n')
+        .map_or(before.len(), |nl| before.len() - nl - 1)
+        + 1;
+    (line, column)
+}
+
+impl DriverConfig {
+    /// Builds the driver this table describes.
+    pub fn build(&self, skin: &str) -> Result<VirtualSkin> {
+        skinware::shm::validate_name("driver", &self.name)?;
+        match self.kind {
+            DriverKind::Virtual => {
+                let defaults = VirtualSkinConfig::default();
+                let layers = self.layers.unwrap_or(defaults.layers);
+                let mut config = VirtualSkinConfig {
+                    name: self.name.clone(),
+                    sensors: self.sensors.unwrap_or(defaults.sensors),
+                    layers,
+                    sensors_per_module: self
+                        .sensors_per_module
+                        .unwrap_or(defaults.sensors_per_module),
+                    modules_per_patch: self
+                        .modules_per_patch
+                        .map(|[a, b]| (a, b))
+                        .unwrap_or(defaults.modules_per_patch),
+                    rate: self.rate_hz.clone().unwrap_or(defaults.rate),
+                    seed: self.seed.unwrap_or(defaults.seed),
+                    cable_pulls: self.cable_pulls.clone(),
+                    pull_files: None,
+                    rt: skinware::RtOptions {
+                        fifo_priority: self.rt.fifo_priority,
+                        lock_memory: self.rt.lock_memory,
+                        cpus: self.rt.cpus.clone(),
+                    },
+                };
+                config.pull_files = Some(
+                    config
+                        .layer_names()
+                        .iter()
+                        .map(|layer| pull_file(skin, layer))
+                        .collect(),
+                );
+                VirtualSkin::new(config).map_err(|e| anyhow::anyhow!(e))
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn load(text: &str) -> Result<Config> {
+        let path = std::env::temp_dir().join(format!(
+            "skin-config-test-{}-{}.toml",
+            std::process::id(),
+            text.len()
+        ));
+        std::fs::write(&path, text).unwrap();
+        let result = Config::load(&path);
+        let _ = std::fs::remove_file(&path);
+        result
+    }
+
+    #[test]
+    fn syntax_errors_name_line_and_column() {
+        let err =
+            load("skin = \"a\"\n[[driver]]\nname = \"v\"\nkind = \"virtual\"\nlayers = \"two\"\n")
+                .unwrap_err();
+        let message = format!("{err:#}");
+        assert!(message.contains(":5:10:"), "{message}");
+        assert!(message.contains("invalid type"), "{message}");
+    }
+
+    #[test]
+    fn unknown_keys_are_rejected() {
+        let err = load("[[driver]]\nname = \"v\"\nkind = \"virtual\"\nlayerz = 2\n").unwrap_err();
+        let message = format!("{err:#}");
+        assert!(
+            message.contains(":4:1:") && message.contains("unknown field `layerz`"),
+            "{message}"
+        );
+    }
+
+    #[test]
+    fn inconsistent_parameters_are_rejected() {
+        let err = load("[[driver]]\nname = \"v\"\nkind = \"virtual\"\nsensors = 3\nlayers = 5\n")
+            .unwrap_err();
+        assert!(
+            format!("{err:#}").contains("3 sensors cannot be split over 5 layers"),
+            "{err:#}"
+        );
+        let err = load("[[driver]]\nname = \"v\"\nkind = \"virtual\"\n[[driver.cable_pull]]\nlayer = \"v-9\"\nat_s = 1\nduration_s = 1\n")
+            .unwrap_err();
+        assert!(format!("{err:#}").contains("v-9"), "{err:#}");
+    }
+
+    #[test]
+    fn example_configs_load() {
+        let examples = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples");
+        let mut loaded = 0;
+        for entry in std::fs::read_dir(&examples).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "toml") {
+                Config::load(&path).unwrap_or_else(|e| panic!("{}: {e:#}", path.display()));
+                loaded += 1;
+            }
+        }
+        assert!(loaded >= 2);
+    }
+}

@@ -1,0 +1,112 @@
+//! What `ls` and `top` show of a layer, gathered from its channel.
+
+use std::time::Duration;
+
+use anyhow::Result;
+use serde::Serialize;
+use skinware::{ChannelKind, Reader, ReaderOptions, WriterStats};
+
+/// One layer as the CLI reports it.
+#[derive(Debug, Serialize)]
+pub struct LayerReport {
+    pub skin: String,
+    pub name: String,
+    pub state: &'static str,
+    pub sensor_type: String,
+    pub sensors: usize,
+    pub modules: usize,
+    pub patches: usize,
+    /// Measured over the sampling window.
+    pub rate_hz: f64,
+    pub nominal_rate_hz: f64,
+    pub frames: u64,
+    pub overruns: u64,
+    pub faults: u64,
+    pub restarts: u64,
+    pub writer_pid: u32,
+    pub write_ns_mean: u64,
+    pub write_ns_max: u64,
+    /// Publish time minus acquisition time of the newest frame.
+    pub latency_ns: u64,
+    #[serde(skip)]
+    pub tree: Vec<(u32, Vec<(u32, usize)>)>,
+}
+
+/// Opens every layer channel of `skin` (or of all skins) and measures their
+/// rates over `window`.
+pub fn gather(skin: Option<&str>, window: Duration) -> Result<Vec<LayerReport>> {
+    let channels = skinware::list_channels(&skinware::shm::segment_dir())?;
+    let mut readers = Vec::new();
+    for info in channels {
+        if skin.is_some_and(|s| s != info.skin) || info.kind != Some(ChannelKind::Layer) {
+            continue;
+        }
+        let options = ReaderOptions {
+            allow_gone: true,
+            ..ReaderOptions::default()
+        };
+        if let Ok(reader) = Reader::open_with(&info.skin, &info.channel, &options) {
+            let before = reader.writer_stats().frames;
+            readers.push((info, reader, before));
+        }
+    }
+    let started = std::time::Instant::now();
+    std::thread::sleep(window);
+    let elapsed = started.elapsed().as_secs_f64();
+    let mut reports = Vec::new();
+    for (info, mut reader, before) in readers {
+        let stats: WriterStats = reader.writer_stats();
+        let topology = reader.topology().ok();
+        let latency_ns = reader
+            .latest()
+            .map(|f| f.published_ns().saturating_sub(f.acquired_ns()))
+            .unwrap_or(0);
+        let state = reader.writer_state();
+        let rate_hz = if state == skinware::WriterState::Gone {
+            0.0
+        } else {
+            (stats.frames - before) as f64 / elapsed
+        };
+        let tree = topology
+            .as_ref()
+            .map(|t| {
+                t.patches
+                    .iter()
+                    .map(|p| {
+                        (
+                            p.id,
+                            t.modules[p.modules.clone()]
+                                .iter()
+                                .map(|m| (m.id, m.sensors.len()))
+                                .collect(),
+                        )
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        reports.push(LayerReport {
+            skin: info.skin,
+            name: info.channel,
+            state: state.as_str(),
+            sensor_type: topology
+                .as_ref()
+                .map(|t| t.sensor_type.clone())
+                .unwrap_or_default(),
+            sensors: topology.as_ref().map_or(0, |t| t.sensors.len()),
+            modules: topology.as_ref().map_or(0, |t| t.modules.len()),
+            patches: topology.as_ref().map_or(0, |t| t.patches.len()),
+            rate_hz: (rate_hz * 10.0).round() / 10.0,
+            nominal_rate_hz: topology.as_ref().map_or(0.0, |t| t.rate_hz),
+            frames: stats.frames,
+            overruns: stats.overruns,
+            faults: stats.faults,
+            restarts: reader.writer_generation().saturating_sub(1),
+            writer_pid: reader.writer_pid(),
+            write_ns_mean: stats.write_ns_mean,
+            write_ns_max: stats.write_ns_max,
+            latency_ns,
+            tree,
+        });
+    }
+    Ok(reports)
+}
