@@ -67,7 +67,7 @@ pub enum HandlerError {
         layer: String,
         /// The channel error.
         #[source]
-        source: Error,
+        source: Box<Error>,
     },
     /// The driver's start hook failed.
     #[error("driver {driver} failed to start: {source}")]

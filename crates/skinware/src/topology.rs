@@ -112,13 +112,16 @@ pub enum TopologyError {
     },
 }
 
+/// A patch being built: its id and its modules (id, sensor uids).
+type PatchDraft = (u32, Vec<(u32, Vec<u32>)>);
+
 /// A topology under construction: patches of modules of sensor uids.
 #[derive(Clone, Debug, Default)]
 pub struct TopologyBuilder {
     name: String,
     sensor_type: String,
     rate_hz: f64,
-    patches: Vec<(u32, Vec<(u32, Vec<u32>)>)>,
+    patches: Vec<PatchDraft>,
 }
 
 impl TopologyBuilder {
