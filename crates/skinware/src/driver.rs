@@ -168,7 +168,7 @@ impl DriverHandler {
             .map_err(|source| HandlerError::Channel {
                 driver: name.clone(),
                 layer: topology.name.clone(),
-                source,
+                source: Box::new(source),
             })?;
             writers.push(writer);
         }
