@@ -54,10 +54,7 @@ pub struct RestartConfig {
 
 impl Default for RestartConfig {
     fn default() -> Self {
-        RestartConfig {
-            min_backoff_s: 0.2,
-            max_backoff_s: 5.0,
-        }
+        RestartConfig { min_backoff_s: 0.2, max_backoff_s: 5.0 }
     }
 }
 
@@ -98,55 +95,35 @@ impl Config {
     /// Reads and checks a configuration file: syntax errors come with
     /// file:line:column, and every driver is built once to check its topology.
     pub fn load(path: &Path) -> Result<Config> {
-        let text = std::fs::read_to_string(path)
-            .with_context(|| format!("cannot read config {}", path.display()))?;
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read config {}", path.display()))?;
         let config: Config = toml::from_str(&text).map_err(|e| {
-            let (line, column) = e
-                .span()
-                .map(|span| line_column(&text, span.start))
-                .unwrap_or((1, 1));
+            let (line, column) = e.span().map(|span| line_column(&text, span.start)).unwrap_or((1, 1));
             anyhow::anyhow!("{}:{line}:{column}: {}", path.display(), e.message())
         })?;
-        skinware::shm::validate_name("skin", &config.skin)
-            .with_context(|| format!("{}: `skin`", path.display()))?;
+        skinware::shm::validate_name("skin", &config.skin).with_context(|| format!("{}: `skin`", path.display()))?;
         if config.drivers.is_empty() {
-            bail!(
-                "{}: no [[driver]] table; add at least one driver (see examples/)",
-                path.display()
-            );
+            bail!("{}: no [[driver]] table; add at least one driver (see examples/)", path.display());
         }
         let mut names = std::collections::HashSet::new();
         for driver in &config.drivers {
             if !names.insert(&driver.name) {
-                bail!(
-                    "{}: driver name {:?} is used twice; driver names must be unique",
-                    path.display(),
-                    driver.name
-                );
+                bail!("{}: driver name {:?} is used twice; driver names must be unique", path.display(), driver.name);
             }
-            driver
-                .build(&config.skin)
-                .with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
+            driver.build(&config.skin).with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
         }
         Ok(config)
     }
 
     /// The driver called `name`.
     pub fn driver(&self, name: &str) -> Result<&DriverConfig> {
-        self.drivers
-            .iter()
-            .find(|d| d.name == name)
-            .with_context(|| format!("no driver {name:?} in the config"))
+        self.drivers.iter().find(|d| d.name == name).with_context(|| format!("no driver {name:?} in the config"))
     }
 }
 
 fn line_column(text: &str, offset: usize) -> (usize, usize) {
     let before = &text[..offset.min(text.len())];
     let line = before.matches('\n').count() + 1;
-    let column = before
-        .rfind('\n')
-        .map_or(before.len(), |nl| before.len() - nl - 1)
-        + 1;
+    let column = before.rfind('\n').map_or(before.len(), |nl| before.len() - nl - 1) + 1;
     (line, column)
 }
 
@@ -162,9 +139,7 @@ impl DriverConfig {
                     name: self.name.clone(),
                     sensors: self.sensors.unwrap_or(defaults.sensors),
                     layers,
-                    sensors_per_module: self
-                        .sensors_per_module
-                        .unwrap_or(defaults.sensors_per_module),
+                    sensors_per_module: self.sensors_per_module.unwrap_or(defaults.sensors_per_module),
                     modules_per_patch: self
                         .modules_per_patch
                         .map(|[a, b]| (a, b))
@@ -179,13 +154,7 @@ impl DriverConfig {
                         cpus: self.rt.cpus.clone(),
                     },
                 };
-                config.pull_files = Some(
-                    config
-                        .layer_names()
-                        .iter()
-                        .map(|layer| pull_file(skin, layer))
-                        .collect(),
-                );
+                config.pull_files = Some(config.layer_names().iter().map(|layer| pull_file(skin, layer)).collect());
                 VirtualSkin::new(config).map_err(|e| anyhow::anyhow!(e))
             }
         }
@@ -197,11 +166,7 @@ mod tests {
     use super::*;
 
     fn load(text: &str) -> Result<Config> {
-        let path = std::env::temp_dir().join(format!(
-            "skin-config-test-{}-{}.toml",
-            std::process::id(),
-            text.len()
-        ));
+        let path = std::env::temp_dir().join(format!("skin-config-test-{}-{}.toml", std::process::id(), text.len()));
         std::fs::write(&path, text).unwrap();
         let result = Config::load(&path);
         let _ = std::fs::remove_file(&path);
@@ -210,9 +175,7 @@ mod tests {
 
     #[test]
     fn syntax_errors_name_line_and_column() {
-        let err =
-            load("skin = \"a\"\n[[driver]]\nname = \"v\"\nkind = \"virtual\"\nlayers = \"two\"\n")
-                .unwrap_err();
+        let err = load("skin = \"a\"\n[[driver]]\nname = \"v\"\nkind = \"virtual\"\nlayers = \"two\"\n").unwrap_err();
         let message = format!("{err:#}");
         assert!(message.contains(":5:10:"), "{message}");
         assert!(message.contains("invalid type"), "{message}");
@@ -222,20 +185,13 @@ mod tests {
     fn unknown_keys_are_rejected() {
         let err = load("[[driver]]\nname = \"v\"\nkind = \"virtual\"\nlayerz = 2\n").unwrap_err();
         let message = format!("{err:#}");
-        assert!(
-            message.contains(":4:1:") && message.contains("unknown field `layerz`"),
-            "{message}"
-        );
+        assert!(message.contains(":4:1:") && message.contains("unknown field `layerz`"), "{message}");
     }
 
     #[test]
     fn inconsistent_parameters_are_rejected() {
-        let err = load("[[driver]]\nname = \"v\"\nkind = \"virtual\"\nsensors = 3\nlayers = 5\n")
-            .unwrap_err();
-        assert!(
-            format!("{err:#}").contains("3 sensors cannot be split over 5 layers"),
-            "{err:#}"
-        );
+        let err = load("[[driver]]\nname = \"v\"\nkind = \"virtual\"\nsensors = 3\nlayers = 5\n").unwrap_err();
+        assert!(format!("{err:#}").contains("3 sensors cannot be split over 5 layers"), "{err:#}");
         let err = load("[[driver]]\nname = \"v\"\nkind = \"virtual\"\n[[driver.cable_pull]]\nlayer = \"v-9\"\nat_s = 1\nduration_s = 1\n")
             .unwrap_err();
         assert!(format!("{err:#}").contains("v-9"), "{err:#}");

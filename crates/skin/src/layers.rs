@@ -41,10 +41,7 @@ pub fn gather(skin: Option<&str>, window: Duration) -> Result<Vec<LayerReport>> 
         if skin.is_some_and(|s| s != info.skin) || info.kind != Some(ChannelKind::Layer) {
             continue;
         }
-        let options = ReaderOptions {
-            allow_gone: true,
-            ..ReaderOptions::default()
-        };
+        let options = ReaderOptions { allow_gone: true, ..ReaderOptions::default() };
         if let Ok(reader) = Reader::open_with(&info.skin, &info.channel, &options) {
             let before = reader.writer_stats().frames;
             readers.push((info, reader, before));
@@ -57,30 +54,15 @@ pub fn gather(skin: Option<&str>, window: Duration) -> Result<Vec<LayerReport>> 
     for (info, mut reader, before) in readers {
         let stats: WriterStats = reader.writer_stats();
         let topology = reader.topology().ok();
-        let latency_ns = reader
-            .latest()
-            .map(|f| f.published_ns().saturating_sub(f.acquired_ns()))
-            .unwrap_or(0);
+        let latency_ns = reader.latest().map(|f| f.published_ns().saturating_sub(f.acquired_ns())).unwrap_or(0);
         let state = reader.writer_state();
-        let rate_hz = if state == skinware::WriterState::Gone {
-            0.0
-        } else {
-            (stats.frames - before) as f64 / elapsed
-        };
+        let rate_hz = if state == skinware::WriterState::Gone { 0.0 } else { (stats.frames - before) as f64 / elapsed };
         let tree = topology
             .as_ref()
             .map(|t| {
                 t.patches
                     .iter()
-                    .map(|p| {
-                        (
-                            p.id,
-                            t.modules[p.modules.clone()]
-                                .iter()
-                                .map(|m| (m.id, m.sensors.len()))
-                                .collect(),
-                        )
-                    })
+                    .map(|p| (p.id, t.modules[p.modules.clone()].iter().map(|m| (m.id, m.sensors.len())).collect()))
                     .collect()
             })
             .unwrap_or_default();
@@ -88,10 +70,7 @@ pub fn gather(skin: Option<&str>, window: Duration) -> Result<Vec<LayerReport>> 
             skin: info.skin,
             name: info.channel,
             state: state.as_str(),
-            sensor_type: topology
-                .as_ref()
-                .map(|t| t.sensor_type.clone())
-                .unwrap_or_default(),
+            sensor_type: topology.as_ref().map(|t| t.sensor_type.clone()).unwrap_or_default(),
             sensors: topology.as_ref().map_or(0, |t| t.sensors.len()),
             modules: topology.as_ref().map_or(0, |t| t.modules.len()),
             patches: topology.as_ref().map_or(0, |t| t.patches.len()),

@@ -85,9 +85,7 @@ impl Default for VirtualSkinConfig {
             layers: 1,
             sensors_per_module: 12,
             modules_per_patch: (4, 16),
-            rate: Rate::Random {
-                random: [30.0, 50.0],
-            },
+            rate: Rate::Random { random: [30.0, 50.0] },
             seed: 1,
             cable_pulls: Vec::new(),
             pull_files: None,
@@ -110,18 +108,14 @@ impl VirtualSkinConfig {
         }
         let (min, max) = self.modules_per_patch;
         if min == 0 || min > max {
-            return Err(format!(
-                "modules_per_patch [{min}, {max}] must be a range with 1 <= min <= max"
-            ));
+            return Err(format!("modules_per_patch [{min}, {max}] must be a range with 1 <= min <= max"));
         }
         let rates = match &self.rate {
             Rate::Fixed(hz) => [*hz, *hz],
             Rate::Random { random } => *random,
         };
         if !(rates[0] > 0.0 && rates[0] <= rates[1] && rates[1] <= 100_000.0) {
-            return Err(format!(
-                "rate {rates:?} Hz must be positive, min <= max, at most 100 kHz"
-            ));
+            return Err(format!("rate {rates:?} Hz must be positive, min <= max, at most 100 kHz"));
         }
         for pull in &self.cable_pulls {
             if !self.layer_names().contains(&pull.layer) {
@@ -137,9 +131,7 @@ impl VirtualSkinConfig {
 
     /// The layer names: `NAME-0 .. NAME-(L-1)`.
     pub fn layer_names(&self) -> Vec<String> {
-        (0..self.layers)
-            .map(|l| format!("{}-{l}", self.name))
-            .collect()
+        (0..self.layers).map(|l| format!("{}-{l}", self.name)).collect()
     }
 }
 
@@ -173,60 +165,15 @@ struct BodyPart {
 }
 
 const BODY: [BodyPart; 9] = [
-    BodyPart {
-        name: "torso",
-        base: [0.0, 0.0, 0.9],
-        radius: 0.16,
-        height: 0.55,
-    },
-    BodyPart {
-        name: "left_upper_arm",
-        base: [0.24, 0.0, 1.15],
-        radius: 0.05,
-        height: 0.3,
-    },
-    BodyPart {
-        name: "right_upper_arm",
-        base: [-0.24, 0.0, 1.15],
-        radius: 0.05,
-        height: 0.3,
-    },
-    BodyPart {
-        name: "left_forearm",
-        base: [0.24, 0.0, 0.85],
-        radius: 0.042,
-        height: 0.28,
-    },
-    BodyPart {
-        name: "right_forearm",
-        base: [-0.24, 0.0, 0.85],
-        radius: 0.042,
-        height: 0.28,
-    },
-    BodyPart {
-        name: "left_thigh",
-        base: [0.09, 0.0, 0.45],
-        radius: 0.075,
-        height: 0.42,
-    },
-    BodyPart {
-        name: "right_thigh",
-        base: [-0.09, 0.0, 0.45],
-        radius: 0.075,
-        height: 0.42,
-    },
-    BodyPart {
-        name: "left_shin",
-        base: [0.09, 0.0, 0.05],
-        radius: 0.055,
-        height: 0.38,
-    },
-    BodyPart {
-        name: "right_shin",
-        base: [-0.09, 0.0, 0.05],
-        radius: 0.055,
-        height: 0.38,
-    },
+    BodyPart { name: "torso", base: [0.0, 0.0, 0.9], radius: 0.16, height: 0.55 },
+    BodyPart { name: "left_upper_arm", base: [0.24, 0.0, 1.15], radius: 0.05, height: 0.3 },
+    BodyPart { name: "right_upper_arm", base: [-0.24, 0.0, 1.15], radius: 0.05, height: 0.3 },
+    BodyPart { name: "left_forearm", base: [0.24, 0.0, 0.85], radius: 0.042, height: 0.28 },
+    BodyPart { name: "right_forearm", base: [-0.24, 0.0, 0.85], radius: 0.042, height: 0.28 },
+    BodyPart { name: "left_thigh", base: [0.09, 0.0, 0.45], radius: 0.075, height: 0.42 },
+    BodyPart { name: "right_thigh", base: [-0.09, 0.0, 0.45], radius: 0.075, height: 0.42 },
+    BodyPart { name: "left_shin", base: [0.09, 0.0, 0.05], radius: 0.055, height: 0.38 },
+    BodyPart { name: "right_shin", base: [-0.09, 0.0, 0.05], radius: 0.055, height: 0.38 },
 ];
 
 /// Where one sensor sits: its body part and surface coordinates.
@@ -255,27 +202,19 @@ impl VirtualBody {
     /// Spreads `sensors` over the body parts in proportion to their area, on
     /// a grid of rows and columns per part.
     pub fn new(sensors: usize) -> VirtualBody {
-        let areas: Vec<f64> = BODY
-            .iter()
-            .map(|p| 2.0 * std::f64::consts::PI * p.radius * p.height)
-            .collect();
+        let areas: Vec<f64> = BODY.iter().map(|p| 2.0 * std::f64::consts::PI * p.radius * p.height).collect();
         let total: f64 = areas.iter().sum();
-        let mut counts: Vec<usize> = areas
-            .iter()
-            .map(|a| (a / total * sensors as f64).floor() as usize)
-            .collect();
+        let mut counts: Vec<usize> = areas.iter().map(|a| (a / total * sensors as f64).floor() as usize).collect();
         let assigned: usize = counts.iter().sum();
         counts[0] += sensors - assigned;
         let mut places = Vec::with_capacity(sensors);
         for (part_index, (part, &count)) in BODY.iter().zip(&counts).enumerate() {
             let circumference = 2.0 * std::f64::consts::PI * part.radius;
-            let columns =
-                ((count as f64 * circumference / part.height).sqrt().round() as usize).max(1);
+            let columns = ((count as f64 * circumference / part.height).sqrt().round() as usize).max(1);
             let rows = count.div_ceil(columns).max(1);
             for k in 0..count {
                 let (row, column) = (k / columns, k % columns);
-                let angle = (column as f64 + 0.5 * (row % 2) as f64) / columns as f64
-                    * std::f64::consts::TAU;
+                let angle = (column as f64 + 0.5 * (row % 2) as f64) / columns as f64 * std::f64::consts::TAU;
                 let height = (row as f64 + 0.5) / rows as f64 * part.height;
                 let normal = [angle.cos(), angle.sin(), 0.0];
                 let position = [
@@ -283,13 +222,7 @@ impl VirtualBody {
                     part.base[1] + part.radius * normal[1],
                     part.base[2] + height,
                 ];
-                places.push(SensorPlace {
-                    part: part_index,
-                    angle,
-                    height,
-                    position,
-                    normal,
-                });
+                places.push(SensorPlace { part: part_index, angle, height, position, normal });
             }
         }
         VirtualBody { places }
@@ -428,17 +361,9 @@ impl VirtualSkin {
                 }
             }
             let topology = builder.build().map_err(|e| e.to_string())?;
-            layers.push(LayerSpec {
-                topology,
-                rt: config.rt.clone(),
-            });
+            layers.push(LayerSpec { topology, rt: config.rt.clone() });
         }
-        Ok(VirtualSkin {
-            config,
-            body,
-            layers,
-            first_sensor,
-        })
+        Ok(VirtualSkin { config, body, layers, first_sensor })
     }
 
     /// The simulated body (positions and normals of every sensor, in global order).
@@ -463,13 +388,7 @@ impl Driver for VirtualSkin {
         for (l, spec) in self.layers.iter().enumerate() {
             let first = self.first_sensor[l];
             let count = spec.topology.sensors.len();
-            let pulls = self
-                .config
-                .cable_pulls
-                .iter()
-                .filter(|p| p.layer == spec.topology.name)
-                .cloned()
-                .collect();
+            let pulls = self.config.cable_pulls.iter().filter(|p| p.layer == spec.topology.name).cloned().collect();
             sources.push(Box::new(VirtualLayer {
                 name: spec.topology.name.clone(),
                 body: self.body.clone(),
@@ -477,11 +396,7 @@ impl Driver for VirtualSkin {
                 sensors: first..first + count,
                 started,
                 pulls,
-                pull_file: self
-                    .config
-                    .pull_files
-                    .as_ref()
-                    .and_then(|files| files.get(l).cloned()),
+                pull_file: self.config.pull_files.as_ref().and_then(|files| files.get(l).cloned()),
                 pull_file_seen: (Instant::now(), false),
                 noise: SplitMix(self.config.seed ^ (l as u64 + 1).wrapping_mul(0x5851_F42D)),
                 responses: vec![0; count],
@@ -545,8 +460,7 @@ impl LayerSource for VirtualLayer {
                 }
                 let arc = dangle * radius;
                 let d2 = arc * arc + (place.height - height).powi(2);
-                let pressure =
-                    blob.peak * amplitude * (-d2 / (2.0 * blob.sigma * blob.sigma)).exp();
+                let pressure = blob.peak * amplitude * (-d2 / (2.0 * blob.sigma * blob.sigma)).exp();
                 *response = (f64::from(*response) + pressure).min(f64::from(u16::MAX)) as u16;
             }
         }
@@ -565,40 +479,20 @@ mod tests {
 
     #[test]
     fn default_skin_matches_the_paper() {
-        let skin = VirtualSkin::new(VirtualSkinConfig {
-            layers: 5,
-            ..VirtualSkinConfig::default()
-        })
-        .unwrap();
+        let skin = VirtualSkin::new(VirtualSkinConfig { layers: 5, ..VirtualSkinConfig::default() }).unwrap();
         let layers = skin.layers();
-        assert_eq!(
-            layers
-                .iter()
-                .map(|l| l.topology.sensors.len())
-                .sum::<usize>(),
-            30_848
-        );
+        assert_eq!(layers.iter().map(|l| l.topology.sensors.len()).sum::<usize>(), 30_848);
         for layer in &layers {
             let topology = &layer.topology;
-            assert!(
-                (30.0..=50.0).contains(&topology.rate_hz),
-                "{}",
-                topology.rate_hz
-            );
+            assert!((30.0..=50.0).contains(&topology.rate_hz), "{}", topology.rate_hz);
             assert!(topology.modules.iter().all(|m| m.sensors.len() <= 12));
             // All patches but a layer's last have 4..=16 modules.
             let full = &topology.patches[..topology.patches.len() - 1];
             assert!(full.iter().all(|p| (4..=16).contains(&p.modules.len())));
         }
-        let uids: std::collections::HashSet<u32> = layers
-            .iter()
-            .flat_map(|l| l.topology.sensors.iter().map(|s| s.uid))
-            .collect();
-        assert_eq!(
-            uids.len(),
-            30_848,
-            "uids must be unique over the whole skin"
-        );
+        let uids: std::collections::HashSet<u32> =
+            layers.iter().flat_map(|l| l.topology.sensors.iter().map(|s| s.uid)).collect();
+        assert_eq!(uids.len(), 30_848, "uids must be unique over the whole skin");
     }
 
     #[test]
@@ -607,9 +501,8 @@ mod tests {
         assert_eq!(body.places.len(), 5000);
         for place in &body.places {
             let part = BODY[place.part];
-            let radial = ((place.position[0] - part.base[0]).powi(2)
-                + (place.position[1] - part.base[1]).powi(2))
-            .sqrt();
+            let radial =
+                ((place.position[0] - part.base[0]).powi(2) + (place.position[1] - part.base[1]).powi(2)).sqrt();
             assert!((radial - part.radius).abs() < 1e-9);
             let norm = place.normal.iter().map(|n| n * n).sum::<f64>().sqrt();
             assert!((norm - 1.0).abs() < 1e-9);
@@ -618,12 +511,7 @@ mod tests {
 
     #[test]
     fn cable_pull_schedule() {
-        let pull = CablePull {
-            layer: "x".into(),
-            at_s: 2.0,
-            duration_s: 1.0,
-            every_s: Some(5.0),
-        };
+        let pull = CablePull { layer: "x".into(), at_s: 2.0, duration_s: 1.0, every_s: Some(5.0) };
         assert!(!pull.pulled_at(1.9));
         assert!(pull.pulled_at(2.5));
         assert!(!pull.pulled_at(3.5));
@@ -632,18 +520,10 @@ mod tests {
 
     #[test]
     fn invalid_parameters_are_explained() {
-        let zero = VirtualSkinConfig {
-            layers: 0,
-            ..VirtualSkinConfig::default()
-        };
+        let zero = VirtualSkinConfig { layers: 0, ..VirtualSkinConfig::default() };
         assert!(zero.validate().unwrap_err().contains("layers"));
         let bad_pull = VirtualSkinConfig {
-            cable_pulls: vec![CablePull {
-                layer: "nope".into(),
-                at_s: 0.0,
-                duration_s: 1.0,
-                every_s: None,
-            }],
+            cable_pulls: vec![CablePull { layer: "nope".into(), at_s: 0.0, duration_s: 1.0, every_s: None }],
             ..VirtualSkinConfig::default()
         };
         assert!(bad_pull.validate().unwrap_err().contains("nope"));

@@ -79,9 +79,7 @@ pub enum HandlerError {
         source: DriverError,
     },
     /// The driver returned a different number of sources than layers.
-    #[error(
-        "driver {driver} describes {layers} layers but started {sources} sources; it must start one per layer"
-    )]
+    #[error("driver {driver} describes {layers} layers but started {sources} sources; it must start one per layer")]
     SourceCount {
         /// Driver name.
         driver: String,
@@ -148,8 +146,7 @@ impl DriverHandler {
         let mut writers = Vec::with_capacity(specs.len());
         for spec in &specs {
             let topology = &spec.topology;
-            let period =
-                (topology.rate_hz > 0.0).then(|| Duration::from_secs_f64(1.0 / topology.rate_hz));
+            let period = (topology.rate_hz > 0.0).then(|| Duration::from_secs_f64(1.0 / topology.rate_hz));
             let writer_options = WriterOptions {
                 slots: options.slots,
                 period,
@@ -158,30 +155,18 @@ impl DriverHandler {
                 dir: options.dir.clone(),
                 ..WriterOptions::default()
             };
-            let writer = Writer::create(
-                skin,
-                &topology.name,
-                topology.frame_bytes(),
-                &topology.encode(),
-                &writer_options,
-            )
-            .map_err(|source| HandlerError::Channel {
-                driver: name.clone(),
-                layer: topology.name.clone(),
-                source: Box::new(source),
-            })?;
+            let writer =
+                Writer::create(skin, &topology.name, topology.frame_bytes(), &topology.encode(), &writer_options)
+                    .map_err(|source| HandlerError::Channel {
+                        driver: name.clone(),
+                        layer: topology.name.clone(),
+                        source: Box::new(source),
+                    })?;
             writers.push(writer);
         }
-        let sources = driver.start().map_err(|source| HandlerError::Start {
-            driver: name.clone(),
-            source,
-        })?;
+        let sources = driver.start().map_err(|source| HandlerError::Start { driver: name.clone(), source })?;
         if sources.len() != specs.len() {
-            return Err(HandlerError::SourceCount {
-                driver: name,
-                layers: specs.len(),
-                sources: sources.len(),
-            });
+            return Err(HandlerError::SourceCount { driver: name, layers: specs.len(), sources: sources.len() });
         }
         let stop = Stop::new();
         let mut threads = Vec::new();
@@ -189,11 +174,8 @@ impl DriverHandler {
         for ((mut writer, source), spec) in writers.into_iter().zip(sources).zip(&specs) {
             writer.set_stop(&stop);
             let busy_since = Arc::new(AtomicU64::new(0));
-            let period_ns = if spec.topology.rate_hz > 0.0 {
-                (1e9 / spec.topology.rate_hz) as u64
-            } else {
-                1_000_000_000
-            };
+            let period_ns =
+                if spec.topology.rate_hz > 0.0 { (1e9 / spec.topology.rate_hz) as u64 } else { 1_000_000_000 };
             watches.push(LayerWatch {
                 state: writer.state_handle(),
                 busy_since: busy_since.clone(),
@@ -205,10 +187,7 @@ impl DriverHandler {
             let thread = std::thread::Builder::new()
                 .name(thread_name)
                 .spawn(move || run_layer(writer, source, rt, rate_hz, busy_since))
-                .map_err(|e| HandlerError::Start {
-                    driver: driver.name().to_owned(),
-                    source: Box::new(e),
-                })?;
+                .map_err(|e| HandlerError::Start { driver: driver.name().to_owned(), source: Box::new(e) })?;
             threads.push(thread);
         }
         let watchdog_stop = stop.clone();
@@ -217,13 +196,7 @@ impl DriverHandler {
             .spawn(move || watch_layers(watches, watchdog_stop))
             .ok();
         let layers = specs.into_iter().map(|s| s.topology.name).collect();
-        Ok(DriverHandler {
-            driver,
-            stop,
-            writers: threads,
-            watchdog,
-            layers,
-        })
+        Ok(DriverHandler { driver, stop, writers: threads, watchdog, layers })
     }
 
     /// Names of the layers being acquired.
@@ -256,13 +229,7 @@ impl DriverHandler {
     }
 }
 
-fn run_layer(
-    mut writer: Writer,
-    mut source: Box<dyn LayerSource>,
-    rt: RtOptions,
-    rate_hz: f64,
-    busy: Arc<AtomicU64>,
-) {
+fn run_layer(mut writer: Writer, mut source: Box<dyn LayerSource>, rt: RtOptions, rate_hz: f64, busy: Arc<AtomicU64>) {
     for refusal in rt.apply() {
         tracing::warn!(layer = %writer.label(), "{refusal}");
     }
@@ -295,12 +262,7 @@ fn run_layer(
 }
 
 fn watch_layers(watches: Vec<LayerWatch>, stop: Stop) {
-    let tick = watches
-        .iter()
-        .map(|w| w.timeout_ns / 4)
-        .min()
-        .unwrap_or(100_000_000)
-        .clamp(1_000_000, 100_000_000);
+    let tick = watches.iter().map(|w| w.timeout_ns / 4).min().unwrap_or(100_000_000).clamp(1_000_000, 100_000_000);
     let mut next = os::monotonic_ns();
     loop {
         next += tick;
@@ -310,10 +272,7 @@ fn watch_layers(watches: Vec<LayerWatch>, stop: Stop) {
         let now = os::monotonic_ns();
         for watch in &watches {
             let since = watch.busy_since.load(Ordering::Relaxed);
-            if since != 0
-                && now.saturating_sub(since) > watch.timeout_ns
-                && watch.state.get() != WriterState::Faulted
-            {
+            if since != 0 && now.saturating_sub(since) > watch.timeout_ns && watch.state.get() != WriterState::Faulted {
                 tracing::warn!(layer = %watch.state.label(), "acquisition timed out; layer faulted");
                 watch.state.set(WriterState::Faulted);
             }

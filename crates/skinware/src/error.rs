@@ -113,9 +113,7 @@ pub enum Error {
     },
 
     /// Another live writer already owns the channel.
-    #[error(
-        "channel {channel} already has a live writer (process {pid}); stop it first, or use another channel name"
-    )]
+    #[error("channel {channel} already has a live writer (process {pid}); stop it first, or use another channel name")]
     Busy {
         /// `skin/channel`.
         channel: String,

@@ -95,8 +95,6 @@ impl<'r> Frame<'r> {
     /// The payload as a plain-old-data value of type `T`, or `None` if the
     /// payload is smaller than `T`.
     pub fn pod<T: bytemuck::AnyBitPattern>(&self) -> Option<T> {
-        self.payload
-            .get(..size_of::<T>())
-            .map(bytemuck::pod_read_unaligned)
+        self.payload.get(..size_of::<T>()).map(bytemuck::pod_read_unaligned)
     }
 }

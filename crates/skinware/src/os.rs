@@ -19,10 +19,7 @@ pub fn monotonic_ns() -> u64 {
 }
 
 fn timespec_from_ns(ns: u64) -> Timespec {
-    Timespec {
-        tv_sec: (ns / 1_000_000_000) as i64,
-        tv_nsec: (ns % 1_000_000_000) as i64,
-    }
+    Timespec { tv_sec: (ns / 1_000_000_000) as i64, tv_nsec: (ns % 1_000_000_000) as i64 }
 }
 
 /// How a futex wait ended.
@@ -44,18 +41,9 @@ fn wake_from(result: rustix::io::Result<()>) -> io::Result<Wake> {
 }
 
 /// Sleeps while the process-shared futex `word` holds `expected`, at most `timeout`.
-pub(crate) fn futex_wait_shared(
-    word: &AtomicU32,
-    expected: u32,
-    timeout: Duration,
-) -> io::Result<Wake> {
+pub(crate) fn futex_wait_shared(word: &AtomicU32, expected: u32, timeout: Duration) -> io::Result<Wake> {
     let timeout = timespec_from_ns(timeout.as_nanos().min(u64::MAX as u128) as u64);
-    wake_from(futex::wait(
-        word,
-        futex::Flags::empty(),
-        expected,
-        Some(&timeout),
-    ))
+    wake_from(futex::wait(word, futex::Flags::empty(), expected, Some(&timeout)))
 }
 
 /// Wakes every process sleeping on the process-shared futex `word`.
@@ -66,20 +54,10 @@ pub(crate) fn futex_wake_shared(word: &AtomicU32) {
 
 /// Sleeps while the process-private futex `word` holds `expected`, until the
 /// absolute CLOCK_MONOTONIC `deadline_ns`.
-pub(crate) fn futex_wait_private_until(
-    word: &AtomicU32,
-    expected: u32,
-    deadline_ns: u64,
-) -> io::Result<Wake> {
+pub(crate) fn futex_wait_private_until(word: &AtomicU32, expected: u32, deadline_ns: u64) -> io::Result<Wake> {
     let deadline = timespec_from_ns(deadline_ns);
     let any = NonZeroU32::new(u32::MAX).unwrap_or(NonZeroU32::MIN);
-    wake_from(futex::wait_bitset(
-        word,
-        futex::Flags::PRIVATE,
-        expected,
-        Some(&deadline),
-        any,
-    ))
+    wake_from(futex::wait_bitset(word, futex::Flags::PRIVATE, expected, Some(&deadline), any))
 }
 
 /// Wakes every thread of this process sleeping on the private futex `word`.
@@ -88,13 +66,7 @@ pub(crate) fn futex_wake_private(word: &AtomicU32) {
 }
 
 fn ofd_lock_request(kind: libc::c_short) -> libc::flock {
-    libc::flock {
-        l_type: kind,
-        l_whence: libc::SEEK_SET as libc::c_short,
-        l_start: 0,
-        l_len: 1,
-        l_pid: 0,
-    }
+    libc::flock { l_type: kind, l_whence: libc::SEEK_SET as libc::c_short, l_start: 0, l_len: 1, l_pid: 0 }
 }
 
 /// Takes the writer's liveness lock: an exclusive open-file-description lock on
@@ -131,16 +103,10 @@ pub(crate) fn writer_lock_held(fd: impl AsFd) -> io::Result<bool> {
 
 /// Puts the calling thread in SCHED_FIFO at `priority` (1..=99).
 pub fn set_fifo_priority(priority: u8) -> io::Result<()> {
-    let param = libc::sched_param {
-        sched_priority: i32::from(priority),
-    };
+    let param = libc::sched_param { sched_priority: i32::from(priority) };
     // SAFETY: `param` is a valid `sched_param`; pid 0 names the calling thread.
     let rc = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
-    if rc == 0 {
-        Ok(())
-    } else {
-        Err(io::Error::last_os_error())
-    }
+    if rc == 0 { Ok(()) } else { Err(io::Error::last_os_error()) }
 }
 
 /// Locks all current and future pages of the process in RAM.
@@ -154,10 +120,7 @@ pub fn pin_to_cpus(cpus: &[usize]) -> io::Result<()> {
     let mut set = rustix::thread::CpuSet::new();
     for &cpu in cpus {
         if cpu >= rustix::thread::CpuSet::MAX_CPU {
-            return Err(io::Error::new(
-                io::ErrorKind::InvalidInput,
-                format!("CPU {cpu} does not exist"),
-            ));
+            return Err(io::Error::new(io::ErrorKind::InvalidInput, format!("CPU {cpu} does not exist")));
         }
         set.set(cpu);
     }

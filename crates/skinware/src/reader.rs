@@ -47,10 +47,7 @@ pub struct Reader {
 
 impl std::fmt::Debug for Reader {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Reader")
-            .field("channel", &self.shared.label)
-            .field("last_seq", &self.last.seq)
-            .finish()
+        f.debug_struct("Reader").field("channel", &self.shared.label).field("last_seq", &self.last.seq).finish()
     }
 }
 
@@ -95,13 +92,7 @@ impl Reader {
         let shared = Arc::new(shared);
         let stop = Stop::new();
         stop.watch(&shared);
-        Ok(Reader {
-            shared,
-            buffer: vec![0; words],
-            last: Meta::default(),
-            stats: ReaderStats::default(),
-            stop,
-        })
+        Ok(Reader { shared, buffer: vec![0; words], last: Meta::default(), stats: ReaderStats::default(), stop })
     }
 
     /// `skin/channel`.
@@ -142,10 +133,7 @@ impl Reader {
     /// The payload schema (name, version).
     pub fn schema(&self) -> (String, u32) {
         let header = self.shared.header();
-        (
-            crate::channel::layout::decode_schema(&header.schema_name),
-            header.schema_version.load(Ordering::Relaxed),
-        )
+        (crate::channel::layout::decode_schema(&header.schema_name), header.schema_version.load(Ordering::Relaxed))
     }
 
     /// The writer's nominal period, or `None` for a sporadic writer.
@@ -202,45 +190,25 @@ impl Reader {
     /// On request: the newest complete frame, now. Lock-free; never blocks.
     pub fn latest(&mut self) -> Result<Frame<'_>> {
         let started = os::monotonic_ns();
-        match self
-            .shared
-            .ring()
-            .read_latest(&mut self.buffer, MAX_READ_ATTEMPTS)
-        {
+        match self.shared.ring().read_latest(&mut self.buffer, MAX_READ_ATTEMPTS) {
             Ok((meta, retries)) => {
                 let fresh = meta.seq != self.last.seq;
-                let skipped = if fresh && self.last.seq != 0 {
-                    meta.seq.saturating_sub(self.last.seq + 1)
-                } else {
-                    0
-                };
-                self.stats
-                    .record(os::monotonic_ns() - started, retries, skipped);
+                let skipped = if fresh && self.last.seq != 0 { meta.seq.saturating_sub(self.last.seq + 1) } else { 0 };
+                self.stats.record(os::monotonic_ns() - started, retries, skipped);
                 self.last = meta;
                 Ok(self.frame(skipped, fresh))
             }
-            Err(ReadFailure::Empty) => Err(Error::NoFrameYet {
-                channel: self.shared.label.clone(),
-            }),
+            Err(ReadFailure::Empty) => Err(Error::NoFrameYet { channel: self.shared.label.clone() }),
             Err(ReadFailure::Lapped(retries)) => {
                 self.stats.retries += u64::from(retries);
-                Err(Error::Lapped {
-                    channel: self.shared.label.clone(),
-                    retries,
-                    slots: self.slots() as u32,
-                })
+                Err(Error::Lapped { channel: self.shared.label.clone(), retries, slots: self.slots() as u32 })
             }
         }
     }
 
     fn frame(&self, skipped: u64, fresh: bool) -> Frame<'_> {
         let bytes: &[u8] = bytemuck::cast_slice(&self.buffer);
-        Frame {
-            meta: self.last,
-            skipped,
-            fresh,
-            payload: &bytes[..self.payload_bytes()],
-        }
+        Frame { meta: self.last, skipped, fresh, payload: &bytes[..self.payload_bytes()] }
     }
 
     /// As soon as available: waits (asleep on a futex, no spinning) for a frame
@@ -270,9 +238,7 @@ impl Reader {
     /// ([`Frame::is_fresh`] tells).
     pub fn next_periodic(&mut self, ticker: &mut Ticker) -> Result<Frame<'_>> {
         if ticker.wait(&self.stop).is_none() {
-            return Err(Error::Stopped {
-                channel: self.shared.label.clone(),
-            });
+            return Err(Error::Stopped { channel: self.shared.label.clone() });
         }
         self.latest()
     }
@@ -284,9 +250,7 @@ impl Reader {
         let deadline = os::monotonic_ns().saturating_add(timeout.as_nanos() as u64);
         loop {
             if self.stop.is_stopped() {
-                return Err(Error::Stopped {
-                    channel: self.shared.label.clone(),
-                });
+                return Err(Error::Stopped { channel: self.shared.label.clone() });
             }
             let seen = notify.load(Ordering::Acquire);
             if ring.published() > after {
@@ -301,20 +265,12 @@ impl Reader {
             }
             let now = os::monotonic_ns();
             if now >= deadline {
-                return Err(Error::Timeout {
-                    channel: self.shared.label.clone(),
-                    timeout,
-                });
+                return Err(Error::Timeout { channel: self.shared.label.clone(), timeout });
             }
-            match os::futex_wait_shared(notify, announced | 1, Duration::from_nanos(deadline - now))
-            {
+            match os::futex_wait_shared(notify, announced | 1, Duration::from_nanos(deadline - now)) {
                 Ok(Wake::Recheck) | Ok(Wake::TimedOut) => {}
                 Err(source) => {
-                    return Err(Error::Os {
-                        op: "futex wait",
-                        path: self.shared.path.clone(),
-                        source,
-                    });
+                    return Err(Error::Os { op: "futex wait", path: self.shared.path.clone(), source });
                 }
             }
         }

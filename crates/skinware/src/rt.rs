@@ -30,9 +30,7 @@ struct StopInner {
 
 impl std::fmt::Debug for Stop {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Stop")
-            .field("stopped", &self.is_stopped())
-            .finish()
+        f.debug_struct("Stop").field("stopped", &self.is_stopped()).finish()
     }
 }
 
@@ -46,11 +44,7 @@ impl Stop {
     pub fn stop(&self) {
         self.inner.word.store(1, Ordering::Release);
         os::futex_wake_private(&self.inner.word);
-        let channels = self
-            .inner
-            .channels
-            .lock()
-            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        let channels = self.inner.channels.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
         for shared in channels.iter().filter_map(Weak::upgrade) {
             os::futex_wake_shared(&shared.doorbell().notify);
             os::futex_wake_shared(&shared.doorbell().requests);
@@ -64,11 +58,7 @@ impl Stop {
 
     /// Makes `stop` also wake sleepers on this channel's futex words.
     pub(crate) fn watch(&self, shared: &Arc<Shared>) {
-        let mut channels = self
-            .inner
-            .channels
-            .lock()
-            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        let mut channels = self.inner.channels.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
         channels.retain(|weak| weak.strong_count() > 0);
         channels.push(Arc::downgrade(shared));
     }
@@ -87,9 +77,7 @@ impl Stop {
                 Ok(Wake::Recheck) => {}
                 // Only EFAULT/EINVAL are possible, neither with a valid word and
                 // deadline; fall back to the plain sleep rather than spin.
-                Err(_) => std::thread::sleep(Duration::from_nanos(
-                    deadline_ns.saturating_sub(os::monotonic_ns()),
-                )),
+                Err(_) => std::thread::sleep(Duration::from_nanos(deadline_ns.saturating_sub(os::monotonic_ns()))),
             }
         }
     }
@@ -125,10 +113,7 @@ impl Ticker {
     /// A schedule whose first deadline is `start_ns` (CLOCK_MONOTONIC).
     pub fn starting_at(period: Duration, start_ns: u64) -> Ticker {
         let period_ns = (period.as_nanos().min(u64::MAX as u128) as u64).max(1);
-        Ticker {
-            period_ns,
-            next_ns: start_ns,
-        }
+        Ticker { period_ns, next_ns: start_ns }
     }
 
     /// A schedule at `hz` frames per second (at least one per ~584 years).
@@ -151,24 +136,14 @@ impl Ticker {
             if !stop.sleep_until(deadline) {
                 return None;
             }
-            Tick {
-                deadline_ns: deadline,
-                lateness_ns: os::monotonic_ns() - deadline,
-                overrun: false,
-                missed: 0,
-            }
+            Tick { deadline_ns: deadline, lateness_ns: os::monotonic_ns() - deadline, overrun: false, missed: 0 }
         } else {
             if stop.is_stopped() {
                 return None;
             }
             let missed = (called - deadline) / self.period_ns;
             let grid = deadline + missed * self.period_ns;
-            Tick {
-                deadline_ns: grid,
-                lateness_ns: called - grid,
-                overrun: true,
-                missed,
-            }
+            Tick { deadline_ns: grid, lateness_ns: called - grid, overrun: true, missed }
         };
         self.next_ns = tick.deadline_ns + self.period_ns;
         Some(tick)
@@ -201,15 +176,13 @@ impl RtOptions {
         }
         if self.lock_memory {
             if let Err(e) = os::lock_memory() {
-                refused.push(format!("mlockall refused ({e}); memory may be paged (raise RLIMIT_MEMLOCK or run as root)"));
+                refused
+                    .push(format!("mlockall refused ({e}); memory may be paged (raise RLIMIT_MEMLOCK or run as root)"));
             }
         }
         if !self.cpus.is_empty() {
             if let Err(e) = os::pin_to_cpus(&self.cpus) {
-                refused.push(format!(
-                    "pinning to CPUs {:?} refused ({e}); the thread may run on any CPU",
-                    self.cpus
-                ));
+                refused.push(format!("pinning to CPUs {:?} refused ({e}); the thread may run on any CPU", self.cpus));
             }
         }
         refused
@@ -233,11 +206,7 @@ mod tests {
         let late = ticker.wait(&stop).unwrap();
         assert!(late.overrun);
         assert!(late.missed >= 1, "{late:?}");
-        assert_eq!(
-            (late.deadline_ns - start) % 2_000_000,
-            0,
-            "left the grid: {late:?}"
-        );
+        assert_eq!((late.deadline_ns - start) % 2_000_000, 0, "left the grid: {late:?}");
         let next = ticker.wait(&stop).unwrap();
         assert_eq!(next.deadline_ns, late.deadline_ns + 2_000_000);
     }
@@ -245,10 +214,7 @@ mod tests {
     #[test]
     fn stop_interrupts_a_long_sleep() {
         let stop = Stop::new();
-        let mut ticker = Ticker::starting_at(
-            Duration::from_secs(3600),
-            os::monotonic_ns() + 3_600_000_000_000,
-        );
+        let mut ticker = Ticker::starting_at(Duration::from_secs(3600), os::monotonic_ns() + 3_600_000_000_000);
         let stopper = stop.clone();
         let started = std::time::Instant::now();
         let sleeper = std::thread::spawn(move || ticker.wait(&stop));

@@ -22,9 +22,7 @@ pub(crate) const TEMP_PREFIX: &str = ".skinware-tmp.";
 
 /// The directory holding the segments: `$SKINWARE_SHM_DIR`, or `/dev/shm`.
 pub fn segment_dir() -> PathBuf {
-    std::env::var_os("SKINWARE_SHM_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from("/dev/shm"))
+    std::env::var_os("SKINWARE_SHM_DIR").map(PathBuf::from).unwrap_or_else(|| PathBuf::from("/dev/shm"))
 }
 
 /// Checks a skin or channel name: 1 to [`MAX_NAME_LEN`] of `A-Z a-z 0-9 _ -`.
@@ -38,20 +36,13 @@ pub fn validate_name(what: &'static str, name: &str) -> Result<()> {
         Some("it contains '/'")
     } else if name.contains("..") {
         Some("it contains '..'")
-    } else if !name
-        .bytes()
-        .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
-    {
+    } else if !name.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-') {
         Some("it contains a character other than A-Z a-z 0-9 _ -")
     } else {
         None
     };
     match reason {
-        Some(reason) => Err(Error::InvalidName {
-            what,
-            name: name.to_owned(),
-            reason,
-        }),
+        Some(reason) => Err(Error::InvalidName { what, name: name.to_owned(), reason }),
         None => Ok(()),
     }
 }
@@ -65,8 +56,7 @@ pub(crate) fn segment_path(dir: &Path, skin: &str, channel: &str) -> PathBuf {
 pub(crate) fn parse_segment_name(file_name: &str) -> Option<(&str, &str)> {
     let rest = file_name.strip_prefix(PREFIX)?;
     let (skin, channel) = rest.split_once('.')?;
-    (validate_name("skin", skin).is_ok() && validate_name("channel", channel).is_ok())
-        .then_some((skin, channel))
+    (validate_name("skin", skin).is_ok() && validate_name("channel", channel).is_ok()).then_some((skin, channel))
 }
 
 /// A memory mapping of (part of) a segment, unmapped on drop.
@@ -83,37 +73,14 @@ unsafe impl Sync for Mapping {}
 
 impl Mapping {
     /// Maps `len` bytes of `file` from `offset` (page-aligned), shared.
-    pub fn map(
-        file: &File,
-        path: &Path,
-        offset: u64,
-        len: usize,
-        writable: bool,
-    ) -> Result<Mapping> {
+    pub fn map(file: &File, path: &Path, offset: u64, len: usize, writable: bool) -> Result<Mapping> {
         use rustix::mm::{MapFlags, ProtFlags, mmap};
-        let prot = if writable {
-            ProtFlags::READ | ProtFlags::WRITE
-        } else {
-            ProtFlags::READ
-        };
+        let prot = if writable { ProtFlags::READ | ProtFlags::WRITE } else { ProtFlags::READ };
         // SAFETY: a null hint lets the kernel choose a fresh address range, so no
         // existing Rust object is aliased; the fd is valid for the call; the
         // resulting memory is only ever accessed through atomics.
-        let ptr = unsafe {
-            mmap(
-                std::ptr::null_mut(),
-                len,
-                prot,
-                MapFlags::SHARED,
-                file.as_fd(),
-                offset,
-            )
-        }
-        .map_err(|e| Error::Os {
-            op: "mmap",
-            path: path.to_owned(),
-            source: e.into(),
-        })?;
+        let ptr = unsafe { mmap(std::ptr::null_mut(), len, prot, MapFlags::SHARED, file.as_fd(), offset) }
+            .map_err(|e| Error::Os { op: "mmap", path: path.to_owned(), source: e.into() })?;
         let ptr = NonNull::new(ptr.cast::<u8>()).ok_or_else(|| Error::Os {
             op: "mmap",
             path: path.to_owned(),

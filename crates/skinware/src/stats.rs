@@ -105,18 +105,10 @@ impl WriterStats {
             faults: shared.faults.load(Relaxed),
             write_ns_min: if min == u64::MAX { 0 } else { min },
             write_ns_max: shared.write_ns_max.load(Relaxed),
-            write_ns_mean: shared
-                .write_ns_sum
-                .load(Relaxed)
-                .checked_div(frames)
-                .unwrap_or(0),
+            write_ns_mean: shared.write_ns_sum.load(Relaxed).checked_div(frames).unwrap_or(0),
             write_ns_last: shared.write_ns_last.load(Relaxed),
             lateness_ns_max: shared.lateness_ns_max.load(Relaxed),
-            lateness_ns_mean: shared
-                .lateness_ns_sum
-                .load(Relaxed)
-                .checked_div(lateness_samples)
-                .unwrap_or(0),
+            lateness_ns_mean: shared.lateness_ns_sum.load(Relaxed).checked_div(lateness_samples).unwrap_or(0),
             write_histogram: std::array::from_fn(|i| shared.write_histogram[i].load(Relaxed)),
             lateness_histogram: std::array::from_fn(|i| shared.lateness_histogram[i].load(Relaxed)),
         }
@@ -247,18 +239,9 @@ mod tests {
 
     #[test]
     fn a_dead_writer_is_gone_whatever_it_said() {
-        assert_eq!(
-            WriterState::from_code(WriterState::RUNNING, false),
-            WriterState::Gone
-        );
-        assert_eq!(
-            WriterState::from_code(WriterState::FAULTED, true),
-            WriterState::Faulted
-        );
-        assert_eq!(
-            WriterState::from_code(WriterState::STOPPED, true),
-            WriterState::Gone
-        );
+        assert_eq!(WriterState::from_code(WriterState::RUNNING, false), WriterState::Gone);
+        assert_eq!(WriterState::from_code(WriterState::FAULTED, true), WriterState::Faulted);
+        assert_eq!(WriterState::from_code(WriterState::STOPPED, true), WriterState::Gone);
     }
 
     #[test]
@@ -266,10 +249,7 @@ mod tests {
         let mut stats = ReaderStats::default();
         stats.record(300, 1, 0);
         stats.record(100, 0, 4);
-        assert_eq!(
-            (stats.read_ns_min, stats.read_ns_max, stats.read_ns_mean()),
-            (100, 300, 200)
-        );
+        assert_eq!((stats.read_ns_min, stats.read_ns_max, stats.read_ns_mean()), (100, 300, 200));
         assert_eq!((stats.retries, stats.skipped, stats.reads), (1, 4, 2));
     }
 }

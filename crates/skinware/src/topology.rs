@@ -73,9 +73,7 @@ pub enum TopologyError {
         second_module: u32,
     },
     /// Two modules (or patches) share an id.
-    #[error(
-        "layer {layer}: {what} id {id} appears more than once; ids must be unique within a layer"
-    )]
+    #[error("layer {layer}: {what} id {id} appears more than once; ids must be unique within a layer")]
     DuplicateId {
         /// Layer name.
         layer: String,
@@ -85,9 +83,7 @@ pub enum TopologyError {
         id: u32,
     },
     /// A module without sensors or a patch without modules.
-    #[error(
-        "layer {layer}: {what} {id} is empty; every patch needs a module and every module a sensor"
-    )]
+    #[error("layer {layer}: {what} {id} is empty; every patch needs a module and every module a sensor")]
     Empty {
         /// Layer name.
         layer: String,
@@ -127,12 +123,7 @@ pub struct TopologyBuilder {
 impl TopologyBuilder {
     /// Starts a layer.
     pub fn new(name: &str, sensor_type: &str, rate_hz: f64) -> TopologyBuilder {
-        TopologyBuilder {
-            name: name.to_owned(),
-            sensor_type: sensor_type.to_owned(),
-            rate_hz,
-            patches: Vec::new(),
-        }
+        TopologyBuilder { name: name.to_owned(), sensor_type: sensor_type.to_owned(), rate_hz, patches: Vec::new() }
     }
 
     /// Adds a patch with id `id`.
@@ -168,35 +159,19 @@ impl TopologyBuilder {
         let mut module_ids = HashMap::new();
         for (patch_id, modules) in &self.patches {
             if patch_ids.insert(*patch_id, ()).is_some() {
-                return Err(TopologyError::DuplicateId {
-                    layer: layer(),
-                    what: "patch",
-                    id: *patch_id,
-                });
+                return Err(TopologyError::DuplicateId { layer: layer(), what: "patch", id: *patch_id });
             }
             if modules.is_empty() {
-                return Err(TopologyError::Empty {
-                    layer: layer(),
-                    what: "patch",
-                    id: *patch_id,
-                });
+                return Err(TopologyError::Empty { layer: layer(), what: "patch", id: *patch_id });
             }
             let patch_index = topology.patches.len();
             let first_module = topology.modules.len();
             for (module_id, uids) in modules {
                 if module_ids.insert(*module_id, ()).is_some() {
-                    return Err(TopologyError::DuplicateId {
-                        layer: layer(),
-                        what: "module",
-                        id: *module_id,
-                    });
+                    return Err(TopologyError::DuplicateId { layer: layer(), what: "module", id: *module_id });
                 }
                 if uids.is_empty() {
-                    return Err(TopologyError::Empty {
-                        layer: layer(),
-                        what: "module",
-                        id: *module_id,
-                    });
+                    return Err(TopologyError::Empty { layer: layer(), what: "module", id: *module_id });
                 }
                 let module_index = topology.modules.len();
                 let first_sensor = topology.sensors.len();
@@ -211,10 +186,7 @@ impl TopologyBuilder {
                         });
                     }
                     topology.by_uid.insert(uid, topology.sensors.len());
-                    topology.sensors.push(Sensor {
-                        uid,
-                        module: module_index,
-                    });
+                    topology.sensors.push(Sensor { uid, module: module_index });
                 }
                 topology.modules.push(Module {
                     id: *module_id,
@@ -222,10 +194,7 @@ impl TopologyBuilder {
                     sensors: first_sensor..topology.sensors.len(),
                 });
             }
-            topology.patches.push(Patch {
-                id: *patch_id,
-                modules: first_module..topology.modules.len(),
-            });
+            topology.patches.push(Patch { id: *patch_id, modules: first_module..topology.modules.len() });
         }
         if topology.sensors.is_empty() {
             return Err(TopologyError::NoSensors { layer: layer() });
@@ -283,15 +252,11 @@ impl LayerTopology {
 
     /// Reads a topology from a channel's description area; `channel` names it in errors.
     pub fn decode(bytes: &[u8], channel: &str) -> Result<LayerTopology, TopologyError> {
-        let malformed = |reason: &str| TopologyError::Malformed {
-            channel: channel.to_owned(),
-            reason: reason.to_owned(),
-        };
+        let malformed =
+            |reason: &str| TopologyError::Malformed { channel: channel.to_owned(), reason: reason.to_owned() };
         let mut input = Decoder { bytes, at: 0 };
         if input.take(8).ok_or_else(|| malformed("too short"))? != TOPOLOGY_MAGIC {
-            return Err(malformed(
-                "it does not start with the topology magic; is this a layer channel?",
-            ));
+            return Err(malformed("it does not start with the topology magic; is this a layer channel?"));
         }
         let name = input.text().ok_or_else(|| malformed("bad layer name"))?;
         let sensor_type = input.text().ok_or_else(|| malformed("bad sensor type"))?;
@@ -306,9 +271,7 @@ impl LayerTopology {
                 let id = input.u32().ok_or_else(|| malformed("truncated module"))?;
                 let count = input.u32().ok_or_else(|| malformed("truncated module"))? as usize;
                 if count > input.remaining() / 4 {
-                    return Err(malformed(
-                        "a module claims more sensors than the description holds",
-                    ));
+                    return Err(malformed("a module claims more sensors than the description holds"));
                 }
                 let uids: Vec<u32> = (0..count).filter_map(|_| input.u32()).collect();
                 builder.module(id, uids);
@@ -374,25 +337,16 @@ mod tests {
     #[test]
     fn encoding_round_trips() {
         let topology = sample();
-        assert_eq!(
-            LayerTopology::decode(&topology.encode(), "s/arm").unwrap(),
-            topology
-        );
+        assert_eq!(LayerTopology::decode(&topology.encode(), "s/arm").unwrap(), topology);
     }
 
     #[test]
     fn malformed_descriptions_are_errors_not_panics() {
         let bytes = sample().encode();
         for cut in 0..bytes.len() {
-            assert!(
-                LayerTopology::decode(&bytes[..cut], "s/arm").is_err(),
-                "cut at {cut}"
-            );
+            assert!(LayerTopology::decode(&bytes[..cut], "s/arm").is_err(), "cut at {cut}");
         }
-        assert!(matches!(
-            LayerTopology::decode(b"stress", "s/x"),
-            Err(TopologyError::Malformed { .. })
-        ));
+        assert!(matches!(LayerTopology::decode(b"stress", "s/x"), Err(TopologyError::Malformed { .. })));
     }
 
     #[test]
@@ -401,32 +355,13 @@ mod tests {
         dup.patch(1).module(1, [5, 6]).module(2, [6]);
         assert_eq!(
             dup.build().unwrap_err(),
-            TopologyError::DuplicateUid {
-                layer: "l".into(),
-                uid: 6,
-                first_module: 1,
-                second_module: 2
-            }
+            TopologyError::DuplicateUid { layer: "l".into(), uid: 6, first_module: 1, second_module: 2 }
         );
         let mut empty = TopologyBuilder::new("l", "p", 1.0);
         empty.patch(1).module(9, []);
-        assert_eq!(
-            empty.build().unwrap_err(),
-            TopologyError::Empty {
-                layer: "l".into(),
-                what: "module",
-                id: 9
-            }
-        );
+        assert_eq!(empty.build().unwrap_err(), TopologyError::Empty { layer: "l".into(), what: "module", id: 9 });
         let mut modules = TopologyBuilder::new("l", "p", 1.0);
         modules.patch(1).module(4, [1]).patch(2).module(4, [2]);
-        assert!(matches!(
-            modules.build(),
-            Err(TopologyError::DuplicateId {
-                what: "module",
-                id: 4,
-                ..
-            })
-        ));
+        assert!(matches!(modules.build(), Err(TopologyError::DuplicateId { what: "module", id: 4, .. })));
     }
 }

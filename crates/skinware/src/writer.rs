@@ -80,26 +80,17 @@ pub struct Writer {
 
 impl std::fmt::Debug for Writer {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Writer")
-            .field("channel", &self.shared.label)
-            .field("next_seq", &self.next_seq)
-            .finish()
+        f.debug_struct("Writer").field("channel", &self.shared.label).field("next_seq", &self.next_seq).finish()
     }
 }
 
 fn file_identity(file: &File, path: &Path) -> Result<(u64, u64)> {
-    let meta = file.metadata().map_err(|source| Error::Os {
-        op: "stat",
-        path: path.to_owned(),
-        source,
-    })?;
+    let meta = file.metadata().map_err(|source| Error::Os { op: "stat", path: path.to_owned(), source })?;
     Ok((meta.dev(), meta.ino()))
 }
 
 fn path_identity(path: &Path) -> Option<(u64, u64)> {
-    std::fs::metadata(path)
-        .ok()
-        .map(|meta| (meta.dev(), meta.ino()))
+    std::fs::metadata(path).ok().map(|meta| (meta.dev(), meta.ino()))
 }
 
 impl Writer {
@@ -117,22 +108,12 @@ impl Writer {
         shm::validate_name("skin", skin)?;
         shm::validate_name("channel", channel)?;
         let label = channel::label(skin, channel);
-        let layout = Layout::compute(
-            payload_bytes as u64,
-            options.slots as u64,
-            description.len() as u64,
-        )
-        .map_err(|reason| Error::InvalidLayout {
-            channel: label.clone(),
-            reason,
-        })?;
+        let layout = Layout::compute(payload_bytes as u64, options.slots as u64, description.len() as u64)
+            .map_err(|reason| Error::InvalidLayout { channel: label.clone(), reason })?;
         if options.schema_name.len() > crate::channel::layout::SCHEMA_NAME_BYTES {
             return Err(Error::InvalidLayout {
                 channel: label,
-                reason: format!(
-                    "schema name {:?} is longer than 32 bytes",
-                    options.schema_name
-                ),
+                reason: format!("schema name {:?} is longer than 32 bytes", options.schema_name),
             });
         }
         let dir = options.dir.clone().unwrap_or_else(shm::segment_dir);
@@ -150,12 +131,8 @@ impl Writer {
             if let Some((shared, revived)) = Writer::try_revive(&path, &label, &layout, &init)? {
                 return Writer::start(shared, revived, options);
             }
-            let temp = dir.join(format!(
-                "{}{skin}.{channel}.{}.{}",
-                shm::TEMP_PREFIX,
-                std::process::id(),
-                os::monotonic_ns()
-            ));
+            let temp =
+                dir.join(format!("{}{skin}.{channel}.{}.{}", shm::TEMP_PREFIX, std::process::id(), os::monotonic_ns()));
             let mut shared = channel::create_segment(&temp, label.clone(), layout, &init)?;
             match rustix::fs::renameat_with(
                 rustix::fs::CWD,
@@ -173,87 +150,51 @@ impl Writer {
                 }
                 Err(e) => {
                     let _ = std::fs::remove_file(&temp);
-                    return Err(Error::Os {
-                        op: "rename",
-                        path,
-                        source: e.into(),
-                    });
+                    return Err(Error::Os { op: "rename", path, source: e.into() });
                 }
             }
         }
-        Err(Error::Os {
-            op: "create",
-            path,
-            source: std::io::ErrorKind::ResourceBusy.into(),
-        })
+        Err(Error::Os { op: "create", path, source: std::io::ErrorKind::ResourceBusy.into() })
     }
 
     /// Takes over an existing segment if its writer is dead and its layout
     /// matches. `Ok(None)` if there is no segment (any more).
-    fn try_revive(
-        path: &Path,
-        label: &str,
-        layout: &Layout,
-        init: &SegmentInit<'_>,
-    ) -> Result<Option<(Shared, bool)>> {
+    fn try_revive(path: &Path, label: &str, layout: &Layout, init: &SegmentInit<'_>) -> Result<Option<(Shared, bool)>> {
         let file = match File::options().read(true).write(true).open(path) {
             Ok(file) => file,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
             Err(source) => {
-                return Err(Error::Os {
-                    op: "open",
-                    path: path.to_owned(),
-                    source,
-                });
+                return Err(Error::Os { op: "open", path: path.to_owned(), source });
             }
         };
-        let locked = os::try_lock_writer(&file).map_err(|source| Error::Os {
-            op: "lock",
-            path: path.to_owned(),
-            source,
-        })?;
+        let locked =
+            os::try_lock_writer(&file).map_err(|source| Error::Os { op: "lock", path: path.to_owned(), source })?;
         if !locked {
             let pid = channel::map_validated(label.to_owned(), path.to_owned(), file, false)
                 .map(|shared| shared.header().writer_pid.load(Ordering::Relaxed))
                 .unwrap_or(0);
-            return Err(Error::Busy {
-                channel: label.to_owned(),
-                pid,
-            });
+            return Err(Error::Busy { channel: label.to_owned(), pid });
         }
         // A cleaner may have unlinked the file between our open and our lock.
         if path_identity(path) != Some(file_identity(&file, path)?) {
             return Ok(None);
         }
         let shared = channel::map_validated(label.to_owned(), path.to_owned(), file, true)?;
-        let mismatch =
-            |field: &'static str, existing: String, wanted: String| Error::LayoutMismatch {
-                channel: label.to_owned(),
-                field,
-                existing,
-                wanted,
-            };
+        let mismatch = |field: &'static str, existing: String, wanted: String| Error::LayoutMismatch {
+            channel: label.to_owned(),
+            field,
+            existing,
+            wanted,
+        };
         let existing = shared.layout;
         if existing.payload_bytes != layout.payload_bytes {
-            return Err(mismatch(
-                "frame bytes",
-                existing.payload_bytes.to_string(),
-                layout.payload_bytes.to_string(),
-            ));
+            return Err(mismatch("frame bytes", existing.payload_bytes.to_string(), layout.payload_bytes.to_string()));
         }
         if existing.slot_count != layout.slot_count {
-            return Err(mismatch(
-                "frame buffers",
-                existing.slot_count.to_string(),
-                layout.slot_count.to_string(),
-            ));
+            return Err(mismatch("frame buffers", existing.slot_count.to_string(), layout.slot_count.to_string()));
         }
         if shared.kind != init.kind {
-            return Err(mismatch(
-                "kind",
-                format!("{:?}", shared.kind),
-                format!("{:?}", init.kind),
-            ));
+            return Err(mismatch("kind", format!("{:?}", shared.kind), format!("{:?}", init.kind)));
         }
         let header = shared.header();
         let schema = crate::channel::layout::decode_schema(&header.schema_name);
@@ -278,17 +219,10 @@ impl Writer {
     fn start(shared: Shared, revived: bool, options: &WriterOptions) -> Result<Writer> {
         let identity = file_identity(&shared.file, &shared.path)?;
         let header = shared.header();
-        header
-            .writer_pid
-            .store(std::process::id(), Ordering::Relaxed);
-        header.period_ns.store(
-            options.period.map_or(0, |p| p.as_nanos() as u64),
-            Ordering::Relaxed,
-        );
+        header.writer_pid.store(std::process::id(), Ordering::Relaxed);
+        header.period_ns.store(options.period.map_or(0, |p| p.as_nanos() as u64), Ordering::Relaxed);
         stats::bump(&header.generation, 1);
-        header
-            .state_changed_ns
-            .store(os::monotonic_ns(), Ordering::Relaxed);
+        header.state_changed_ns.store(os::monotonic_ns(), Ordering::Relaxed);
         header.state.store(WriterState::RUNNING, Ordering::Release);
         let served_requests = shared.doorbell().requests.load(Ordering::Acquire);
         let next_seq = shared.ring().next_seq();
@@ -339,9 +273,7 @@ impl Writer {
     /// and abandoned (never seen by any reader) with [`FrameWriter::discard`].
     pub fn begin(&mut self) -> FrameWriter<'_> {
         let started_ns = os::monotonic_ns();
-        let Writer {
-            shared, next_seq, ..
-        } = self;
+        let Writer { shared, next_seq, .. } = self;
         let ring = shared.ring();
         let payload = ring.begin(*next_seq);
         FrameWriter {
@@ -372,9 +304,7 @@ impl Writer {
     pub fn set_state(&self, state: WriterState) {
         let header = self.shared.header();
         if header.state.swap(state.code(), Ordering::Release) != state.code() {
-            header
-                .state_changed_ns
-                .store(os::monotonic_ns(), Ordering::Relaxed);
+            header.state_changed_ns.store(os::monotonic_ns(), Ordering::Relaxed);
         }
     }
 
@@ -385,9 +315,7 @@ impl Writer {
 
     /// A handle that sets this writer's state from another thread (a watchdog).
     pub fn state_handle(&self) -> WriterStateHandle {
-        WriterStateHandle {
-            shared: self.shared.clone(),
-        }
+        WriterStateHandle { shared: self.shared.clone() }
     }
 
     /// The writer statistics in shared memory.
@@ -418,9 +346,7 @@ impl Writer {
         let requests = &self.shared.doorbell().requests;
         loop {
             if self.stop.is_stopped() {
-                return Err(Error::Stopped {
-                    channel: self.shared.label.clone(),
-                });
+                return Err(Error::Stopped { channel: self.shared.label.clone() });
             }
             let seen = requests.load(Ordering::Acquire);
             if seen != self.served_requests {
@@ -434,11 +360,7 @@ impl Writer {
             match os::futex_wait_shared(requests, seen, Duration::from_nanos(deadline - now)) {
                 Ok(Wake::Recheck) | Ok(Wake::TimedOut) => {}
                 Err(source) => {
-                    return Err(Error::Os {
-                        op: "futex wait",
-                        path: self.shared.path.clone(),
-                        source,
-                    });
+                    return Err(Error::Os { op: "futex wait", path: self.shared.path.clone(), source });
                 }
             }
         }
@@ -508,9 +430,7 @@ impl Writer {
 fn set_state(shared: &Shared, state: WriterState) {
     let header = shared.header();
     if header.state.swap(state.code(), Ordering::Release) != state.code() {
-        header
-            .state_changed_ns
-            .store(os::monotonic_ns(), Ordering::Relaxed);
+        header.state_changed_ns.store(os::monotonic_ns(), Ordering::Relaxed);
     }
 }
 
@@ -541,9 +461,7 @@ impl Drop for Writer {
     fn drop(&mut self) {
         let header = self.shared.header();
         header.state.store(WriterState::STOPPED, Ordering::Release);
-        header
-            .state_changed_ns
-            .store(os::monotonic_ns(), Ordering::Relaxed);
+        header.state_changed_ns.store(os::monotonic_ns(), Ordering::Relaxed);
         // Wake sleeping readers so that they can notice at once.
         os::futex_wake_shared(&self.shared.doorbell().notify);
         if self.unlink_on_drop && path_identity(&self.shared.path) == Some(self.identity) {
@@ -585,11 +503,7 @@ impl FrameWriter<'_> {
     }
 
     fn too_large(&self, given: usize) -> Error {
-        Error::PayloadTooLarge {
-            channel: self.shared.label.clone(),
-            given,
-            capacity: self.payload_bytes,
-        }
+        Error::PayloadTooLarge { channel: self.shared.label.clone(), given, capacity: self.payload_bytes }
     }
 
     /// Sets response `index`.
@@ -679,20 +593,12 @@ impl FrameWriter<'_> {
         *self.next_seq += 1;
         // Wake sleeping readers only if one announced itself; the swap also clears
         // the announcement, so a reader that died asleep costs one wake at most.
-        let announced = self
-            .shared
-            .doorbell()
-            .notify
-            .swap((seq as u32) << 1, Ordering::Release);
+        let announced = self.shared.doorbell().notify.swap((seq as u32) << 1, Ordering::Release);
         if announced & 1 != 0 {
             os::futex_wake_shared(&self.shared.doorbell().notify);
         }
         let header = self.shared.header();
-        stats::record_write(
-            &header.stats,
-            os::monotonic_ns() - self.started_ns,
-            self.status.is_fault(),
-        );
+        stats::record_write(&header.stats, os::monotonic_ns() - self.started_ns, self.status.is_fault());
         seq
     }
 }

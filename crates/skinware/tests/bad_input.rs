@@ -14,14 +14,9 @@ const ABI_VERSION_OFFSET: u64 = 8;
 const SLOT_BYTES_OFFSET: u64 = 56;
 
 fn leave_behind(dir: &SegmentDir, skin: &str, channel: &str) {
-    let options = WriterOptions {
-        unlink_on_drop: false,
-        ..dir.writer()
-    };
+    let options = WriterOptions { unlink_on_drop: false, ..dir.writer() };
     let mut writer = Writer::create(skin, channel, 64, b"topology", &options).unwrap();
-    writer
-        .publish_bytes(&[1; 64], skinware::FrameStatus::OK)
-        .unwrap();
+    writer.publish_bytes(&[1; 64], skinware::FrameStatus::OK).unwrap();
 }
 
 fn poke_u32(path: &std::path::Path, offset: u64, value: u32) {
@@ -31,24 +26,14 @@ fn poke_u32(path: &std::path::Path, offset: u64, value: u32) {
 }
 
 fn open_gone(dir: &SegmentDir, skin: &str, channel: &str) -> Result<Reader, Error> {
-    Reader::open_with(
-        skin,
-        channel,
-        &ReaderOptions {
-            allow_gone: true,
-            ..dir.reader()
-        },
-    )
+    Reader::open_with(skin, channel, &ReaderOptions { allow_gone: true, ..dir.reader() })
 }
 
 #[test]
 fn missing_channel() {
     let dir = SegmentDir::new("missing");
     let err = Reader::open_with("skin", "nothing", &dir.reader()).unwrap_err();
-    assert!(
-        matches!(err, Error::Missing { ref channel, .. } if channel == "skin/nothing"),
-        "{err}"
-    );
+    assert!(matches!(err, Error::Missing { ref channel, .. } if channel == "skin/nothing"), "{err}");
     assert!(err.to_string().contains("start its writer"), "{err}");
 }
 
@@ -57,16 +42,7 @@ fn file_that_is_not_ours() {
     let dir = SegmentDir::new("foreign");
     std::fs::write(dir.segment("skin", "foreign"), vec![0x42; 20_000]).unwrap();
     let err = open_gone(&dir, "skin", "foreign").unwrap_err();
-    assert!(
-        matches!(
-            err,
-            Error::NotOurs {
-                found: 0x4242_4242_4242_4242,
-                ..
-            }
-        ),
-        "{err}"
-    );
+    assert!(matches!(err, Error::NotOurs { found: 0x4242_4242_4242_4242, .. }), "{err}");
     assert!(err.to_string().contains("not a skinware channel"), "{err}");
 }
 
@@ -76,17 +52,7 @@ fn abi_version_mismatch() {
     leave_behind(&dir, "skin", "old");
     poke_u32(&dir.segment("skin", "old"), ABI_VERSION_OFFSET, 999);
     let err = open_gone(&dir, "skin", "old").unwrap_err();
-    assert!(
-        matches!(
-            err,
-            Error::VersionMismatch {
-                found: 999,
-                expected: skinware::ABI_VERSION,
-                ..
-            }
-        ),
-        "{err}"
-    );
+    assert!(matches!(err, Error::VersionMismatch { found: 999, expected: skinware::ABI_VERSION, .. }), "{err}");
 }
 
 #[test]
@@ -103,17 +69,7 @@ fn truncated_header() {
     let dir = SegmentDir::new("short-header");
     std::fs::write(dir.segment("skin", "short"), b"SKINWARE and then nothing").unwrap();
     let err = open_gone(&dir, "skin", "short").unwrap_err();
-    assert!(
-        matches!(
-            err,
-            Error::Truncated {
-                actual: 25,
-                needed: 8192,
-                ..
-            }
-        ),
-        "{err}"
-    );
+    assert!(matches!(err, Error::Truncated { actual: 25, needed: 8192, .. }), "{err}");
 }
 
 #[test]
@@ -122,17 +78,9 @@ fn truncated_frames() {
     leave_behind(&dir, "skin", "cut");
     let path = dir.segment("skin", "cut");
     let full = std::fs::metadata(&path).unwrap().len();
-    std::fs::OpenOptions::new()
-        .write(true)
-        .open(&path)
-        .unwrap()
-        .set_len(full - 64)
-        .unwrap();
+    std::fs::OpenOptions::new().write(true).open(&path).unwrap().set_len(full - 64).unwrap();
     let err = open_gone(&dir, "skin", "cut").unwrap_err();
-    assert!(
-        matches!(err, Error::Truncated { actual, needed, .. } if needed == full && actual == full - 64),
-        "{err}"
-    );
+    assert!(matches!(err, Error::Truncated { actual, needed, .. } if needed == full && actual == full - 64), "{err}");
 }
 
 #[test]
@@ -141,10 +89,7 @@ fn corrupt_header() {
     leave_behind(&dir, "skin", "bent");
     poke_u32(&dir.segment("skin", "bent"), SLOT_BYTES_OFFSET, 12345);
     let err = open_gone(&dir, "skin", "bent").unwrap_err();
-    assert!(
-        matches!(err, Error::Corrupt { ref reason, .. } if reason.contains("slot_bytes")),
-        "{err}"
-    );
+    assert!(matches!(err, Error::Corrupt { ref reason, .. } if reason.contains("slot_bytes")), "{err}");
 }
 
 #[test]
@@ -152,10 +97,7 @@ fn writer_gone() {
     let dir = SegmentDir::new("gone");
     leave_behind(&dir, "skin", "orphan");
     let err = Reader::open_with("skin", "orphan", &dir.reader()).unwrap_err();
-    assert!(
-        matches!(err, Error::WriterGone { pid, .. } if pid == std::process::id()),
-        "{err}"
-    );
+    assert!(matches!(err, Error::WriterGone { pid, .. } if pid == std::process::id()), "{err}");
     // Tools may still attach, and see it as gone.
     let reader = open_gone(&dir, "skin", "orphan").unwrap();
     assert_eq!(reader.writer_state(), WriterState::Gone);
@@ -174,19 +116,12 @@ fn invalid_names() {
         ("skin", "c\0", "character"),
     ] {
         let err = Writer::create(skin, channel, 8, b"", &dir.writer()).unwrap_err();
-        assert!(
-            matches!(err, Error::InvalidName { .. }),
-            "{skin:?}/{channel:?}: {err}"
-        );
+        assert!(matches!(err, Error::InvalidName { .. }), "{skin:?}/{channel:?}: {err}");
         assert!(err.to_string().contains(reason), "{err}");
         let err = Reader::open_with(skin, channel, &dir.reader()).unwrap_err();
         assert!(matches!(err, Error::InvalidName { .. }), "{err}");
     }
-    assert!(
-        dir.files().is_empty(),
-        "a refused name created {:?}",
-        dir.files()
-    );
+    assert!(dir.files().is_empty(), "a refused name created {:?}", dir.files());
 }
 
 #[test]
@@ -194,10 +129,7 @@ fn second_live_writer_is_refused() {
     let dir = SegmentDir::new("busy");
     let _first = Writer::create("skin", "taken", 8, b"", &dir.writer()).unwrap();
     let err = Writer::create("skin", "taken", 8, b"", &dir.writer()).unwrap_err();
-    assert!(
-        matches!(err, Error::Busy { pid, .. } if pid == std::process::id()),
-        "{err}"
-    );
+    assert!(matches!(err, Error::Busy { pid, .. } if pid == std::process::id()), "{err}");
 }
 
 #[test]
@@ -205,83 +137,30 @@ fn revival_with_another_layout_is_refused() {
     let dir = SegmentDir::new("relayout");
     leave_behind(&dir, "skin", "layer");
     let err = Writer::create("skin", "layer", 128, b"topology", &dir.writer()).unwrap_err();
-    assert!(
-        matches!(
-            err,
-            Error::LayoutMismatch {
-                field: "frame bytes",
-                ..
-            }
-        ),
-        "{err}"
-    );
+    assert!(matches!(err, Error::LayoutMismatch { field: "frame bytes", .. }), "{err}");
     let err = Writer::create("skin", "layer", 64, b"other topology", &dir.writer()).unwrap_err();
-    assert!(
-        matches!(
-            err,
-            Error::LayoutMismatch {
-                field: "description (topology)",
-                ..
-            }
-        ),
-        "{err}"
-    );
-    let options = WriterOptions {
-        slots: 5,
-        ..dir.writer()
-    };
+    assert!(matches!(err, Error::LayoutMismatch { field: "description (topology)", .. }), "{err}");
+    let options = WriterOptions { slots: 5, ..dir.writer() };
     let err = Writer::create("skin", "layer", 64, b"topology", &options).unwrap_err();
-    assert!(
-        matches!(
-            err,
-            Error::LayoutMismatch {
-                field: "frame buffers",
-                ..
-            }
-        ),
-        "{err}"
-    );
+    assert!(matches!(err, Error::LayoutMismatch { field: "frame buffers", .. }), "{err}");
 }
 
 #[test]
 fn schema_mismatch() {
     let dir = SegmentDir::new("schema");
-    let options = WriterOptions {
-        schema_name: "motion".into(),
-        schema_version: 2,
-        ..dir.writer()
-    };
+    let options = WriterOptions { schema_name: "motion".into(), schema_version: 2, ..dir.writer() };
     let _writer = Writer::create("skin", "motion", 32, b"", &options).unwrap();
-    let wrong = ReaderOptions {
-        expect_schema: Some(("motion".into(), 1)),
-        ..dir.reader()
-    };
+    let wrong = ReaderOptions { expect_schema: Some(("motion".into(), 1)), ..dir.reader() };
     let err = Reader::open_with("skin", "motion", &wrong).unwrap_err();
-    assert!(
-        matches!(
-            err,
-            Error::SchemaMismatch {
-                found_version: 2,
-                expected_version: 1,
-                ..
-            }
-        ),
-        "{err}"
-    );
-    let right = ReaderOptions {
-        expect_schema: Some(("motion".into(), 2)),
-        ..dir.reader()
-    };
+    assert!(matches!(err, Error::SchemaMismatch { found_version: 2, expected_version: 1, .. }), "{err}");
+    let right = ReaderOptions { expect_schema: Some(("motion".into(), 2)), ..dir.reader() };
     assert!(Reader::open_with("skin", "motion", &right).is_ok());
 }
 
 #[test]
 fn out_of_range_layout() {
     let dir = SegmentDir::new("layout");
-    let one_slot = WriterOptions {
-        slots: 1,
-        ..dir.writer()
-    };
+    let one_slot = WriterOptions { slots: 1, ..dir.writer() };
     let err = Writer::create("skin", "k1", 8, b"", &one_slot).unwrap_err();
     assert!(matches!(err, Error::InvalidLayout { .. }), "{err}");
     let err = Writer::create("skin", "empty", 0, b"", &dir.writer()).unwrap_err();
@@ -293,29 +172,11 @@ fn out_of_range_layout() {
 fn oversized_writes() {
     let dir = SegmentDir::new("oversized");
     let mut writer = Writer::create("skin", "small", 8, b"", &dir.writer()).unwrap();
-    let err = writer
-        .publish_bytes(&[0; 9], skinware::FrameStatus::OK)
-        .unwrap_err();
-    assert!(
-        matches!(
-            err,
-            Error::PayloadTooLarge {
-                given: 9,
-                capacity: 8,
-                ..
-            }
-        ),
-        "{err}"
-    );
+    let err = writer.publish_bytes(&[0; 9], skinware::FrameStatus::OK).unwrap_err();
+    assert!(matches!(err, Error::PayloadTooLarge { given: 9, capacity: 8, .. }), "{err}");
     let mut frame = writer.begin();
-    assert!(matches!(
-        frame.set_response(4, 1),
-        Err(Error::PayloadTooLarge { .. })
-    ));
-    assert!(matches!(
-        frame.write_responses(2, &[1, 2, 3]),
-        Err(Error::PayloadTooLarge { .. })
-    ));
+    assert!(matches!(frame.set_response(4, 1), Err(Error::PayloadTooLarge { .. })));
+    assert!(matches!(frame.write_responses(2, &[1, 2, 3]), Err(Error::PayloadTooLarge { .. })));
     frame.discard();
     assert_eq!(writer.last_seq(), 0, "a refused write published a frame");
 }
@@ -324,18 +185,9 @@ fn oversized_writes() {
 fn segments_are_private_unless_group_access_is_asked() {
     let dir = SegmentDir::new("modes");
     let _private = Writer::create("skin", "private", 8, b"", &dir.writer()).unwrap();
-    let group = WriterOptions {
-        group_access: true,
-        ..dir.writer()
-    };
+    let group = WriterOptions { group_access: true, ..dir.writer() };
     let _shared = Writer::create("skin", "group", 8, b"", &group).unwrap();
-    let mode = |channel| {
-        std::fs::metadata(dir.segment("skin", channel))
-            .unwrap()
-            .permissions()
-            .mode()
-            & 0o777
-    };
+    let mode = |channel| std::fs::metadata(dir.segment("skin", channel)).unwrap().permissions().mode() & 0o777;
     assert_eq!(mode("private"), 0o600);
     assert_eq!(mode("group"), 0o660);
 }

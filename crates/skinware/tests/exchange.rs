@@ -6,9 +6,7 @@ mod common;
 use std::time::{Duration, Instant};
 
 use common::SegmentDir;
-use skinware::{
-    Error, FrameStatus, Reader, ReaderOptions, Stop, Ticker, Writer, WriterOptions, WriterState,
-};
+use skinware::{Error, FrameStatus, Reader, ReaderOptions, Stop, Ticker, Writer, WriterOptions, WriterState};
 
 fn publish(writer: &mut Writer, value: u16) -> u64 {
     let mut frame = writer.begin();
@@ -25,10 +23,7 @@ fn latest_returns_newest_with_metadata_and_skips() {
     assert!(matches!(reader.latest(), Err(Error::NoFrameYet { .. })));
     publish(&mut writer, 1);
     let first = reader.latest().unwrap();
-    assert_eq!(
-        (first.seq(), first.skipped(), first.is_fresh()),
-        (1, 0, true)
-    );
+    assert_eq!((first.seq(), first.skipped(), first.is_fresh()), (1, 0, true));
     for value in 2..=5 {
         publish(&mut writer, value);
     }
@@ -70,11 +65,7 @@ fn discarded_frame_is_never_seen() {
     frame.discard();
     let frame = reader.latest().unwrap();
     assert_eq!((frame.seq(), frame.responses()), (1, &[7u16, 7, 7, 7][..]));
-    assert_eq!(
-        publish(&mut writer, 8),
-        2,
-        "a discarded frame used up a sequence number"
-    );
+    assert_eq!(publish(&mut writer, 8), 2, "a discarded frame used up a sequence number");
 }
 
 #[test]
@@ -91,14 +82,8 @@ fn as_soon_as_available_reader_wakes_on_publish() {
     publish(&mut writer, 3);
     let (seq, waited) = waiter.join().unwrap();
     assert_eq!(seq, 1);
-    assert!(
-        waited >= Duration::from_millis(90),
-        "returned before the publish: {waited:?}"
-    );
-    assert!(
-        waited < Duration::from_secs(10),
-        "missed the wake-up: {waited:?}"
-    );
+    assert!(waited >= Duration::from_millis(90), "returned before the publish: {waited:?}");
+    assert!(waited < Duration::from_secs(10), "missed the wake-up: {waited:?}");
 }
 
 #[test]
@@ -113,11 +98,7 @@ fn as_soon_as_available_reader_times_out_and_can_be_stopped() {
 
     let stop = Stop::new();
     reader.set_stop(&stop);
-    let waiter = std::thread::spawn(move || {
-        reader
-            .wait_newer(Duration::from_secs(3600))
-            .map(|f| f.seq())
-    });
+    let waiter = std::thread::spawn(move || reader.wait_newer(Duration::from_secs(3600)).map(|f| f.seq()));
     std::thread::sleep(Duration::from_millis(50));
     let stopped_at = Instant::now();
     stop.stop();
@@ -150,20 +131,13 @@ fn request_triggers_a_sporadic_acquisition() {
         assert_eq!(frame.seq(), u64::from(expected));
     }
     stop.stop();
-    assert_eq!(
-        acquisitions.join().unwrap(),
-        3,
-        "each request should cause exactly one acquisition"
-    );
+    assert_eq!(acquisitions.join().unwrap(), 3, "each request should cause exactly one acquisition");
 }
 
 #[test]
 fn request_on_a_periodic_writer_waits_for_its_next_frame() {
     let dir = SegmentDir::new("request-periodic");
-    let options = WriterOptions {
-        period: Some(Duration::from_millis(5)),
-        ..dir.writer()
-    };
+    let options = WriterOptions { period: Some(Duration::from_millis(5)), ..dir.writer() };
     let mut writer = Writer::create("skin", "periodic", 8, b"", &options).unwrap();
     let stop = Stop::new();
     writer.set_stop(&stop);
@@ -247,13 +221,7 @@ fn failed_acquisition_marks_the_channel_faulted_until_it_recovers() {
     // The state seen during call n reflects calls before it.
     assert_eq!(
         states,
-        [
-            WriterState::Running,
-            WriterState::Running,
-            WriterState::Faulted,
-            WriterState::Faulted,
-            WriterState::Running
-        ]
+        [WriterState::Running, WriterState::Running, WriterState::Faulted, WriterState::Faulted, WriterState::Running]
     );
     assert_eq!(writer.stats().faults, 2);
     assert_eq!(writer.last_seq(), 3, "failed acquisitions must not publish");
@@ -275,10 +243,7 @@ fn liveness_paused_and_gone() {
 #[test]
 fn revival_continues_the_sequence_for_existing_readers() {
     let dir = SegmentDir::new("revival");
-    let keep = WriterOptions {
-        unlink_on_drop: false,
-        ..dir.writer()
-    };
+    let keep = WriterOptions { unlink_on_drop: false, ..dir.writer() };
     let mut first = Writer::create("skin", "layer", 8, b"topology", &keep).unwrap();
     let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
     for value in 1..=4 {
@@ -294,11 +259,7 @@ fn revival_continues_the_sequence_for_existing_readers() {
     assert_eq!(reader.writer_generation(), 2);
     publish(&mut second, 50);
     let frame = reader.wait_newer(Duration::from_secs(5)).unwrap();
-    assert_eq!(
-        frame.seq(),
-        5,
-        "the revived writer must continue the sequence"
-    );
+    assert_eq!(frame.seq(), 5, "the revived writer must continue the sequence");
     assert_eq!(frame.responses(), &[50; 4]);
 }
 
@@ -309,59 +270,34 @@ fn readers_map_frames_read_only() {
     let reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
     let maps = std::fs::read_to_string("/proc/self/maps").unwrap();
     let path = reader.path().to_string_lossy().into_owned();
-    let ours: Vec<&str> = maps
-        .lines()
-        .filter(|line| line.ends_with(path.as_str()))
-        .collect();
+    let ours: Vec<&str> = maps.lines().filter(|line| line.ends_with(path.as_str())).collect();
     // The writer's read-write mapping, its doorbell, the reader's read-only
     // mapping of everything and the reader's doorbell.
-    let read_only: Vec<&&str> = ours
-        .iter()
-        .filter(|l| l.split_whitespace().nth(1) == Some("r--s"))
-        .collect();
+    let read_only: Vec<&&str> = ours.iter().filter(|l| l.split_whitespace().nth(1) == Some("r--s")).collect();
     assert_eq!(read_only.len(), 1, "{ours:#?}");
     let size = |line: &str| {
-        let (start, end) = line
-            .split_whitespace()
-            .next()
-            .unwrap()
-            .split_once('-')
-            .unwrap();
+        let (start, end) = line.split_whitespace().next().unwrap().split_once('-').unwrap();
         u64::from_str_radix(end, 16).unwrap() - u64::from_str_radix(start, 16).unwrap()
     };
-    assert!(
-        size(read_only[0]) > 60_000,
-        "the read-only mapping must cover the frames"
-    );
-    for line in ours
-        .iter()
-        .filter(|l| l.split_whitespace().nth(1) == Some("rw-s"))
-    {
+    assert!(size(read_only[0]) > 60_000, "the read-only mapping must cover the frames");
+    for line in ours.iter().filter(|l| l.split_whitespace().nth(1) == Some("rw-s")) {
         let is_doorbell = size(line) == 4096;
         let is_writer = size(line) == size(read_only[0]);
-        assert!(
-            is_doorbell || is_writer,
-            "unexpected writable mapping {line}"
-        );
+        assert!(is_doorbell || is_writer, "unexpected writable mapping {line}");
     }
 }
 
 #[test]
 fn stale_channels_are_listed_and_removed() {
     let dir = SegmentDir::new("clean");
-    let keep = WriterOptions {
-        unlink_on_drop: false,
-        ..dir.writer()
-    };
+    let keep = WriterOptions { unlink_on_drop: false, ..dir.writer() };
     drop(Writer::create("dead", "layer", 8, b"", &keep).unwrap());
     let _alive = Writer::create("live", "layer", 8, b"", &dir.writer()).unwrap();
     std::fs::write(dir.segment("junk", "layer"), b"not a channel at all").unwrap();
 
     let listed = skinware::list_channels(&dir.path).unwrap();
-    let summary: Vec<(String, WriterState, bool)> = listed
-        .iter()
-        .map(|c| (c.skin.clone(), c.state, c.problem.is_some()))
-        .collect();
+    let summary: Vec<(String, WriterState, bool)> =
+        listed.iter().map(|c| (c.skin.clone(), c.state, c.problem.is_some())).collect();
     assert_eq!(
         summary,
         [
@@ -376,11 +312,7 @@ fn stale_channels_are_listed_and_removed() {
     assert_eq!(dir.files(), ["skinware.junk.layer", "skinware.live.layer"]);
     let removed = skinware::remove_stale_channels(&dir.path, true).unwrap();
     assert_eq!(removed, [dir.segment("junk", "layer")]);
-    assert_eq!(
-        dir.files(),
-        ["skinware.live.layer"],
-        "a live writer's channel was removed"
-    );
+    assert_eq!(dir.files(), ["skinware.live.layer"], "a live writer's channel was removed");
 }
 
 #[test]

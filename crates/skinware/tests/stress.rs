@@ -18,9 +18,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
-use skinware::{
-    Error, Reader, ReaderOptions, RtOptions, Stop, Ticker, Writer, WriterOptions, WriterState,
-};
+use skinware::{Error, Reader, ReaderOptions, RtOptions, Stop, Ticker, Writer, WriterOptions, WriterState};
 
 const SKIN: &str = "stress";
 const CHANNEL: &str = "layer";
@@ -42,16 +40,13 @@ fn main() {
 
 /// Word `i` of frame `seq`; the last word is a checksum of all the others.
 fn expected_word(seq: u64, i: usize) -> u64 {
-    let mut x =
-        seq.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (i as u64).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    let mut x = seq.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (i as u64).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     x ^= x >> 31;
     x
 }
 
 fn checksum(words: &[u64]) -> u64 {
-    words.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &w| {
-        (h ^ w).wrapping_mul(0x0100_0000_01b3)
-    })
+    words.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &w| (h ^ w).wrapping_mul(0x0100_0000_01b3))
 }
 
 /// A reader's verdict on one frame: whole and matching its sequence number?
@@ -60,10 +55,7 @@ fn frame_is_whole(seq: u64, bytes: &[u8]) -> bool {
     words.len() == PAYLOAD_WORDS
         && words[0] == seq
         && checksum(&words[..PAYLOAD_WORDS - 1]) == words[PAYLOAD_WORDS - 1]
-        && words[1..PAYLOAD_WORDS - 1]
-            .iter()
-            .enumerate()
-            .all(|(i, &w)| w == expected_word(seq, i + 1))
+        && words[1..PAYLOAD_WORDS - 1].iter().enumerate().all(|(i, &w)| w == expected_word(seq, i + 1))
 }
 
 #[derive(Default, Debug, Clone)]
@@ -111,10 +103,7 @@ impl Report {
 /// its own process, as a driver would, so that the parent's spawning of
 /// readers (which touches the parent's address space) cannot disturb it.
 fn writer_main() {
-    let options = WriterOptions {
-        period: Some(Duration::from_millis(1)),
-        ..WriterOptions::default()
-    };
+    let options = WriterOptions { period: Some(Duration::from_millis(1)), ..WriterOptions::default() };
     let mut writer = Writer::create(SKIN, CHANNEL, PAYLOAD_WORDS * 8, b"stress", &options).unwrap();
     let stop = Stop::new();
     writer.set_stop(&stop);
@@ -123,11 +112,7 @@ fn writer_main() {
         let _ = std::io::Read::read_to_end(&mut std::io::stdin(), &mut Vec::new());
         stopper.stop();
     });
-    let rt = RtOptions {
-        fifo_priority: Some(80),
-        lock_memory: true,
-        ..RtOptions::default()
-    };
+    let rt = RtOptions { fifo_priority: Some(80), lock_memory: true, ..RtOptions::default() };
     for warning in rt.apply() {
         println!("stress: {warning}");
     }
@@ -146,12 +131,8 @@ fn writer_main() {
 
 fn reader_main() -> i32 {
     let mode = std::env::var("SKINWARE_STRESS_MODE").unwrap_or_default();
-    let report_path =
-        PathBuf::from(std::env::var_os("SKINWARE_STRESS_REPORT").expect("report path"));
-    let options = ReaderOptions {
-        allow_gone: true,
-        ..ReaderOptions::default()
-    };
+    let report_path = PathBuf::from(std::env::var_os("SKINWARE_STRESS_REPORT").expect("report path"));
+    let options = ReaderOptions { allow_gone: true, ..ReaderOptions::default() };
     let mut reader = match Reader::open_with(SKIN, CHANNEL, &options) {
         Ok(reader) => reader,
         Err(e) => {
@@ -223,11 +204,7 @@ fn spawn_reader(dir: &Path, reports: &Path, id: usize) -> ReaderProcess {
         .env("SKINWARE_SHM_DIR", dir)
         .spawn()
         .expect("spawn reader process");
-    ReaderProcess {
-        child,
-        report,
-        stopped_until: None,
-    }
+    ReaderProcess { child, report, stopped_until: None }
 }
 
 fn signal(child: &Child, signal: rustix::process::Signal) {
@@ -250,10 +227,7 @@ impl Chaos {
 
 fn parent_main() {
     use rustix::process::Signal;
-    let seconds: u64 = std::env::var("SKINWARE_STRESS_SECS")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(10);
+    let seconds: u64 = std::env::var("SKINWARE_STRESS_SECS").ok().and_then(|s| s.parse().ok()).unwrap_or(10);
     let seed = std::env::var("SKINWARE_STRESS_SEED")
         .ok()
         .and_then(|s| s.parse().ok())
@@ -271,10 +245,7 @@ fn parent_main() {
         .stdin(std::process::Stdio::piped())
         .spawn()
         .expect("spawn writer process");
-    let observe = ReaderOptions {
-        dir: Some(dir.clone()),
-        ..Default::default()
-    };
+    let observe = ReaderOptions { dir: Some(dir.clone()), ..Default::default() };
     let opened = Instant::now();
     let observer = loop {
         match Reader::open_with(SKIN, CHANNEL, &observe) {
@@ -285,9 +256,7 @@ fn parent_main() {
             Err(_) => std::thread::sleep(Duration::from_millis(10)),
         }
     };
-    let mut readers: Vec<ReaderProcess> = (0..READERS)
-        .map(|id| spawn_reader(&dir, &reports, id))
-        .collect();
+    let mut readers: Vec<ReaderProcess> = (0..READERS).map(|id| spawn_reader(&dir, &reports, id)).collect();
     let mut next_id = READERS;
 
     // Calm phase: the writer's overrun rate with readers that behave.
@@ -323,8 +292,7 @@ fn parent_main() {
             _ => {
                 if readers[victim].stopped_until.is_none() {
                     signal(&readers[victim].child, Signal::STOP);
-                    readers[victim].stopped_until =
-                        Some(now + Duration::from_millis(50 + chaos.next(950)));
+                    readers[victim].stopped_until = Some(now + Duration::from_millis(50 + chaos.next(950)));
                     stops += 1;
                 }
             }
@@ -340,10 +308,7 @@ fn parent_main() {
     std::thread::sleep(Duration::from_millis(500));
     drop(writer_process.stdin.take()); // the writer stops when its stdin closes
     let writer_status = writer_process.wait().unwrap();
-    assert!(
-        writer_status.success(),
-        "the writer process failed: {writer_status}"
-    );
+    assert!(writer_status.success(), "the writer process failed: {writer_status}");
     let final_stats = observer.writer_stats();
     let last_seq = observer.published_seq();
     assert_eq!(observer.writer_state(), WriterState::Gone);
@@ -363,11 +328,7 @@ fn parent_main() {
             }
             std::thread::sleep(Duration::from_millis(10));
         };
-        assert_eq!(
-            status.and_then(|s| s.code()),
-            Some(0),
-            "reader process {index} did not finish cleanly: {status:?}"
-        );
+        assert_eq!(status.and_then(|s| s.code()), Some(0), "reader process {index} did not finish cleanly: {status:?}");
         survivors_done += 1;
         finished_reports.insert(index, process.report);
     }
@@ -396,10 +357,7 @@ fn parent_main() {
         survivors_done,
         silent
     );
-    println!(
-        "stress: repeats (periodic readers faster than the writer) {}",
-        total.repeats
-    );
+    println!("stress: repeats (periodic readers faster than the writer) {}", total.repeats);
     println!("stress: SIGKILLs {kills} ({kills_while_stopped} while stopped), SIGSTOPs {stops}");
     println!("stress: torn frames       {}", total.torn);
     println!("stress: sequence went back {}", total.backwards);
@@ -422,16 +380,9 @@ fn parent_main() {
 
     assert_eq!(total.torn, 0, "torn frames were read");
     assert_eq!(total.backwards, 0, "a reader's sequence went back");
-    assert!(
-        total.reads > 1000,
-        "too few reads to mean anything: {}",
-        total.reads
-    );
+    assert!(total.reads > 1000, "too few reads to mean anything: {}", total.reads);
     assert!(kills > 0 && stops > 0, "no chaos happened");
-    assert!(
-        last_seq as f64 >= 0.5 * (seconds + 2) as f64 * 1000.0,
-        "the writer fell far behind 1 kHz: {last_seq}"
-    );
+    assert!(last_seq as f64 >= 0.5 * (seconds + 2) as f64 * 1000.0, "the writer fell far behind 1 kHz: {last_seq}");
     // Reader faults must not make the writer miss more periods than it does with
     // calm readers. The calm phase is short, so its rate is a noisy estimate:
     // the bound doubles it and adds 0.5 % for this kernel's scheduling spikes.
@@ -439,11 +390,7 @@ fn parent_main() {
         faulty_rate <= 2.0 * calm_rate + 0.005,
         "the writer missed more periods while readers failed ({faulty_rate:.4}) than before ({calm_rate:.4})"
     );
-    let leftovers: Vec<String> = segments
-        .files()
-        .into_iter()
-        .filter(|name| name != "reports")
-        .collect();
+    let leftovers: Vec<String> = segments.files().into_iter().filter(|name| name != "reports").collect();
     assert!(leftovers.is_empty(), "segments left behind: {leftovers:?}");
     println!("stress: ok");
 }

@@ -17,10 +17,6 @@ pub fn run(args: &Args) -> Result<()> {
     for path in &removed {
         println!("removed {}", path.display());
     }
-    println!(
-        "{} stale channel(s) removed from {}",
-        removed.len(),
-        dir.display()
-    );
+    println!("{} stale channel(s) removed from {}", removed.len(), dir.display());
     Ok(())
 }

@@ -44,10 +44,7 @@ pub struct Args {
 
 /// Runs `skin echo`.
 pub fn run(args: &Args) -> Result<()> {
-    let options = ReaderOptions {
-        allow_gone: true,
-        ..ReaderOptions::default()
-    };
+    let options = ReaderOptions { allow_gone: true, ..ReaderOptions::default() };
     let mut reader = Reader::open_with(&args.skin, &args.layer, &options)
         .with_context(|| format!("cannot attach to layer {}/{}", args.skin, args.layer))?;
     let timeout = Duration::from_secs_f64(args.timeout.clamp(0.001, 86_400.0));
@@ -66,11 +63,8 @@ pub fn run(args: &Args) -> Result<()> {
         match result {
             Ok(frame) => {
                 let responses = frame.responses();
-                let (min, max) = responses
-                    .iter()
-                    .fold((u16::MAX, 0), |(lo, hi), &r| (lo.min(r), hi.max(r)));
-                let mean = responses.iter().map(|&r| f64::from(r)).sum::<f64>()
-                    / responses.len().max(1) as f64;
+                let (min, max) = responses.iter().fold((u16::MAX, 0), |(lo, hi), &r| (lo.min(r), hi.max(r)));
+                let mean = responses.iter().map(|&r| f64::from(r)).sum::<f64>() / responses.len().max(1) as f64;
                 write!(
                     out,
                     "seq {} acquired {} ns status {:#x} skipped {} sensors {} min {min} mean {mean:.1} max {max}",

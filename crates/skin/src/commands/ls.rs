@@ -29,11 +29,7 @@ pub fn run(args: &Args) -> Result<()> {
         return Ok(());
     }
     if layers.is_empty() {
-        writeln!(
-            out,
-            "no layers (is `skin run` running? channels are in {})",
-            skinware::shm::segment_dir().display()
-        )?;
+        writeln!(out, "no layers (is `skin run` running? channels are in {})", skinware::shm::segment_dir().display())?;
     }
     for layer in &layers {
         writeln!(
@@ -52,11 +48,7 @@ pub fn run(args: &Args) -> Result<()> {
         )?;
         for (patch, modules) in &layer.tree {
             let sensors: usize = modules.iter().map(|(_, n)| n).sum();
-            writeln!(
-                out,
-                "  patch {patch}: {} modules, {sensors} sensors",
-                modules.len()
-            )?;
+            writeln!(out, "  patch {patch}: {} modules, {sensors} sensors", modules.len())?;
             if args.modules {
                 for (module, count) in modules {
                     writeln!(out, "    module {module}: {count} sensors")?;

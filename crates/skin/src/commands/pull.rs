@@ -28,12 +28,8 @@ pub fn run(args: &Args) -> Result<()> {
         }
         println!("{}/{}: cable plugged back in", args.skin, args.layer);
     } else {
-        std::fs::write(&file, b"pulled\n")
-            .with_context(|| format!("cannot create {}", file.display()))?;
-        println!(
-            "{}/{}: cable pulled (undo with --restore)",
-            args.skin, args.layer
-        );
+        std::fs::write(&file, b"pulled\n").with_context(|| format!("cannot create {}", file.display()))?;
+        println!("{}/{}: cable pulled (undo with --restore)", args.skin, args.layer);
     }
     Ok(())
 }

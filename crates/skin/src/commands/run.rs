@@ -38,8 +38,7 @@ pub fn run(config_path: &Path) -> Result<()> {
     let config_path = std::fs::canonicalize(config_path)?;
     let shutdown = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(signal, shutdown.clone())
-            .context("cannot install signal handlers")?;
+        signal_hook::flag::register(signal, shutdown.clone()).context("cannot install signal handlers")?;
     }
     let mut drivers = Vec::new();
     for driver in &config.drivers {
@@ -54,11 +53,7 @@ pub fn run(config_path: &Path) -> Result<()> {
             restarts: 0,
         });
     }
-    println!(
-        "skin {}: {} driver(s) running; Ctrl-C to stop",
-        config.skin,
-        drivers.len()
-    );
+    println!("skin {}: {} driver(s) running; Ctrl-C to stop", config.skin, drivers.len());
     let mut layer_states: HashMap<String, &'static str> = HashMap::new();
     let mut next_state_poll = Instant::now();
     while !shutdown.load(Ordering::Relaxed) {
@@ -70,8 +65,7 @@ pub fn run(config_path: &Path) -> Result<()> {
                     tracing::warn!(driver = %name, %status, backoff_s = driver.backoff_s, "driver exited; restarting");
                     driver.child = None;
                     driver.restart_at = Some(now + Duration::from_secs_f64(driver.backoff_s));
-                    driver.backoff_s =
-                        (driver.backoff_s * 2.0).min(driver.config.restart.max_backoff_s);
+                    driver.backoff_s = (driver.backoff_s * 2.0).min(driver.config.restart.max_backoff_s);
                 } else if now.duration_since(driver.started) > Duration::from_secs(30) {
                     driver.backoff_s = driver.config.restart.min_backoff_s;
                 }
@@ -142,10 +136,7 @@ fn log_layer_changes(skin: &str, states: &mut HashMap<String, &'static str>) {
 /// cable-pull control files.
 fn remove_skin_channels(config: &Config) -> Result<()> {
     let dir = skinware::shm::segment_dir();
-    for channel in skinware::list_channels(&dir)?
-        .into_iter()
-        .filter(|c| c.skin == config.skin)
-    {
+    for channel in skinware::list_channels(&dir)?.into_iter().filter(|c| c.skin == config.skin) {
         if !skinware::remove_channel_if_stale(&channel.path)? {
             tracing::warn!(channel = %channel.path.display(), "still has a live writer; left in place");
         }
@@ -153,10 +144,7 @@ fn remove_skin_channels(config: &Config) -> Result<()> {
     for driver in &config.drivers {
         if let Ok(built) = driver.build(&config.skin) {
             for spec in skinware::Driver::layers(&built) {
-                let _ = std::fs::remove_file(crate::config::pull_file(
-                    &config.skin,
-                    &spec.topology.name,
-                ));
+                let _ = std::fs::remove_file(crate::config::pull_file(&config.skin, &spec.topology.name));
             }
         }
     }

@@ -38,15 +38,7 @@ pub fn run(args: &Args) -> Result<()> {
             writeln!(
                 out,
                 "{:<24} {:<8} {:>8} {:>9} {:>10} {:>10} {:>9} {:>7} {:>8}",
-                "LAYER",
-                "STATE",
-                "SENSORS",
-                "RATE Hz",
-                "WRITE us",
-                "WORST us",
-                "OVERRUNS",
-                "FAULTS",
-                "RESTARTS"
+                "LAYER", "STATE", "SENSORS", "RATE Hz", "WRITE us", "WORST us", "OVERRUNS", "FAULTS", "RESTARTS"
             )?;
             for l in &layers {
                 writeln!(

@@ -11,15 +11,9 @@ use skinware::{Error, Reader, ReaderStats, Stop, Ticker, Writer, WriterOptions};
 const SENSORS: usize = 30_848;
 
 fn main() -> Result<(), Error> {
-    let seconds: f64 = std::env::args()
-        .nth(1)
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(3.0);
+    let seconds: f64 = std::env::args().nth(1).and_then(|s| s.parse().ok()).unwrap_or(3.0);
     let skin = format!("example{}", std::process::id());
-    let options = WriterOptions {
-        period: Some(Duration::from_millis(2)),
-        ..WriterOptions::default()
-    };
+    let options = WriterOptions { period: Some(Duration::from_millis(2)), ..WriterOptions::default() };
     let mut writer = Writer::create(&skin, "pressure", SENSORS * 2, b"30848 taxels", &options)?;
     let stop = Stop::new();
     writer.set_stop(&stop);
@@ -28,25 +22,21 @@ fn main() -> Result<(), Error> {
     for mode in ["periodic", "as-soon-as-available", "on-request"] {
         let mut reader = Reader::open(&skin, "pressure")?;
         reader.set_stop(&stop);
-        handles.push(std::thread::spawn(
-            move || -> Result<(&str, ReaderStats), Error> {
-                let mut ticker = Ticker::new(Duration::from_millis(10));
-                loop {
-                    let result = match mode {
-                        "periodic" => reader.next_periodic(&mut ticker).map(|_| ()),
-                        "as-soon-as-available" => {
-                            reader.wait_newer(Duration::from_secs(1)).map(|_| ())
-                        }
-                        _ => reader.request(Duration::from_secs(1)).map(|_| ()),
-                    };
-                    match result {
-                        Ok(()) | Err(Error::NoFrameYet { .. }) => {}
-                        Err(Error::Stopped { .. }) => return Ok((mode, reader.stats().clone())),
-                        Err(e) => return Err(e),
-                    }
+        handles.push(std::thread::spawn(move || -> Result<(&str, ReaderStats), Error> {
+            let mut ticker = Ticker::new(Duration::from_millis(10));
+            loop {
+                let result = match mode {
+                    "periodic" => reader.next_periodic(&mut ticker).map(|_| ()),
+                    "as-soon-as-available" => reader.wait_newer(Duration::from_secs(1)).map(|_| ()),
+                    _ => reader.request(Duration::from_secs(1)).map(|_| ()),
+                };
+                match result {
+                    Ok(()) | Err(Error::NoFrameYet { .. }) => {}
+                    Err(Error::Stopped { .. }) => return Ok((mode, reader.stats().clone())),
+                    Err(e) => return Err(e),
                 }
-            },
-        ));
+            }
+        }));
     }
 
     let stopper = stop.clone();
@@ -66,10 +56,7 @@ fn main() -> Result<(), Error> {
     timer.join().ok();
 
     let stats = writer.stats();
-    println!(
-        "writer  {} frames of {} sensors, {} overruns",
-        stats.frames, SENSORS, stats.overruns
-    );
+    println!("writer  {} frames of {} sensors, {} overruns", stats.frames, SENSORS, stats.overruns);
     println!(
         "writer  write time: mean {:.1} us, max {:.1} us, p99 <= {:.1} us",
         stats.write_ns_mean as f64 / 1e3,

@@ -166,20 +166,12 @@ fn round_up(value: u64, to: u64) -> u64 {
 
 impl Layout {
     /// Computes a layout, or says which parameter is out of range.
-    pub fn compute(
-        payload_bytes: u64,
-        slot_count: u64,
-        description_bytes: u64,
-    ) -> Result<Layout, String> {
+    pub fn compute(payload_bytes: u64, slot_count: u64, description_bytes: u64) -> Result<Layout, String> {
         if !(MIN_SLOTS as u64..=MAX_SLOTS as u64).contains(&slot_count) {
-            return Err(format!(
-                "{slot_count} frame buffers requested, {MIN_SLOTS} to {MAX_SLOTS} are allowed"
-            ));
+            return Err(format!("{slot_count} frame buffers requested, {MIN_SLOTS} to {MAX_SLOTS} are allowed"));
         }
         if payload_bytes == 0 || payload_bytes > MAX_PAYLOAD_BYTES {
-            return Err(format!(
-                "frame of {payload_bytes} bytes requested, 1 to {MAX_PAYLOAD_BYTES} are allowed"
-            ));
+            return Err(format!("frame of {payload_bytes} bytes requested, 1 to {MAX_PAYLOAD_BYTES} are allowed"));
         }
         if description_bytes > MAX_DESCRIPTION_BYTES {
             return Err(format!(
@@ -218,25 +210,15 @@ impl Layout {
             ring_offset: header.ring_offset.load(Relaxed),
             file_bytes: header.file_bytes.load(Relaxed),
         };
-        let expected = Layout::compute(
-            declared.payload_bytes,
-            declared.slot_count,
-            declared.description_bytes,
-        )?;
+        let expected = Layout::compute(declared.payload_bytes, declared.slot_count, declared.description_bytes)?;
         for (field, found, wanted) in [
             ("slot_bytes", declared.slot_bytes, expected.slot_bytes),
-            (
-                "description_offset",
-                declared.description_offset,
-                expected.description_offset,
-            ),
+            ("description_offset", declared.description_offset, expected.description_offset),
             ("ring_offset", declared.ring_offset, expected.ring_offset),
             ("file_bytes", declared.file_bytes, expected.file_bytes),
         ] {
             if found != wanted {
-                return Err(format!(
-                    "{field} is {found}, the other sizes imply {wanted}"
-                ));
+                return Err(format!("{field} is {found}, the other sizes imply {wanted}"));
             }
         }
         Ok(declared)
@@ -276,29 +258,14 @@ mod tests {
         assert!(layout.slot_bytes >= 64 + 30_848 * 2);
         assert_eq!(layout.ring_offset % PAGE, 0);
         assert!(layout.ring_offset >= layout.description_offset + 5000);
-        assert_eq!(
-            layout.file_bytes,
-            layout.ring_offset + 3 * layout.slot_bytes
-        );
+        assert_eq!(layout.file_bytes, layout.ring_offset + 3 * layout.slot_bytes);
     }
 
     #[test]
     fn layout_rejects_out_of_range_parameters() {
-        assert!(
-            Layout::compute(100, 1, 0)
-                .unwrap_err()
-                .contains("frame buffers")
-        );
-        assert!(
-            Layout::compute(0, 3, 0)
-                .unwrap_err()
-                .contains("frame of 0 bytes")
-        );
-        assert!(
-            Layout::compute(100, 3, MAX_DESCRIPTION_BYTES + 1)
-                .unwrap_err()
-                .contains("description")
-        );
+        assert!(Layout::compute(100, 1, 0).unwrap_err().contains("frame buffers"));
+        assert!(Layout::compute(0, 3, 0).unwrap_err().contains("frame of 0 bytes"));
+        assert!(Layout::compute(100, 3, MAX_DESCRIPTION_BYTES + 1).unwrap_err().contains("description"));
     }
 
     #[test]

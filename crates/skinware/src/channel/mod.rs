@@ -73,12 +73,7 @@ impl Shared {
         let count = self.layout.slot_count as usize;
         // SAFETY: `file_bytes = ring_offset + count * slot_bytes` was validated
         // against the mapping's length, and ring_offset is page-aligned.
-        let slots = unsafe {
-            self.map.words(
-                self.layout.ring_offset as usize,
-                count * self.layout.slot_words(),
-            )
-        };
+        let slots = unsafe { self.map.words(self.layout.ring_offset as usize, count * self.layout.slot_words()) };
         Ring::new(&self.header().published.0, slots, count)
     }
 
@@ -87,14 +82,8 @@ impl Shared {
         let words = (self.layout.description_bytes as usize).div_ceil(8);
         // SAFETY: the description area lies within the mapping (validated layout)
         // and its offset is page-aligned.
-        let area = unsafe {
-            self.map
-                .words(self.layout.description_offset as usize, words)
-        };
-        let mut bytes: Vec<u8> = area
-            .iter()
-            .flat_map(|w| w.load(Ordering::Relaxed).to_ne_bytes())
-            .collect();
+        let area = unsafe { self.map.words(self.layout.description_offset as usize, words) };
+        let mut bytes: Vec<u8> = area.iter().flat_map(|w| w.load(Ordering::Relaxed).to_ne_bytes()).collect();
         bytes.truncate(self.layout.description_bytes as usize);
         bytes
     }
@@ -103,10 +92,7 @@ impl Shared {
     pub fn description_words(&self) -> &[std::sync::atomic::AtomicU64] {
         let words = (self.layout.description_bytes as usize).div_ceil(8);
         // SAFETY: as in `description`.
-        unsafe {
-            self.map
-                .words(self.layout.description_offset as usize, words)
-        }
+        unsafe { self.map.words(self.layout.description_offset as usize, words) }
     }
 
     /// Whether a live process holds the writer lock of this segment.
@@ -126,15 +112,7 @@ impl Shared {
         let map = Mapping::map(&file, &path, 0, layout.file_bytes as usize, writable)?;
         let doorbell = Mapping::map(&file, &path, PAGE, PAGE as usize, true)?;
         debug_assert!(map.len() as u64 >= 2 * PAGE);
-        Ok(Shared {
-            label,
-            path,
-            file,
-            layout,
-            kind,
-            map,
-            doorbell,
-        })
+        Ok(Shared { label, path, file, layout, kind, map, doorbell })
     }
 }
 
@@ -144,21 +122,12 @@ pub(crate) fn label(skin: &str, channel: &str) -> String {
 }
 
 fn os_error<'p>(op: &'static str, path: &'p Path) -> impl FnOnce(io::Error) -> Error + 'p {
-    move |source| Error::Os {
-        op,
-        path: path.to_owned(),
-        source,
-    }
+    move |source| Error::Os { op, path: path.to_owned(), source }
 }
 
 /// Opens and validates an existing segment. Nothing in it is trusted before it
 /// has been checked: magic, ABI version, self-consistent sizes, file length.
-pub(crate) fn open_segment(
-    dir: &Path,
-    skin: &str,
-    channel: &str,
-    writable: bool,
-) -> Result<Shared> {
+pub(crate) fn open_segment(dir: &Path, skin: &str, channel: &str, writable: bool) -> Result<Shared> {
     shm::validate_name("skin", skin)?;
     shm::validate_name("channel", channel)?;
     let path = shm::segment_path(dir, skin, channel);
@@ -166,29 +135,17 @@ pub(crate) fn open_segment(
     let file = match File::options().read(true).write(true).open(&path) {
         Ok(file) => file,
         Err(e) if e.kind() == io::ErrorKind::NotFound => {
-            return Err(Error::Missing {
-                channel: label,
-                path,
-            });
+            return Err(Error::Missing { channel: label, path });
         }
         Err(e) => {
-            return Err(Error::Os {
-                op: "open",
-                path,
-                source: e,
-            });
+            return Err(Error::Os { op: "open", path, source: e });
         }
     };
     map_validated(label, path, file, writable)
 }
 
 /// Validates an open segment file and maps it.
-pub(crate) fn map_validated(
-    label: String,
-    path: PathBuf,
-    file: File,
-    writable: bool,
-) -> Result<Shared> {
+pub(crate) fn map_validated(label: String, path: PathBuf, file: File, writable: bool) -> Result<Shared> {
     let (layout, kind) = validate(&file, &path, &label)?;
     Shared::map(label, path, file, layout, kind, writable)
 }
@@ -196,12 +153,8 @@ pub(crate) fn map_validated(
 /// Validates the header of an open segment file and returns its layout.
 pub(crate) fn validate(file: &File, path: &Path, label: &str) -> Result<(Layout, ChannelKind)> {
     let size = file.metadata().map_err(os_error("stat", path))?.len();
-    let truncated = |needed| Error::Truncated {
-        channel: label.to_owned(),
-        path: path.to_owned(),
-        actual: size,
-        needed,
-    };
+    let truncated =
+        |needed| Error::Truncated { channel: label.to_owned(), path: path.to_owned(), actual: size, needed };
     if size < 8 {
         return Err(truncated(2 * PAGE));
     }
@@ -212,11 +165,7 @@ pub(crate) fn validate(file: &File, path: &Path, label: &str) -> Result<(Layout,
     let header: &Header = unsafe { first_page.get(0) };
     let magic = header.magic.load(Ordering::Relaxed);
     if magic != MAGIC {
-        return Err(Error::NotOurs {
-            channel: label.to_owned(),
-            path: path.to_owned(),
-            found: magic,
-        });
+        return Err(Error::NotOurs { channel: label.to_owned(), path: path.to_owned(), found: magic });
     }
     if size < 2 * PAGE {
         return Err(truncated(2 * PAGE));
@@ -225,27 +174,17 @@ pub(crate) fn validate(file: &File, path: &Path, label: &str) -> Result<(Layout,
     // makes after every other header field.
     match header.abi_version.load(Ordering::Acquire) {
         0 => {
-            return Err(Error::Unfinished {
-                channel: label.to_owned(),
-            });
+            return Err(Error::Unfinished { channel: label.to_owned() });
         }
         ABI_VERSION => {}
         found => {
-            return Err(Error::VersionMismatch {
-                channel: label.to_owned(),
-                found,
-                expected: ABI_VERSION,
-            });
+            return Err(Error::VersionMismatch { channel: label.to_owned(), found, expected: ABI_VERSION });
         }
     }
-    let corrupt = |reason: String| Error::Corrupt {
-        channel: label.to_owned(),
-        reason,
-    };
+    let corrupt = |reason: String| Error::Corrupt { channel: label.to_owned(), reason };
     let layout = Layout::from_header(header).map_err(corrupt)?;
     let kind_code = header.kind.load(Ordering::Relaxed);
-    let kind = ChannelKind::from_code(kind_code)
-        .ok_or_else(|| corrupt(format!("unknown channel kind {kind_code}")))?;
+    let kind = ChannelKind::from_code(kind_code).ok_or_else(|| corrupt(format!("unknown channel kind {kind_code}")))?;
     if size < layout.file_bytes {
         return Err(truncated(layout.file_bytes));
     }
@@ -270,55 +209,27 @@ pub(crate) fn create_segment(
         .open(temp_path)
         .map_err(os_error("create", temp_path))?;
     // The process umask may have removed group bits; the mode was asked for explicitly.
-    file.set_permissions(std::fs::Permissions::from_mode(init.mode))
-        .map_err(os_error("chmod", temp_path))?;
+    file.set_permissions(std::fs::Permissions::from_mode(init.mode)).map_err(os_error("chmod", temp_path))?;
     if !crate::os::try_lock_writer(&file).map_err(os_error("lock", temp_path))? {
-        return Err(Error::Os {
-            op: "lock",
-            path: temp_path.to_owned(),
-            source: io::ErrorKind::WouldBlock.into(),
-        });
+        return Err(Error::Os { op: "lock", path: temp_path.to_owned(), source: io::ErrorKind::WouldBlock.into() });
     }
-    file.set_len(layout.file_bytes)
-        .map_err(os_error("resize", temp_path))?;
+    file.set_len(layout.file_bytes).map_err(os_error("resize", temp_path))?;
     let shared = Shared::map(label, temp_path.to_owned(), file, layout, init.kind, true)?;
     let header = shared.header();
     header.magic.store(MAGIC, Ordering::Relaxed);
     header.kind.store(init.kind as u32, Ordering::Relaxed);
-    header
-        .file_bytes
-        .store(layout.file_bytes, Ordering::Relaxed);
-    header
-        .description_offset
-        .store(layout.description_offset, Ordering::Relaxed);
-    header
-        .description_bytes
-        .store(layout.description_bytes, Ordering::Relaxed);
-    header
-        .ring_offset
-        .store(layout.ring_offset, Ordering::Relaxed);
-    header
-        .slot_count
-        .store(layout.slot_count, Ordering::Relaxed);
-    header
-        .slot_bytes
-        .store(layout.slot_bytes, Ordering::Relaxed);
-    header
-        .payload_bytes
-        .store(layout.payload_bytes, Ordering::Relaxed);
-    for (word, value) in header
-        .schema_name
-        .iter()
-        .zip(layout::encode_schema(init.schema_name))
-    {
+    header.file_bytes.store(layout.file_bytes, Ordering::Relaxed);
+    header.description_offset.store(layout.description_offset, Ordering::Relaxed);
+    header.description_bytes.store(layout.description_bytes, Ordering::Relaxed);
+    header.ring_offset.store(layout.ring_offset, Ordering::Relaxed);
+    header.slot_count.store(layout.slot_count, Ordering::Relaxed);
+    header.slot_bytes.store(layout.slot_bytes, Ordering::Relaxed);
+    header.payload_bytes.store(layout.payload_bytes, Ordering::Relaxed);
+    for (word, value) in header.schema_name.iter().zip(layout::encode_schema(init.schema_name)) {
         word.store(value, Ordering::Relaxed);
     }
-    header
-        .schema_version
-        .store(init.schema_version, Ordering::Relaxed);
-    header
-        .created_ns
-        .store(crate::os::monotonic_ns(), Ordering::Relaxed);
+    header.schema_version.store(init.schema_version, Ordering::Relaxed);
+    header.created_ns.store(crate::os::monotonic_ns(), Ordering::Relaxed);
     header.stats.write_ns_min.store(u64::MAX, Ordering::Relaxed);
     ring::store_bytes(shared.description_words(), 0, init.description);
     // Release: publishes every store above to an opener's Acquire load of the version.

@@ -40,11 +40,7 @@ pub struct ChannelInfo {
 
 /// Lists the channels in `dir` (all skins), sorted by skin and channel.
 pub fn list_channels(dir: &Path) -> Result<Vec<ChannelInfo>> {
-    let entries = std::fs::read_dir(dir).map_err(|source| Error::Os {
-        op: "list",
-        path: dir.to_owned(),
-        source,
-    })?;
+    let entries = std::fs::read_dir(dir).map_err(|source| Error::Os { op: "list", path: dir.to_owned(), source })?;
     let mut found = Vec::new();
     for entry in entries.flatten() {
         let name = entry.file_name();
@@ -95,11 +91,7 @@ fn inspect(dir: &Path, skin: &str, channel: &str) -> ChannelInfo {
 /// A segment is removed only while holding its writer lock, so a writer that
 /// revives it at the same moment is never left with an unlinked file.
 pub fn remove_stale_channels(dir: &Path, include_invalid: bool) -> Result<Vec<PathBuf>> {
-    let entries = std::fs::read_dir(dir).map_err(|source| Error::Os {
-        op: "list",
-        path: dir.to_owned(),
-        source,
-    })?;
+    let entries = std::fs::read_dir(dir).map_err(|source| Error::Os { op: "list", path: dir.to_owned(), source })?;
     let mut removed = Vec::new();
     for entry in entries.flatten() {
         let name = entry.file_name();
@@ -136,18 +128,11 @@ fn remove_if_unowned(path: &Path) -> Result<bool> {
         Ok(file) => file,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(false),
         Err(source) => {
-            return Err(Error::Os {
-                op: "open",
-                path: path.to_owned(),
-                source,
-            });
+            return Err(Error::Os { op: "open", path: path.to_owned(), source });
         }
     };
-    let locked = crate::os::try_lock_writer(&file).map_err(|source| Error::Os {
-        op: "lock",
-        path: path.to_owned(),
-        source,
-    })?;
+    let locked =
+        crate::os::try_lock_writer(&file).map_err(|source| Error::Os { op: "lock", path: path.to_owned(), source })?;
     if !locked {
         return Ok(false);
     }
@@ -156,10 +141,6 @@ fn remove_if_unowned(path: &Path) -> Result<bool> {
     if ours.is_none() || ours != current {
         return Ok(false);
     }
-    std::fs::remove_file(path).map_err(|source| Error::Os {
-        op: "remove",
-        path: path.to_owned(),
-        source,
-    })?;
+    std::fs::remove_file(path).map_err(|source| Error::Os { op: "remove", path: path.to_owned(), source })?;
     Ok(true)
 }

@@ -75,12 +75,7 @@ impl<'a> Ring<'a> {
         let slot_words = slots.len() / slot_count;
         debug_assert_eq!(slot_words * slot_count, slots.len());
         debug_assert!(slot_words > META_WORDS);
-        Ring {
-            published,
-            slots,
-            slot_words,
-            slot_count: slot_count as u64,
-        }
+        Ring { published, slots, slot_words, slot_count: slot_count as u64 }
     }
 
     fn slot(&self, seq: u64) -> &'a [AtomicU64] {
@@ -130,11 +125,7 @@ impl<'a> Ring<'a> {
     /// length) and returns its metadata and the number of retries it took.
     ///
     /// Lock-free: it retries only when the writer lapped it, at most `max_attempts` times.
-    pub(crate) fn read_latest(
-        &self,
-        out: &mut [u64],
-        max_attempts: u32,
-    ) -> Result<(Meta, u32), ReadFailure> {
+    pub(crate) fn read_latest(&self, out: &mut [u64], max_attempts: u32) -> Result<(Meta, u32), ReadFailure> {
         let mut attempt = 0;
         loop {
             let seq = self.published();
@@ -209,10 +200,7 @@ mod tests {
 
     fn ring_memory(slot_count: usize, payload_words: usize) -> (AtomicU64, Vec<AtomicU64>) {
         let words = slot_count * (META_WORDS + payload_words);
-        (
-            AtomicU64::new(0),
-            (0..words).map(|_| AtomicU64::new(0)).collect(),
-        )
+        (AtomicU64::new(0), (0..words).map(|_| AtomicU64::new(0)).collect())
     }
 
     fn write_frame(ring: &Ring<'_>, seq: u64) {
@@ -220,19 +208,11 @@ mod tests {
         for (i, word) in payload.iter().enumerate() {
             word.store(seq.wrapping_mul(1_000_003) ^ i as u64, Ordering::Relaxed);
         }
-        ring.publish(&Meta {
-            seq,
-            acquired_ns: seq * 10,
-            published_ns: seq * 10 + 1,
-            status: 0,
-        });
+        ring.publish(&Meta { seq, acquired_ns: seq * 10, published_ns: seq * 10 + 1, status: 0 });
     }
 
     fn consistent(seq: u64, payload: &[u64]) -> bool {
-        payload
-            .iter()
-            .enumerate()
-            .all(|(i, &w)| w == seq.wrapping_mul(1_000_003) ^ i as u64)
+        payload.iter().enumerate().all(|(i, &w)| w == seq.wrapping_mul(1_000_003) ^ i as u64)
     }
 
     #[test]
@@ -252,15 +232,7 @@ mod tests {
         }
         let mut out = [0u64; 4];
         let (meta, retries) = ring.read_latest(&mut out, 8).unwrap();
-        assert_eq!(
-            meta,
-            Meta {
-                seq: 7,
-                acquired_ns: 70,
-                published_ns: 71,
-                status: 0
-            }
-        );
+        assert_eq!(meta, Meta { seq: 7, acquired_ns: 70, published_ns: 71, status: 0 });
         assert_eq!(retries, 0);
         assert!(consistent(7, &out));
     }
@@ -301,10 +273,7 @@ mod tests {
     fn store_bytes_handles_unaligned_edges() {
         let words: Vec<AtomicU64> = (0..3).map(|_| AtomicU64::new(u64::MAX)).collect();
         store_bytes(&words, 3, &[1, 2, 3, 4, 5, 6, 7, 8, 9, 10]);
-        let bytes: Vec<u8> = words
-            .iter()
-            .flat_map(|w| w.load(Ordering::Relaxed).to_ne_bytes())
-            .collect();
+        let bytes: Vec<u8> = words.iter().flat_map(|w| w.load(Ordering::Relaxed).to_ne_bytes()).collect();
         assert_eq!(&bytes[..3], &[255, 255, 255]);
         assert_eq!(&bytes[3..13], &[1, 2, 3, 4, 5, 6, 7, 8, 9, 10]);
         assert!(bytes[13..].iter().all(|&b| b == 255));
@@ -353,10 +322,7 @@ mod loom_tests {
     use super::*;
 
     fn env_or(name: &str, default: u64) -> u64 {
-        std::env::var(name)
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(default)
+        std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
     }
 
     /// One writer publishes frames into a two-slot ring (three frames lap the
@@ -378,9 +344,7 @@ mod loom_tests {
             }
             let memory = loom::sync::Arc::new(Memory {
                 published: AtomicU64::new(0),
-                slots: (0..2 * (META_WORDS + 1))
-                    .map(|_| AtomicU64::new(0))
-                    .collect(),
+                slots: (0..2 * (META_WORDS + 1)).map(|_| AtomicU64::new(0)).collect(),
             });
             let handles: Vec<_> = (0..readers)
                 .map(|_| {
@@ -404,12 +368,7 @@ mod loom_tests {
             for seq in 1..=frames {
                 let payload = ring.begin(seq);
                 payload[0].store(seq * 100, Ordering::Relaxed);
-                ring.publish(&Meta {
-                    seq,
-                    acquired_ns: seq * 7,
-                    published_ns: 0,
-                    status: 0,
-                });
+                ring.publish(&Meta { seq, acquired_ns: seq * 7, published_ns: 0, status: 0 });
             }
             for handle in handles {
                 handle.join().unwrap();

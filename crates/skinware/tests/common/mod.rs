@@ -15,32 +15,19 @@ pub struct SegmentDir {
 impl SegmentDir {
     pub fn new(test: &str) -> SegmentDir {
         static NEXT: AtomicUsize = AtomicUsize::new(0);
-        let base = if Path::new("/dev/shm").is_dir() {
-            PathBuf::from("/dev/shm")
-        } else {
-            std::env::temp_dir()
-        };
-        let path = base.join(format!(
-            "skinware-test-{}-{}-{test}",
-            std::process::id(),
-            NEXT.fetch_add(1, Ordering::Relaxed)
-        ));
+        let base = if Path::new("/dev/shm").is_dir() { PathBuf::from("/dev/shm") } else { std::env::temp_dir() };
+        let path =
+            base.join(format!("skinware-test-{}-{}-{test}", std::process::id(), NEXT.fetch_add(1, Ordering::Relaxed)));
         std::fs::create_dir_all(&path).unwrap();
         SegmentDir { path }
     }
 
     pub fn writer(&self) -> WriterOptions {
-        WriterOptions {
-            dir: Some(self.path.clone()),
-            ..WriterOptions::default()
-        }
+        WriterOptions { dir: Some(self.path.clone()), ..WriterOptions::default() }
     }
 
     pub fn reader(&self) -> ReaderOptions {
-        ReaderOptions {
-            dir: Some(self.path.clone()),
-            ..ReaderOptions::default()
-        }
+        ReaderOptions { dir: Some(self.path.clone()), ..ReaderOptions::default() }
     }
 
     pub fn segment(&self, skin: &str, channel: &str) -> PathBuf {

@@ -1,0 +1,214 @@
+//! End to end: `skin run` with virtual drivers in their own processes, read
+//! from this (separate) process; a driver process SIGKILLed and a cable pulled,
+//! while the other layers must keep acquiring without missing a period.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command};
+use std::time::{Duration, Instant};
+
+use skinware::{Reader, ReaderOptions, WriterState};
+
+const RATE_HZ: f64 = 100.0;
+
+struct Skin {
+    dir: PathBuf,
+    supervisor: Child,
+}
+
+impl Drop for Skin {
+    fn drop(&mut self) {
+        let _ = self.supervisor.kill();
+        let _ = self.supervisor.wait();
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+fn skin_command(dir: &Path) -> Command {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_skin"));
+    command.env("SKINWARE_SHM_DIR", dir).env("RUST_LOG", "info");
+    command
+}
+
+fn start(test: &str, config: &str) -> Skin {
+    let dir = PathBuf::from("/dev/shm").join(format!("skin-e2e-{}-{test}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config_path = dir.join("config.toml");
+    std::fs::write(&config_path, config).unwrap();
+    let supervisor = skin_command(&dir).arg("run").arg(&config_path).spawn().expect("start skin run");
+    Skin { dir, supervisor }
+}
+
+fn open(skin: &Skin, layer: &str) -> Reader {
+    let options = ReaderOptions { dir: Some(skin.dir.clone()), ..ReaderOptions::default() };
+    let started = Instant::now();
+    loop {
+        match Reader::open_with("e2e", layer, &options) {
+            Ok(reader) => return reader,
+            Err(e) if started.elapsed() > Duration::from_secs(30) => {
+                panic!("layer {layer} never came up: {e}")
+            }
+            Err(_) => std::thread::sleep(Duration::from_millis(20)),
+        }
+    }
+}
+
+fn wait_for_state(reader: &Reader, state: WriterState, within: Duration) -> Duration {
+    let started = Instant::now();
+    while reader.writer_state() != state {
+        assert!(started.elapsed() < within, "{} never became {state} (is {})", reader.label(), reader.writer_state());
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    started.elapsed()
+}
+
+/// Frames published and periods missed by the layers that must not notice.
+fn steady_counts(readers: &[Reader]) -> Vec<(u64, u64, u64)> {
+    readers
+        .iter()
+        .map(|r| {
+            let stats = r.writer_stats();
+            (stats.frames, stats.missed_periods, r.writer_generation())
+        })
+        .collect()
+}
+
+fn assert_steady(readers: &[Reader], before: &[(u64, u64, u64)], elapsed: Duration) {
+    for (reader, (&(frames, missed, generation), (now_frames, now_missed, now_generation))) in
+        readers.iter().zip(before.iter().zip(steady_counts(readers)))
+    {
+        let expected = elapsed.as_secs_f64() * RATE_HZ;
+        let published = (now_frames - frames) as f64;
+        println!(
+            "e2e: {} published {published} frames in {:.2} s (expected ~{expected:.0}), missed periods {}",
+            reader.label(),
+            elapsed.as_secs_f64(),
+            now_missed - missed
+        );
+        assert_eq!(now_missed, missed, "{} missed periods while another driver failed", reader.label());
+        assert_eq!(now_generation, generation, "{} was restarted although its driver never failed", reader.label());
+        assert!(published >= expected * 0.9, "{} slowed down: {published} frames", reader.label());
+        assert_eq!(reader.writer_state(), WriterState::Running);
+    }
+}
+
+const CONFIG: &str = r#"
+skin = "e2e"
+
+[[driver]]
+name = "steady"
+kind = "virtual"
+sensors = 2000
+layers = 2
+rate_hz = 100
+
+[[driver]]
+name = "victim"
+kind = "virtual"
+sensors = 708
+layers = 1
+rate_hz = 100
+restart = { min_backoff_s = 0.1, max_backoff_s = 1.0 }
+"#;
+
+#[test]
+fn killed_driver_and_pulled_cable_leave_other_layers_alone() {
+    let mut skin = start("kill", CONFIG);
+    let steady = [open(&skin, "steady-0"), open(&skin, "steady-1")];
+    let mut victim = open(&skin, "victim-0");
+    let first = victim.wait_newer(Duration::from_secs(10)).unwrap().seq();
+    std::thread::sleep(Duration::from_millis(500));
+
+    // 1. SIGKILL the victim's driver process.
+    let before = steady_counts(&steady);
+    let began = Instant::now();
+    let pid = victim.writer_pid();
+    rustix::process::kill_process(rustix::process::Pid::from_raw(pid as i32).unwrap(), rustix::process::Signal::KILL)
+        .unwrap();
+    let detected = wait_for_state(&victim, WriterState::Gone, Duration::from_secs(5));
+    let recovered = wait_for_state(&victim, WriterState::Running, Duration::from_secs(20));
+    assert_ne!(victim.writer_pid(), pid, "the supervisor did not start a new driver process");
+    assert_eq!(victim.writer_generation(), 2, "the channel was not revived");
+    let fresh = victim.wait_newer(Duration::from_secs(5)).expect("the same reader gets fresh frames again");
+    assert!(fresh.seq() > first);
+    let resumed = began.elapsed();
+    println!(
+        "e2e: SIGKILL: gone seen after {:.1} ms, running again after {:.1} ms, first fresh frame after {:.1} ms",
+        detected.as_secs_f64() * 1e3,
+        (detected + recovered).as_secs_f64() * 1e3,
+        resumed.as_secs_f64() * 1e3
+    );
+    std::thread::sleep(Duration::from_secs(1));
+    assert_steady(&steady, &before, began.elapsed());
+
+    // 2. Pull the victim's cable on command, then plug it back in.
+    let before = steady_counts(&steady);
+    let began = Instant::now();
+    let pull = skin_command(&skin.dir).args(["pull", "victim-0", "--skin", "e2e"]).output().unwrap();
+    assert!(pull.status.success(), "{}", String::from_utf8_lossy(&pull.stderr));
+    let detected = wait_for_state(&victim, WriterState::Faulted, Duration::from_secs(5));
+    let faults_before = victim.writer_stats().faults;
+    std::thread::sleep(Duration::from_secs(1));
+    assert!(victim.writer_stats().faults > faults_before, "acquisitions should keep failing while pulled");
+    let last_good = victim.latest().unwrap().seq();
+    let plug = skin_command(&skin.dir).args(["pull", "victim-0", "--skin", "e2e", "--restore"]).output().unwrap();
+    assert!(plug.status.success());
+    let plugged = Instant::now();
+    let recovered = wait_for_state(&victim, WriterState::Running, Duration::from_secs(5));
+    let fresh = victim.wait_newer(Duration::from_secs(5)).unwrap().seq();
+    assert!(fresh > last_good);
+    println!(
+        "e2e: cable pull: faulted seen after {:.1} ms, running again {:.1} ms after the plug, fresh frame after {:.1} ms",
+        detected.as_secs_f64() * 1e3,
+        recovered.as_secs_f64() * 1e3,
+        plugged.elapsed().as_secs_f64() * 1e3
+    );
+    std::thread::sleep(Duration::from_millis(500));
+    assert_steady(&steady, &before, began.elapsed());
+
+    // 3. `skin top --once --json` reports every layer with the fields scripts rely on.
+    let top = skin_command(&skin.dir)
+        .args(["top", "--once", "--json", "--skin", "e2e", "--interval", "0.3"])
+        .output()
+        .unwrap();
+    assert!(top.status.success());
+    let json: serde_json::Value = serde_json::from_slice(&top.stdout).unwrap();
+    let layers = json["layers"].as_array().unwrap();
+    assert_eq!(layers.len(), 3);
+    for layer in layers {
+        for field in ["name", "state", "sensors", "modules", "patches", "rate_hz", "overruns"] {
+            assert!(!layer[field].is_null(), "missing {field} in {layer}");
+        }
+        assert_eq!(layer["state"], "running");
+    }
+    let victim_json = layers.iter().find(|l| l["name"] == "victim-0").unwrap();
+    assert_eq!(victim_json["restarts"], 1);
+    assert_eq!(victim_json["sensors"], 708);
+
+    // 4. SIGINT: everything stops and no channel is left behind.
+    rustix::process::kill_process(
+        rustix::process::Pid::from_raw(skin.supervisor.id() as i32).unwrap(),
+        rustix::process::Signal::INT,
+    )
+    .unwrap();
+    let status = skin.supervisor.wait().unwrap();
+    assert!(status.success(), "skin run exited with {status}");
+    let left: Vec<String> = std::fs::read_dir(&skin.dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|name| name != "config.toml")
+        .collect();
+    assert!(left.is_empty(), "left behind: {left:?}");
+}
+
+#[test]
+fn bad_config_is_reported_with_its_position() {
+    let dir = PathBuf::from("/dev/shm").join(format!("skin-e2e-{}-badconfig", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("bad.toml");
+    std::fs::write(&path, "skin = \"x\"\n[[driver]]\nname = \"v\"\nkind = \"virtual\"\nsensorz = 5\n").unwrap();
+    let output = skin_command(&dir).arg("run").arg(&path).output().unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(!output.status.success());
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(stderr.contains("bad.toml:5:1:") && stderr.contains("unknown field `sensorz`"), "{stderr}");
+}
