@@ -80,6 +80,81 @@ pub struct DriverConfig {
     pub seed: Option<u64>,
     #[serde(default, rename = "cable_pull")]
     pub cable_pulls: Vec<CablePull>,
+    /// Layers with an explicit topology (instead of generated ones).
+    #[serde(default, rename = "layer")]
+    pub explicit_layers: Vec<LayerConfig>,
+}
+
+/// One `[[driver.layer]]`: a layer with an explicit topology.
+#[derive(Debug, Deserialize, Clone)]
+#[serde(deny_unknown_fields)]
+pub struct LayerConfig {
+    pub name: String,
+    #[serde(default = "default_sensor_type")]
+    pub sensor_type: String,
+    /// Rate of this layer; the driver's `rate_hz` if absent.
+    pub rate_hz: Option<f64>,
+    /// The number of sensors the layer must have (a check on the modules below).
+    pub sensors: Option<usize>,
+    #[serde(rename = "patch")]
+    pub patches: Vec<PatchConfig>,
+}
+
+fn default_sensor_type() -> String {
+    "pressure".into()
+}
+
+/// One `[[driver.layer.patch]]`.
+#[derive(Debug, Deserialize, Clone)]
+#[serde(deny_unknown_fields)]
+pub struct PatchConfig {
+    pub id: u32,
+    #[serde(rename = "module", default)]
+    pub modules: Vec<ModuleConfig>,
+}
+
+/// One `[[driver.layer.patch.module]]`: its sensors' uids as a list or an inclusive range.
+#[derive(Debug, Deserialize, Clone)]
+#[serde(deny_unknown_fields)]
+pub struct ModuleConfig {
+    pub id: u32,
+    pub uids: Option<Vec<u32>>,
+    pub uid_range: Option<[u32; 2]>,
+}
+
+impl LayerConfig {
+    /// Builds and checks the topology: unique uids and ids, no empty module or
+    /// patch, and the declared sensor count.
+    fn topology(&self, default_rate: f64) -> Result<skinware::LayerTopology> {
+        skinware::shm::validate_name("layer", &self.name)?;
+        let mut builder =
+            skinware::TopologyBuilder::new(&self.name, &self.sensor_type, self.rate_hz.unwrap_or(default_rate));
+        for patch in &self.patches {
+            builder.patch(patch.id);
+            for module in &patch.modules {
+                let uids: Vec<u32> = match (&module.uids, module.uid_range) {
+                    (Some(uids), None) => uids.clone(),
+                    (None, Some([first, last])) if first <= last => (first..=last).collect(),
+                    (None, Some([first, last])) => {
+                        bail!("layer {}: module {}: uid_range [{first}, {last}] is backwards", self.name, module.id)
+                    }
+                    _ => bail!("layer {}: module {} needs exactly one of `uids` or `uid_range`", self.name, module.id),
+                };
+                builder.module(module.id, uids);
+            }
+        }
+        let topology = builder.build()?;
+        if let Some(declared) = self.sensors {
+            if declared != topology.sensors.len() {
+                bail!(
+                    "layer {}: declares {declared} sensors but its modules hold {}; the sensor counts do not add up",
+                    self.name,
+                    topology.sensors.len()
+                );
+            }
+        }
+        Ok(topology)
+    }
 }
 
 fn default_slots() -> usize {
@@ -153,7 +228,22 @@ impl DriverConfig {
                         lock_memory: self.rt.lock_memory,
                         cpus: self.rt.cpus.clone(),
                     },
+                    explicit_layers: None,
                 };
+                if !self.explicit_layers.is_empty() {
+                    if self.sensors.is_some() || self.layers.is_some() {
+                        bail!("give either `sensors`/`layers` (a generated skin) or [[driver.layer]] tables, not both");
+                    }
+                    let default_rate = match &config.rate {
+                        Rate::Fixed(hz) => *hz,
+                        Rate::Random { random: [lo, _] } => *lo,
+                    };
+                    let mut layers = Vec::new();
+                    for layer in &self.explicit_layers {
+                        layers.push(layer.topology(default_rate)?);
+                    }
+                    config.explicit_layers = Some(layers);
+                }
                 config.pull_files = Some(config.layer_names().iter().map(|layer| pull_file(skin, layer)).collect());
                 VirtualSkin::new(config).map_err(|e| anyhow::anyhow!(e))
             }
@@ -195,6 +285,28 @@ mod tests {
         let err = load("[[driver]]\nname = \"v\"\nkind = \"virtual\"\n[[driver.cable_pull]]\nlayer = \"v-9\"\nat_s = 1\nduration_s = 1\n")
             .unwrap_err();
         assert!(format!("{err:#}").contains("v-9"), "{err:#}");
+    }
+
+    const EXPLICIT: &str = "[[driver]]\nname = \"v\"\nkind = \"virtual\"\nrate_hz = 50\n[[driver.layer]]\nname = \"palm\"\nsensors = SENSORS\n[[driver.layer.patch]]\nid = 1\n[[driver.layer.patch.module]]\nid = 1\nuid_range = [1, 12]\n[[driver.layer.patch.module]]\nid = 2\nuids = [UIDS]\n";
+
+    fn explicit(sensors: &str, uids: &str) -> Result<Config> {
+        load(&EXPLICIT.replace("SENSORS", sensors).replace("UIDS", uids))
+    }
+
+    #[test]
+    fn explicit_topology_is_checked() {
+        let config = explicit("15", "13, 14, 15").unwrap();
+        let driver = config.drivers[0].build("s").unwrap();
+        let layers = skinware::Driver::layers(&driver);
+        assert_eq!(layers[0].topology.sensors.len(), 15);
+        assert_eq!(layers[0].topology.rate_hz, 50.0);
+
+        let err = format!("{:#}", explicit("15", "12, 14, 15").unwrap_err());
+        assert!(err.contains("uid 12 appears more than once (modules 1 and 2)"), "{err}");
+        let err = format!("{:#}", explicit("15", "").unwrap_err());
+        assert!(err.contains("module 2 is empty"), "{err}");
+        let err = format!("{:#}", explicit("20", "13, 14, 15").unwrap_err());
+        assert!(err.contains("declares 20 sensors but its modules hold 15"), "{err}");
     }
 
     #[test]

@@ -75,6 +75,10 @@ pub struct VirtualSkinConfig {
     pub pull_files: Option<Vec<PathBuf>>,
     /// Real-time settings of every layer's writer thread.
     pub rt: RtOptions,
+    /// Layers with a given topology, instead of generating `layers` layers of
+    /// `sensors` sensors (then `sensors`, `layers`, `sensors_per_module` and
+    /// `modules_per_patch` are unused).
+    pub explicit_layers: Option<Vec<skinware::LayerTopology>>,
 }
 
 impl Default for VirtualSkinConfig {
@@ -90,6 +94,7 @@ impl Default for VirtualSkinConfig {
             cable_pulls: Vec::new(),
             pull_files: None,
             rt: RtOptions::default(),
+            explicit_layers: None,
         }
     }
 }
@@ -97,7 +102,11 @@ impl Default for VirtualSkinConfig {
 impl VirtualSkinConfig {
     /// Checks the parameters, saying what is wrong.
     pub fn validate(&self) -> Result<(), String> {
-        if self.layers == 0 || self.sensors < self.layers {
+        if let Some(layers) = &self.explicit_layers {
+            if layers.is_empty() {
+                return Err("no layers given".into());
+            }
+        } else if self.layers == 0 || self.sensors < self.layers {
             return Err(format!(
                 "{} sensors cannot be split over {} layers; give at least one sensor per layer",
                 self.sensors, self.layers
@@ -131,6 +140,9 @@ impl VirtualSkinConfig {
 
     /// The layer names: `NAME-0 .. NAME-(L-1)`.
     pub fn layer_names(&self) -> Vec<String> {
+        if let Some(layers) = &self.explicit_layers {
+            return layers.iter().map(|l| l.name.clone()).collect();
+        }
         (0..self.layers).map(|l| format!("{}-{l}", self.name)).collect()
     }
 }
@@ -326,6 +338,17 @@ impl VirtualSkin {
     /// Builds the body, the topology of every layer and its rate.
     pub fn new(config: VirtualSkinConfig) -> Result<VirtualSkin, String> {
         config.validate()?;
+        if let Some(explicit) = &config.explicit_layers {
+            let total: usize = explicit.iter().map(|l| l.sensors.len()).sum();
+            let mut first_sensor = Vec::new();
+            let mut next = 0;
+            for layer in explicit {
+                first_sensor.push(next);
+                next += layer.sensors.len();
+            }
+            let layers = explicit.iter().map(|t| LayerSpec { topology: t.clone(), rt: config.rt.clone() }).collect();
+            return Ok(VirtualSkin { body: Arc::new(VirtualBody::new(total)), config, layers, first_sensor });
+        }
         let body = Arc::new(VirtualBody::new(config.sensors));
         let mut random = SplitMix(config.seed);
         let mut layers = Vec::new();
