@@ -127,6 +127,11 @@ impl LayerConfig {
     /// patch, and the declared sensor count.
     fn topology(&self, default_rate: f64) -> Result<skinware::LayerTopology> {
         skinware::shm::validate_name("layer", &self.name)?;
+        if let Some(rate) = self.rate_hz {
+            if !(rate.is_finite() && rate > 0.0 && rate <= 100_000.0) {
+                bail!("layer {}: rate_hz {rate} must be above 0 and at most 100000", self.name);
+            }
+        }
         let mut builder =
             skinware::TopologyBuilder::new(&self.name, &self.sensor_type, self.rate_hz.unwrap_or(default_rate));
         for patch in &self.patches {
@@ -184,6 +189,7 @@ impl Config {
             if !names.insert(&driver.name) {
                 bail!("{}: driver name {:?} is used twice; driver names must be unique", path.display(), driver.name);
             }
+            driver.check_restart().with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
             driver.build(&config.skin).with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
         }
         Ok(config)
@@ -203,6 +209,14 @@ fn line_column(text: &str, offset: usize) -> (usize, usize) {
 }
 
 impl DriverConfig {
+    fn check_restart(&self) -> Result<()> {
+        let RestartConfig { min_backoff_s: min, max_backoff_s: max } = self.restart;
+        if !(min.is_finite() && max.is_finite() && min > 0.0 && min <= max && max <= 3600.0) {
+            bail!("restart backoff [{min}, {max}] s must satisfy 0 < min_backoff_s <= max_backoff_s <= 3600");
+        }
+        Ok(())
+    }
+
     /// Builds the driver this table describes.
     pub fn build(&self, skin: &str) -> Result<VirtualSkin> {
         skinware::shm::validate_name("driver", &self.name)?;
@@ -305,6 +319,12 @@ mod tests {
         assert!(err.contains("uid 12 appears more than once (modules 1 and 2)"), "{err}");
         let err = format!("{:#}", explicit("15", "").unwrap_err());
         assert!(err.contains("module 2 is empty"), "{err}");
+        let err = format!(
+            "{:#}",
+            load("[[driver]]\nname = \"v\"\nkind = \"virtual\"\nrestart = { min_backoff_s = -1, max_backoff_s = 1 }\n")
+                .unwrap_err()
+        );
+        assert!(err.contains("restart backoff"), "{err}");
         let err = format!("{:#}", explicit("20", "13, 14, 15").unwrap_err());
         assert!(err.contains("declares 20 sensors but its modules hold 15"), "{err}");
     }

@@ -78,6 +78,18 @@ pub enum HandlerError {
         #[source]
         source: DriverError,
     },
+    /// A layer's rate is not a usable number.
+    #[error(
+        "driver {driver}: layer {layer}: rate {rate_hz} Hz is not usable; give 0 (sporadic) or a finite rate above 1e-6 Hz"
+    )]
+    Rate {
+        /// Driver name.
+        driver: String,
+        /// Layer name.
+        layer: String,
+        /// The rate given.
+        rate_hz: f64,
+    },
     /// The driver returned a different number of sources than layers.
     #[error("driver {driver} describes {layers} layers but started {sources} sources; it must start one per layer")]
     SourceCount {
@@ -146,12 +158,30 @@ impl DriverHandler {
         let mut writers = Vec::with_capacity(specs.len());
         for spec in &specs {
             let topology = &spec.topology;
-            let period = (topology.rate_hz > 0.0).then(|| Duration::from_secs_f64(1.0 / topology.rate_hz));
+            let period = if topology.rate_hz == 0.0 {
+                None
+            } else {
+                let period = Duration::try_from_secs_f64(1.0 / topology.rate_hz)
+                    .ok()
+                    .filter(|_| topology.rate_hz.is_finite() && topology.rate_hz > 1e-6);
+                match period {
+                    Some(period) => Some(period),
+                    None => {
+                        return Err(HandlerError::Rate {
+                            driver: name,
+                            layer: topology.name.clone(),
+                            rate_hz: topology.rate_hz,
+                        });
+                    }
+                }
+            };
             let writer_options = WriterOptions {
                 slots: options.slots,
                 period,
                 group_access: options.group_access,
-                unlink_on_drop: options.unlink_on_stop,
+                // Until every layer has started, a failure must not remove a
+                // channel that readers of a revived layer are attached to.
+                unlink_on_drop: false,
                 dir: options.dir.clone(),
                 ..WriterOptions::default()
             };
@@ -173,6 +203,7 @@ impl DriverHandler {
         let mut watches = Vec::new();
         for ((mut writer, source), spec) in writers.into_iter().zip(sources).zip(&specs) {
             writer.set_stop(&stop);
+            writer.set_unlink_on_drop(options.unlink_on_stop);
             let busy_since = Arc::new(AtomicU64::new(0));
             let period_ns =
                 if spec.topology.rate_hz > 0.0 { (1e9 / spec.topology.rate_hz) as u64 } else { 1_000_000_000 };

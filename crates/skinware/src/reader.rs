@@ -247,7 +247,7 @@ impl Reader {
     fn wait_beyond(&self, after: u64, timeout: Duration) -> Result<()> {
         let ring = self.shared.ring();
         let notify = &self.shared.doorbell().notify;
-        let deadline = os::monotonic_ns().saturating_add(timeout.as_nanos() as u64);
+        let deadline = os::monotonic_ns().saturating_add(timeout.as_nanos().min(u64::MAX as u128) as u64);
         loop {
             if self.stop.is_stopped() {
                 return Err(Error::Stopped { channel: self.shared.label.clone() });

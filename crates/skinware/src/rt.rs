@@ -46,8 +46,16 @@ impl Stop {
         os::futex_wake_private(&self.inner.word);
         let channels = self.inner.channels.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
         for shared in channels.iter().filter_map(Weak::upgrade) {
-            os::futex_wake_shared(&shared.doorbell().notify);
-            os::futex_wake_shared(&shared.doorbell().requests);
+            // Change the words before waking: a thread that checked the flag just
+            // before it was set and is about to sleep then finds a different
+            // value and returns at once, instead of sleeping to its timeout.
+            // Both changes are harmless to others: waiters only look for a change,
+            // and the writer's next publish overwrites `notify`.
+            let doorbell = shared.doorbell();
+            doorbell.notify.fetch_add(2, Ordering::Release);
+            doorbell.requests.fetch_add(1, Ordering::Release);
+            os::futex_wake_shared(&doorbell.notify);
+            os::futex_wake_shared(&doorbell.requests);
         }
     }
 

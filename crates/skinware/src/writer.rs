@@ -268,9 +268,13 @@ impl Writer {
         self.next_seq - 1
     }
 
-    /// Opens the next frame for filling, in place in shared memory. The frame is
-    /// published when the returned guard is dropped or [`FrameWriter::publish`]ed,
-    /// and abandoned (never seen by any reader) with [`FrameWriter::discard`].
+    /// Opens the next frame for filling, in place in shared memory. It is
+    /// published by [`FrameWriter::publish`]; dropped or
+    /// [`discard`](FrameWriter::discard)ed, it is abandoned and no reader ever
+    /// sees it (so an early `?` return or a panic never publishes half a frame).
+    ///
+    /// The buffer still holds an older frame (K frames back): write every
+    /// response, or readers get a mix of new and old values.
     pub fn begin(&mut self) -> FrameWriter<'_> {
         let started_ns = os::monotonic_ns();
         let Writer { shared, next_seq, .. } = self;
@@ -284,7 +288,6 @@ impl Writer {
             started_ns,
             acquired_ns: None,
             status: FrameStatus::OK,
-            finished: false,
         }
     }
 
@@ -311,6 +314,11 @@ impl Writer {
     /// The state this writer last set.
     pub fn state(&self) -> WriterState {
         WriterState::from_code(self.shared.header().state.load(Ordering::Acquire), true)
+    }
+
+    /// Whether dropping the writer removes its channel.
+    pub fn set_unlink_on_drop(&mut self, unlink: bool) {
+        self.unlink_on_drop = unlink;
     }
 
     /// A handle that sets this writer's state from another thread (a watchdog).
@@ -342,7 +350,7 @@ impl Writer {
     /// Sporadic writers: waits until a reader requests a frame. `Ok(true)` on a
     /// request, `Ok(false)` on timeout, [`Error::Stopped`] when stopped.
     pub fn wait_request(&mut self, timeout: Duration) -> Result<bool> {
-        let deadline = os::monotonic_ns().saturating_add(timeout.as_nanos() as u64);
+        let deadline = os::monotonic_ns().saturating_add(timeout.as_nanos().min(u64::MAX as u128) as u64);
         let requests = &self.shared.doorbell().requests;
         loop {
             if self.stop.is_stopped() {
@@ -462,7 +470,10 @@ impl Drop for Writer {
         let header = self.shared.header();
         header.state.store(WriterState::STOPPED, Ordering::Release);
         header.state_changed_ns.store(os::monotonic_ns(), Ordering::Relaxed);
-        // Wake sleeping readers so that they can notice at once.
+        // Change the futex word and wake sleeping readers, so that a reader
+        // about to sleep does not miss the wake; they re-check and see no new
+        // frame (`writer_state` tells them why).
+        self.shared.doorbell().notify.fetch_add(2, Ordering::Release);
         os::futex_wake_shared(&self.shared.doorbell().notify);
         if self.unlink_on_drop && path_identity(&self.shared.path) == Some(self.identity) {
             let _ = std::fs::remove_file(&self.shared.path);
@@ -470,7 +481,8 @@ impl Drop for Writer {
     }
 }
 
-/// A frame being filled in place in shared memory. Dropping it publishes it.
+/// A frame being filled in place in shared memory: [`publish`](Self::publish)
+/// it; dropping it abandons it.
 ///
 /// Responses are stored with atomic stores because readers may be copying an
 /// older frame out of the same buffer at the same moment (they then discard
@@ -483,7 +495,6 @@ pub struct FrameWriter<'w> {
     started_ns: u64,
     acquired_ns: Option<u64>,
     status: FrameStatus,
-    finished: bool,
 }
 
 impl FrameWriter<'_> {
@@ -575,13 +586,11 @@ impl FrameWriter<'_> {
         self.finish()
     }
 
-    /// Abandons the frame: readers keep seeing the previous one.
-    pub fn discard(mut self) {
-        self.finished = true;
-    }
+    /// Abandons the frame: readers keep seeing the previous one. (Dropping the
+    /// guard does the same.)
+    pub fn discard(self) {}
 
     fn finish(&mut self) -> u64 {
-        self.finished = true;
         let seq = *self.next_seq;
         let published_ns = os::monotonic_ns();
         self.shared.ring().publish(&Meta {
@@ -600,13 +609,5 @@ impl FrameWriter<'_> {
         let header = self.shared.header();
         stats::record_write(&header.stats, os::monotonic_ns() - self.started_ns, self.status.is_fault());
         seq
-    }
-}
-
-impl Drop for FrameWriter<'_> {
-    fn drop(&mut self) {
-        if !self.finished {
-            self.finish();
-        }
     }
 }

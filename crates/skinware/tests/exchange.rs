@@ -47,11 +47,29 @@ fn frames_carry_status_and_acquisition_time() {
     let mut frame = writer.begin();
     frame.set_acquired_ns(42);
     frame.set_status(FrameStatus::PARTIAL);
-    drop(frame); // dropping the guard publishes
+    frame.publish();
     let frame = reader.latest().unwrap();
     assert_eq!(frame.acquired_ns(), 42);
     assert_eq!(frame.status(), FrameStatus::PARTIAL);
     assert_eq!(writer.stats().frames, 1);
+}
+
+#[test]
+fn dropped_frame_is_never_seen() {
+    let dir = SegmentDir::new("dropped");
+    let mut writer = Writer::create("skin", "layer", 8, b"", &dir.writer()).unwrap();
+    let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+    publish(&mut writer, 7);
+    let fill_half = |writer: &mut Writer| -> Result<(), Error> {
+        let mut frame = writer.begin();
+        frame.write_responses(0, &[9, 9])?;
+        frame.write_responses(3, &[9, 9])?; // out of range: the early return drops the frame
+        frame.publish();
+        Ok(())
+    };
+    assert!(fill_half(&mut writer).is_err());
+    let frame = reader.latest().unwrap();
+    assert_eq!((frame.seq(), frame.responses()), (1, &[7u16, 7, 7, 7][..]), "half a frame was published");
 }
 
 #[test]

@@ -188,6 +188,12 @@ pub(crate) fn validate(file: &File, path: &Path, label: &str) -> Result<(Layout,
     if size < layout.file_bytes {
         return Err(truncated(layout.file_bytes));
     }
+    // Sequence numbers count frames; anything near 2^62 is a damaged header
+    // (and would overflow the stamp arithmetic).
+    let published = header.published.0.load(Ordering::Relaxed);
+    if published >= 1 << 62 {
+        return Err(corrupt(format!("published sequence number {published} is implausible")));
+    }
     Ok((layout, kind))
 }
 
@@ -213,7 +219,13 @@ pub(crate) fn create_segment(
     if !crate::os::try_lock_writer(&file).map_err(os_error("lock", temp_path))? {
         return Err(Error::Os { op: "lock", path: temp_path.to_owned(), source: io::ErrorKind::WouldBlock.into() });
     }
-    file.set_len(layout.file_bytes).map_err(os_error("resize", temp_path))?;
+    // Allocate every page now: on a tmpfs a sparse file would make the first
+    // write to a page beyond free space a SIGBUS instead of this error.
+    rustix::fs::fallocate(&file, rustix::fs::FallocateFlags::empty(), 0, layout.file_bytes).map_err(|e| Error::Os {
+        op: "allocate (is /dev/shm full?)",
+        path: temp_path.to_owned(),
+        source: e.into(),
+    })?;
     let shared = Shared::map(label, temp_path.to_owned(), file, layout, init.kind, true)?;
     let header = shared.header();
     header.magic.store(MAGIC, Ordering::Relaxed);
