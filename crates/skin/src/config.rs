@@ -44,6 +44,16 @@ pub struct RtConfig {
     pub cpus: Vec<usize>,
 }
 
+impl RtConfig {
+    fn options(&self) -> skinware::RtOptions {
+        skinware::RtOptions {
+            fifo_priority: self.fifo_priority,
+            lock_memory: self.lock_memory,
+            cpus: self.cpus.clone(),
+        }
+    }
+}
+
 /// Restart policy of a driver process.
 #[derive(Debug, Deserialize, Clone)]
 #[serde(deny_unknown_fields)]
@@ -96,6 +106,8 @@ pub struct LayerConfig {
     pub rate_hz: Option<f64>,
     /// The number of sensors the layer must have (a check on the modules below).
     pub sensors: Option<usize>,
+    /// Real-time settings of this layer's writer thread; the driver's if absent.
+    pub rt: Option<RtConfig>,
     #[serde(rename = "patch")]
     pub patches: Vec<PatchConfig>,
 }
@@ -237,11 +249,7 @@ impl DriverConfig {
                     seed: self.seed.unwrap_or(defaults.seed),
                     cable_pulls: self.cable_pulls.clone(),
                     pull_files: None,
-                    rt: skinware::RtOptions {
-                        fifo_priority: self.rt.fifo_priority,
-                        lock_memory: self.rt.lock_memory,
-                        cpus: self.rt.cpus.clone(),
-                    },
+                    rt: self.rt.options(),
                     explicit_layers: None,
                 };
                 if !self.explicit_layers.is_empty() {
@@ -254,7 +262,8 @@ impl DriverConfig {
                     };
                     let mut layers = Vec::new();
                     for layer in &self.explicit_layers {
-                        layers.push(layer.topology(default_rate)?);
+                        let rt = layer.rt.as_ref().unwrap_or(&self.rt).options();
+                        layers.push(skinware::LayerSpec { topology: layer.topology(default_rate)?, rt });
                     }
                     config.explicit_layers = Some(layers);
                 }

@@ -42,7 +42,7 @@ fn open(skin: &Skin, layer: &str) -> Reader {
     let options = ReaderOptions { dir: Some(skin.dir.clone()), ..ReaderOptions::default() };
     let started = Instant::now();
     loop {
-        match Reader::open_with("e2e", layer, &options) {
+        match Reader::open_with("failover", layer, &options) {
             Ok(reader) => return reader,
             Err(e) if started.elapsed() > Duration::from_secs(30) => {
                 panic!("layer {layer} never came up: {e}")
@@ -91,28 +91,15 @@ fn assert_steady(readers: &[Reader], before: &[(u64, u64, u64)], elapsed: Durati
     }
 }
 
-const CONFIG: &str = r#"
-skin = "e2e"
-
-[[driver]]
-name = "steady"
-kind = "virtual"
-sensors = 2000
-layers = 2
-rate_hz = 100
-
-[[driver]]
-name = "victim"
-kind = "virtual"
-sensors = 708
-layers = 1
-rate_hz = 100
-restart = { min_backoff_s = 0.1, max_backoff_s = 1.0 }
-"#;
+/// The example configuration this test runs, from the repository.
+fn failover_config() -> String {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/failover.toml");
+    std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
 
 #[test]
 fn killed_driver_and_pulled_cable_leave_other_layers_alone() {
-    let mut skin = start("kill", CONFIG);
+    let mut skin = start("kill", &failover_config());
     let steady = [open(&skin, "steady-0"), open(&skin, "steady-1")];
     let mut victim = open(&skin, "victim-0");
     let first = victim.wait_newer(Duration::from_secs(10)).unwrap().seq();
@@ -143,14 +130,14 @@ fn killed_driver_and_pulled_cable_leave_other_layers_alone() {
     // 2. Pull the victim's cable on command, then plug it back in.
     let before = steady_counts(&steady);
     let began = Instant::now();
-    let pull = skin_command(&skin.dir).args(["pull", "victim-0", "--skin", "e2e"]).output().unwrap();
+    let pull = skin_command(&skin.dir).args(["pull", "victim-0", "--skin", "failover"]).output().unwrap();
     assert!(pull.status.success(), "{}", String::from_utf8_lossy(&pull.stderr));
     let detected = wait_for_state(&victim, WriterState::Faulted, Duration::from_secs(5));
     let faults_before = victim.writer_stats().faults;
     std::thread::sleep(Duration::from_secs(1));
     assert!(victim.writer_stats().faults > faults_before, "acquisitions should keep failing while pulled");
     let last_good = victim.latest().unwrap().seq();
-    let plug = skin_command(&skin.dir).args(["pull", "victim-0", "--skin", "e2e", "--restore"]).output().unwrap();
+    let plug = skin_command(&skin.dir).args(["pull", "victim-0", "--skin", "failover", "--restore"]).output().unwrap();
     assert!(plug.status.success());
     let plugged = Instant::now();
     let recovered = wait_for_state(&victim, WriterState::Running, Duration::from_secs(5));
@@ -167,7 +154,7 @@ fn killed_driver_and_pulled_cable_leave_other_layers_alone() {
 
     // 3. `skin top --once --json` reports every layer with the fields scripts rely on.
     let top = skin_command(&skin.dir)
-        .args(["top", "--once", "--json", "--skin", "e2e", "--interval", "0.3"])
+        .args(["top", "--once", "--json", "--skin", "failover", "--interval", "0.3"])
         .output()
         .unwrap();
     assert!(top.status.success());

@@ -75,10 +75,10 @@ pub struct VirtualSkinConfig {
     pub pull_files: Option<Vec<PathBuf>>,
     /// Real-time settings of every layer's writer thread.
     pub rt: RtOptions,
-    /// Layers with a given topology, instead of generating `layers` layers of
-    /// `sensors` sensors (then `sensors`, `layers`, `sensors_per_module` and
-    /// `modules_per_patch` are unused).
-    pub explicit_layers: Option<Vec<skinware::LayerTopology>>,
+    /// Layers with a given topology and real-time settings, instead of
+    /// generating `layers` layers of `sensors` sensors (then `sensors`,
+    /// `layers`, `sensors_per_module`, `modules_per_patch` and `rt` are unused).
+    pub explicit_layers: Option<Vec<LayerSpec>>,
 }
 
 impl Default for VirtualSkinConfig {
@@ -141,7 +141,7 @@ impl VirtualSkinConfig {
     /// The layer names: `NAME-0 .. NAME-(L-1)`.
     pub fn layer_names(&self) -> Vec<String> {
         if let Some(layers) = &self.explicit_layers {
-            return layers.iter().map(|l| l.name.clone()).collect();
+            return layers.iter().map(|l| l.topology.name.clone()).collect();
         }
         (0..self.layers).map(|l| format!("{}-{l}", self.name)).collect()
     }
@@ -339,14 +339,14 @@ impl VirtualSkin {
     pub fn new(config: VirtualSkinConfig) -> Result<VirtualSkin, String> {
         config.validate()?;
         if let Some(explicit) = &config.explicit_layers {
-            let total: usize = explicit.iter().map(|l| l.sensors.len()).sum();
+            let total: usize = explicit.iter().map(|l| l.topology.sensors.len()).sum();
             let mut first_sensor = Vec::new();
             let mut next = 0;
             for layer in explicit {
                 first_sensor.push(next);
-                next += layer.sensors.len();
+                next += layer.topology.sensors.len();
             }
-            let layers = explicit.iter().map(|t| LayerSpec { topology: t.clone(), rt: config.rt.clone() }).collect();
+            let layers = explicit.clone();
             return Ok(VirtualSkin { body: Arc::new(VirtualBody::new(total)), config, layers, first_sensor });
         }
         let body = Arc::new(VirtualBody::new(config.sensors));

@@ -37,17 +37,27 @@ pub fn run(args: &Args) -> Result<()> {
             }
             writeln!(
                 out,
-                "{:<24} {:<8} {:>8} {:>9} {:>10} {:>10} {:>9} {:>7} {:>8}",
-                "LAYER", "STATE", "SENSORS", "RATE Hz", "WRITE us", "WORST us", "OVERRUNS", "FAULTS", "RESTARTS"
+                "{:<24} {:<8} {:>8} {:>9} {:>11} {:>10} {:>10} {:>9} {:>7} {:>8}",
+                "LAYER",
+                "STATE",
+                "SENSORS",
+                "RATE Hz",
+                "LATENCY us",
+                "WRITE us",
+                "WORST us",
+                "OVERRUNS",
+                "FAULTS",
+                "RESTARTS"
             )?;
             for l in &layers {
                 writeln!(
                     out,
-                    "{:<24} {:<8} {:>8} {:>9.1} {:>10.1} {:>10.1} {:>9} {:>7} {:>8}",
+                    "{:<24} {:<8} {:>8} {:>9.1} {:>11.1} {:>10.1} {:>10.1} {:>9} {:>7} {:>8}",
                     format!("{}/{}", l.skin, l.name),
                     l.state,
                     l.sensors,
                     l.rate_hz,
+                    l.latency_ns as f64 / 1e3,
                     l.write_ns_mean as f64 / 1e3,
                     l.write_ns_max as f64 / 1e3,
                     l.overruns,
