@@ -9,6 +9,10 @@
 //! sequence strictly increasing, the writer's overrun rate no worse while
 //! readers fail than before, and no segment left behind.
 //!
+//! With `SKINWARE_STRESS_CONTROL=1` it runs the control experiment instead:
+//! the same processes are spawned, stopped and killed, but never read, which
+//! measures what process churn alone costs the writer on this machine.
+//!
 //! It has its own `main` (no libtest harness) because it spawns itself.
 
 mod common;
@@ -141,6 +145,9 @@ fn reader_main() -> i32 {
         }
     };
     let mut report = Report::default();
+    if std::env::var_os("SKINWARE_STRESS_CONTROL").is_some() {
+        return control_reader_main(&reader, &report_path);
+    }
     let mut ticker = Ticker::new(Duration::from_millis(3));
     let timeout = Duration::from_millis(200);
     let mut since_check = 0u32;
@@ -187,6 +194,29 @@ fn reader_main() -> i32 {
     report.done = true;
     report.write(&report_path);
     0
+}
+
+/// The control experiment's "reader": a process that is born, copies frames'
+/// worth of memory and is killed like the real readers, but never reads the
+/// channel. The writer's missed periods under it are what the machine itself
+/// costs (process creation and teardown on a non-RT kernel), not readers.
+fn control_reader_main(reader: &Reader, report_path: &Path) -> i32 {
+    let source = vec![7u64; PAYLOAD_WORDS];
+    let mut copy = vec![0u64; PAYLOAD_WORDS];
+    let mut iterations = 0u64;
+    loop {
+        copy.copy_from_slice(&source);
+        std::hint::black_box(&mut copy);
+        std::thread::sleep(Duration::from_millis(1));
+        iterations += 1;
+        if iterations % 200 == 0 {
+            Report { done: false, ..Report::default() }.write(report_path);
+            if reader.writer_state() == WriterState::Gone {
+                Report { done: true, ..Report::default() }.write(report_path);
+                return 0;
+            }
+        }
+    }
 }
 
 struct ReaderProcess {
@@ -378,6 +408,10 @@ fn parent_main() {
         final_stats.write_ns_quantile(0.99)
     );
 
+    if std::env::var_os("SKINWARE_STRESS_CONTROL").is_some() {
+        println!("stress: CONTROL run (reader processes never read): the missed periods above are the machine's");
+        return;
+    }
     assert_eq!(total.torn, 0, "torn frames were read");
     assert_eq!(total.backwards, 0, "a reader's sequence went back");
     assert!(total.reads > 1000, "too few reads to mean anything: {}", total.reads);
