@@ -260,6 +260,14 @@ impl DriverHandler {
     }
 }
 
+impl Drop for DriverHandler {
+    /// A handler dropped without [`stop`](DriverHandler::stop) still stops its
+    /// writer threads (without waiting for them: one may be stuck in the driver).
+    fn drop(&mut self) {
+        self.stop.stop();
+    }
+}
+
 fn run_layer(mut writer: Writer, mut source: Box<dyn LayerSource>, rt: RtOptions, rate_hz: f64, busy: Arc<AtomicU64>) {
     for refusal in rt.apply() {
         tracing::warn!(layer = %writer.label(), "{refusal}");

@@ -43,6 +43,10 @@ pub struct Reader {
     last: Meta,
     stats: ReaderStats,
     stop: Stop,
+    /// Where the channel lives, to follow it if it is re-created.
+    skin: String,
+    channel: String,
+    dir: PathBuf,
 }
 
 impl std::fmt::Debug for Reader {
@@ -92,7 +96,55 @@ impl Reader {
         let shared = Arc::new(shared);
         let stop = Stop::new();
         stop.watch(&shared);
-        Ok(Reader { shared, buffer: vec![0; words], last: Meta::default(), stats: ReaderStats::default(), stop })
+        Ok(Reader {
+            shared,
+            buffer: vec![0; words],
+            last: Meta::default(),
+            stats: ReaderStats::default(),
+            stop,
+            skin: skin.to_owned(),
+            channel: channel.to_owned(),
+            dir,
+        })
+    }
+
+    /// Follows the channel if its writer is gone and a new writer re-created
+    /// it (a new segment under the same name, rather than a revival of this
+    /// one) with the same frame size and kind. Returns whether it switched.
+    /// Sequence numbers start again from 1 in a re-created channel.
+    ///
+    /// The blocking reads call this on their own when they time out; call it
+    /// after [`latest`](Self::latest) keeps returning the same frame.
+    pub fn follow_recreated(&mut self) -> bool {
+        use std::os::unix::fs::MetadataExt;
+        if self.shared.writer_alive().unwrap_or(true) {
+            return false;
+        }
+        let ours = self.shared.file.metadata().ok().map(|m| (m.dev(), m.ino()));
+        let current = std::fs::metadata(&self.shared.path).ok().map(|m| (m.dev(), m.ino()));
+        if current.is_none() || current == ours {
+            return false;
+        }
+        let Ok(replacement) = channel::open_segment(&self.dir, &self.skin, &self.channel, false) else {
+            return false;
+        };
+        let same_shape = replacement.layout.payload_bytes == self.shared.layout.payload_bytes
+            && replacement.kind == self.shared.kind
+            && replacement
+                .header()
+                .schema_name
+                .iter()
+                .zip(&self.shared.header().schema_name)
+                .all(|(a, b)| a.load(Ordering::Relaxed) == b.load(Ordering::Relaxed));
+        if !same_shape || !replacement.writer_alive().unwrap_or(false) {
+            return false;
+        }
+        let replacement = Arc::new(replacement);
+        self.stop.watch(&replacement);
+        tracing::info!(channel = %replacement.label, "following the re-created channel");
+        self.shared = replacement;
+        self.last = Meta::default();
+        true
     }
 
     /// `skin/channel`.
@@ -215,7 +267,12 @@ impl Reader {
     /// newer than the last one this reader obtained, then returns it.
     pub fn wait_newer(&mut self, timeout: Duration) -> Result<Frame<'_>> {
         let after = self.last.seq;
-        self.wait_beyond(after, timeout)?;
+        if let Err(e) = self.wait_beyond(after, timeout) {
+            if matches!(e, Error::Timeout { .. }) && self.follow_recreated() {
+                return self.wait_newer(timeout);
+            }
+            return Err(e);
+        }
         self.latest()
     }
 
@@ -229,7 +286,12 @@ impl Reader {
             requests.fetch_add(1, Ordering::Release);
             os::futex_wake_shared(requests);
         }
-        self.wait_beyond(after, timeout)?;
+        if let Err(e) = self.wait_beyond(after, timeout) {
+            if matches!(e, Error::Timeout { .. }) && self.follow_recreated() {
+                return self.request(timeout);
+            }
+            return Err(e);
+        }
         self.latest()
     }
 

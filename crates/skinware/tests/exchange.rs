@@ -282,6 +282,28 @@ fn revival_continues_the_sequence_for_existing_readers() {
 }
 
 #[test]
+fn readers_follow_a_re_created_channel() {
+    let dir = SegmentDir::new("recreated");
+    let mut first = Writer::create("skin", "layer", 8, b"v1", &dir.writer()).unwrap();
+    let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+    for value in 1..=3 {
+        publish(&mut first, value);
+    }
+    assert_eq!(reader.latest().unwrap().seq(), 3);
+    drop(first); // a clean stop removes the channel
+    assert!(!reader.follow_recreated(), "nothing to follow yet");
+
+    // A new writer (another topology description, same frame size) re-creates it.
+    let mut second = Writer::create("skin", "layer", 8, b"v2", &dir.writer()).unwrap();
+    assert!(!second.revived());
+    publish(&mut second, 40);
+    let frame = reader.wait_newer(Duration::from_millis(50)).expect("the reader follows on its own after a timeout");
+    assert_eq!((frame.seq(), frame.responses()), (1, &[40u16; 4][..]));
+    assert_eq!(reader.description(), b"v2");
+    assert_eq!(reader.writer_state(), WriterState::Running);
+}
+
+#[test]
 fn readers_map_frames_read_only() {
     let dir = SegmentDir::new("readonly");
     let _writer = Writer::create("skin", "layer", 30_848 * 2, b"", &dir.writer()).unwrap();
