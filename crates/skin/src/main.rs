@@ -35,6 +35,17 @@ enum Command {
     Clean(commands::clean::Args),
     /// Pull (or plug back) a virtual layer's cable, as a fault injection.
     Pull(commands::pull::Args),
+    /// Benchmarks: the paper's experiment, its Table I, and peers side by side.
+    Bench {
+        #[command(subcommand)]
+        which: commands::bench::Which,
+    },
+    /// One reader process of `skin bench peers`.
+    #[command(hide = true)]
+    BenchPeerReader(commands::bench::PeerReaderArgs),
+    /// One application process of a benchmark (what `skin bench` starts).
+    #[command(hide = true)]
+    BenchApp(commands::bench::AppArgs),
     /// Run one driver of CONFIG in this process (what `skin run` starts).
     #[command(hide = true)]
     Driver {
@@ -60,6 +71,9 @@ fn main() -> std::process::ExitCode {
         Command::Clean(args) => commands::clean::run(&args),
         Command::Pull(args) => commands::pull::run(&args),
         Command::Driver { config, name } => commands::driver::run(&config, &name),
+        Command::Bench { which } => commands::bench::run(&which),
+        Command::BenchApp(args) => commands::bench::app(&args),
+        Command::BenchPeerReader(args) => commands::bench::peer_reader(&args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

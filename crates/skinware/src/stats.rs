@@ -193,6 +193,8 @@ pub struct ReaderStats {
     pub read_ns_max: u64,
     /// Sum of the times to obtain frames, ns (for the mean).
     pub read_ns_sum: u64,
+    /// Time to obtain the latest frame, ns.
+    pub read_ns_last: u64,
 }
 
 impl ReaderStats {
@@ -207,6 +209,7 @@ impl ReaderStats {
         }
         self.read_ns_max = self.read_ns_max.max(read_ns);
         self.read_ns_sum += read_ns;
+        self.read_ns_last = read_ns;
         self.reads += 1;
         self.retries += u64::from(retries);
         self.skipped += skipped;

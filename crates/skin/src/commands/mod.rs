@@ -1,5 +1,6 @@
 //! One file per verb.
 
+pub mod bench;
 pub mod clean;
 pub mod driver;
 pub mod echo;

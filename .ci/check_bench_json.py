@@ -1,0 +1,53 @@
+#!/usr/bin/env python3
+"""Checks that the quick benchmark runs wrote complete, well-formed JSON.
+
+It asserts the shape of the results, never a timing."""
+import json
+import sys
+from pathlib import Path
+
+out = Path(sys.argv[1])
+problems = []
+
+
+def need(cond, what):
+    if not cond:
+        problems.append(what)
+
+
+def is_count(value):
+    return isinstance(value, int) and value >= 0
+
+
+paper = json.loads((out / "paper.json").read_text())
+need(isinstance(paper, list) and len(paper) == 9, f"paper.json: expected 9 records (3 layer counts x 3 app counts), got {len(paper)}")
+for record in paper:
+    need({record.get("layers"), record.get("apps")} <= set(range(1, 16)), f"paper.json: bad layers/apps in {record}")
+    for side in ("writer_ns", "reader_ns"):
+        stats = record.get(side, {})
+        for key in ("p50", "p99", "p999", "max"):
+            need(is_count(stats.get(key)), f"paper.json: {side}.{key} missing in layers={record.get('layers')} apps={record.get('apps')}")
+        need(stats.get("samples", 0) > 0, f"paper.json: no {side} samples in {record.get('layers')}x{record.get('apps')}")
+        need(stats.get("p50", 0) <= stats.get("p99", 0) <= stats.get("p999", 0) <= stats.get("max", 0), f"paper.json: {side} percentiles out of order")
+need((out / "paper.png").stat().st_size > 1000, "paper.png missing or empty")
+
+peers = json.loads((out / "peers.json").read_text())
+need(is_count(peers.get("memcpy_ns")) and peers["memcpy_ns"] > 0, "peers.json: memcpy_ns missing")
+need("cyclictest_us" in peers, "peers.json: cyclictest_us missing")
+seen = {(r.get("system"), r.get("readers")) for r in peers.get("records", [])}
+need(seen == {(s, n) for s in ("skinware", "rwlock") for n in (1, 4, 15)}, f"peers.json: records {sorted(seen)}")
+for record in peers.get("records", []):
+    for side in ("publish_ns", "latency_ns"):
+        for key in ("p50", "p99", "max"):
+            need(is_count(record.get(side, {}).get(key)), f"peers.json: {record.get('system')}/{record.get('readers')} {side}.{key} missing")
+    need(record.get("frames_received", 0) > 0, f"peers.json: {record.get('system')}/{record.get('readers')} received no frames")
+
+table1 = json.loads((out / "table1.json").read_text())
+need([row.get("name") for row in table1] == ["writer_EC", "writer_CAN", "reader_EC", "reader_CAN"], "table1.json: rows")
+for row in table1:
+    need(row.get("samples", 0) > 0 and row.get("worst_ns", 0) >= row.get("avg_ns", 0) > 0, f"table1.json: {row.get('name')} incomplete")
+
+if problems:
+    print("benchmark JSON problems:\n  " + "\n  ".join(problems))
+    sys.exit(1)
+print(f"benchmark JSON complete: {len(paper)} paper records, {len(peers['records'])} peer records, {len(table1)} table rows")

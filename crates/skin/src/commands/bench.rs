@@ -1,0 +1,116 @@
+//! `skin bench`: the benchmarks (they print tables and write JSON and plots).
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+
+/// Which benchmark.
+#[derive(clap::Subcommand)]
+pub enum Which {
+    /// The paper's performance test (Fig. 6): 1..5 layers x 1..15 apps.
+    Paper(Common),
+    /// The paper's Table I: a 180-sensor CAN layer and a 708-sensor EtherCAT layer.
+    Table1(Common),
+    /// The whole-skin frame to 1, 4 and 15 waiting readers: skinware, a lock-based baseline, memcpy, cyclictest.
+    Peers(Common),
+}
+
+/// Options every benchmark takes.
+#[derive(clap::Args)]
+pub struct Common {
+    /// A short, CI-sized run.
+    #[arg(long)]
+    quick: bool,
+    /// Directory for the JSON and plots.
+    #[arg(long, default_value = "target/bench")]
+    out: PathBuf,
+    /// Seconds per configuration (overrides the default of --quick or the full run).
+    #[arg(long)]
+    seconds: Option<f64>,
+}
+
+/// Arguments of the hidden `bench-app` role.
+#[derive(clap::Args)]
+pub struct AppArgs {
+    #[arg(long)]
+    skin: String,
+    #[arg(long, value_delimiter = ',')]
+    layers: Vec<String>,
+    #[arg(long, default_value = "periodic")]
+    mode: String,
+    #[arg(long)]
+    seconds: f64,
+    #[arg(long)]
+    seed: u64,
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// Runs `skin bench ...`.
+pub fn run(which: &Which) -> Result<()> {
+    let exe = std::env::current_exe().context("cannot find the skin executable")?;
+    match which {
+        Which::Paper(common) => {
+            let options = skinware_bench::paper::PaperOptions {
+                quick: common.quick,
+                out: common.out.clone(),
+                seconds: common.seconds,
+                exe,
+            };
+            skinware_bench::paper::run(&options).map(|_| ())
+        }
+        Which::Table1(common) => {
+            let options = skinware_bench::table1::Table1Options {
+                quick: common.quick,
+                out: common.out.clone(),
+                seconds: common.seconds,
+                exe,
+            };
+            skinware_bench::table1::run(&options).map(|_| ())
+        }
+        Which::Peers(common) => {
+            let options = skinware_bench::peers::PeersOptions {
+                quick: common.quick,
+                out: common.out.clone(),
+                seconds: common.seconds,
+                exe,
+            };
+            skinware_bench::peers::run(&options).map(|_| ())
+        }
+    }
+}
+
+/// Arguments of the hidden `bench-peer-reader` role.
+#[derive(clap::Args)]
+pub struct PeerReaderArgs {
+    #[arg(long)]
+    system: String,
+    #[arg(long)]
+    name: String,
+    #[arg(long)]
+    seconds: f64,
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// Runs one reader process of `skin bench peers`.
+pub fn peer_reader(args: &PeerReaderArgs) -> Result<()> {
+    skinware_bench::peers::run_reader(&skinware_bench::peers::PeerReaderArgs {
+        system: args.system.clone(),
+        name: args.name.clone(),
+        seconds: args.seconds,
+        out: args.out.clone(),
+    })
+}
+
+/// Runs one application process of a benchmark.
+pub fn app(args: &AppArgs) -> Result<()> {
+    skinware_bench::app::run(&skinware_bench::app::AppArgs {
+        skin: args.skin.clone(),
+        layers: args.layers.clone(),
+        mode: args.mode.clone(),
+        seconds: args.seconds,
+        seed: args.seed,
+        out: args.out.clone(),
+    })
+}

@@ -1,0 +1,79 @@
+//! An application process of the experiments: reads every given layer, each
+//! in its own thread, and writes the time each read took.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use serde::{Deserialize, Serialize};
+use skinware::{Reader, Ticker};
+
+/// Arguments of the `bench-app` role.
+#[derive(Clone, Debug)]
+pub struct AppArgs {
+    /// Skin name.
+    pub skin: String,
+    /// Layers to read.
+    pub layers: Vec<String>,
+    /// `periodic` (random 10-100 Hz per layer, seeded) or `asap`.
+    pub mode: String,
+    /// How long to read.
+    pub seconds: f64,
+    /// Seed of the random rates.
+    pub seed: u64,
+    /// Where to write the samples (JSON).
+    pub out: PathBuf,
+}
+
+/// What an application measured.
+#[derive(Debug, Default, Serialize, Deserialize)]
+pub struct AppSamples {
+    /// Per layer: the time to obtain one frame, ns.
+    pub read_ns: Vec<Vec<u64>>,
+    /// Per layer: the reader's rate, Hz (0 for asap).
+    pub rate_hz: Vec<f64>,
+}
+
+/// Runs the application role.
+pub fn run(args: &AppArgs) -> Result<()> {
+    let deadline = Instant::now() + Duration::from_secs_f64(args.seconds);
+    let mut threads = Vec::new();
+    for (l, layer) in args.layers.iter().enumerate() {
+        let mut reader = Reader::open(&args.skin, layer).with_context(|| format!("application cannot open {layer}"))?;
+        let mut seed = args.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (l as u64 + 1);
+        seed ^= seed >> 29;
+        let rate_hz = if args.mode == "asap" { 0.0 } else { 10.0 + (seed % 9001) as f64 / 100.0 };
+        threads.push(std::thread::spawn(move || -> (Vec<u64>, f64) {
+            let mut samples = Vec::with_capacity(8192);
+            let mut ticker = Ticker::from_hz(rate_hz.max(1.0));
+            while Instant::now() < deadline {
+                let read_ns = if rate_hz == 0.0 {
+                    match reader.wait_newer(Duration::from_millis(200)) {
+                        Ok(_) => reader.stats().read_ns_last,
+                        Err(_) => continue,
+                    }
+                } else {
+                    if ticker.wait(reader.stop_signal()).is_none() {
+                        break;
+                    }
+                    let started = skinware::os::monotonic_ns();
+                    if reader.latest().is_err() {
+                        continue;
+                    }
+                    skinware::os::monotonic_ns() - started
+                };
+                samples.push(read_ns);
+            }
+            (samples, rate_hz)
+        }));
+    }
+    let mut result = AppSamples::default();
+    for thread in threads {
+        let (samples, rate) = thread.join().map_err(|_| anyhow::anyhow!("reader thread panicked"))?;
+        result.read_ns.push(samples);
+        result.rate_hz.push(rate);
+    }
+    std::fs::write(&args.out, serde_json::to_vec(&result)?)
+        .with_context(|| format!("writing {}", args.out.display()))?;
+    Ok(())
+}

@@ -1,0 +1,26 @@
+//! Benchmarks of skinware, run as `skin bench ...`: commands that print tables
+//! and write JSON (and a plot), never timed unit tests.
+//!
+//! * [`paper`]: the paper's performance test (Section IV.B, Fig. 6): the
+//!   30,848-sensor virtual skin over 1..5 layers, read by 1..15 application
+//!   processes; writers' and readers' execution times.
+//! * [`table1`]: the paper's Table I: a 180-sensor "CAN" layer and a
+//!   708-sensor "EtherCAT" layer with aperiodic readers.
+//! * [`peers`]: the whole-skin frame delivered to 1, 4 and 15 reader
+//!   processes through skinware and through a lock-based shared-memory
+//!   baseline, beside `memcpy` and `cyclictest`.
+//!
+//! Application processes are this same executable re-run with the
+//! `bench-app` role ([`app`]).
+
+// `unsafe` is denied everywhere but in the lock-based peer (pthread objects
+// in shared memory), which says so itself.
+#![deny(unsafe_code)]
+
+pub mod app;
+pub mod measure;
+pub mod paper;
+pub mod peers;
+mod plot;
+mod rwlock_peer;
+pub mod table1;

@@ -1,0 +1,124 @@
+//! Sample statistics and the writer side of the experiments.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command};
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use serde::{Deserialize, Serialize};
+use skinware::{LayerTopology, RtOptions, Stop, Ticker, Writer, WriterOptions};
+
+/// Percentiles of a set of durations, ns.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq)]
+pub struct Percentiles {
+    /// Median.
+    pub p50: u64,
+    /// 99th percentile.
+    pub p99: u64,
+    /// 99.9th percentile.
+    pub p999: u64,
+    /// Worst case.
+    pub max: u64,
+    /// Mean.
+    pub avg: f64,
+    /// Standard deviation.
+    pub std: f64,
+    /// Number of samples.
+    pub samples: usize,
+}
+
+impl Percentiles {
+    /// Computes the statistics of `samples` (sorted in place).
+    pub fn of(samples: &mut [u64]) -> Percentiles {
+        if samples.is_empty() {
+            return Percentiles::default();
+        }
+        samples.sort_unstable();
+        let at = |q: f64| samples[((q * samples.len() as f64).ceil() as usize).clamp(1, samples.len()) - 1];
+        let n = samples.len() as f64;
+        let avg = samples.iter().map(|&s| s as f64).sum::<f64>() / n;
+        let var = samples.iter().map(|&s| (s as f64 - avg).powi(2)).sum::<f64>() / n;
+        Percentiles {
+            p50: at(0.5),
+            p99: at(0.99),
+            p999: at(0.999),
+            max: samples[samples.len() - 1],
+            avg,
+            std: var.sqrt(),
+            samples: samples.len(),
+        }
+    }
+}
+
+/// Runs one writer thread per layer until `stop`, each at its layer's rate,
+/// filling every frame from a driver-side buffer (as a driver copies from its
+/// bus) and timing `begin` to `publish`. Returns each layer's samples, ns.
+pub fn run_writers(
+    skin: &str,
+    layers: &[LayerTopology],
+    stop: &Stop,
+    dir: Option<PathBuf>,
+) -> Result<Vec<std::thread::JoinHandle<Vec<u64>>>> {
+    let mut threads = Vec::new();
+    for topology in layers {
+        let period = Duration::from_secs_f64(1.0 / topology.rate_hz);
+        let options = WriterOptions { period: Some(period), dir: dir.clone(), ..WriterOptions::default() };
+        let mut writer = Writer::create(skin, &topology.name, topology.frame_bytes(), &topology.encode(), &options)
+            .with_context(|| format!("creating layer {}", topology.name))?;
+        writer.set_stop(stop);
+        let sensors = topology.sensors.len();
+        threads.push(std::thread::spawn(move || {
+            let _ = RtOptions { fifo_priority: Some(80), ..RtOptions::default() }.apply();
+            let mut bus: Vec<u16> = (0..sensors).map(|i| (i % 4096) as u16).collect();
+            let mut samples = Vec::with_capacity(4096);
+            let mut ticker = Ticker::new(period);
+            let stop = writer.stop_signal().clone();
+            while ticker.wait(&stop).is_some() {
+                bus.iter_mut().for_each(|r| *r = r.wrapping_add(1));
+                let started = skinware::os::monotonic_ns();
+                let mut frame = writer.begin();
+                if frame.write_responses(0, &bus).is_ok() {
+                    frame.publish();
+                }
+                samples.push(skinware::os::monotonic_ns() - started);
+            }
+            samples
+        }));
+    }
+    Ok(threads)
+}
+
+/// Starts one application process: `exe bench-app ...`.
+pub fn spawn_app(
+    exe: &Path,
+    skin: &str,
+    layers: &[String],
+    mode: &str,
+    seconds: f64,
+    seed: u64,
+    out: &Path,
+) -> Result<Child> {
+    Command::new(exe)
+        .arg("bench-app")
+        .args(["--skin", skin, "--layers", &layers.join(","), "--mode", mode])
+        .args(["--seconds", &seconds.to_string(), "--seed", &seed.to_string()])
+        .arg("--out")
+        .arg(out)
+        .spawn()
+        .with_context(|| format!("cannot start application process {}", exe.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn percentiles_of_known_samples() {
+        let mut samples: Vec<u64> = (1..=1000).rev().collect();
+        let p = Percentiles::of(&mut samples);
+        assert_eq!((p.p50, p.p99, p.p999, p.max, p.samples), (500, 990, 999, 1000, 1000));
+        assert!((p.avg - 500.5).abs() < 1e-9);
+        assert!((p.std - 288.675).abs() < 0.01);
+        assert_eq!(Percentiles::of(&mut []), Percentiles::default());
+    }
+}

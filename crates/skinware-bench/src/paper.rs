@@ -1,0 +1,150 @@
+//! `skin bench paper`: the paper's performance test (Section IV.B, Fig. 6).
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use serde::Serialize;
+use skinware::Stop;
+use skinware_drivers::{Rate, VirtualSkin, VirtualSkinConfig};
+
+use crate::app::AppSamples;
+use crate::measure::{self, Percentiles};
+
+/// Options of `skin bench paper`.
+#[derive(Clone, Debug)]
+pub struct PaperOptions {
+    /// CI-sized: layers {1, 3, 5} x apps {1, 5, 15}, 1 s each.
+    pub quick: bool,
+    /// Where `paper.json` and `paper.png` go.
+    pub out: PathBuf,
+    /// Seconds per configuration (default 1 quick, 4 full).
+    pub seconds: Option<f64>,
+    /// This executable, re-run for the application processes.
+    pub exe: PathBuf,
+}
+
+/// One configuration's result.
+#[derive(Debug, Serialize)]
+pub struct PaperRecord {
+    /// Layers the 30,848 sensors were split over.
+    pub layers: usize,
+    /// Application processes.
+    pub apps: usize,
+    /// Writers' execution time per frame (all layers pooled), ns.
+    pub writer_ns: Percentiles,
+    /// Readers' time to obtain one frame of a layer (all apps and layers pooled), ns.
+    pub reader_ns: Percentiles,
+    /// The layers' acquisition rates, Hz.
+    pub writer_rates_hz: Vec<f64>,
+}
+
+/// Runs the experiment, prints a table, writes `paper.json` and `paper.png`.
+pub fn run(options: &PaperOptions) -> Result<Vec<PaperRecord>> {
+    let layer_counts: Vec<usize> = if options.quick { vec![1, 3, 5] } else { (1..=5).collect() };
+    let app_counts: Vec<usize> = if options.quick { vec![1, 5, 15] } else { (1..=15).collect() };
+    let seconds = options.seconds.unwrap_or(if options.quick { 1.0 } else { 4.0 });
+    if !(seconds.is_finite() && seconds > 0.0) {
+        bail!("--seconds must be a positive number of seconds");
+    }
+    std::fs::create_dir_all(&options.out).with_context(|| format!("cannot create {}", options.out.display()))?;
+    let work = options.out.join("paper-work");
+    std::fs::create_dir_all(&work)?;
+    let total = (layer_counts.len() * app_counts.len()) as u64;
+    let progress = indicatif::ProgressBar::new(total).with_style(
+        indicatif::ProgressStyle::with_template(
+            "{bar:40} {pos}/{len} configurations, {elapsed} elapsed, ~{eta} left  {msg}",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let mut records = Vec::new();
+    for &layers in &layer_counts {
+        for &apps in &app_counts {
+            progress.set_message(format!("{layers} layer(s), {apps} app(s)"));
+            records.push(run_one(options, &work, layers, apps, seconds)?);
+            progress.inc(1);
+        }
+    }
+    progress.finish_and_clear();
+    let _ = std::fs::remove_dir_all(&work);
+
+    println!(
+        "skin bench paper: 30,848 sensors, writers at random 30-50 Hz, apps reading every layer at random 10-100 Hz"
+    );
+    println!("{seconds} s per configuration; times in microseconds\n");
+    println!(
+        "{:>6} {:>4} | {:>8} {:>8} {:>8} {:>8} | {:>8} {:>8} {:>8} {:>8}",
+        "layers", "apps", "wr p50", "wr p99", "wr p99.9", "wr max", "rd p50", "rd p99", "rd p99.9", "rd max"
+    );
+    let us = |ns: u64| ns as f64 / 1e3;
+    for r in &records {
+        println!(
+            "{:>6} {:>4} | {:>8.1} {:>8.1} {:>8.1} {:>8.1} | {:>8.1} {:>8.1} {:>8.1} {:>8.1}",
+            r.layers,
+            r.apps,
+            us(r.writer_ns.p50),
+            us(r.writer_ns.p99),
+            us(r.writer_ns.p999),
+            us(r.writer_ns.max),
+            us(r.reader_ns.p50),
+            us(r.reader_ns.p99),
+            us(r.reader_ns.p999),
+            us(r.reader_ns.max)
+        );
+    }
+    let json = options.out.join("paper.json");
+    std::fs::write(&json, serde_json::to_vec_pretty(&records)?)?;
+    let png = options.out.join("paper.png");
+    crate::plot::fig6(&records, &png)?;
+    println!("\nwrote {} and {}", json.display(), png.display());
+    Ok(records)
+}
+
+fn run_one(options: &PaperOptions, work: &Path, layers: usize, apps: usize, seconds: f64) -> Result<PaperRecord> {
+    let skin = format!("bench{}L{layers}A{apps}", std::process::id());
+    let config = VirtualSkinConfig {
+        layers,
+        rate: Rate::Random { random: [30.0, 50.0] },
+        seed: 2013 + layers as u64,
+        ..VirtualSkinConfig::default()
+    };
+    let skin_model = VirtualSkin::new(config).map_err(|e| anyhow::anyhow!(e))?;
+    let topologies: Vec<_> = skinware::Driver::layers(&skin_model).into_iter().map(|spec| spec.topology).collect();
+    let names: Vec<String> = topologies.iter().map(|t| t.name.clone()).collect();
+    let stop = Stop::new();
+    let writers = measure::run_writers(&skin, &topologies, &stop, None)?;
+    let mut children = Vec::new();
+    for app in 0..apps {
+        let out = work.join(format!("{skin}-app{app}.json"));
+        let child = measure::spawn_app(&options.exe, &skin, &names, "periodic", seconds, app as u64 + 1, &out)?;
+        children.push((child, out));
+    }
+    let mut reader_samples = Vec::new();
+    let mut failure = None;
+    for (mut child, out) in children {
+        let status = child.wait()?;
+        if !status.success() {
+            failure.get_or_insert_with(|| format!("an application process failed ({status})"));
+            continue;
+        }
+        let samples: AppSamples = serde_json::from_slice(&std::fs::read(&out)?)?;
+        reader_samples.extend(samples.read_ns.into_iter().flatten());
+    }
+    // Let the writers run a little past the last reader, then stop them.
+    std::thread::sleep(Duration::from_millis(50));
+    stop.stop();
+    let mut writer_samples = Vec::new();
+    for writer in writers {
+        writer_samples.extend(writer.join().map_err(|_| anyhow::anyhow!("writer thread panicked"))?);
+    }
+    if let Some(failure) = failure {
+        bail!("{failure} in configuration {layers} layers x {apps} apps");
+    }
+    Ok(PaperRecord {
+        layers,
+        apps,
+        writer_ns: Percentiles::of(&mut writer_samples),
+        reader_ns: Percentiles::of(&mut reader_samples),
+        writer_rates_hz: topologies.iter().map(|t| t.rate_hz).collect(),
+    })
+}

@@ -1,0 +1,398 @@
+//! `skin bench peers`: the same 30,848-sensor frames delivered to 1, 4 and 15
+//! waiting reader processes through skinware and through the lock-based
+//! baseline, with a plain `memcpy` of one frame and `cyclictest`'s wake-up
+//! latency measured in the same run.
+
+use std::path::PathBuf;
+use std::process::Command;
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use serde::{Deserialize, Serialize};
+use skinware::{Reader, RtOptions, Stop, Ticker, Writer, WriterOptions};
+
+use crate::measure::Percentiles;
+use crate::rwlock_peer::RwLockChannel;
+
+/// Sensors of the whole skin.
+pub const SENSORS: usize = 30_848;
+const FRAME_BYTES: usize = SENSORS * 2;
+/// Frames per second delivered.
+pub const RATE_HZ: f64 = 200.0;
+
+/// Options of `skin bench peers`.
+#[derive(Clone, Debug)]
+pub struct PeersOptions {
+    /// CI-sized: 1 s per configuration.
+    pub quick: bool,
+    /// Where `peers.json` goes.
+    pub out: PathBuf,
+    /// Seconds per configuration.
+    pub seconds: Option<f64>,
+    /// This executable, re-run for the reader processes.
+    pub exe: PathBuf,
+}
+
+/// p50, p99 and max, ns.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize)]
+pub struct Summary {
+    /// Median.
+    pub p50: u64,
+    /// 99th percentile.
+    pub p99: u64,
+    /// Worst case.
+    pub max: u64,
+}
+
+impl From<Percentiles> for Summary {
+    fn from(p: Percentiles) -> Summary {
+        Summary { p50: p.p50, p99: p.p99, max: p.max }
+    }
+}
+
+/// One (system, readers) result.
+#[derive(Debug, Serialize)]
+pub struct PeerRecord {
+    /// `skinware` or `rwlock`.
+    pub system: String,
+    /// Reader processes.
+    pub readers: usize,
+    /// The writer's cost to publish one frame (copy included), ns.
+    pub publish_ns: Summary,
+    /// From publish to a waiting reader holding its copy, ns.
+    pub latency_ns: Summary,
+    /// `publish_ns.p50 / memcpy_ns`.
+    pub publish_vs_memcpy: f64,
+    /// `latency_ns.p50 / memcpy_ns`.
+    pub latency_vs_memcpy: f64,
+    /// A woken reader's time to copy the frame out (for skinware: the
+    /// lock-free read; for rwlock: read-lock, copy, unlock), ns.
+    pub copy_ns: Summary,
+    /// `copy_ns.p50 / memcpy_ns`.
+    pub copy_vs_memcpy: f64,
+    /// Frames the readers received, all together.
+    pub frames_received: usize,
+}
+
+/// `cyclictest`'s wake-up latency, µs.
+#[derive(Debug, Default, Serialize)]
+pub struct Cyclictest {
+    /// Median.
+    pub p50: f64,
+    /// 99th percentile.
+    pub p99: f64,
+    /// Worst case.
+    pub max: f64,
+    /// Why it is missing, if it is.
+    pub skipped: Option<String>,
+}
+
+/// The whole `peers.json`.
+#[derive(Debug, Serialize)]
+pub struct PeersReport {
+    /// Median time of a plain `memcpy` of one frame, ns.
+    pub memcpy_ns: u64,
+    /// `cyclictest` on this machine in the same run.
+    pub cyclictest_us: Cyclictest,
+    /// Frame size, bytes.
+    pub frame_bytes: usize,
+    /// Frames per second.
+    pub rate_hz: f64,
+    /// One record per (system, readers).
+    pub records: Vec<PeerRecord>,
+}
+
+/// Runs the comparison, prints it and writes `peers.json`.
+pub fn run(options: &PeersOptions) -> Result<PeersReport> {
+    let seconds = options.seconds.unwrap_or(if options.quick { 1.0 } else { 10.0 });
+    if !(seconds.is_finite() && seconds > 0.0) {
+        bail!("--seconds must be a positive number of seconds");
+    }
+    std::fs::create_dir_all(&options.out).with_context(|| format!("cannot create {}", options.out.display()))?;
+    let memcpy_ns = measure_memcpy();
+    let cyclictest_us = run_cyclictest(if options.quick { 2_000 } else { 20_000 });
+    let mut records = Vec::new();
+    for system in ["skinware", "rwlock"] {
+        for readers in [1, 4, 15] {
+            let (publish, latency, copy, frames) = run_one(options, system, readers, seconds)?;
+            records.push(PeerRecord {
+                system: system.into(),
+                readers,
+                publish_vs_memcpy: publish.p50 as f64 / memcpy_ns.max(1) as f64,
+                latency_vs_memcpy: latency.p50 as f64 / memcpy_ns.max(1) as f64,
+                copy_vs_memcpy: copy.p50 as f64 / memcpy_ns.max(1) as f64,
+                publish_ns: publish.into(),
+                latency_ns: latency.into(),
+                copy_ns: copy.into(),
+                frames_received: frames,
+            });
+        }
+    }
+    let report = PeersReport { memcpy_ns, cyclictest_us, frame_bytes: FRAME_BYTES, rate_hz: RATE_HZ, records };
+    print(&report, seconds);
+    let json = options.out.join("peers.json");
+    std::fs::write(&json, serde_json::to_vec_pretty(&report)?)?;
+    println!("\nwrote {}", json.display());
+    Ok(report)
+}
+
+fn print(report: &PeersReport, seconds: f64) {
+    println!(
+        "skin bench peers: {} B frames ({} sensors) at {} Hz to waiting reader processes, {seconds} s each",
+        report.frame_bytes, SENSORS, report.rate_hz
+    );
+    println!("memcpy of one frame: {} ns (median)", report.memcpy_ns);
+    match &report.cyclictest_us.skipped {
+        Some(why) => println!("cyclictest: skipped ({why})"),
+        None => println!(
+            "cyclictest wake-up latency: p50 {:.0} us, p99 {:.0} us, max {:.0} us",
+            report.cyclictest_us.p50, report.cyclictest_us.p99, report.cyclictest_us.max
+        ),
+    }
+    println!(
+        "\n{:<9} {:>7} | {:>9} {:>9} {:>9} {:>6} | {:>9} {:>9} {:>9} {:>6} | {:>9} {:>6}",
+        "system",
+        "readers",
+        "pub p50",
+        "pub p99",
+        "pub max",
+        "x cpy",
+        "lat p50",
+        "lat p99",
+        "lat max",
+        "x cpy",
+        "copy p50",
+        "x cpy"
+    );
+    let us = |ns: u64| ns as f64 / 1e3;
+    for r in &report.records {
+        println!(
+            "{:<9} {:>7} | {:>7.1}us {:>7.1}us {:>7.1}us {:>6.1} | {:>7.1}us {:>7.1}us {:>7.1}us {:>6.1} | {:>7.1}us {:>6.1}",
+            r.system,
+            r.readers,
+            us(r.publish_ns.p50),
+            us(r.publish_ns.p99),
+            us(r.publish_ns.max),
+            r.publish_vs_memcpy,
+            us(r.latency_ns.p50),
+            us(r.latency_ns.p99),
+            us(r.latency_ns.max),
+            r.latency_vs_memcpy,
+            us(r.copy_ns.p50),
+            r.copy_vs_memcpy
+        );
+    }
+}
+
+/// Median time of copying one frame between two buffers.
+fn measure_memcpy() -> u64 {
+    let source = vec![0x5au8; FRAME_BYTES];
+    let mut target = vec![0u8; FRAME_BYTES];
+    let mut samples: Vec<u64> = (0..2000)
+        .map(|_| {
+            let started = skinware::os::monotonic_ns();
+            target.copy_from_slice(std::hint::black_box(&source));
+            std::hint::black_box(&mut target);
+            skinware::os::monotonic_ns() - started
+        })
+        .collect();
+    Percentiles::of(&mut samples).p50
+}
+
+/// Runs `cyclictest` (from rt-tests) for `loops` wake-ups at 1 kHz, SCHED_FIFO 80.
+fn run_cyclictest(loops: u32) -> Cyclictest {
+    let output = Command::new("cyclictest")
+        .args(["-q", "-m", "-p", "80", "-i", "1000", "-t", "1", "-h", "2000"])
+        .args(["-l", &loops.to_string()])
+        .output();
+    let output = match output {
+        Ok(output) if output.status.success() => output,
+        Ok(output) => {
+            return Cyclictest {
+                skipped: Some(format!("cyclictest failed: {}", String::from_utf8_lossy(&output.stderr).trim())),
+                ..Cyclictest::default()
+            };
+        }
+        Err(e) => {
+            return Cyclictest {
+                skipped: Some(format!("cyclictest not found ({e}); install rt-tests")),
+                ..Cyclictest::default()
+            };
+        }
+    };
+    // The histogram: one "latency_us count" line per microsecond.
+    let mut histogram: Vec<(u64, u64)> = Vec::new();
+    for line in String::from_utf8_lossy(&output.stdout).lines() {
+        if line.starts_with('#') {
+            continue;
+        }
+        let mut fields = line.split_whitespace();
+        if let (Some(Ok(us)), Some(Ok(count))) = (fields.next().map(str::parse), fields.next().map(str::parse)) {
+            if count > 0 {
+                histogram.push((us, count));
+            }
+        }
+    }
+    let total: u64 = histogram.iter().map(|&(_, c)| c).sum();
+    if total == 0 {
+        return Cyclictest { skipped: Some("cyclictest printed no histogram".into()), ..Cyclictest::default() };
+    }
+    let quantile = |q: f64| {
+        let rank = (q * total as f64).ceil() as u64;
+        let mut seen = 0;
+        for &(us, count) in &histogram {
+            seen += count;
+            if seen >= rank {
+                return us as f64;
+            }
+        }
+        histogram.last().map_or(0.0, |&(us, _)| us as f64)
+    };
+    Cyclictest {
+        p50: quantile(0.5),
+        p99: quantile(0.99),
+        max: histogram.last().map_or(0.0, |&(us, _)| us as f64),
+        skipped: None,
+    }
+}
+
+/// What a peer reader process measured.
+#[derive(Debug, Default, Serialize, Deserialize)]
+pub struct PeerReaderSamples {
+    /// Publish-to-holding latencies, ns.
+    pub latency_ns: Vec<u64>,
+    /// Time to copy the frame out once woken, ns.
+    pub copy_ns: Vec<u64>,
+}
+
+fn run_one(
+    options: &PeersOptions,
+    system: &str,
+    readers: usize,
+    seconds: f64,
+) -> Result<(Percentiles, Percentiles, Percentiles, usize)> {
+    let name = format!("peers{}{system}{readers}", std::process::id());
+    let dir = skinware::shm::segment_dir();
+    let stop = Stop::new();
+    let period = Duration::from_secs_f64(1.0 / RATE_HZ);
+    let frame: Vec<u16> = (0..SENSORS).map(|i| (i % 4096) as u16).collect();
+    let work = options.out.join("peers-work");
+    std::fs::create_dir_all(&work)?;
+
+    // The writer: create the channel first, so readers can attach.
+    enum Side {
+        Skinware(Box<Writer>),
+        RwLock(RwLockChannel),
+    }
+    let mut side = match system {
+        "skinware" => {
+            let options = WriterOptions { period: Some(period), ..WriterOptions::default() };
+            Side::Skinware(Box::new(Writer::create(&name, "frame", FRAME_BYTES, b"peers", &options)?))
+        }
+        _ => Side::RwLock(RwLockChannel::create(&dir.join(format!("skinware-bench-rwlock.{name}")), FRAME_BYTES)?),
+    };
+    let mut children = Vec::new();
+    for reader in 0..readers {
+        let out = work.join(format!("{name}-{reader}.json"));
+        let child = Command::new(&options.exe)
+            .args(["bench-peer-reader", "--system", system, "--name", &name])
+            .args(["--seconds", &(seconds + 0.3).to_string()])
+            .arg("--out")
+            .arg(&out)
+            .spawn()
+            .context("cannot start a peer reader process")?;
+        children.push((child, out));
+    }
+    // Give every reader time to attach and start waiting.
+    std::thread::sleep(Duration::from_millis(300));
+    let stopper = stop.clone();
+    let timer = std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_secs_f64(seconds));
+        stopper.stop();
+    });
+    let _ = RtOptions { fifo_priority: Some(80), ..RtOptions::default() }.apply();
+    let mut publish = Vec::with_capacity((RATE_HZ * seconds) as usize + 16);
+    let mut ticker = Ticker::new(period);
+    let bytes: Vec<u8> = frame.iter().flat_map(|value| value.to_ne_bytes()).collect();
+    while ticker.wait(&stop).is_some() {
+        let started = skinware::os::monotonic_ns();
+        match &mut side {
+            Side::Skinware(writer) => {
+                let mut guard = writer.begin();
+                guard.write_responses(0, &frame)?;
+                guard.publish();
+            }
+            Side::RwLock(channel) => {
+                channel.publish(&bytes)?;
+            }
+        }
+        publish.push(skinware::os::monotonic_ns() - started);
+    }
+    let _ = timer.join();
+    let mut latency = Vec::new();
+    let mut copy = Vec::new();
+    for (mut child, out) in children {
+        let status = child.wait()?;
+        if !status.success() {
+            bail!("a {system} reader process failed ({status})");
+        }
+        let samples: PeerReaderSamples = serde_json::from_slice(&std::fs::read(&out)?)?;
+        latency.extend(samples.latency_ns);
+        copy.extend(samples.copy_ns);
+        let _ = std::fs::remove_file(&out);
+    }
+    drop(side);
+    let frames = latency.len();
+    Ok((Percentiles::of(&mut publish), Percentiles::of(&mut latency), Percentiles::of(&mut copy), frames))
+}
+
+/// Arguments of the peer reader role.
+#[derive(Clone, Debug)]
+pub struct PeerReaderArgs {
+    /// `skinware` or `rwlock`.
+    pub system: String,
+    /// Channel name.
+    pub name: String,
+    /// How long to read.
+    pub seconds: f64,
+    /// Where to write the samples.
+    pub out: PathBuf,
+}
+
+/// A waiting reader process: for every frame, the time from its publication
+/// to holding a private copy of it.
+pub fn run_reader(args: &PeerReaderArgs) -> Result<()> {
+    let _ = RtOptions { fifo_priority: Some(70), ..RtOptions::default() }.apply();
+    let deadline = skinware::os::monotonic_ns() + (args.seconds * 1e9) as u64;
+    let mut samples = PeerReaderSamples::default();
+    match args.system.as_str() {
+        "skinware" => {
+            let mut reader = Reader::open(&args.name, "frame")?;
+            while skinware::os::monotonic_ns() < deadline {
+                if let Ok(frame) = reader.wait_newer(Duration::from_millis(100)) {
+                    let holding = skinware::os::monotonic_ns();
+                    samples.latency_ns.push(holding.saturating_sub(frame.published_ns()));
+                    samples.copy_ns.push(reader.stats().read_ns_last);
+                }
+            }
+        }
+        "rwlock" => {
+            let path = skinware::shm::segment_dir().join(format!("skinware-bench-rwlock.{}", args.name));
+            let channel = RwLockChannel::open(&path, FRAME_BYTES)?;
+            let mut copy = vec![0u8; FRAME_BYTES];
+            let mut last = 0;
+            while skinware::os::monotonic_ns() < deadline {
+                let until = (skinware::os::monotonic_ns() + 100_000_000).min(deadline);
+                if let Some((seq, published_ns, copy_ns)) = channel.wait_newer(last, &mut copy, until)? {
+                    let holding = skinware::os::monotonic_ns();
+                    last = seq;
+                    samples.latency_ns.push(holding.saturating_sub(published_ns));
+                    samples.copy_ns.push(copy_ns);
+                }
+            }
+        }
+        other => bail!("unknown system {other:?}; use skinware or rwlock"),
+    }
+    std::fs::write(&args.out, serde_json::to_vec(&samples)?)?;
+    Ok(())
+}

@@ -1,0 +1,126 @@
+//! `skin bench table1`: the paper's Table I with our figures beside it.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use serde::Serialize;
+use skinware::{Stop, TopologyBuilder};
+
+use crate::app::AppSamples;
+use crate::measure::{self, Percentiles};
+
+/// Options of `skin bench table1`.
+#[derive(Clone, Debug)]
+pub struct Table1Options {
+    /// CI-sized: 2 s instead of 60 s.
+    pub quick: bool,
+    /// Where `table1.json` goes.
+    pub out: PathBuf,
+    /// Seconds of measurement.
+    pub seconds: Option<f64>,
+    /// This executable, re-run for the application process.
+    pub exe: PathBuf,
+}
+
+/// One row of Table I.
+#[derive(Debug, Serialize)]
+pub struct Table1Row {
+    /// `writer_EC`, `writer_CAN`, `reader_EC` or `reader_CAN`.
+    pub name: &'static str,
+    /// Our average, ns.
+    pub avg_ns: f64,
+    /// Our worst case, ns.
+    pub worst_ns: u64,
+    /// Our standard deviation, ns.
+    pub std_ns: f64,
+    /// Samples behind it.
+    pub samples: usize,
+    /// The paper's (average, worst case, std), ns (Core 2 Duo, RTAI).
+    pub paper: [f64; 3],
+}
+
+const PAPER: [(&str, [f64; 3]); 4] = [
+    ("writer_EC", [23915.0, 87315.0, 4381.0]),
+    ("writer_CAN", [20108.0, 44077.0, 2951.0]),
+    ("reader_EC", [10996.0, 86635.0, 3533.0]),
+    ("reader_CAN", [6703.0, 47102.0, 1733.0]),
+];
+
+/// Runs the test, prints the table beside the paper's and writes `table1.json`.
+pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
+    let seconds = options.seconds.unwrap_or(if options.quick { 2.0 } else { 60.0 });
+    if !(seconds.is_finite() && seconds > 0.0) {
+        bail!("--seconds must be a positive number of seconds");
+    }
+    std::fs::create_dir_all(&options.out).with_context(|| format!("cannot create {}", options.out.display()))?;
+    let skin = format!("table1-{}", std::process::id());
+    // The paper's saddle: 15 modules on CAN; 12 + 3 x 16 modules on EtherCAT,
+    // 12 taxels each (one EtherCAT module broken: 59 x 12 = 708).
+    let mut can = TopologyBuilder::new("can", "pressure", 50.0);
+    can.patch(1);
+    for module in 0..15u32 {
+        can.module(module + 1, module * 12 + 1..module * 12 + 13);
+    }
+    let mut ethercat = TopologyBuilder::new("ethercat", "pressure", 50.0);
+    let mut module_id = 100;
+    for (patch, modules) in [(2u32, 11u32), (3, 16), (4, 16), (5, 16)] {
+        ethercat.patch(patch);
+        for _ in 0..modules {
+            let first = module_id * 12;
+            ethercat.module(module_id, first..first + 12);
+            module_id += 1;
+        }
+    }
+    let topologies = vec![ethercat.build()?, can.build()?];
+    debug_assert_eq!((topologies[0].sensors.len(), topologies[1].sensors.len()), (708, 180));
+    let stop = Stop::new();
+    let writers = measure::run_writers(&skin, &topologies, &stop, None)?;
+    let out = options.out.join("table1-app.json");
+    let names: Vec<String> = topologies.iter().map(|t| t.name.clone()).collect();
+    let mut app = measure::spawn_app(&options.exe, &skin, &names, "asap", seconds, 1, &out)?;
+    let status = app.wait()?;
+    std::thread::sleep(Duration::from_millis(50));
+    stop.stop();
+    let mut writer_samples = Vec::new();
+    for writer in writers {
+        writer_samples.push(writer.join().map_err(|_| anyhow::anyhow!("writer thread panicked"))?);
+    }
+    if !status.success() {
+        bail!("the application process failed ({status})");
+    }
+    let app_samples: AppSamples = serde_json::from_slice(&std::fs::read(&out)?)?;
+    let _ = std::fs::remove_file(&out);
+    let mut all = [
+        writer_samples[0].clone(),
+        writer_samples[1].clone(),
+        app_samples.read_ns.first().cloned().unwrap_or_default(),
+        app_samples.read_ns.get(1).cloned().unwrap_or_default(),
+    ];
+    let rows: Vec<Table1Row> = PAPER
+        .iter()
+        .zip(all.iter_mut())
+        .map(|(&(name, paper), samples)| {
+            let p = Percentiles::of(samples);
+            Table1Row { name, avg_ns: p.avg, worst_ns: p.max, std_ns: p.std, samples: p.samples, paper }
+        })
+        .collect();
+    println!(
+        "skin bench table1: EtherCAT layer 708 sensors, CAN layer 180 sensors, writers at 50 Hz, aperiodic readers"
+    );
+    println!("{seconds} s of measurement; ours on this machine, the paper's on a Core 2 Duo E8200 with RTAI\n");
+    println!(
+        "{:<12} {:>12} {:>12} {:>10} | {:>12} {:>12} {:>10}",
+        "", "avg (ns)", "worst (ns)", "std", "paper avg", "paper worst", "paper std"
+    );
+    for row in &rows {
+        println!(
+            "{:<12} {:>12.0} {:>12} {:>10.0} | {:>12.0} {:>12.0} {:>10.0}",
+            row.name, row.avg_ns, row.worst_ns, row.std_ns, row.paper[0], row.paper[1], row.paper[2]
+        );
+    }
+    let json = options.out.join("table1.json");
+    std::fs::write(&json, serde_json::to_vec_pretty(&rows)?)?;
+    println!("\nwrote {}", json.display());
+    Ok(rows)
+}
