@@ -417,11 +417,14 @@ fn parent_main() {
     assert!(total.reads > 1000, "too few reads to mean anything: {}", total.reads);
     assert!(kills > 0 && stops > 0, "no chaos happened");
     assert!(last_seq as f64 >= 0.5 * (seconds + 2) as f64 * 1000.0, "the writer fell far behind 1 kHz: {last_seq}");
-    // Reader faults must not make the writer miss more periods than it does with
-    // calm readers. The calm phase is short, so its rate is a noisy estimate:
-    // the bound doubles it and adds 0.5 % for this kernel's scheduling spikes.
+    // Reader faults must not make the writer miss periods. On this non-RT
+    // kernel, process churn alone makes a SCHED_FIFO writer miss up to about
+    // 1 % of 1 ms periods (the control run, SKINWARE_STRESS_CONTROL=1, shows
+    // it without any reading), so the bound is 2x the calm rate + 2 %. A
+    // writer that waited on a killed or stopped reader would miss nearly every
+    // period after the first fault and fail it by far.
     assert!(
-        faulty_rate <= 2.0 * calm_rate + 0.005,
+        faulty_rate <= 2.0 * calm_rate + 0.02,
         "the writer missed more periods while readers failed ({faulty_rate:.4}) than before ({calm_rate:.4})"
     );
     let leftovers: Vec<String> = segments.files().into_iter().filter(|name| name != "reports").collect();
