@@ -42,6 +42,12 @@ for record in peers.get("records", []):
             need(is_count(record.get(side, {}).get(key)), f"peers.json: {record.get('system')}/{record.get('readers')} {side}.{key} missing")
     need(record.get("frames_received", 0) > 0, f"peers.json: {record.get('system')}/{record.get('readers')} received no frames")
 
+busy = {(r.get("system"), r.get("readers")) for r in peers.get("busy_readers", [])}
+need(busy == {(s, n) for s in ("skinware", "rwlock") for n in (0, 1, 4, 15)}, f"peers.json: busy_readers {sorted(busy)}")
+for record in peers.get("busy_readers", []):
+    for key in ("p50", "p99", "max"):
+        need(is_count(record.get("publish_ns", {}).get(key)), f"peers.json: busy {record.get('system')}/{record.get('readers')} publish_ns.{key} missing")
+
 table1 = json.loads((out / "table1.json").read_text())
 need([row.get("name") for row in table1] == ["writer_EC", "writer_CAN", "reader_EC", "reader_CAN"], "table1.json: rows")
 for row in table1:

@@ -100,6 +100,24 @@ pub struct PeersReport {
     pub rate_hz: f64,
     /// One record per (system, readers).
     pub records: Vec<PeerRecord>,
+    /// The writer's publish cost while readers copy frames back to back (on
+    /// request, without waiting): what readers cost each writer.
+    pub busy_readers: Vec<BusyRecord>,
+}
+
+/// One (system, readers) result with readers reading back to back.
+#[derive(Debug, Serialize)]
+pub struct BusyRecord {
+    /// `skinware` or `rwlock`.
+    pub system: String,
+    /// Reader processes.
+    pub readers: usize,
+    /// The writer's cost to publish one frame, ns.
+    pub publish_ns: Summary,
+    /// Frames the writer published (of the nominal rate x duration).
+    pub frames_published: usize,
+    /// Frames the readers copied, all together.
+    pub reads: usize,
 }
 
 /// Runs the comparison, prints it and writes `peers.json`.
@@ -128,10 +146,41 @@ pub fn run(options: &PeersOptions) -> Result<PeersReport> {
             });
         }
     }
-    let report = PeersReport { memcpy_ns, cyclictest_us, frame_bytes: FRAME_BYTES, rate_hz: RATE_HZ, records };
+    let mut busy_readers = Vec::new();
+    for system in ["skinware", "rwlock"] {
+        for readers in [0, 1, 4, 15] {
+            let (publish, _, _, reads) = run_mode(options, system, readers, seconds, "busy")?;
+            busy_readers.push(BusyRecord {
+                system: system.into(),
+                readers,
+                frames_published: publish.samples,
+                publish_ns: publish.into(),
+                reads,
+            });
+        }
+    }
+    let report =
+        PeersReport { memcpy_ns, cyclictest_us, frame_bytes: FRAME_BYTES, rate_hz: RATE_HZ, records, busy_readers };
     print(&report, seconds);
     let json = options.out.join("peers.json");
     std::fs::write(&json, serde_json::to_vec_pretty(&report)?)?;
+    println!("\nwith readers copying back to back (on request, never waiting):");
+    println!(
+        "{:<9} {:>7} | {:>9} {:>9} {:>9} | {:>9} {:>10}",
+        "system", "readers", "pub p50", "pub p99", "pub max", "published", "reads"
+    );
+    for r in &report.busy_readers {
+        println!(
+            "{:<9} {:>7} | {:>7.1}us {:>7.1}us {:>7.1}us | {:>9} {:>10}",
+            r.system,
+            r.readers,
+            r.publish_ns.p50 as f64 / 1e3,
+            r.publish_ns.p99 as f64 / 1e3,
+            r.publish_ns.max as f64 / 1e3,
+            r.frames_published,
+            r.reads
+        );
+    }
     println!("\nwrote {}", json.display());
     Ok(report)
 }
@@ -263,6 +312,8 @@ pub struct PeerReaderSamples {
     pub latency_ns: Vec<u64>,
     /// Time to copy the frame out once woken, ns.
     pub copy_ns: Vec<u64>,
+    /// Frames copied in the busy mode.
+    pub reads: usize,
 }
 
 fn run_one(
@@ -271,7 +322,19 @@ fn run_one(
     readers: usize,
     seconds: f64,
 ) -> Result<(Percentiles, Percentiles, Percentiles, usize)> {
-    let name = format!("peers{}{system}{readers}", std::process::id());
+    run_mode(options, system, readers, seconds, "wait")
+}
+
+/// Runs one configuration; readers `wait` for each frame or read `busy`
+/// back to back. Returns (publish, latency, copy, frames or reads received).
+fn run_mode(
+    options: &PeersOptions,
+    system: &str,
+    readers: usize,
+    seconds: f64,
+    mode: &str,
+) -> Result<(Percentiles, Percentiles, Percentiles, usize)> {
+    let name = format!("peers{}{system}{readers}{mode}", std::process::id());
     let dir = skinware::shm::segment_dir();
     let stop = Stop::new();
     let period = Duration::from_secs_f64(1.0 / RATE_HZ);
@@ -295,10 +358,11 @@ fn run_one(
     for reader in 0..readers {
         let out = work.join(format!("{name}-{reader}.json"));
         let child = Command::new(&options.exe)
-            .args(["bench-peer-reader", "--system", system, "--name", &name])
-            .args(["--seconds", &(seconds + 0.3).to_string()])
+            .args(["bench-peer-reader", "--system", system, "--name", &name, "--mode", mode])
+            .args(["--seconds", &(seconds + 30.0).to_string()])
             .arg("--out")
             .arg(&out)
+            .stdin(std::process::Stdio::piped())
             .spawn()
             .context("cannot start a peer reader process")?;
         children.push((child, out));
@@ -310,27 +374,43 @@ fn run_one(
         std::thread::sleep(Duration::from_secs_f64(seconds));
         stopper.stop();
     });
-    let _ = RtOptions { fifo_priority: Some(80), ..RtOptions::default() }.apply();
-    let mut publish = Vec::with_capacity((RATE_HZ * seconds) as usize + 16);
-    let mut ticker = Ticker::new(period);
+    // The writer runs in its own real-time thread, so that this (main) thread,
+    // which spawns the next configuration's readers, never passes SCHED_FIFO on.
     let bytes: Vec<u8> = frame.iter().flat_map(|value| value.to_ne_bytes()).collect();
-    while ticker.wait(&stop).is_some() {
-        let started = skinware::os::monotonic_ns();
-        match &mut side {
-            Side::Skinware(writer) => {
-                let mut guard = writer.begin();
-                guard.write_responses(0, &frame)?;
-                guard.publish();
-            }
-            Side::RwLock(channel) => {
-                channel.publish(&bytes)?;
-            }
-        }
-        publish.push(skinware::os::monotonic_ns() - started);
-    }
+    let mut publish = std::thread::scope(|scope| {
+        scope
+            .spawn(|| -> Result<Vec<u64>> {
+                let _ = RtOptions { fifo_priority: Some(80), ..RtOptions::default() }.apply();
+                let mut publish = Vec::with_capacity((RATE_HZ * seconds) as usize + 16);
+                let mut ticker = Ticker::new(period);
+                while ticker.wait(&stop).is_some() {
+                    let started = skinware::os::monotonic_ns();
+                    match &mut side {
+                        Side::Skinware(writer) => {
+                            let mut guard = writer.begin();
+                            guard.write_responses(0, &frame)?;
+                            guard.publish();
+                        }
+                        Side::RwLock(channel) => {
+                            channel.publish(&bytes)?;
+                        }
+                    }
+                    publish.push(skinware::os::monotonic_ns() - started);
+                }
+                Ok(publish)
+            })
+            .join()
+            .map_err(|_| anyhow::anyhow!("the writer thread panicked"))?
+    })?;
     let _ = timer.join();
     let mut latency = Vec::new();
     let mut copy = Vec::new();
+    let mut busy_reads = 0;
+    // Readers stop when their stdin closes: all of them overlap the whole
+    // publishing window, however the scheduler ran them.
+    for (child, _) in children.iter_mut() {
+        drop(child.stdin.take());
+    }
     for (mut child, out) in children {
         let status = child.wait()?;
         if !status.success() {
@@ -339,10 +419,11 @@ fn run_one(
         let samples: PeerReaderSamples = serde_json::from_slice(&std::fs::read(&out)?)?;
         latency.extend(samples.latency_ns);
         copy.extend(samples.copy_ns);
+        busy_reads += samples.reads;
         let _ = std::fs::remove_file(&out);
     }
     drop(side);
-    let frames = latency.len();
+    let frames = if mode == "busy" { busy_reads } else { latency.len() };
     Ok((Percentiles::of(&mut publish), Percentiles::of(&mut latency), Percentiles::of(&mut copy), frames))
 }
 
@@ -355,6 +436,8 @@ pub struct PeerReaderArgs {
     pub name: String,
     /// How long to read.
     pub seconds: f64,
+    /// `wait` (for every frame) or `busy` (back to back, on request).
+    pub mode: String,
     /// Where to write the samples.
     pub out: PathBuf,
 }
@@ -362,13 +445,46 @@ pub struct PeerReaderArgs {
 /// A waiting reader process: for every frame, the time from its publication
 /// to holding a private copy of it.
 pub fn run_reader(args: &PeerReaderArgs) -> Result<()> {
-    let _ = RtOptions { fifo_priority: Some(70), ..RtOptions::default() }.apply();
+    // Waiting readers are real-time, as a control loop would be. Busy readers
+    // never sleep, so they stay in the normal scheduler: under SCHED_FIFO
+    // they would run one after another instead of side by side.
+    if args.mode == "busy" {
+        skinware::os::set_normal_scheduling().context("cannot leave the real-time scheduler")?;
+    } else {
+        let _ = RtOptions { fifo_priority: Some(70), ..RtOptions::default() }.apply();
+    }
+    // A safety deadline; the parent normally stops us by closing our stdin.
     let deadline = skinware::os::monotonic_ns() + (args.seconds * 1e9) as u64;
+    let stopped = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let flag = stopped.clone();
+    std::thread::spawn(move || {
+        let _ = std::io::Read::read_to_end(&mut std::io::stdin(), &mut Vec::new());
+        flag.store(true, std::sync::atomic::Ordering::Relaxed);
+    });
+    let running = || !stopped.load(std::sync::atomic::Ordering::Relaxed) && skinware::os::monotonic_ns() < deadline;
     let mut samples = PeerReaderSamples::default();
+    let busy = args.mode == "busy";
     match args.system.as_str() {
+        "skinware" if busy => {
+            let mut reader = Reader::open(&args.name, "frame")?;
+            while running() {
+                if reader.latest().is_ok() {
+                    samples.reads += 1;
+                }
+            }
+        }
+        "rwlock" if busy => {
+            let path = skinware::shm::segment_dir().join(format!("skinware-bench-rwlock.{}", args.name));
+            let channel = RwLockChannel::open(&path, FRAME_BYTES)?;
+            let mut copy = vec![0u8; FRAME_BYTES];
+            while running() {
+                channel.read_latest(&mut copy)?;
+                samples.reads += 1;
+            }
+        }
         "skinware" => {
             let mut reader = Reader::open(&args.name, "frame")?;
-            while skinware::os::monotonic_ns() < deadline {
+            while running() {
                 if let Ok(frame) = reader.wait_newer(Duration::from_millis(100)) {
                     let holding = skinware::os::monotonic_ns();
                     samples.latency_ns.push(holding.saturating_sub(frame.published_ns()));
@@ -381,7 +497,7 @@ pub fn run_reader(args: &PeerReaderArgs) -> Result<()> {
             let channel = RwLockChannel::open(&path, FRAME_BYTES)?;
             let mut copy = vec![0u8; FRAME_BYTES];
             let mut last = 0;
-            while skinware::os::monotonic_ns() < deadline {
+            while running() {
                 let until = (skinware::os::monotonic_ns() + 100_000_000).min(deadline);
                 if let Some((seq, published_ns, copy_ns)) = channel.wait_newer(last, &mut copy, until)? {
                     let holding = skinware::os::monotonic_ns();
@@ -392,6 +508,17 @@ pub fn run_reader(args: &PeerReaderArgs) -> Result<()> {
             }
         }
         other => bail!("unknown system {other:?}; use skinware or rwlock"),
+    }
+    if std::env::var_os("SKINWARE_BENCH_DEBUG").is_some() {
+        let cpu = rustix::time::clock_gettime(rustix::time::ClockId::ProcessCPUTime);
+        eprintln!(
+            "peer reader {} {}: {} reads, {} waits, {:.3} s of CPU",
+            args.system,
+            args.mode,
+            samples.reads,
+            samples.latency_ns.len(),
+            cpu.tv_sec as f64 + cpu.tv_nsec as f64 / 1e9
+        );
     }
     std::fs::write(&args.out, serde_json::to_vec(&samples)?)?;
     Ok(())

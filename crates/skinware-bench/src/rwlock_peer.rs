@@ -181,6 +181,24 @@ impl RwLockChannel {
     }
 }
 
+impl RwLockChannel {
+    /// Reader on request: copies the newest buffer out under its read lock,
+    /// without waiting. Returns its sequence number.
+    pub fn read_latest(&self, out: &mut [u8]) -> Result<u64> {
+        // SAFETY: as in `publish`; the data region is only read under the read lock.
+        unsafe {
+            let index = (*self.header()).latest.load(Ordering::Acquire) as usize % SLOTS;
+            let slot = self.slot(index);
+            check(libc::pthread_rwlock_rdlock(&mut (*slot).lock), "rdlock")?;
+            let n = out.len().min(self.frame_bytes);
+            std::ptr::copy_nonoverlapping(self.data(index), out.as_mut_ptr(), n);
+            let seq = (*slot).seq;
+            check(libc::pthread_rwlock_unlock(&mut (*slot).lock), "unlock")?;
+            Ok(seq)
+        }
+    }
+}
+
 impl Drop for RwLockChannel {
     fn drop(&mut self) {
         // SAFETY: base/len come from a successful mmap and nothing borrows them.

@@ -89,6 +89,8 @@ pub struct PeerReaderArgs {
     name: String,
     #[arg(long)]
     seconds: f64,
+    #[arg(long, default_value = "wait")]
+    mode: String,
     #[arg(long)]
     out: PathBuf,
 }
@@ -99,6 +101,7 @@ pub fn peer_reader(args: &PeerReaderArgs) -> Result<()> {
         system: args.system.clone(),
         name: args.name.clone(),
         seconds: args.seconds,
+        mode: args.mode.clone(),
         out: args.out.clone(),
     })
 }
