@@ -35,7 +35,7 @@ peers = json.loads((out / "peers.json").read_text())
 need(is_count(peers.get("memcpy_ns")) and peers["memcpy_ns"] > 0, "peers.json: memcpy_ns missing")
 need("cyclictest_us" in peers, "peers.json: cyclictest_us missing")
 seen = {(r.get("system"), r.get("readers")) for r in peers.get("records", [])}
-need(seen == {(s, n) for s in ("skinware", "rwlock") for n in (1, 4, 15)}, f"peers.json: records {sorted(seen)}")
+need(seen == {(s, n) for s in ("skinware", "rwlock", "iceoryx2") for n in (1, 4, 15)}, f"peers.json: records {sorted(seen)}")
 for record in peers.get("records", []):
     for side in ("publish_ns", "latency_ns"):
         for key in ("p50", "p99", "max"):
@@ -56,4 +56,4 @@ for row in table1:
 if problems:
     print("benchmark JSON problems:\n  " + "\n  ".join(problems))
     sys.exit(1)
-print(f"benchmark JSON complete: {len(paper)} paper records, {len(peers['records'])} peer records, {len(table1)} table rows")
+print(f"benchmark JSON complete: {len(paper)} paper records, {len(peers['records'])} peer records ({len(peers['busy_readers'])} busy), {len(table1)} table rows")

@@ -18,6 +18,8 @@
 #![deny(unsafe_code)]
 
 pub mod app;
+#[cfg(feature = "iceoryx2")]
+mod iceoryx2_peer;
 pub mod measure;
 pub mod paper;
 pub mod peers;

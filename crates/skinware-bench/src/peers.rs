@@ -17,6 +17,12 @@ use crate::rwlock_peer::RwLockChannel;
 /// Sensors of the whole skin.
 pub const SENSORS: usize = 30_848;
 const FRAME_BYTES: usize = SENSORS * 2;
+/// The systems compared (iceoryx2 with the cargo feature `iceoryx2`).
+#[cfg(feature = "iceoryx2")]
+pub const SYSTEMS: &[&str] = &["skinware", "rwlock", "iceoryx2"];
+/// The systems compared (iceoryx2 with the cargo feature `iceoryx2`).
+#[cfg(not(feature = "iceoryx2"))]
+pub const SYSTEMS: &[&str] = &["skinware", "rwlock"];
 /// Frames per second delivered.
 pub const RATE_HZ: f64 = 200.0;
 
@@ -130,11 +136,11 @@ pub fn run(options: &PeersOptions) -> Result<PeersReport> {
     let memcpy_ns = measure_memcpy();
     let cyclictest_us = run_cyclictest(if options.quick { 2_000 } else { 20_000 });
     let mut records = Vec::new();
-    for system in ["skinware", "rwlock"] {
+    for system in SYSTEMS {
         for readers in [1, 4, 15] {
             let (publish, latency, copy, frames) = run_one(options, system, readers, seconds)?;
             records.push(PeerRecord {
-                system: system.into(),
+                system: system.to_string(),
                 readers,
                 publish_vs_memcpy: publish.p50 as f64 / memcpy_ns.max(1) as f64,
                 latency_vs_memcpy: latency.p50 as f64 / memcpy_ns.max(1) as f64,
@@ -342,67 +348,93 @@ fn run_mode(
     let work = options.out.join("peers-work");
     std::fs::create_dir_all(&work)?;
 
-    // The writer: create the channel first, so readers can attach.
+    // The writer thread creates the channel (iceoryx2's ports cannot move
+    // between threads), says it is ready, waits for the readers to attach,
+    // then publishes in real time until stopped. Running it in its own thread
+    // also keeps SCHED_FIFO away from this thread, whose children inherit it.
     enum Side {
         Skinware(Box<Writer>),
         RwLock(RwLockChannel),
+        #[cfg(feature = "iceoryx2")]
+        Iceoryx2(Box<crate::iceoryx2_peer::IceoryxWriter>),
     }
-    let mut side = match system {
-        "skinware" => {
-            let options = WriterOptions { period: Some(period), ..WriterOptions::default() };
-            Side::Skinware(Box::new(Writer::create(&name, "frame", FRAME_BYTES, b"peers", &options)?))
-        }
-        _ => Side::RwLock(RwLockChannel::create(&dir.join(format!("skinware-bench-rwlock.{name}")), FRAME_BYTES)?),
-    };
-    let mut children = Vec::new();
-    for reader in 0..readers {
-        let out = work.join(format!("{name}-{reader}.json"));
-        let child = Command::new(&options.exe)
-            .args(["bench-peer-reader", "--system", system, "--name", &name, "--mode", mode])
-            .args(["--seconds", &(seconds + 30.0).to_string()])
-            .arg("--out")
-            .arg(&out)
-            .stdin(std::process::Stdio::piped())
-            .spawn()
-            .context("cannot start a peer reader process")?;
-        children.push((child, out));
-    }
-    // Give every reader time to attach and start waiting.
-    std::thread::sleep(Duration::from_millis(300));
-    let stopper = stop.clone();
-    let timer = std::thread::spawn(move || {
-        std::thread::sleep(Duration::from_secs_f64(seconds));
-        stopper.stop();
-    });
-    // The writer runs in its own real-time thread, so that this (main) thread,
-    // which spawns the next configuration's readers, never passes SCHED_FIFO on.
     let bytes: Vec<u8> = frame.iter().flat_map(|value| value.to_ne_bytes()).collect();
-    let mut publish = std::thread::scope(|scope| {
-        scope
-            .spawn(|| -> Result<Vec<u64>> {
-                let _ = RtOptions { fifo_priority: Some(80), ..RtOptions::default() }.apply();
-                let mut publish = Vec::with_capacity((RATE_HZ * seconds) as usize + 16);
-                let mut ticker = Ticker::new(period);
-                while ticker.wait(&stop).is_some() {
-                    let started = skinware::os::monotonic_ns();
-                    match &mut side {
-                        Side::Skinware(writer) => {
-                            let mut guard = writer.begin();
-                            guard.write_responses(0, &frame)?;
-                            guard.publish();
-                        }
-                        Side::RwLock(channel) => {
-                            channel.publish(&bytes)?;
-                        }
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel::<Result<()>>();
+    let (go_tx, go_rx) = std::sync::mpsc::channel::<()>();
+    let mut children = Vec::new();
+    let publish = std::thread::scope(|scope| -> Result<Vec<u64>> {
+        let (ready_tx, go_rx) = (ready_tx, go_rx);
+        let (stop, frame, bytes, name) = (&stop, &frame, &bytes, &name);
+        let writer = scope.spawn(move || -> Result<Vec<u64>> {
+            let created = (|| -> Result<Side> {
+                Ok(match system {
+                    "skinware" => {
+                        let options = WriterOptions { period: Some(period), ..WriterOptions::default() };
+                        Side::Skinware(Box::new(Writer::create(name, "frame", FRAME_BYTES, b"peers", &options)?))
                     }
-                    publish.push(skinware::os::monotonic_ns() - started);
+                    #[cfg(feature = "iceoryx2")]
+                    "iceoryx2" => Side::Iceoryx2(Box::new(crate::iceoryx2_peer::IceoryxWriter::create(name, SENSORS)?)),
+                    _ => Side::RwLock(RwLockChannel::create(
+                        &dir.join(format!("skinware-bench-rwlock.{name}")),
+                        FRAME_BYTES,
+                    )?),
+                })
+            })();
+            let mut side = match created {
+                Ok(side) => {
+                    let _ = ready_tx.send(Ok(()));
+                    side
                 }
-                Ok(publish)
-            })
-            .join()
-            .map_err(|_| anyhow::anyhow!("the writer thread panicked"))?
+                Err(error) => {
+                    let _ = ready_tx.send(Err(error));
+                    return Ok(Vec::new());
+                }
+            };
+            if go_rx.recv().is_err() {
+                return Ok(Vec::new());
+            }
+            let _ = RtOptions { fifo_priority: Some(80), ..RtOptions::default() }.apply();
+            let mut publish = Vec::with_capacity((RATE_HZ * seconds) as usize + 16);
+            let mut ticker = Ticker::new(period);
+            while ticker.wait(stop).is_some() {
+                let started = skinware::os::monotonic_ns();
+                match &mut side {
+                    Side::Skinware(writer) => {
+                        let mut guard = writer.begin();
+                        guard.write_responses(0, frame)?;
+                        guard.publish();
+                    }
+                    Side::RwLock(channel) => {
+                        channel.publish(bytes)?;
+                    }
+                    #[cfg(feature = "iceoryx2")]
+                    Side::Iceoryx2(writer) => writer.publish(frame)?,
+                }
+                publish.push(skinware::os::monotonic_ns() - started);
+            }
+            Ok(publish)
+        });
+        ready_rx.recv().map_err(|_| anyhow::anyhow!("the writer thread ended early"))??;
+        for reader in 0..readers {
+            let out = work.join(format!("{name}-{reader}.json"));
+            let child = Command::new(&options.exe)
+                .args(["bench-peer-reader", "--system", system, "--name", name, "--mode", mode])
+                .args(["--seconds", &(seconds + 30.0).to_string()])
+                .arg("--out")
+                .arg(&out)
+                .stdin(std::process::Stdio::piped())
+                .spawn()
+                .context("cannot start a peer reader process")?;
+            children.push((child, out));
+        }
+        // Give every reader time to attach and start waiting.
+        std::thread::sleep(Duration::from_millis(300));
+        let _ = go_tx.send(());
+        std::thread::sleep(Duration::from_secs_f64(seconds));
+        stop.stop();
+        writer.join().map_err(|_| anyhow::anyhow!("the writer thread panicked"))?
     })?;
-    let _ = timer.join();
+    let mut publish = publish;
     let mut latency = Vec::new();
     let mut copy = Vec::new();
     let mut busy_reads = 0;
@@ -422,7 +454,6 @@ fn run_mode(
         busy_reads += samples.reads;
         let _ = std::fs::remove_file(&out);
     }
-    drop(side);
     let frames = if mode == "busy" { busy_reads } else { latency.len() };
     Ok((Percentiles::of(&mut publish), Percentiles::of(&mut latency), Percentiles::of(&mut copy), frames))
 }
@@ -479,6 +510,8 @@ pub fn run_reader(args: &PeerReaderArgs) -> Result<()> {
             let mut copy = vec![0u8; FRAME_BYTES];
             while running() {
                 channel.read_latest(&mut copy)?;
+                // Keep the copy observable, or the compiler may drop it.
+                std::hint::black_box(&mut copy);
                 samples.reads += 1;
             }
         }
@@ -500,6 +533,7 @@ pub fn run_reader(args: &PeerReaderArgs) -> Result<()> {
             while running() {
                 let until = (skinware::os::monotonic_ns() + 100_000_000).min(deadline);
                 if let Some((seq, published_ns, copy_ns)) = channel.wait_newer(last, &mut copy, until)? {
+                    std::hint::black_box(&mut copy);
                     let holding = skinware::os::monotonic_ns();
                     last = seq;
                     samples.latency_ns.push(holding.saturating_sub(published_ns));
@@ -507,7 +541,21 @@ pub fn run_reader(args: &PeerReaderArgs) -> Result<()> {
                 }
             }
         }
-        other => bail!("unknown system {other:?}; use skinware or rwlock"),
+        #[cfg(feature = "iceoryx2")]
+        "iceoryx2" => {
+            let reader = crate::iceoryx2_peer::IceoryxReader::open(&args.name)?;
+            let mut copy = vec![0u16; SENSORS];
+            while running() {
+                if let Some((published_ns, copy_ns)) = reader.wait_newer(&mut copy, Duration::from_millis(100))? {
+                    std::hint::black_box(&mut copy);
+                    let holding = skinware::os::monotonic_ns();
+                    samples.latency_ns.push(holding.saturating_sub(published_ns));
+                    samples.copy_ns.push(copy_ns);
+                    samples.reads += usize::from(busy);
+                }
+            }
+        }
+        other => bail!("unknown system {other:?}; use one of {SYSTEMS:?}"),
     }
     if std::env::var_os("SKINWARE_BENCH_DEBUG").is_some() {
         let cpu = rustix::time::clock_gettime(rustix::time::ClockId::ProcessCPUTime);

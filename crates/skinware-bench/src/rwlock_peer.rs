@@ -174,6 +174,7 @@ impl RwLockChannel {
             check(libc::pthread_rwlock_rdlock(&mut (*slot).lock), "rdlock")?;
             let n = out.len().min(self.frame_bytes);
             std::ptr::copy_nonoverlapping(self.data(index), out.as_mut_ptr(), n);
+            std::hint::black_box(&mut *out);
             let (seq, published_ns) = ((*slot).seq, (*slot).published_ns);
             check(libc::pthread_rwlock_unlock(&mut (*slot).lock), "unlock")?;
             Ok(Some((seq, published_ns, skinware::os::monotonic_ns() - started)))
@@ -192,6 +193,7 @@ impl RwLockChannel {
             check(libc::pthread_rwlock_rdlock(&mut (*slot).lock), "rdlock")?;
             let n = out.len().min(self.frame_bytes);
             std::ptr::copy_nonoverlapping(self.data(index), out.as_mut_ptr(), n);
+            std::hint::black_box(&mut *out);
             let seq = (*slot).seq;
             check(libc::pthread_rwlock_unlock(&mut (*slot).lock), "unlock")?;
             Ok(seq)
