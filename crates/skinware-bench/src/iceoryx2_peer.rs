@@ -27,23 +27,33 @@ fn names(name: &str) -> Result<(ServiceName, ServiceName)> {
     Ok((data, event))
 }
 
+type FrameService = iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, [u16], ()>;
+type EventService = iceoryx2::service::port_factory::event::PortFactory<ipc::Service>;
+
+/// Opens (or creates) the frame and event services with the same settings on
+/// both sides: a one-sample subscriber buffer with safe overflow, so that a
+/// reader always gets the newest frame.
+fn services(name: &str) -> Result<(Node<ipc::Service>, FrameService, EventService)> {
+    let node = NodeBuilder::new().create::<ipc::Service>().map_err(e("node"))?;
+    let (data, event) = names(name)?;
+    let frames = node
+        .service_builder(&data)
+        .publish_subscribe::<[u16]>()
+        .subscriber_max_buffer_size(1)
+        .history_size(1)
+        .enable_safe_overflow(true)
+        .max_subscribers(32)
+        .open_or_create()
+        .map_err(e("publish-subscribe service"))?;
+    let events = node.service_builder(&event).event().max_listeners(32).open_or_create().map_err(e("event service"))?;
+    Ok((node, frames, events))
+}
+
 impl IceoryxWriter {
     /// Creates the services.
     pub fn create(name: &str, sensors: usize) -> Result<IceoryxWriter> {
-        let node = NodeBuilder::new().create::<ipc::Service>().map_err(e("node"))?;
-        let (data, event) = names(name)?;
-        let service = node
-            .service_builder(&data)
-            .publish_subscribe::<[u16]>()
-            .subscriber_max_buffer_size(1)
-            .history_size(1)
-            .enable_safe_overflow(true)
-            .max_subscribers(32)
-            .open_or_create()
-            .map_err(e("publish-subscribe service"))?;
+        let (node, service, event) = services(name)?;
         let publisher = service.publisher_builder().initial_max_slice_len(sensors).create().map_err(e("publisher"))?;
-        let event =
-            node.service_builder(&event).event().max_listeners(32).open_or_create().map_err(e("event service"))?;
         let notifier = event.notifier_builder().create().map_err(e("notifier"))?;
         Ok(IceoryxWriter { _node: node, publisher, notifier, sensors })
     }
@@ -72,20 +82,8 @@ pub struct IceoryxReader {
 impl IceoryxReader {
     /// Opens the services.
     pub fn open(name: &str) -> Result<IceoryxReader> {
-        let node = NodeBuilder::new().create::<ipc::Service>().map_err(e("node"))?;
-        let (data, event) = names(name)?;
-        let service = node
-            .service_builder(&data)
-            .publish_subscribe::<[u16]>()
-            .subscriber_max_buffer_size(1)
-            .history_size(1)
-            .enable_safe_overflow(true)
-            .max_subscribers(32)
-            .open_or_create()
-            .map_err(e("publish-subscribe service"))?;
+        let (node, service, event) = services(name)?;
         let subscriber = service.subscriber_builder().create().map_err(e("subscriber"))?;
-        let event =
-            node.service_builder(&event).event().max_listeners(32).open_or_create().map_err(e("event service"))?;
         let listener = event.listener_builder().create().map_err(e("listener"))?;
         Ok(IceoryxReader { _node: node, subscriber, listener })
     }
