@@ -4,6 +4,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use serde::Deserialize;
+use skinware::geometry::{RegionSpec, Selector};
 use skinware_drivers::{CablePull, Rate, VirtualSkin, VirtualSkinConfig};
 
 /// A whole configuration file.
@@ -19,6 +20,110 @@ pub struct Config {
     /// Drivers, each run in its own process.
     #[serde(rename = "driver", default)]
     pub drivers: Vec<DriverConfig>,
+    /// Named regions of the skin.
+    #[serde(rename = "region", default)]
+    pub regions: Vec<RegionConfig>,
+    /// The directory of the config file: relative paths in it start there.
+    #[serde(skip)]
+    pub base_dir: PathBuf,
+}
+
+/// Sensors chosen by id, in one layer (`[[region.in_layer]]`) or in all of them.
+struct IdSelection<'a> {
+    uids: &'a [u32],
+    uid_range: Option<[u32; 2]>,
+    modules: &'a [u32],
+    patches: &'a [u32],
+}
+
+/// `[[region.in_layer]]`: ids of one layer.
+#[derive(Debug, Deserialize, Clone, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct InLayer {
+    pub layer: String,
+    #[serde(default)]
+    pub uids: Vec<u32>,
+    pub uid_range: Option<[u32; 2]>,
+    #[serde(default)]
+    pub modules: Vec<u32>,
+    #[serde(default)]
+    pub patches: Vec<u32>,
+}
+
+/// `near = { point = [x, y, z], radius = r }`, metres.
+#[derive(Debug, Deserialize, Clone, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Near {
+    pub point: [f64; 3],
+    pub radius: f64,
+}
+
+/// One `[[region]]`: the union of everything it names.
+#[derive(Debug, Deserialize, Clone, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RegionConfig {
+    pub name: String,
+    #[serde(default)]
+    pub uids: Vec<u32>,
+    pub uid_range: Option<[u32; 2]>,
+    #[serde(default)]
+    pub modules: Vec<u32>,
+    #[serde(default)]
+    pub patches: Vec<u32>,
+    #[serde(default)]
+    pub links: Vec<String>,
+    pub near: Option<Near>,
+    #[serde(default, rename = "in_layer")]
+    pub in_layers: Vec<InLayer>,
+}
+
+impl IdSelection<'_> {
+    fn selectors(&self, layer: Option<&str>, region: &str, out: &mut Vec<Selector>) -> Result<()> {
+        let layer = layer.map(str::to_owned);
+        let mut uids = self.uids.to_vec();
+        if let Some([first, last]) = self.uid_range {
+            if first > last {
+                bail!("region {region}: uid_range [{first}, {last}] is backwards");
+            }
+            uids.extend(first..=last);
+        }
+        if !uids.is_empty() {
+            out.push(Selector::Uids { layer: layer.clone(), uids });
+        }
+        if !self.modules.is_empty() {
+            out.push(Selector::Modules { layer: layer.clone(), ids: self.modules.to_vec() });
+        }
+        if !self.patches.is_empty() {
+            out.push(Selector::Patches { layer, ids: self.patches.to_vec() });
+        }
+        Ok(())
+    }
+}
+
+impl RegionConfig {
+    /// The library's form of this region.
+    pub fn spec(&self) -> Result<RegionSpec> {
+        let mut selectors = Vec::new();
+        let ids =
+            IdSelection { uids: &self.uids, uid_range: self.uid_range, modules: &self.modules, patches: &self.patches };
+        ids.selectors(None, &self.name, &mut selectors)?;
+        for link in &self.links {
+            selectors.push(Selector::Link(link.clone()));
+        }
+        if let Some(near) = &self.near {
+            selectors.push(Selector::Near { point: near.point, radius: near.radius });
+        }
+        for in_layer in &self.in_layers {
+            let ids = IdSelection {
+                uids: &in_layer.uids,
+                uid_range: in_layer.uid_range,
+                modules: &in_layer.modules,
+                patches: &in_layer.patches,
+            };
+            ids.selectors(Some(&in_layer.layer), &self.name, &mut selectors)?;
+        }
+        Ok(RegionSpec { name: self.name.clone(), selectors })
+    }
 }
 
 fn default_skin() -> String {
@@ -90,6 +195,9 @@ pub struct DriverConfig {
     pub seed: Option<u64>,
     #[serde(default, rename = "cable_pull")]
     pub cable_pulls: Vec<CablePull>,
+    /// A calibration file (skinware or skin.calib format); the virtual skin
+    /// calibrates itself when absent.
+    pub calibration: Option<PathBuf>,
     /// Layers with an explicit topology (instead of generated ones).
     #[serde(default, rename = "layer")]
     pub explicit_layers: Vec<LayerConfig>,
@@ -188,7 +296,7 @@ impl Config {
     /// file:line:column, and every driver is built once to check its topology.
     pub fn load(path: &Path) -> Result<Config> {
         let text = std::fs::read_to_string(path).with_context(|| format!("cannot read config {}", path.display()))?;
-        let config: Config = toml::from_str(&text).map_err(|e| {
+        let mut config: Config = toml::from_str(&text).map_err(|e| {
             let (line, column) = e.span().map(|span| line_column(&text, span.start)).unwrap_or((1, 1));
             anyhow::anyhow!("{}:{line}:{column}: {}", path.display(), e.message())
         })?;
@@ -204,6 +312,10 @@ impl Config {
             driver.check_restart().with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
             driver.build(&config.skin).with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
         }
+        for region in &config.regions {
+            region.spec().with_context(|| format!("{}", path.display()))?;
+        }
+        config.base_dir = path.parent().map(Path::to_owned).unwrap_or_default();
         Ok(config)
     }
 

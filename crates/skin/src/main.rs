@@ -4,6 +4,7 @@
 
 mod commands;
 mod config;
+mod geometry;
 mod layers;
 
 use std::path::PathBuf;
@@ -35,6 +36,13 @@ enum Command {
     Clean(commands::clean::Args),
     /// Pull (or plug back) a virtual layer's cable, as a fault injection.
     Pull(commands::pull::Args),
+    /// The skin's geometry: neighbour graph and 2-D map statistics, build times.
+    Geometry(commands::geometry::Args),
+    /// Regions: record one by touching the skin.
+    Region {
+        #[command(subcommand)]
+        which: commands::region::Which,
+    },
     /// Benchmarks: the paper's experiment, its Table I, and peers side by side.
     Bench {
         #[command(subcommand)]
@@ -72,6 +80,8 @@ fn main() -> std::process::ExitCode {
         Command::Pull(args) => commands::pull::run(&args),
         Command::Driver { config, name } => commands::driver::run(&config, &name),
         Command::Bench { which } => commands::bench::run(&which),
+        Command::Geometry(args) => commands::geometry::run(&args),
+        Command::Region { which } => commands::region::run(&which),
         Command::BenchApp(args) => commands::bench::app(&args),
         Command::BenchPeerReader(args) => commands::bench::peer_reader(&args),
     };

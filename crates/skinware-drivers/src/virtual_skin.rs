@@ -5,6 +5,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use skinware::driver::{Driver, DriverError, LayerSource, LayerSpec};
+use skinware::geometry::{Calibration, SensorCalibration};
 use skinware::{FrameWriter, RtOptions, TopologyBuilder};
 
 /// A layer's acquisition rate.
@@ -208,6 +209,8 @@ pub struct SensorPlace {
 pub struct VirtualBody {
     /// One place per sensor, in global sensor order.
     pub places: Vec<SensorPlace>,
+    /// Radius of a taxel's sensing area: a third of the mean pitch, metres.
+    pub taxel_radius: f64,
 }
 
 impl VirtualBody {
@@ -237,7 +240,8 @@ impl VirtualBody {
                 places.push(SensorPlace { part: part_index, angle, height, position, normal });
             }
         }
-        VirtualBody { places }
+        let pitch = (total / sensors.max(1) as f64).sqrt();
+        VirtualBody { places, taxel_radius: pitch / 3.0 }
     }
 
     /// The name of body part `part`.
@@ -392,6 +396,27 @@ impl VirtualSkin {
     /// The simulated body (positions and normals of every sensor, in global order).
     pub fn body(&self) -> &VirtualBody {
         &self.body
+    }
+
+    /// The virtual skin's own calibration: every sensor's place on the body,
+    /// keyed by layer name and uid, its link the body part.
+    pub fn calibration(&self) -> Calibration {
+        let mut calibration = Calibration::new();
+        for (l, spec) in self.layers.iter().enumerate() {
+            for (k, sensor) in spec.topology.sensors.iter().enumerate() {
+                let place = &self.body.places[self.first_sensor[l] + k];
+                let entry = SensorCalibration {
+                    position: place.position,
+                    normal: place.normal,
+                    radius: self.body.taxel_radius,
+                    link: VirtualBody::part_name(place.part).to_owned(),
+                };
+                calibration
+                    .insert(&spec.topology.name, sensor.uid, entry)
+                    .expect("the virtual body's places are finite with unit normals");
+            }
+        }
+        calibration
     }
 }
 

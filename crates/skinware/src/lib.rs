@@ -63,6 +63,8 @@ mod error;
 #[cfg(not(loom))]
 mod frame;
 #[cfg(not(loom))]
+pub mod geometry;
+#[cfg(not(loom))]
 pub mod os;
 #[cfg(not(loom))]
 mod reader;

@@ -17,10 +17,16 @@ pub struct Args {
     /// Also list every module with its sensor count.
     #[arg(long)]
     modules: bool,
+    /// List the regions and sub-regions instead (from the published geometry).
+    #[arg(long)]
+    regions: bool,
 }
 
 /// Runs `skin ls`.
 pub fn run(args: &Args) -> Result<()> {
+    if args.regions {
+        return regions(args);
+    }
     let layers = crate::layers::gather(args.skin.as_deref(), Duration::from_millis(300))?;
     let mut out = std::io::stdout().lock();
     if args.json {
@@ -55,6 +61,51 @@ pub fn run(args: &Args) -> Result<()> {
                 }
             }
         }
+    }
+    Ok(())
+}
+
+fn regions(args: &Args) -> Result<()> {
+    let skin = args.skin.as_deref().unwrap_or("default");
+    let geometry = skinware::geometry::SkinGeometry::open(skin)?;
+    let r = &geometry.regions;
+    let mut out = std::io::stdout().lock();
+    if args.json {
+        let regions: Vec<_> = (0..r.names.len())
+            .map(|k| {
+                serde_json::json!({
+                    "name": r.names[k],
+                    "sensors": r.sensors[k].len(),
+                    "subregions": r.subregions_of[k],
+                })
+            })
+            .collect();
+        let subregions: Vec<_> = (0..r.subregion_sensors.len())
+            .map(|k| {
+                serde_json::json!({
+                    "id": k,
+                    "sensors": r.subregion_sensors[k].len(),
+                    "regions": r.regions_of[k].iter().map(|&g| &r.names[g as usize]).collect::<Vec<_>>(),
+                })
+            })
+            .collect();
+        serde_json::to_writer_pretty(
+            &mut out,
+            &serde_json::json!({ "skin": skin, "regions": regions, "subregions": subregions }),
+        )?;
+        writeln!(out)?;
+        return Ok(());
+    }
+    if r.names.is_empty() {
+        writeln!(out, "skin {skin}: no regions; add [[region]] tables to the config (see examples/README.md)")?;
+    }
+    for k in 0..r.names.len() {
+        let subs: Vec<String> = r.subregions_of[k].iter().map(|s| format!("#{s}")).collect();
+        writeln!(out, "region {}: {} sensors, sub-regions {}", r.names[k], r.sensors[k].len(), subs.join(" "))?;
+    }
+    for k in 0..r.subregion_sensors.len() {
+        let names: Vec<&str> = r.regions_of[k].iter().map(|&g| r.names[g as usize].as_str()).collect();
+        writeln!(out, "  sub-region #{k}: {} sensors, in {}", r.subregion_sensors[k].len(), names.join(", "))?;
     }
     Ok(())
 }

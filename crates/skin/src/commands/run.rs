@@ -36,6 +36,16 @@ fn spawn_driver(config_path: &Path, name: &str) -> Result<Child> {
 pub fn run(config_path: &Path) -> Result<()> {
     let config = Config::load(config_path)?;
     let config_path = std::fs::canonicalize(config_path)?;
+    let (geometry, cached) = crate::geometry::load_or_build(&config)?;
+    let published = geometry.publish(&skinware::shm::segment_dir())?;
+    tracing::info!(
+        sensors = geometry.sensor_count(),
+        regions = geometry.regions.names.len(),
+        build_ms = format!("{:.0}", geometry.build_times.total_ms),
+        from_cache = cached,
+        path = %published.display(),
+        "geometry published"
+    );
     let shutdown = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(signal, shutdown.clone()).context("cannot install signal handlers")?;
@@ -115,6 +125,7 @@ pub fn run(config_path: &Path) -> Result<()> {
         }
     }
     remove_skin_channels(&config)?;
+    let _ = std::fs::remove_file(&published);
     println!("skin {}: stopped, channels removed", config.skin);
     Ok(())
 }

@@ -1,0 +1,163 @@
+//! `skin region record NAME`: define a region by touching it. The modules
+//! touched while it runs are written into the config as a `[[region]]`.
+
+use std::collections::BTreeSet;
+use std::io::Write;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use skinware::Reader;
+
+use crate::config::Config;
+
+/// `skin region` subcommands.
+#[derive(clap::Subcommand)]
+pub enum Which {
+    /// Record the modules touched until Ctrl-C (or --seconds) and add them to
+    /// CONFIG as region NAME. Keep hands off during the first second: it
+    /// measures each sensor's baseline and noise.
+    Record(RecordArgs),
+}
+
+/// Arguments of `skin region record`.
+#[derive(clap::Args)]
+pub struct RecordArgs {
+    /// The new region's name.
+    name: String,
+    /// The config the skin runs from; the region is appended to it.
+    #[arg(long)]
+    config: PathBuf,
+    /// Stop after this many seconds instead of on Ctrl-C.
+    #[arg(long)]
+    seconds: Option<f64>,
+    /// A sensor counts as touched this far above its baseline, in response
+    /// units; 0 derives it from the measured noise (10 sigma, at least 100).
+    #[arg(long, default_value_t = 0.0)]
+    threshold: f64,
+    /// Seconds of baseline measurement.
+    #[arg(long, default_value_t = 1.0)]
+    baseline_seconds: f64,
+}
+
+/// Runs a `skin region` subcommand.
+pub fn run(which: &Which) -> Result<()> {
+    match which {
+        Which::Record(args) => record(args),
+    }
+}
+
+struct LayerWatch {
+    name: String,
+    reader: Reader,
+    topology: skinware::LayerTopology,
+    /// Per sensor: (count, mean, M2) while measuring, then the threshold level.
+    stats: Vec<(f64, f64, f64)>,
+    level: Vec<f64>,
+}
+
+fn record(args: &RecordArgs) -> Result<()> {
+    let config = Config::load(&args.config)?;
+    if config.regions.iter().any(|r| r.name == args.name) {
+        bail!("{}: region {:?} already exists; remove it or pick another name", args.config.display(), args.name);
+    }
+    if args.name.is_empty() || !args.name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-') {
+        bail!("region name {:?}: use A-Z a-z 0-9 _ -", args.name);
+    }
+    let mut layers = Vec::new();
+    for driver in &config.drivers {
+        for spec in skinware::Driver::layers(&driver.build(&config.skin)?) {
+            let name = spec.topology.name.clone();
+            let reader = Reader::open(&config.skin, &name)
+                .with_context(|| format!("layer {name}: is `skin run {}` running?", args.config.display()))?;
+            let n = spec.topology.sensors.len();
+            layers.push(LayerWatch {
+                name,
+                reader,
+                topology: spec.topology,
+                stats: vec![(0.0, 0.0, 0.0); n],
+                level: vec![f64::INFINITY; n],
+            });
+        }
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, stop.clone()).context("cannot install signal handlers")?;
+    }
+    eprintln!("measuring the baseline for {:.1} s: do not touch the skin", args.baseline_seconds);
+    let started = Instant::now();
+    while started.elapsed().as_secs_f64() < args.baseline_seconds && !stop.load(Ordering::Relaxed) {
+        for layer in &mut layers {
+            if let Ok(frame) = layer.reader.latest() {
+                for (s, &r) in layer.stats.iter_mut().zip(frame.responses()) {
+                    // Welford's running mean and variance.
+                    s.0 += 1.0;
+                    let delta = f64::from(r) - s.1;
+                    s.1 += delta / s.0;
+                    s.2 += delta * (f64::from(r) - s.1);
+                }
+            }
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    for layer in &mut layers {
+        for (level, &(count, mean, m2)) in layer.level.iter_mut().zip(&layer.stats) {
+            let sigma = if count > 1.0 { (m2 / (count - 1.0)).sqrt() } else { 0.0 };
+            let threshold = if args.threshold > 0.0 { args.threshold } else { (10.0 * sigma).max(100.0) };
+            *level = mean + threshold;
+        }
+    }
+    match args.seconds {
+        Some(s) => eprintln!("recording region {:?} for {s} s: touch it now", args.name),
+        None => eprintln!("recording region {:?}: touch it now, Ctrl-C when done", args.name),
+    }
+    let mut touched: BTreeSet<(usize, u32)> = BTreeSet::new();
+    let deadline = args.seconds.map(|s| Instant::now() + Duration::from_secs_f64(s.clamp(0.0, 86_400.0)));
+    while !stop.load(Ordering::Relaxed) && deadline.is_none_or(|d| Instant::now() < d) {
+        for (l, layer) in layers.iter_mut().enumerate() {
+            let Ok(frame) = layer.reader.latest() else { continue };
+            if frame.status().is_fault() {
+                continue;
+            }
+            for (k, (&r, &level)) in frame.responses().iter().zip(&layer.level).enumerate() {
+                if f64::from(r) > level {
+                    let module = layer.topology.modules[layer.topology.sensors[k].module].id;
+                    if touched.insert((l, module)) {
+                        eprintln!("  touched {} module {module}", layer.name);
+                    }
+                }
+            }
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    if touched.is_empty() {
+        bail!("no module was touched; region {:?} not written", args.name);
+    }
+    let mut block = format!(
+        "\n# Recorded by `skin region record` on {} modules.\n[[region]]\nname = \"{}\"\n",
+        touched.len(),
+        args.name
+    );
+    for (l, layer) in layers.iter().enumerate() {
+        let modules: Vec<String> = touched.iter().filter(|(tl, _)| *tl == l).map(|(_, m)| m.to_string()).collect();
+        if !modules.is_empty() {
+            block.push_str(&format!(
+                "[[region.in_layer]]\nlayer = \"{}\"\nmodules = [{}]\n",
+                layer.name,
+                modules.join(", ")
+            ));
+        }
+    }
+    let original = std::fs::read_to_string(&args.config)?;
+    let mut file = std::fs::OpenOptions::new().append(true).open(&args.config)?;
+    file.write_all(block.as_bytes())?;
+    drop(file);
+    if let Err(e) = Config::load(&args.config) {
+        std::fs::write(&args.config, original)?;
+        bail!("the recorded region made the config invalid, so it was not kept: {e:#}");
+    }
+    println!("region {:?}: {} modules written to {}", args.name, touched.len(), args.config.display());
+    Ok(())
+}
