@@ -6,6 +6,7 @@ mod commands;
 mod config;
 mod geometry;
 mod layers;
+mod view;
 
 use std::path::PathBuf;
 
@@ -38,6 +39,10 @@ enum Command {
     Pull(commands::pull::Args),
     /// The skin's geometry: neighbour graph and 2-D map statistics, build times.
     Geometry(commands::geometry::Args),
+    /// Serve a live web view of a running skin (heatmap, layer states, reader modes).
+    View(commands::view::Args),
+    /// Start the paper's virtual skin and the web viewer, and print the URL.
+    Demo(commands::demo::Args),
     /// Regions: record one by touching the skin.
     Region {
         #[command(subcommand)]
@@ -81,6 +86,8 @@ fn main() -> std::process::ExitCode {
         Command::Driver { config, name } => commands::driver::run(&config, &name),
         Command::Bench { which } => commands::bench::run(&which),
         Command::Geometry(args) => commands::geometry::run(&args),
+        Command::View(args) => commands::view::run(&args),
+        Command::Demo(args) => commands::demo::run(&args),
         Command::Region { which } => commands::region::run(&which),
         Command::BenchApp(args) => commands::bench::app(&args),
         Command::BenchPeerReader(args) => commands::bench::peer_reader(&args),

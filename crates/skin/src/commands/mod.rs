@@ -2,6 +2,7 @@
 
 pub mod bench;
 pub mod clean;
+pub mod demo;
 pub mod driver;
 pub mod echo;
 pub mod geometry;
@@ -10,3 +11,4 @@ pub mod pull;
 pub mod region;
 pub mod run;
 pub mod top;
+pub mod view;

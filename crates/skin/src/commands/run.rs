@@ -34,6 +34,24 @@ fn spawn_driver(config_path: &Path, name: &str) -> Result<Child> {
 
 /// Runs the supervisor until SIGINT or SIGTERM.
 pub fn run(config_path: &Path) -> Result<()> {
+    let shutdown = shutdown_on_signals()?;
+    supervise(config_path, &shutdown)
+}
+
+/// A flag that SIGINT and SIGTERM set, instead of ending the process, so that
+/// everything started can be stopped and its channels removed.
+pub fn shutdown_on_signals() -> Result<Arc<AtomicBool>> {
+    let shutdown = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, shutdown.clone()).context("cannot install signal handlers")?;
+    }
+    Ok(shutdown)
+}
+
+/// Publishes the geometry of the config at `config_path`, starts its drivers
+/// and restarts any that exits, until `shutdown` is set; then stops them and
+/// removes the skin's channels and geometry.
+pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
     let config = Config::load(config_path)?;
     let config_path = std::fs::canonicalize(config_path)?;
     let (geometry, cached) = crate::geometry::load_or_build(&config)?;
@@ -46,10 +64,6 @@ pub fn run(config_path: &Path) -> Result<()> {
         path = %published.display(),
         "geometry published"
     );
-    let shutdown = Arc::new(AtomicBool::new(false));
-    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(signal, shutdown.clone()).context("cannot install signal handlers")?;
-    }
     let mut drivers = Vec::new();
     for driver in &config.drivers {
         let child = spawn_driver(&config_path, &driver.name)?;

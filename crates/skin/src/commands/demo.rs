@@ -1,0 +1,146 @@
+//! `skin demo`: the paper's virtual skin under the supervisor, and the web
+//! viewer on it, in one command. The configuration is `examples/demo.toml`,
+//! built into the binary.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use skinware::WriterState;
+use skinware::geometry::SkinGeometry;
+
+use crate::config::Config;
+use crate::view::{self, Site};
+
+/// The demo's skin: drivers (and, later, services) in one place.
+const DEMO_CONFIG: &str = include_str!("../../../../examples/demo.toml");
+
+/// How long the skin may take to come up (the first run computes its geometry).
+const STARTUP_LIMIT: Duration = Duration::from_secs(120);
+
+/// Arguments of `skin demo`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Address of the viewer; loopback unless you mean to share the view.
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    listen: String,
+    /// Print only the URL, without the suggestions of what to try.
+    #[arg(long)]
+    no_browser_hint: bool,
+}
+
+/// Removes the demo's configuration file when the demo ends, however it ends.
+struct TemporaryFile(PathBuf);
+
+impl Drop for TemporaryFile {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
+}
+
+/// Runs `skin demo` until SIGINT or SIGTERM.
+pub fn run(args: &Args) -> Result<()> {
+    // The port first: a port in use should stop the demo before anything starts.
+    let listener = view::bind(&args.listen)?;
+    let url = format!("http://{}/", listener.local_addr()?);
+    // The drivers are processes that read the configuration from a file.
+    let config_file = TemporaryFile(std::env::temp_dir().join(format!("skin-demo-{}.toml", std::process::id())));
+    std::fs::write(&config_file.0, DEMO_CONFIG)
+        .with_context(|| format!("cannot write the demo configuration to {}", config_file.0.display()))?;
+    let config = Config::load(&config_file.0)?;
+    refuse_if_running(&config.skin)?;
+
+    let shutdown = super::run::shutdown_on_signals()?;
+    let supervisor = {
+        let (path, shutdown) = (config_file.0.clone(), shutdown.clone());
+        std::thread::Builder::new()
+            .name("supervisor".into())
+            .spawn(move || super::run::supervise(&path, &shutdown))
+            .context("cannot start the supervisor thread")?
+    };
+    let served = wait_until_running(&config, &shutdown, &supervisor).and_then(|()| {
+        if shutdown.load(Ordering::Relaxed) {
+            return Ok(());
+        }
+        println!("skin demo: {url}");
+        if !args.no_browser_hint {
+            println!(
+                "  open it in a browser: {} sensors of skin {} live, per-layer state, rate and latency.\n  \
+                 try, in another terminal: skin pull {} (then --restore), skin top, skin ls.\n  Ctrl-C stops everything.",
+                SkinGeometry::open(&config.skin).map(|g| g.sensor_count()).unwrap_or(0),
+                config.skin,
+                last_layer_name(&config.skin).unwrap_or_else(|| "LAYER".into()),
+            );
+        }
+        view::serve(listener, &Site { skin: config.skin.clone(), dir: None, shutdown: shutdown.clone() })
+    });
+    shutdown.store(true, Ordering::Relaxed);
+    let supervised = supervisor.join().unwrap_or_else(|_| Err(anyhow::anyhow!("the supervisor thread panicked")));
+    // A failed supervisor explains a failed start better than the viewer can.
+    supervised.and(served)
+}
+
+/// A second demo (or a `skin run` of the same skin) would fight over the channels.
+fn refuse_if_running(skin: &str) -> Result<()> {
+    let dir = skinware::shm::segment_dir();
+    let channels = skinware::list_channels(&dir).with_context(|| format!("cannot list {}", dir.display()))?;
+    if let Some(live) = channels.iter().find(|c| c.skin == skin && c.state != WriterState::Gone) {
+        bail!(
+            "skin {skin} is already running here (channel {}, writer pid {}); stop that `skin run` or `skin demo` \
+             first (Ctrl-C), or watch it with `skin view --skin {skin}`",
+            live.channel,
+            live.writer_pid
+        );
+    }
+    Ok(())
+}
+
+fn last_layer_name(skin: &str) -> Option<String> {
+    SkinGeometry::open(skin).ok()?.layers.last().map(|l| l.name.clone())
+}
+
+/// Waits until the geometry is published and every layer of it is running.
+fn wait_until_running(config: &Config, shutdown: &AtomicBool, supervisor: &JoinHandle<Result<()>>) -> Result<()> {
+    let started = Instant::now();
+    let dir = skinware::shm::segment_dir();
+    let mut missing = vec!["the geometry".to_owned()];
+    while !shutdown.load(Ordering::Relaxed) {
+        if supervisor.is_finished() {
+            // Its error, if any, is reported when it is joined.
+            bail!("the skin stopped while starting");
+        }
+        missing = not_running(&dir, &config.skin);
+        if missing.is_empty() {
+            return Ok(());
+        }
+        if started.elapsed() > STARTUP_LIMIT {
+            bail!(
+                "skin {} did not come up within {} s: not running: {}; see the messages above",
+                config.skin,
+                STARTUP_LIMIT.as_secs(),
+                missing.join(", ")
+            );
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    tracing::debug!(?missing, "demo interrupted while starting");
+    Ok(())
+}
+
+/// What of the skin is not up yet: its geometry, or layers that are not running.
+fn not_running(dir: &Path, skin: &str) -> Vec<String> {
+    let Ok(geometry) = SkinGeometry::open_in(dir, skin) else {
+        return vec!["the geometry".to_owned()];
+    };
+    let channels = skinware::list_channels(dir).unwrap_or_default();
+    geometry
+        .layers
+        .iter()
+        .filter(|layer| {
+            !channels.iter().any(|c| c.skin == skin && c.channel == layer.name && c.state == WriterState::Running)
+        })
+        .map(|layer| format!("layer {}", layer.name))
+        .collect()
+}

@@ -1,0 +1,312 @@
+//! The viewer's wire format: binary WebSocket messages from the server, small
+//! JSON text messages from the browser. `docs/viewer.md` documents it byte by
+//! byte; `page.js` decodes it. Everything is little-endian, and every array
+//! starts at an offset aligned to its element size, so that the browser can
+//! view it in place with a typed array.
+
+#![forbid(unsafe_code)]
+
+use skinware::WriterState;
+use skinware::geometry::{SensorRef, SkinGeometry};
+
+use super::overlays::Overlays;
+
+/// Bumped on any change of the layout below; the page refuses other versions.
+pub const PROTOCOL_VERSION: u8 = 1;
+/// First byte of the geometry message.
+pub const KIND_GEOMETRY: u8 = 1;
+/// First byte of an update message.
+pub const KIND_UPDATE: u8 = 2;
+/// Bytes of the update header.
+pub const UPDATE_HEADER_BYTES: usize = 16;
+/// Bytes of one layer's record in an update.
+pub const LAYER_RECORD_BYTES: usize = 24;
+/// Bytes of one arrow or one marker.
+pub const OVERLAY_RECORD_BYTES: usize = 16;
+/// Flag of a layer record: its responses follow in this update.
+pub const FLAG_RESPONSES: u8 = 1;
+/// Flag of a layer record: its newest frame carries the fault status.
+pub const FLAG_FAULT_FRAME: u8 = 2;
+
+/// How the server reads the layers for one browser.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ReadMode {
+    /// On absolute time at this rate, whether or not the layers published.
+    Periodic {
+        /// Reads per second.
+        rate_hz: f64,
+    },
+    /// Every frame, as soon as its layer publishes it.
+    Asap,
+    /// One frame per layer each time the browser asks.
+    Request,
+}
+
+impl ReadMode {
+    /// The code in update headers.
+    pub fn code(self) -> u8 {
+        match self {
+            ReadMode::Periodic { .. } => 0,
+            ReadMode::Asap => 1,
+            ReadMode::Request => 2,
+        }
+    }
+}
+
+/// The code of a writer state in layer records.
+pub fn state_code(state: WriterState) -> u8 {
+    match state {
+        WriterState::Running => 0,
+        WriterState::Paused => 1,
+        WriterState::Faulted => 2,
+        WriterState::Gone => 3,
+    }
+}
+
+/// What one update says about one layer.
+#[derive(Clone, Copy, Debug)]
+pub struct LayerUpdate<'a> {
+    /// The writer's state.
+    pub state: WriterState,
+    /// Frames the writer published per second, measured.
+    pub writer_rate_hz: f32,
+    /// Fresh frames this browser's reader obtained per second, measured.
+    pub read_rate_hz: f32,
+    /// Publish time minus acquisition time of the newest frame, milliseconds.
+    pub latency_ms: f32,
+    /// Sequence number of the newest frame read (0: none yet).
+    pub seq: u64,
+    /// Whether that frame carries the fault status.
+    pub fault_frame: bool,
+    /// The frame's responses, if they changed since the last update sent.
+    pub responses: Option<&'a [u16]>,
+}
+
+/// A browser's request, decoded from its JSON text message.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ClientMessage {
+    /// The browser drew `n` updates: it may receive `n` more.
+    Ack(u32),
+    /// Read the layers in this mode from now on.
+    Mode(ReadMode),
+    /// Request mode: read one frame of every layer now.
+    Request,
+}
+
+/// Decodes a text message of the browser: `{"ack":N}`, `{"mode":"asap"}`,
+/// `{"mode":"periodic","rate_hz":R}`, `{"mode":"request"}` or `{"request":true}`.
+pub fn decode_client_message(text: &str) -> Result<ClientMessage, String> {
+    let value: serde_json::Value = serde_json::from_str(text).map_err(|e| format!("not JSON ({e}): {text:?}"))?;
+    if let Some(n) = value.get("ack").and_then(serde_json::Value::as_u64) {
+        return Ok(ClientMessage::Ack(n.min(u64::from(u32::MAX)) as u32));
+    }
+    if value.get("request").and_then(serde_json::Value::as_bool) == Some(true) {
+        return Ok(ClientMessage::Request);
+    }
+    match value.get("mode").and_then(serde_json::Value::as_str) {
+        Some("asap") => Ok(ClientMessage::Mode(ReadMode::Asap)),
+        Some("request") => Ok(ClientMessage::Mode(ReadMode::Request)),
+        Some("periodic") => {
+            let rate_hz = value.get("rate_hz").and_then(serde_json::Value::as_f64).unwrap_or(30.0);
+            if !(rate_hz.is_finite() && (0.1..=1000.0).contains(&rate_hz)) {
+                return Err(format!("periodic rate {rate_hz} Hz is outside 0.1-1000 Hz"));
+            }
+            Ok(ClientMessage::Mode(ReadMode::Periodic { rate_hz }))
+        }
+        _ => Err(format!("unknown message {text:?}")),
+    }
+}
+
+fn pad_to_4(out: &mut Vec<u8>) {
+    while out.len() % 4 != 0 {
+        out.push(0);
+    }
+}
+
+/// The message sent once at connect: layers, map positions and, per sensor,
+/// uid, module id and patch id (a sensor's layer follows from the layer ranges).
+pub fn encode_geometry(geometry: &SkinGeometry) -> Vec<u8> {
+    let sensors = geometry.sensor_count();
+    let layers = geometry.layers.len().min(usize::from(u16::MAX));
+    let mut bounds = [f32::INFINITY, f32::INFINITY, f32::NEG_INFINITY, f32::NEG_INFINITY];
+    for &[x, y] in &geometry.map.positions {
+        bounds = [bounds[0].min(x), bounds[1].min(y), bounds[2].max(x), bounds[3].max(y)];
+    }
+    if sensors == 0 {
+        bounds = [0.0, 0.0, 1.0, 1.0];
+    }
+    let mut out = Vec::with_capacity(64 + layers * 12 + sensors * 20);
+    out.push(KIND_GEOMETRY);
+    out.push(PROTOCOL_VERSION);
+    out.extend_from_slice(&(layers as u16).to_le_bytes());
+    out.extend_from_slice(&(sensors as u32).to_le_bytes());
+    for value in bounds {
+        out.extend_from_slice(&value.to_le_bytes());
+    }
+    for (index, layer) in geometry.layers.iter().take(layers).enumerate() {
+        out.extend_from_slice(&(geometry.layer_starts[index] as u32).to_le_bytes());
+        out.extend_from_slice(&(layer.sensors.len() as u32).to_le_bytes());
+        out.extend_from_slice(&(layer.rate_hz as f32).to_le_bytes());
+    }
+    let names: Vec<&str> =
+        std::iter::once(geometry.skin.as_str()).chain(geometry.layers.iter().map(|l| l.name.as_str())).collect();
+    let names = names.join("\n");
+    out.extend_from_slice(&(names.len() as u32).to_le_bytes());
+    out.extend_from_slice(names.as_bytes());
+    pad_to_4(&mut out);
+    for index in 0..sensors {
+        let [x, y] = geometry.map.positions.get(index).copied().unwrap_or([0.0, 0.0]);
+        out.extend_from_slice(&x.to_le_bytes());
+        out.extend_from_slice(&y.to_le_bytes());
+    }
+    let located: Vec<Option<SensorRef>> = (0..sensors).map(|index| geometry.locate(index)).collect();
+    let fields: [fn(&SensorRef) -> u32; 3] = [|s| s.uid, |s| s.module_id, |s| s.patch_id];
+    for field in fields {
+        for sensor in &located {
+            out.extend_from_slice(&sensor.as_ref().map_or(0, field).to_le_bytes());
+        }
+    }
+    out
+}
+
+/// Encodes one update into `out` (cleared first).
+pub fn encode_update(out: &mut Vec<u8>, number: u32, mode: ReadMode, layers: &[LayerUpdate<'_>], overlays: &Overlays) {
+    out.clear();
+    let arrows = overlays.arrows.len().min(usize::from(u16::MAX));
+    let markers = overlays.markers.len().min(usize::from(u16::MAX));
+    let responses: usize = layers.iter().filter_map(|l| l.responses).map(<[u16]>::len).sum();
+    out.reserve(
+        UPDATE_HEADER_BYTES
+            + layers.len() * LAYER_RECORD_BYTES
+            + (arrows + markers) * OVERLAY_RECORD_BYTES
+            + 2 * responses,
+    );
+    out.push(KIND_UPDATE);
+    out.push(mode.code());
+    out.extend_from_slice(&(layers.len().min(usize::from(u16::MAX)) as u16).to_le_bytes());
+    out.extend_from_slice(&number.to_le_bytes());
+    out.extend_from_slice(&(arrows as u16).to_le_bytes());
+    out.extend_from_slice(&(markers as u16).to_le_bytes());
+    out.extend_from_slice(&[0; 4]);
+    for layer in layers.iter().take(usize::from(u16::MAX)) {
+        let mut flags = 0;
+        if layer.responses.is_some() {
+            flags |= FLAG_RESPONSES;
+        }
+        if layer.fault_frame {
+            flags |= FLAG_FAULT_FRAME;
+        }
+        out.extend_from_slice(&[state_code(layer.state), flags, 0, 0]);
+        out.extend_from_slice(&layer.writer_rate_hz.to_le_bytes());
+        out.extend_from_slice(&layer.read_rate_hz.to_le_bytes());
+        out.extend_from_slice(&layer.latency_ms.to_le_bytes());
+        out.extend_from_slice(&layer.seq.to_le_bytes());
+    }
+    for arrow in &overlays.arrows[..arrows] {
+        for value in [arrow.from[0], arrow.from[1], arrow.to[0], arrow.to[1]] {
+            out.extend_from_slice(&value.to_le_bytes());
+        }
+    }
+    for marker in &overlays.markers[..markers] {
+        for value in [marker.at[0], marker.at[1], marker.radius, marker.pressure] {
+            out.extend_from_slice(&value.to_le_bytes());
+        }
+    }
+    for responses in layers.iter().filter_map(|l| l.responses) {
+        for response in responses {
+            out.extend_from_slice(&response.to_le_bytes());
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::view::overlays::{Arrow, Marker};
+
+    fn f32_at(bytes: &[u8], offset: usize) -> f32 {
+        f32::from_le_bytes(bytes[offset..offset + 4].try_into().unwrap())
+    }
+
+    fn u16_at(bytes: &[u8], offset: usize) -> u16 {
+        u16::from_le_bytes(bytes[offset..offset + 2].try_into().unwrap())
+    }
+
+    #[test]
+    fn update_carries_states_changed_responses_and_synthetic_overlays_where_documented() {
+        let overlays = Overlays {
+            arrows: vec![Arrow { from: [0.1, 0.2], to: [0.3, -0.4] }],
+            markers: vec![
+                Marker { at: [0.5, 0.6], radius: 0.02, pressure: 1234.0 },
+                Marker { at: [-1.0, 2.0], radius: 0.05, pressure: 7.5 },
+            ],
+        };
+        let fresh = [10u16, 20, 30];
+        let layers = [
+            LayerUpdate {
+                state: WriterState::Running,
+                writer_rate_hz: 41.5,
+                read_rate_hz: 40.0,
+                latency_ms: 0.25,
+                seq: 77,
+                fault_frame: false,
+                responses: Some(&fresh),
+            },
+            LayerUpdate {
+                state: WriterState::Faulted,
+                writer_rate_hz: 0.0,
+                read_rate_hz: 0.0,
+                latency_ms: 0.0,
+                seq: 5,
+                fault_frame: true,
+                responses: None,
+            },
+            LayerUpdate {
+                state: WriterState::Gone,
+                writer_rate_hz: 0.0,
+                read_rate_hz: 0.0,
+                latency_ms: 0.0,
+                seq: 0,
+                fault_frame: false,
+                responses: Some(&[65535, 1]),
+            },
+        ];
+        let mut out = vec![0xAA; 3];
+        encode_update(&mut out, 9, ReadMode::Periodic { rate_hz: 30.0 }, &layers, &overlays);
+        let overlays_at = UPDATE_HEADER_BYTES + 3 * LAYER_RECORD_BYTES;
+        let responses_at = overlays_at + 3 * OVERLAY_RECORD_BYTES;
+        assert_eq!(out.len(), responses_at + 2 * 5, "only the responses of changed layers are sent");
+        assert_eq!(&out[..4], &[KIND_UPDATE, 0, 3, 0]);
+        assert_eq!(u32::from_le_bytes(out[4..8].try_into().unwrap()), 9);
+        assert_eq!((u16_at(&out, 8), u16_at(&out, 10)), (1, 2));
+        let record = |i: usize| &out[UPDATE_HEADER_BYTES + i * LAYER_RECORD_BYTES..][..LAYER_RECORD_BYTES];
+        assert_eq!(&record(0)[..2], &[0, FLAG_RESPONSES]);
+        assert_eq!(&record(1)[..2], &[2, FLAG_FAULT_FRAME]);
+        assert_eq!(&record(2)[..2], &[3, FLAG_RESPONSES]);
+        assert_eq!(f32_at(record(0), 4), 41.5);
+        assert_eq!(f32_at(record(0), 8), 40.0);
+        assert_eq!(f32_at(record(0), 12), 0.25);
+        assert_eq!(u64::from_le_bytes(record(0)[16..24].try_into().unwrap()), 77);
+        let arrow: Vec<f32> = (0..4).map(|i| f32_at(&out, overlays_at + 4 * i)).collect();
+        assert_eq!(arrow, [0.1, 0.2, 0.3, -0.4]);
+        let second_marker: Vec<f32> = (0..4).map(|i| f32_at(&out, overlays_at + 32 + 4 * i)).collect();
+        assert_eq!(second_marker, [-1.0, 2.0, 0.05, 7.5]);
+        let responses: Vec<u16> = (0..5).map(|i| u16_at(&out, responses_at + 2 * i)).collect();
+        assert_eq!(responses, [10, 20, 30, 65535, 1]);
+        assert_eq!(responses_at % 4, 0, "responses must be viewable as a Uint16Array in place");
+    }
+
+    #[test]
+    fn client_messages_decode_and_bad_ones_are_refused() {
+        assert_eq!(decode_client_message(r#"{"ack":2}"#), Ok(ClientMessage::Ack(2)));
+        assert_eq!(decode_client_message(r#"{"request":true}"#), Ok(ClientMessage::Request));
+        assert_eq!(decode_client_message(r#"{"mode":"asap"}"#), Ok(ClientMessage::Mode(ReadMode::Asap)));
+        assert_eq!(
+            decode_client_message(r#"{"mode":"periodic","rate_hz":12.5}"#),
+            Ok(ClientMessage::Mode(ReadMode::Periodic { rate_hz: 12.5 }))
+        );
+        assert!(decode_client_message(r#"{"mode":"periodic","rate_hz":0}"#).is_err());
+        assert!(decode_client_message(r#"{"mode":"sometimes"}"#).is_err());
+        assert!(decode_client_message("ack").is_err());
+    }
+}

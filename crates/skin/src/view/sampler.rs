@@ -1,0 +1,283 @@
+//! Reads every layer of a skin for one browser, in the reader mode it chose,
+//! into a board that holds only the newest frame of each layer: whatever the
+//! browser does not take in time is overwritten, never queued.
+
+#![forbid(unsafe_code)]
+
+use std::path::PathBuf;
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use skinware::{Error, Reader, ReaderOptions, Stop, Ticker, WriterState};
+
+use super::protocol::ReadMode;
+
+/// How long a blocking read waits before it looks at the writer's state again,
+/// so that a fault or a vanished writer shows within this time.
+const STATE_POLL: Duration = Duration::from_millis(100);
+/// Window over which rates are measured.
+const RATE_WINDOW: Duration = Duration::from_millis(500);
+
+/// The newest of one layer, as read.
+#[derive(Debug)]
+pub struct LayerSlot {
+    /// The writer's state when last looked at.
+    pub state: WriterState,
+    /// Frames the writer published per second over the last window.
+    pub writer_rate_hz: f32,
+    /// Fresh frames this reader obtained per second over the last window.
+    pub read_rate_hz: f32,
+    /// Publish minus acquisition time of the newest frame read, milliseconds.
+    pub latency_ms: f32,
+    /// Sequence number of the newest frame read; 0 before the first.
+    pub seq: u64,
+    /// Whether that frame carries the fault status.
+    pub fault_frame: bool,
+    /// Its responses.
+    pub responses: Vec<u16>,
+}
+
+/// The newest frame of every layer, and a version that changes with anything in it.
+#[derive(Debug)]
+pub struct Board {
+    /// Bumped on every change.
+    pub version: u64,
+    /// One slot per layer, in geometry order.
+    pub layers: Vec<LayerSlot>,
+    /// Bumped by each on-request read the browser asks for.
+    requests: u64,
+}
+
+/// The board and the condition its readers signal.
+#[derive(Debug)]
+struct Shared {
+    board: Mutex<Board>,
+    changed: Condvar,
+    requested: Condvar,
+}
+
+fn lock(shared: &Shared) -> MutexGuard<'_, Board> {
+    // A reader thread that panicked left a consistent board (it only ever
+    // stores whole values), so a poisoned lock is still usable.
+    shared.board.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// One layer to read: its channel name and its sensor count.
+#[derive(Clone, Debug)]
+pub struct LayerToRead {
+    /// Channel name.
+    pub name: String,
+    /// Sensors, the length of its frames.
+    pub sensors: usize,
+}
+
+/// The reader threads of one browser.
+#[derive(Debug)]
+pub struct Sampler {
+    shared: Arc<Shared>,
+    stop: Stop,
+    threads: Vec<JoinHandle<()>>,
+}
+
+impl Sampler {
+    /// Starts one reader thread per layer of `skin`, reading in `mode`.
+    pub fn start(skin: &str, dir: Option<PathBuf>, layers: &[LayerToRead], mode: ReadMode) -> Sampler {
+        let slots = layers
+            .iter()
+            .map(|layer| LayerSlot {
+                state: WriterState::Gone,
+                writer_rate_hz: 0.0,
+                read_rate_hz: 0.0,
+                latency_ms: 0.0,
+                seq: 0,
+                fault_frame: false,
+                responses: vec![0; layer.sensors],
+            })
+            .collect();
+        let shared = Arc::new(Shared {
+            board: Mutex::new(Board { version: 0, layers: slots, requests: 0 }),
+            changed: Condvar::new(),
+            requested: Condvar::new(),
+        });
+        let stop = Stop::new();
+        let threads = layers
+            .iter()
+            .enumerate()
+            .map(|(index, layer)| {
+                let job = LayerJob {
+                    skin: skin.to_owned(),
+                    dir: dir.clone(),
+                    name: layer.name.clone(),
+                    index,
+                    mode,
+                    shared: shared.clone(),
+                    stop: stop.clone(),
+                };
+                std::thread::Builder::new()
+                    .name(format!("view-{}", layer.name))
+                    .spawn(move || job.run())
+                    .expect("the OS refused a reader thread")
+            })
+            .collect();
+        Sampler { shared, stop, threads }
+    }
+
+    /// Waits up to `timeout` for the board to differ from `seen`; then calls
+    /// `take` with it (locked) and returns what it returns.
+    pub fn take_newer<T>(&self, seen: u64, timeout: Duration, take: impl FnOnce(&Board) -> T) -> Option<T> {
+        let board = lock(&self.shared);
+        let (board, _) = self
+            .shared
+            .changed
+            .wait_timeout_while(board, timeout, |board| board.version == seen)
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        (board.version != seen).then(|| take(&board))
+    }
+
+    /// On-request mode: asks every layer's reader for one frame.
+    pub fn request(&self) {
+        lock(&self.shared).requests += 1;
+        self.shared.requested.notify_all();
+    }
+}
+
+impl Drop for Sampler {
+    fn drop(&mut self) {
+        self.stop.stop();
+        self.shared.requested.notify_all();
+        for thread in self.threads.drain(..) {
+            let _ = thread.join();
+        }
+    }
+}
+
+/// One layer's reader thread.
+struct LayerJob {
+    skin: String,
+    dir: Option<PathBuf>,
+    name: String,
+    index: usize,
+    mode: ReadMode,
+    shared: Arc<Shared>,
+    stop: Stop,
+}
+
+/// Rate measurement over [`RATE_WINDOW`].
+struct RateWindow {
+    started: Instant,
+    writer_frames: u64,
+    reads: u64,
+}
+
+impl LayerJob {
+    fn open(&self) -> Option<Reader> {
+        let options = ReaderOptions { allow_gone: true, dir: self.dir.clone(), ..ReaderOptions::default() };
+        let mut reader = Reader::open_with(&self.skin, &self.name, &options).ok()?;
+        reader.set_stop(&self.stop);
+        Some(reader)
+    }
+
+    fn run(self) {
+        // The channel may not exist yet (its driver is starting) or any more.
+        let mut reader = loop {
+            if let Some(reader) = self.open() {
+                break reader;
+            }
+            if !self.stop.sleep_until(skinware::os::monotonic_ns() + 250_000_000) {
+                return;
+            }
+        };
+        let mut ticker = match self.mode {
+            ReadMode::Periodic { rate_hz } => Some(Ticker::from_hz(rate_hz)),
+            _ => None,
+        };
+        let mut requests_served = 0;
+        let mut window = RateWindow { started: Instant::now(), writer_frames: reader.writer_stats().frames, reads: 0 };
+        let mut first = true;
+        while !self.stop.is_stopped() {
+            let result = match (self.mode, &mut ticker) {
+                (ReadMode::Periodic { .. }, Some(ticker)) => reader.next_periodic(ticker),
+                (ReadMode::Request, _) if !first => match self.wait_for_request(&mut requests_served) {
+                    true => reader.request(Duration::from_secs(1)),
+                    false => Err(Error::Timeout { channel: self.name.clone(), timeout: STATE_POLL }),
+                },
+                // The first read of every mode shows the newest frame at once.
+                _ if first => reader.latest(),
+                _ => reader.wait_newer(STATE_POLL),
+            };
+            first = false;
+            match result {
+                Ok(frame) => {
+                    if frame.is_fresh() {
+                        window.reads += 1;
+                    }
+                    let mut board = lock(&self.shared);
+                    let slot = &mut board.layers[self.index];
+                    if slot.seq != frame.seq() {
+                        let responses = frame.responses();
+                        let n = responses.len().min(slot.responses.len());
+                        slot.responses[..n].copy_from_slice(&responses[..n]);
+                        slot.seq = frame.seq();
+                        slot.fault_frame = frame.status().is_fault();
+                        slot.latency_ms = frame.published_ns().saturating_sub(frame.acquired_ns()) as f32 / 1e6;
+                        board.version += 1;
+                        self.shared.changed.notify_all();
+                    }
+                }
+                Err(Error::Stopped { .. }) => return,
+                Err(Error::Timeout { .. } | Error::NoFrameYet { .. }) => {}
+                Err(e) => {
+                    tracing::debug!(layer = %self.name, "read failed: {e}");
+                    if !self.stop.sleep_until(skinware::os::monotonic_ns() + STATE_POLL.as_nanos() as u64) {
+                        return;
+                    }
+                }
+            }
+            self.refresh_state(&mut reader, &mut window);
+        }
+    }
+
+    /// Waits (at most [`STATE_POLL`]) until the browser asked for more frames
+    /// than this layer served.
+    fn wait_for_request(&self, served: &mut u64) -> bool {
+        let board = lock(&self.shared);
+        let (board, _) = self
+            .shared
+            .requested
+            .wait_timeout_while(board, STATE_POLL, |board| board.requests == *served && !self.stop.is_stopped())
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        let asked = board.requests != *served;
+        *served = board.requests;
+        asked && !self.stop.is_stopped()
+    }
+
+    /// Publishes the writer's state at once when it changes, and the rates at
+    /// the end of each window.
+    fn refresh_state(&self, reader: &mut Reader, window: &mut RateWindow) {
+        let state = reader.writer_state();
+        let elapsed = window.started.elapsed();
+        let rates = (elapsed >= RATE_WINDOW).then(|| {
+            let frames = reader.writer_stats().frames;
+            let seconds = elapsed.as_secs_f64();
+            let writer =
+                if state == WriterState::Gone { 0.0 } else { frames.saturating_sub(window.writer_frames) as f64 };
+            let rates = ((writer / seconds) as f32, (window.reads as f64 / seconds) as f32);
+            *window = RateWindow { started: Instant::now(), writer_frames: frames, reads: 0 };
+            rates
+        });
+        let mut board = lock(&self.shared);
+        let slot = &mut board.layers[self.index];
+        let mut changed = slot.state != state;
+        slot.state = state;
+        if let Some((writer_rate_hz, read_rate_hz)) = rates {
+            changed |= slot.writer_rate_hz != writer_rate_hz || slot.read_rate_hz != read_rate_hz;
+            slot.writer_rate_hz = writer_rate_hz;
+            slot.read_rate_hz = read_rate_hz;
+        }
+        if changed {
+            board.version += 1;
+            self.shared.changed.notify_all();
+        }
+    }
+}

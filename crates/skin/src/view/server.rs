@@ -1,0 +1,195 @@
+//! The HTTP side: one thread per connection, serving the embedded page and
+//! upgrading `/ws` to the WebSocket of a [`session`](super::session).
+
+#![forbid(unsafe_code)]
+
+use std::io::{Read, Write};
+use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use tungstenite::WebSocket;
+use tungstenite::protocol::Role;
+
+const PAGE_HTML: &str = include_str!("page.html");
+const PAGE_JS: &str = include_str!("page.js");
+const PAGE_CSS: &str = include_str!("page.css");
+
+/// A request head larger than this is refused: the page's requests are tiny.
+const MAX_HEAD_BYTES: usize = 16 * 1024;
+
+/// Binds the viewer's address, with an error that says what to do when it fails.
+pub fn bind(listen: &str) -> Result<TcpListener> {
+    let address: SocketAddr = listen
+        .parse()
+        .with_context(|| format!("--listen {listen:?} is not an address; write it as IP:PORT, e.g. 127.0.0.1:8080"))?;
+    let listener = TcpListener::bind(address).map_err(|e| match e.kind() {
+        std::io::ErrorKind::AddrInUse => anyhow::anyhow!(
+            "cannot listen on {address}: the port is in use (another `skin view` or `skin demo`?); \
+             stop it or choose another port with --listen {}:PORT",
+            address.ip()
+        ),
+        std::io::ErrorKind::PermissionDenied => anyhow::anyhow!(
+            "cannot listen on {address}: permission denied (ports below 1024 need privileges); choose a port above 1023"
+        ),
+        _ => anyhow::Error::new(e).context(format!("cannot listen on {address}")),
+    })?;
+    if !address.ip().is_loopback() {
+        tracing::warn!(%address, "listening beyond loopback: anyone who can reach this address can watch the skin");
+    }
+    Ok(listener)
+}
+
+/// What every connection needs to know.
+#[derive(Clone, Debug)]
+pub struct Site {
+    /// The skin to show.
+    pub skin: String,
+    /// Segment directory; `None` for the default.
+    pub dir: Option<PathBuf>,
+    /// Set on SIGINT/SIGTERM: connections close and [`serve`] returns.
+    pub shutdown: Arc<AtomicBool>,
+}
+
+/// Serves the page and its WebSocket until `site.shutdown` is set.
+pub fn serve(listener: TcpListener, site: &Site) -> Result<()> {
+    // Non-blocking accept, so that the loop notices the shutdown flag.
+    listener.set_nonblocking(true).context("cannot make the listening socket non-blocking")?;
+    while !site.shutdown.load(Ordering::Relaxed) {
+        match listener.accept() {
+            Ok((stream, peer)) => {
+                let site = site.clone();
+                let spawned = std::thread::Builder::new().name(format!("view-{peer}")).spawn(move || {
+                    if let Err(e) = handle_connection(stream, &site) {
+                        tracing::debug!(%peer, "connection ended: {e:#}");
+                    }
+                });
+                if let Err(e) = spawned {
+                    tracing::warn!(%peer, "cannot start a thread for a connection: {e}");
+                }
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => std::thread::sleep(Duration::from_millis(25)),
+            Err(e) => {
+                tracing::warn!("accept failed: {e}");
+                std::thread::sleep(Duration::from_millis(100));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// A parsed request head.
+struct Request {
+    method: String,
+    path: String,
+    headers: Vec<(String, String)>,
+}
+
+impl Request {
+    fn header(&self, name: &str) -> Option<&str> {
+        self.headers.iter().find(|(key, _)| key.eq_ignore_ascii_case(name)).map(|(_, value)| value.as_str())
+    }
+
+    fn header_has_token(&self, name: &str, token: &str) -> bool {
+        self.header(name).is_some_and(|value| value.split(',').any(|t| t.trim().eq_ignore_ascii_case(token)))
+    }
+}
+
+/// Reads up to the end of the head; returns it and whatever came after.
+fn read_head(stream: &mut TcpStream) -> Result<(Request, Vec<u8>)> {
+    let mut buffer = Vec::with_capacity(1024);
+    let mut chunk = [0u8; 2048];
+    let end = loop {
+        if let Some(at) = buffer.windows(4).position(|w| w == b"\r\n\r\n") {
+            break at;
+        }
+        if buffer.len() > MAX_HEAD_BYTES {
+            bail!("request head larger than {MAX_HEAD_BYTES} bytes");
+        }
+        let n = stream.read(&mut chunk)?;
+        if n == 0 {
+            bail!("connection closed before the end of the request head");
+        }
+        buffer.extend_from_slice(&chunk[..n]);
+    };
+    let head = std::str::from_utf8(&buffer[..end]).context("request head is not UTF-8")?;
+    let mut lines = head.split("\r\n");
+    let mut request_line = lines.next().unwrap_or_default().split_whitespace();
+    let (Some(method), Some(path)) = (request_line.next(), request_line.next()) else {
+        bail!("malformed request line {head:?}");
+    };
+    let headers = lines
+        .filter_map(|line| line.split_once(':'))
+        .map(|(key, value)| (key.trim().to_owned(), value.trim().to_owned()))
+        .collect();
+    let request = Request { method: method.to_owned(), path: path.to_owned(), headers };
+    Ok((request, buffer[end + 4..].to_vec()))
+}
+
+fn respond(stream: &mut TcpStream, status: &str, content_type: &str, body: &[u8]) -> Result<()> {
+    write!(
+        stream,
+        "HTTP/1.1 {status}\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\nCache-Control: no-store\r\n\
+         X-Content-Type-Options: nosniff\r\nConnection: close\r\n\r\n",
+        body.len()
+    )?;
+    stream.write_all(body)?;
+    stream.flush()?;
+    Ok(())
+}
+
+/// A page from another site must not open our WebSocket (browsers send
+/// `Origin` on WebSocket requests, and do not apply the same-origin policy to them).
+fn same_origin(request: &Request) -> bool {
+    match (request.header("origin"), request.header("host")) {
+        (None, _) => true,
+        (Some(origin), Some(host)) => origin.split_once("://").is_some_and(|(_, rest)| rest == host),
+        (Some(_), None) => false,
+    }
+}
+
+fn handle_connection(mut stream: TcpStream, site: &Site) -> Result<()> {
+    stream.set_read_timeout(Some(Duration::from_secs(10)))?;
+    stream.set_write_timeout(Some(Duration::from_secs(10)))?;
+    stream.set_nodelay(true)?;
+    let (request, leftover) = read_head(&mut stream)?;
+    if request.method != "GET" {
+        return respond(&mut stream, "405 Method Not Allowed", "text/plain", b"only GET\n");
+    }
+    let path = request.path.split('?').next().unwrap_or("/");
+    match path {
+        "/" | "/index.html" => respond(&mut stream, "200 OK", "text/html; charset=utf-8", PAGE_HTML.as_bytes()),
+        "/view.js" => respond(&mut stream, "200 OK", "text/javascript; charset=utf-8", PAGE_JS.as_bytes()),
+        "/view.css" => respond(&mut stream, "200 OK", "text/css; charset=utf-8", PAGE_CSS.as_bytes()),
+        "/favicon.ico" => respond(&mut stream, "204 No Content", "text/plain", b""),
+        "/ws" => {
+            let key = request.header("sec-websocket-key").map(str::to_owned);
+            let upgrade =
+                request.header_has_token("connection", "upgrade") && request.header_has_token("upgrade", "websocket");
+            let Some(key) = key.filter(|_| upgrade) else {
+                return respond(
+                    &mut stream,
+                    "400 Bad Request",
+                    "text/plain",
+                    b"a WebSocket upgrade is expected here\n",
+                );
+            };
+            if !same_origin(&request) {
+                return respond(&mut stream, "403 Forbidden", "text/plain", b"cross-origin WebSocket refused\n");
+            }
+            let accept = tungstenite::handshake::derive_accept_key(key.as_bytes());
+            write!(
+                stream,
+                "HTTP/1.1 101 Switching Protocols\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n\
+                 Sec-WebSocket-Accept: {accept}\r\n\r\n"
+            )?;
+            stream.flush()?;
+            let socket = WebSocket::from_partially_read(stream, leftover, Role::Server, None);
+            super::session::run(socket, site)
+        }
+        _ => respond(&mut stream, "404 Not Found", "text/plain", b"not found\n"),
+    }
+}
