@@ -28,6 +28,8 @@ const layerRows = document.querySelector('#layers tbody');
 const stats = window.skinStats = {
   updates: 0, draws: 0, updateBytes: 0, lastUpdateBytes: 0, geometryBytes: 0,
   lastUpdateNumber: -1, mode: null, fps: 0, updatesPerSecond: 0, animationFrames: 0, renderMs: 0,
+  // Per layer, the sequence number of the newest frame received.
+  seqs: [],
 };
 
 let skin = null;         // decoded geometry
@@ -117,6 +119,7 @@ function applyUpdate(buffer) {
     };
     if (view.getUint8(at + 1) & FLAG_RESPONSES) included.push(l);
   }
+  stats.seqs = layerStatus.map(status => status.seq);
   const next = { arrows: [], markers: [] };
   for (let i = 0; i < arrows; i++, at += 16) {
     next.arrows.push([0, 4, 8, 12].map(d => view.getFloat32(at + d, true)));
