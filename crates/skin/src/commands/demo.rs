@@ -144,3 +144,20 @@ fn not_running(dir: &Path, skin: &str) -> Vec<String> {
         .map(|layer| format!("layer {}", layer.name))
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn embedded_demo_config_is_the_papers_skin() {
+        let path = std::env::temp_dir().join(format!("skin-demo-test-{}.toml", std::process::id()));
+        std::fs::write(&path, DEMO_CONFIG).unwrap();
+        let config = Config::load(&path);
+        let _ = std::fs::remove_file(&path);
+        let config = config.unwrap();
+        let (layers, _, _) = crate::geometry::inputs(&config).unwrap();
+        assert_eq!(layers.len(), 5);
+        assert_eq!(layers.iter().map(|l| l.sensors.len()).sum::<usize>(), 30_848);
+    }
+}

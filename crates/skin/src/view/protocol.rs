@@ -296,6 +296,48 @@ mod tests {
         assert_eq!(responses_at % 4, 0, "responses must be viewable as a Uint16Array in place");
     }
 
+    fn small_geometry() -> SkinGeometry {
+        let path = std::env::temp_dir().join(format!("skin-view-protocol-{}.toml", std::process::id()));
+        std::fs::write(
+            &path,
+            "skin = \"small\"\n[[driver]]\nname = \"v\"\nkind = \"virtual\"\nsensors = 240\nlayers = 2\n",
+        )
+        .unwrap();
+        let config = crate::config::Config::load(&path);
+        let _ = std::fs::remove_file(&path);
+        let (layers, calibration, regions) = crate::geometry::inputs(&config.unwrap()).unwrap();
+        SkinGeometry::build("small", &layers, &calibration, &regions).unwrap()
+    }
+
+    #[test]
+    fn geometry_message_holds_layers_names_positions_and_ids_where_documented() {
+        let geometry = small_geometry();
+        let out = encode_geometry(&geometry);
+        let u32_at = |offset: usize| u32::from_le_bytes(out[offset..offset + 4].try_into().unwrap());
+        assert_eq!(&out[..4], &[KIND_GEOMETRY, PROTOCOL_VERSION, 2, 0]);
+        assert_eq!(u32_at(4), 240);
+        let [min_x, min_y, max_x, max_y] = [8, 12, 16, 20].map(|offset| f32_at(&out, offset));
+        assert!(
+            geometry.map.positions.iter().all(|&[x, y]| (min_x..=max_x).contains(&x) && (min_y..=max_y).contains(&y))
+        );
+        assert_eq!((u32_at(24), u32_at(28)), (0, 120));
+        assert_eq!((u32_at(36), u32_at(40)), (120, 120));
+        assert_eq!(f32_at(&out, 44), geometry.layers[1].rate_hz as f32);
+        let text_bytes = u32_at(48) as usize;
+        assert_eq!(std::str::from_utf8(&out[52..52 + text_bytes]).unwrap(), "small\nv-0\nv-1");
+        let positions_at = (52 + text_bytes).next_multiple_of(4);
+        assert_eq!(out.len(), positions_at + 240 * 8 + 3 * 240 * 4);
+        let sensor = 157;
+        let at = positions_at + 8 * sensor;
+        assert_eq!([f32_at(&out, at), f32_at(&out, at + 4)], geometry.map.positions[sensor]);
+        let ids_at = positions_at + 240 * 8;
+        let expected = geometry.locate(sensor).unwrap();
+        assert_eq!(
+            [u32_at(ids_at + 4 * sensor), u32_at(ids_at + 960 + 4 * sensor), u32_at(ids_at + 1920 + 4 * sensor)],
+            [expected.uid, expected.module_id, expected.patch_id]
+        );
+    }
+
     #[test]
     fn client_messages_decode_and_bad_ones_are_refused() {
         assert_eq!(decode_client_message(r#"{"ack":2}"#), Ok(ClientMessage::Ack(2)));

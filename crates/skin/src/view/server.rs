@@ -4,7 +4,7 @@
 #![forbid(unsafe_code)]
 
 use std::io::{Read, Write};
-use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::net::{SocketAddr, TcpListener, TcpStream, ToSocketAddrs};
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -23,9 +23,10 @@ const MAX_HEAD_BYTES: usize = 16 * 1024;
 
 /// Binds the viewer's address, with an error that says what to do when it fails.
 pub fn bind(listen: &str) -> Result<TcpListener> {
-    let address: SocketAddr = listen
-        .parse()
-        .with_context(|| format!("--listen {listen:?} is not an address; write it as IP:PORT, e.g. 127.0.0.1:8080"))?;
+    let address: SocketAddr =
+        listen.to_socket_addrs().ok().and_then(|mut addresses| addresses.next()).with_context(|| {
+            format!("--listen {listen:?} is not an address; write it as HOST:PORT, e.g. 127.0.0.1:8080")
+        })?;
     let listener = TcpListener::bind(address).map_err(|e| match e.kind() {
         std::io::ErrorKind::AddrInUse => anyhow::anyhow!(
             "cannot listen on {address}: the port is in use (another `skin view` or `skin demo`?); \
