@@ -82,7 +82,7 @@ pub struct Sampler {
 
 impl Sampler {
     /// Starts one reader thread per layer of `skin`, reading in `mode`.
-    pub fn start(skin: &str, dir: Option<PathBuf>, layers: &[LayerToRead], mode: ReadMode) -> Sampler {
+    pub fn start(skin: &str, dir: Option<PathBuf>, layers: &[LayerToRead], mode: ReadMode) -> std::io::Result<Sampler> {
         let slots = layers
             .iter()
             .map(|layer| LayerSlot {
@@ -101,26 +101,22 @@ impl Sampler {
             requested: Condvar::new(),
         });
         let stop = Stop::new();
-        let threads = layers
-            .iter()
-            .enumerate()
-            .map(|(index, layer)| {
-                let job = LayerJob {
-                    skin: skin.to_owned(),
-                    dir: dir.clone(),
-                    name: layer.name.clone(),
-                    index,
-                    mode,
-                    shared: shared.clone(),
-                    stop: stop.clone(),
-                };
-                std::thread::Builder::new()
-                    .name(format!("view-{}", layer.name))
-                    .spawn(move || job.run())
-                    .expect("the OS refused a reader thread")
-            })
-            .collect();
-        Sampler { shared, stop, threads }
+        // Built before the threads start, so that a failure stops those already started (on drop).
+        let mut sampler = Sampler { shared: shared.clone(), stop: stop.clone(), threads: Vec::new() };
+        for (index, layer) in layers.iter().enumerate() {
+            let job = LayerJob {
+                skin: skin.to_owned(),
+                dir: dir.clone(),
+                name: layer.name.clone(),
+                index,
+                mode,
+                shared: shared.clone(),
+                stop: stop.clone(),
+            };
+            let thread = std::thread::Builder::new().name(format!("view-{}", layer.name)).spawn(move || job.run())?;
+            sampler.threads.push(thread);
+        }
+        Ok(sampler)
     }
 
     /// Waits up to `timeout` for the board to differ from `seen`; then calls

@@ -57,7 +57,8 @@ pub fn run(mut socket: WebSocket<TcpStream>, site: &Site) -> Result<()> {
     drop(geometry);
 
     let mut mode = INITIAL_MODE;
-    let mut sampler = Sampler::start(&site.skin, site.dir.clone(), &layers, mode);
+    let mut sampler =
+        Sampler::start(&site.skin, site.dir.clone(), &layers, mode).context("cannot start the layer readers")?;
     let mut overlays = OverlaySource::new(&site.skin);
     let mut credit = 0u32;
     let mut seen_version = 0u64;
@@ -87,7 +88,8 @@ pub fn run(mut socket: WebSocket<TcpStream>, site: &Site) -> Result<()> {
                         if new_mode != mode {
                             mode = new_mode;
                             drop(sampler);
-                            sampler = Sampler::start(&site.skin, site.dir.clone(), &layers, mode);
+                            sampler = Sampler::start(&site.skin, site.dir.clone(), &layers, mode)
+                                .context("cannot start the layer readers")?;
                             seen_version = 0;
                             tracing::debug!(?mode, "reader mode changed");
                         }
