@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use serde::Deserialize;
 use skinware::geometry::{RegionSpec, Selector};
-use skinware_drivers::{CablePull, Rate, VirtualSkin, VirtualSkinConfig};
+use skinware_drivers::{CablePull, Rate, ScriptedContact, VirtualSkin, VirtualSkinConfig};
 
 /// A whole configuration file.
 #[derive(Debug, Deserialize)]
@@ -23,9 +23,131 @@ pub struct Config {
     /// Named regions of the skin.
     #[serde(rename = "region", default)]
     pub regions: Vec<RegionConfig>,
+    /// Services, each run in its own supervised process.
+    #[serde(rename = "service", default)]
+    pub services: Vec<ServiceConfig>,
     /// The directory of the config file: relative paths in it start there.
     #[serde(skip)]
     pub base_dir: PathBuf,
+}
+
+/// The kinds of service.
+#[derive(Debug, Deserialize, Clone, Copy, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum ServiceKind {
+    /// Contact detection (`skinware_services::contact`).
+    Contact,
+    /// Motion detection (`skinware_services::motion`), on a contact service.
+    Motion,
+}
+
+/// One `[[service]]` table.
+#[derive(Debug, Deserialize, Clone)]
+#[serde(deny_unknown_fields)]
+pub struct ServiceConfig {
+    pub name: String,
+    pub kind: ServiceKind,
+    /// Publishing rate; absent for a sporadic service (one frame per request).
+    pub rate_hz: Option<f64>,
+    /// Motion: the contact service it reads.
+    pub input: Option<String>,
+    /// Contact: touch threshold in noise standard deviations.
+    pub threshold_sigma: Option<f32>,
+    /// Contact: minimum touch threshold, response units.
+    pub min_threshold: Option<f32>,
+    /// Contact: time constant of the baseline (drift compensation), seconds.
+    pub baseline_tau_s: Option<f32>,
+    /// Motion: slower than this (m/s) is not sliding.
+    pub min_speed: Option<f64>,
+    /// Motion: velocity fitting window, seconds.
+    pub window_s: Option<f64>,
+    #[serde(default)]
+    pub restart: RestartConfig,
+}
+
+impl ServiceConfig {
+    /// Periodic at `rate_hz`, or sporadic.
+    pub fn mode(&self) -> skinware::service::ServiceMode {
+        match self.rate_hz {
+            Some(hz) => skinware::service::ServiceMode::Periodic { hz },
+            None => skinware::service::ServiceMode::Sporadic,
+        }
+    }
+
+    /// The contact service's settings.
+    pub fn contact(&self) -> skinware_services::ContactServiceConfig {
+        let defaults = skinware_services::ContactParams::default();
+        skinware_services::ContactServiceConfig {
+            name: self.name.clone(),
+            mode: self.mode(),
+            params: skinware_services::ContactParams {
+                threshold_sigma: self.threshold_sigma.unwrap_or(defaults.threshold_sigma),
+                min_threshold: self.min_threshold.unwrap_or(defaults.min_threshold),
+                baseline_tau_s: self.baseline_tau_s.unwrap_or(defaults.baseline_tau_s),
+                ..defaults
+            },
+        }
+    }
+
+    /// The motion service's settings.
+    pub fn motion(&self) -> skinware_services::MotionServiceConfig {
+        let defaults = skinware_services::MotionParams::default();
+        skinware_services::MotionServiceConfig {
+            name: self.name.clone(),
+            mode: self.mode(),
+            input: self.input.clone().unwrap_or_else(|| "contact".into()),
+            params: skinware_services::MotionParams {
+                min_speed: self.min_speed.unwrap_or(defaults.min_speed),
+                window_s: self.window_s.unwrap_or(defaults.window_s),
+                ..defaults
+            },
+        }
+    }
+
+    fn check(&self, services: &[ServiceConfig]) -> Result<()> {
+        skinware::shm::validate_name("service", &self.name)?;
+        self.restart.check()?;
+        if let Some(hz) = self.rate_hz {
+            if !(hz.is_finite() && hz > 0.0 && hz <= 10_000.0) {
+                bail!("rate_hz {hz} must be above 0 and at most 10000 (or absent for a sporadic service)");
+            }
+        }
+        let positive = |what: &str, v: Option<f64>| -> Result<()> {
+            match v {
+                Some(v) if !(v.is_finite() && v > 0.0) => bail!("{what} {v} must be above 0"),
+                _ => Ok(()),
+            }
+        };
+        positive("threshold_sigma", self.threshold_sigma.map(f64::from))?;
+        positive("min_threshold", self.min_threshold.map(f64::from))?;
+        positive("baseline_tau_s", self.baseline_tau_s.map(f64::from))?;
+        positive("min_speed", self.min_speed)?;
+        positive("window_s", self.window_s)?;
+        let contact_only = [
+            ("threshold_sigma", self.threshold_sigma.is_some()),
+            ("min_threshold", self.min_threshold.is_some()),
+            ("baseline_tau_s", self.baseline_tau_s.is_some()),
+        ];
+        let motion_only = [
+            ("input", self.input.is_some()),
+            ("min_speed", self.min_speed.is_some()),
+            ("window_s", self.window_s.is_some()),
+        ];
+        let (foreign, kind) = match self.kind {
+            ServiceKind::Contact => (&motion_only, "contact"),
+            ServiceKind::Motion => (&contact_only, "motion"),
+        };
+        if let Some((key, _)) = foreign.iter().find(|(_, set)| *set) {
+            bail!("`{key}` does not apply to a {kind} service");
+        }
+        if self.kind == ServiceKind::Motion {
+            let input = self.input.as_deref().unwrap_or("contact");
+            if !services.iter().any(|s| s.name == input && s.kind == ServiceKind::Contact) {
+                bail!("its input {input:?} is not a contact service of this config; add one or set `input`");
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Sensors chosen by id, in one layer (`[[region.in_layer]]`) or in all of them.
@@ -195,6 +317,17 @@ pub struct DriverConfig {
     pub seed: Option<u64>,
     #[serde(default, rename = "cable_pull")]
     pub cable_pulls: Vec<CablePull>,
+    /// Scripted contacts (`[[driver.contact]]`).
+    #[serde(default, rename = "contact")]
+    pub contacts: Vec<ScriptedContact>,
+    /// Whether random contacts press and slide all over the body (default true).
+    pub random_contacts: Option<bool>,
+    /// Uids of simulated dead taxels (their response never changes).
+    #[serde(default)]
+    pub dead_taxels: Vec<u32>,
+    /// Uids of simulated stuck (saturated) taxels.
+    #[serde(default)]
+    pub stuck_taxels: Vec<u32>,
     /// A calibration file (skinware or skin.calib format); the virtual skin
     /// calibrates itself when absent.
     pub calibration: Option<PathBuf>,
@@ -309,14 +442,38 @@ impl Config {
             if !names.insert(&driver.name) {
                 bail!("{}: driver name {:?} is used twice; driver names must be unique", path.display(), driver.name);
             }
-            driver.check_restart().with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
+            driver.restart.check().with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
             driver.build(&config.skin).with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
+        }
+        let mut channels: std::collections::HashSet<String> = std::collections::HashSet::new();
+        for driver in &config.drivers {
+            for spec in skinware::Driver::layers(&driver.build(&config.skin)?) {
+                channels.insert(spec.topology.name);
+            }
+        }
+        for service in &config.services {
+            service
+                .check(&config.services)
+                .with_context(|| format!("{}: service {:?}", path.display(), service.name))?;
+            for channel in [service.name.clone(), skinware_services::taxel_channel(&service.name)] {
+                if !channels.insert(channel.clone()) {
+                    bail!(
+                        "{}: channel name {channel:?} is used twice (layers and services share names)",
+                        path.display()
+                    );
+                }
+            }
         }
         for region in &config.regions {
             region.spec().with_context(|| format!("{}", path.display()))?;
         }
         config.base_dir = path.parent().map(Path::to_owned).unwrap_or_default();
         Ok(config)
+    }
+
+    /// The service called `name`.
+    pub fn service(&self, name: &str) -> Result<&ServiceConfig> {
+        self.services.iter().find(|s| s.name == name).with_context(|| format!("no service {name:?} in the config"))
     }
 
     /// The driver called `name`.
@@ -332,15 +489,17 @@ fn line_column(text: &str, offset: usize) -> (usize, usize) {
     (line, column)
 }
 
-impl DriverConfig {
-    fn check_restart(&self) -> Result<()> {
-        let RestartConfig { min_backoff_s: min, max_backoff_s: max } = self.restart;
+impl RestartConfig {
+    fn check(&self) -> Result<()> {
+        let RestartConfig { min_backoff_s: min, max_backoff_s: max } = *self;
         if !(min.is_finite() && max.is_finite() && min > 0.0 && min <= max && max <= 3600.0) {
             bail!("restart backoff [{min}, {max}] s must satisfy 0 < min_backoff_s <= max_backoff_s <= 3600");
         }
         Ok(())
     }
+}
 
+impl DriverConfig {
     /// Builds the driver this table describes.
     pub fn build(&self, skin: &str) -> Result<VirtualSkin> {
         skinware::shm::validate_name("driver", &self.name)?;
@@ -363,6 +522,10 @@ impl DriverConfig {
                     pull_files: None,
                     rt: self.rt.options(),
                     explicit_layers: None,
+                    contacts: self.contacts.clone(),
+                    random_contacts: self.random_contacts.unwrap_or(true),
+                    dead_taxels: self.dead_taxels.clone(),
+                    stuck_taxels: self.stuck_taxels.clone(),
                 };
                 if !self.explicit_layers.is_empty() {
                     if self.sensors.is_some() || self.layers.is_some() {

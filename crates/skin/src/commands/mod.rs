@@ -9,4 +9,6 @@ pub mod ls;
 pub mod pull;
 pub mod region;
 pub mod run;
+pub mod service;
+pub mod services;
 pub mod top;
