@@ -613,6 +613,65 @@ mod tests {
         assert!(err.contains("declares 20 sensors but its modules hold 15"), "{err}");
     }
 
+    const DRIVER: &str = "[[driver]]\nname = \"v\"\nkind = \"virtual\"\nsensors = 600\nlayers = 2\n";
+
+    fn with(extra: &str) -> Result<Config> {
+        load(&format!("{DRIVER}{extra}"))
+    }
+
+    #[test]
+    fn services_are_checked() {
+        let ok = with("[[service]]\nname = \"contact\"\nkind = \"contact\"\nrate_hz = 50\n[[service]]\nname = \"motion\"\nkind = \"motion\"\n").unwrap();
+        assert_eq!(ok.services.len(), 2);
+        assert_eq!(ok.services[1].mode(), skinware::service::ServiceMode::Sporadic);
+        let err = format!("{:#}", with("[[service]]\nname = \"m\"\nkind = \"motion\"\nrate_hz = 50\n").unwrap_err());
+        assert!(err.contains("service \"m\"") && err.contains("input \"contact\" is not a contact service"), "{err}");
+        let err = format!("{:#}", with("[[service]]\nname = \"c\"\nkind = \"contact\"\nmin_speed = 1\n").unwrap_err());
+        assert!(err.contains("`min_speed` does not apply to a contact service"), "{err}");
+        let err = format!("{:#}", with("[[service]]\nname = \"c\"\nkind = \"contact\"\nrate_hz = -5\n").unwrap_err());
+        assert!(err.contains("rate_hz -5 must be above 0"), "{err}");
+        let err = format!("{:#}", with("[[service]]\nname = \"v-1\"\nkind = \"contact\"\n").unwrap_err());
+        assert!(err.contains("channel name \"v-1\" is used twice"), "{err}");
+        let err = format!("{:#}", with("[[service]]\nname = \"c\"\nkind = \"vision\"\n").unwrap_err());
+        assert!(err.contains(":8:8:") && err.contains("unknown variant `vision`"), "{err}");
+    }
+
+    #[test]
+    fn regions_are_checked() {
+        let ok = with("[[region]]\nname = \"arms\"\nlinks = [\"left_forearm\"]\nmodules = [1]\nnear = { point = [0, 0, 1], radius = 0.1 }\n[[region.in_layer]]\nlayer = \"v-1\"\nuid_range = [400, 410]\n").unwrap();
+        let spec = ok.regions[0].spec().unwrap();
+        assert_eq!(spec.selectors.len(), 4);
+        let err = format!("{:#}", with("[[region]]\nname = \"r\"\nuid_range = [9, 3]\n").unwrap_err());
+        assert!(err.contains("uid_range [9, 3] is backwards"), "{err}");
+        let err = format!("{:#}", with("[[region]]\nname = \"r\"\nlink = \"torso\"\n").unwrap_err());
+        assert!(err.contains("unknown field `link`"), "{err}");
+        // Resolving against the skin happens when the geometry is built.
+        let config = with("[[region]]\nname = \"r\"\nlinks = [\"tail\"]\n").unwrap();
+        let err = format!("{:#}", crate::geometry::load_or_build_in(&config, &std::env::temp_dir()).unwrap_err());
+        assert!(err.contains("region \"r\": no sensor is on link \"tail\""), "{err}");
+    }
+
+    #[test]
+    fn a_skin_calib_calibration_is_imported() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/calibrated-hand.toml");
+        let config = Config::load(&path).unwrap();
+        let cache = std::env::temp_dir().join(format!("skin-calib-test-{}", std::process::id()));
+        let (geometry, _) = crate::geometry::load_or_build_in(&config, &cache).unwrap();
+        let _ = std::fs::remove_dir_all(&cache);
+        assert_eq!(geometry.sensor_count(), 24);
+        // uid 8: row 1, column 1 of the 5 mm grid.
+        assert!((geometry.positions[7][0] - 0.005).abs() < 1e-6 && (geometry.positions[7][1] - 0.005).abs() < 1e-6);
+        assert!((geometry.radii[0] - 0.002).abs() < 1e-7);
+        assert_eq!(geometry.region("palm").unwrap().len(), 12);
+        assert_eq!(geometry.links, ["palm", "fingers"]);
+        // A missing calibration file is named.
+        let broken = config.drivers[0].clone();
+        let mut config = config;
+        config.drivers = vec![crate::config::DriverConfig { calibration: Some("missing.calib".into()), ..broken }];
+        let err = format!("{:#}", crate::geometry::load_or_build_in(&config, &std::env::temp_dir()).unwrap_err());
+        assert!(err.contains("missing.calib") && err.contains("cannot read it"), "{err}");
+    }
+
     #[test]
     fn example_configs_load() {
         let examples = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples");
