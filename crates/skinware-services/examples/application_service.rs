@@ -33,16 +33,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let driver = VirtualSkin::new(VirtualSkinConfig { sensors: 3000, layers: 2, ..VirtualSkinConfig::default() })?;
     let layers: Vec<_> = driver.layers().into_iter().map(|l| l.topology).collect();
     let parts = ["torso", "left_forearm", "right_forearm"];
-    let regions: Vec<RegionSpec> = parts
-        .iter()
-        .map(|p| RegionSpec { name: (*p).into(), selectors: vec![Selector::Link((*p).into())] })
-        .collect();
+    let regions: Vec<RegionSpec> =
+        parts.iter().map(|p| RegionSpec { name: (*p).into(), selectors: vec![Selector::Link((*p).into())] }).collect();
     let geometry = SkinGeometry::build(&skin, &layers, &driver.calibration(), &regions)?;
     let handler = DriverHandler::start(&skin, Box::new(driver), &HandlerOptions::default())?;
 
     // The application: reads every layer, and publishes one record per region.
     let mut inputs = SkinInputs::new(&skin, &geometry);
-    let spec = ServiceSpec::new("hottest", parts.iter().map(|p| (*p).to_owned()).collect(), ServiceMode::Periodic { hz: 20.0 });
+    let spec = ServiceSpec::new(
+        "hottest",
+        parts.iter().map(|p| (*p).to_owned()).collect(),
+        ServiceMode::Periodic { hz: 20.0 },
+    );
     let mut service = ServiceWriter::<Hottest>::create(&skin, &spec, &WriterOptions::default())?;
     // Any other application reads it by name, typed.
     let mut user: Option<ServiceReader<Hottest>> = None;
