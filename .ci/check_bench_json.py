@@ -35,7 +35,7 @@ peers = json.loads((out / "peers.json").read_text())
 need(is_count(peers.get("memcpy_ns")) and peers["memcpy_ns"] > 0, "peers.json: memcpy_ns missing")
 need("cyclictest_us" in peers, "peers.json: cyclictest_us missing")
 seen = {(r.get("system"), r.get("readers")) for r in peers.get("records", [])}
-need(seen == {(s, n) for s in ("skinware", "rwlock", "iceoryx2") for n in (1, 4, 15)}, f"peers.json: records {sorted(seen)}")
+need(seen == {(s, n) for s in ("skinware", "skinware-spin", "rwlock", "iceoryx2") for n in (1, 4, 15)}, f"peers.json: records {sorted(seen)}")
 for record in peers.get("records", []):
     for side in ("publish_ns", "latency_ns"):
         for key in ("p50", "p99", "max"):

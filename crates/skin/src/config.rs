@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use serde::Deserialize;
 use skinware::geometry::{RegionSpec, Selector};
-use skinware_drivers::{CablePull, Rate, VirtualSkin, VirtualSkinConfig};
+use skinware_drivers::{CablePull, Rate, ScriptedContact, VirtualSkin, VirtualSkinConfig};
 
 /// A whole configuration file.
 #[derive(Debug, Deserialize)]
@@ -23,9 +23,131 @@ pub struct Config {
     /// Named regions of the skin.
     #[serde(rename = "region", default)]
     pub regions: Vec<RegionConfig>,
+    /// Services, each run in its own supervised process.
+    #[serde(rename = "service", default)]
+    pub services: Vec<ServiceConfig>,
     /// The directory of the config file: relative paths in it start there.
     #[serde(skip)]
     pub base_dir: PathBuf,
+}
+
+/// The kinds of service.
+#[derive(Debug, Deserialize, Clone, Copy, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum ServiceKind {
+    /// Contact detection (`skinware_services::contact`).
+    Contact,
+    /// Motion detection (`skinware_services::motion`), on a contact service.
+    Motion,
+}
+
+/// One `[[service]]` table.
+#[derive(Debug, Deserialize, Clone)]
+#[serde(deny_unknown_fields)]
+pub struct ServiceConfig {
+    pub name: String,
+    pub kind: ServiceKind,
+    /// Publishing rate; absent for a sporadic service (one frame per request).
+    pub rate_hz: Option<f64>,
+    /// Motion: the contact service it reads.
+    pub input: Option<String>,
+    /// Contact: touch threshold in noise standard deviations.
+    pub threshold_sigma: Option<f32>,
+    /// Contact: minimum touch threshold, response units.
+    pub min_threshold: Option<f32>,
+    /// Contact: time constant of the baseline (drift compensation), seconds.
+    pub baseline_tau_s: Option<f32>,
+    /// Motion: slower than this (m/s) is not sliding.
+    pub min_speed: Option<f64>,
+    /// Motion: velocity fitting window, seconds.
+    pub window_s: Option<f64>,
+    #[serde(default)]
+    pub restart: RestartConfig,
+}
+
+impl ServiceConfig {
+    /// Periodic at `rate_hz`, or sporadic.
+    pub fn mode(&self) -> skinware::service::ServiceMode {
+        match self.rate_hz {
+            Some(hz) => skinware::service::ServiceMode::Periodic { hz },
+            None => skinware::service::ServiceMode::Sporadic,
+        }
+    }
+
+    /// The contact service's settings.
+    pub fn contact(&self) -> skinware_services::ContactServiceConfig {
+        let defaults = skinware_services::ContactParams::default();
+        skinware_services::ContactServiceConfig {
+            name: self.name.clone(),
+            mode: self.mode(),
+            params: skinware_services::ContactParams {
+                threshold_sigma: self.threshold_sigma.unwrap_or(defaults.threshold_sigma),
+                min_threshold: self.min_threshold.unwrap_or(defaults.min_threshold),
+                baseline_tau_s: self.baseline_tau_s.unwrap_or(defaults.baseline_tau_s),
+                ..defaults
+            },
+        }
+    }
+
+    /// The motion service's settings.
+    pub fn motion(&self) -> skinware_services::MotionServiceConfig {
+        let defaults = skinware_services::MotionParams::default();
+        skinware_services::MotionServiceConfig {
+            name: self.name.clone(),
+            mode: self.mode(),
+            input: self.input.clone().unwrap_or_else(|| "contact".into()),
+            params: skinware_services::MotionParams {
+                min_speed: self.min_speed.unwrap_or(defaults.min_speed),
+                window_s: self.window_s.unwrap_or(defaults.window_s),
+                ..defaults
+            },
+        }
+    }
+
+    fn check(&self, services: &[ServiceConfig]) -> Result<()> {
+        skinware::shm::validate_name("service", &self.name)?;
+        self.restart.check()?;
+        if let Some(hz) = self.rate_hz {
+            if !(hz.is_finite() && hz > 0.0 && hz <= 10_000.0) {
+                bail!("rate_hz {hz} must be above 0 and at most 10000 (or absent for a sporadic service)");
+            }
+        }
+        let positive = |what: &str, v: Option<f64>| -> Result<()> {
+            match v {
+                Some(v) if !(v.is_finite() && v > 0.0) => bail!("{what} {v} must be above 0"),
+                _ => Ok(()),
+            }
+        };
+        positive("threshold_sigma", self.threshold_sigma.map(f64::from))?;
+        positive("min_threshold", self.min_threshold.map(f64::from))?;
+        positive("baseline_tau_s", self.baseline_tau_s.map(f64::from))?;
+        positive("min_speed", self.min_speed)?;
+        positive("window_s", self.window_s)?;
+        let contact_only = [
+            ("threshold_sigma", self.threshold_sigma.is_some()),
+            ("min_threshold", self.min_threshold.is_some()),
+            ("baseline_tau_s", self.baseline_tau_s.is_some()),
+        ];
+        let motion_only = [
+            ("input", self.input.is_some()),
+            ("min_speed", self.min_speed.is_some()),
+            ("window_s", self.window_s.is_some()),
+        ];
+        let (foreign, kind) = match self.kind {
+            ServiceKind::Contact => (&motion_only, "contact"),
+            ServiceKind::Motion => (&contact_only, "motion"),
+        };
+        if let Some((key, _)) = foreign.iter().find(|(_, set)| *set) {
+            bail!("`{key}` does not apply to a {kind} service");
+        }
+        if self.kind == ServiceKind::Motion {
+            let input = self.input.as_deref().unwrap_or("contact");
+            if !services.iter().any(|s| s.name == input && s.kind == ServiceKind::Contact) {
+                bail!("its input {input:?} is not a contact service of this config; add one or set `input`");
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Sensors chosen by id, in one layer (`[[region.in_layer]]`) or in all of them.
@@ -195,6 +317,17 @@ pub struct DriverConfig {
     pub seed: Option<u64>,
     #[serde(default, rename = "cable_pull")]
     pub cable_pulls: Vec<CablePull>,
+    /// Scripted contacts (`[[driver.contact]]`).
+    #[serde(default, rename = "contact")]
+    pub contacts: Vec<ScriptedContact>,
+    /// Whether random contacts press and slide all over the body (default true).
+    pub random_contacts: Option<bool>,
+    /// Uids of simulated dead taxels (their response never changes).
+    #[serde(default)]
+    pub dead_taxels: Vec<u32>,
+    /// Uids of simulated stuck (saturated) taxels.
+    #[serde(default)]
+    pub stuck_taxels: Vec<u32>,
     /// A calibration file (skinware or skin.calib format); the virtual skin
     /// calibrates itself when absent.
     pub calibration: Option<PathBuf>,
@@ -309,14 +442,38 @@ impl Config {
             if !names.insert(&driver.name) {
                 bail!("{}: driver name {:?} is used twice; driver names must be unique", path.display(), driver.name);
             }
-            driver.check_restart().with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
+            driver.restart.check().with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
             driver.build(&config.skin).with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
+        }
+        let mut channels: std::collections::HashSet<String> = std::collections::HashSet::new();
+        for driver in &config.drivers {
+            for spec in skinware::Driver::layers(&driver.build(&config.skin)?) {
+                channels.insert(spec.topology.name);
+            }
+        }
+        for service in &config.services {
+            service
+                .check(&config.services)
+                .with_context(|| format!("{}: service {:?}", path.display(), service.name))?;
+            for channel in [service.name.clone(), skinware_services::taxel_channel(&service.name)] {
+                if !channels.insert(channel.clone()) {
+                    bail!(
+                        "{}: channel name {channel:?} is used twice (layers and services share names)",
+                        path.display()
+                    );
+                }
+            }
         }
         for region in &config.regions {
             region.spec().with_context(|| format!("{}", path.display()))?;
         }
         config.base_dir = path.parent().map(Path::to_owned).unwrap_or_default();
         Ok(config)
+    }
+
+    /// The service called `name`.
+    pub fn service(&self, name: &str) -> Result<&ServiceConfig> {
+        self.services.iter().find(|s| s.name == name).with_context(|| format!("no service {name:?} in the config"))
     }
 
     /// The driver called `name`.
@@ -332,15 +489,17 @@ fn line_column(text: &str, offset: usize) -> (usize, usize) {
     (line, column)
 }
 
-impl DriverConfig {
-    fn check_restart(&self) -> Result<()> {
-        let RestartConfig { min_backoff_s: min, max_backoff_s: max } = self.restart;
+impl RestartConfig {
+    fn check(&self) -> Result<()> {
+        let RestartConfig { min_backoff_s: min, max_backoff_s: max } = *self;
         if !(min.is_finite() && max.is_finite() && min > 0.0 && min <= max && max <= 3600.0) {
             bail!("restart backoff [{min}, {max}] s must satisfy 0 < min_backoff_s <= max_backoff_s <= 3600");
         }
         Ok(())
     }
+}
 
+impl DriverConfig {
     /// Builds the driver this table describes.
     pub fn build(&self, skin: &str) -> Result<VirtualSkin> {
         skinware::shm::validate_name("driver", &self.name)?;
@@ -363,6 +522,10 @@ impl DriverConfig {
                     pull_files: None,
                     rt: self.rt.options(),
                     explicit_layers: None,
+                    contacts: self.contacts.clone(),
+                    random_contacts: self.random_contacts.unwrap_or(true),
+                    dead_taxels: self.dead_taxels.clone(),
+                    stuck_taxels: self.stuck_taxels.clone(),
                 };
                 if !self.explicit_layers.is_empty() {
                     if self.sensors.is_some() || self.layers.is_some() {
@@ -448,6 +611,65 @@ mod tests {
         assert!(err.contains("restart backoff"), "{err}");
         let err = format!("{:#}", explicit("20", "13, 14, 15").unwrap_err());
         assert!(err.contains("declares 20 sensors but its modules hold 15"), "{err}");
+    }
+
+    const DRIVER: &str = "[[driver]]\nname = \"v\"\nkind = \"virtual\"\nsensors = 600\nlayers = 2\n";
+
+    fn with(extra: &str) -> Result<Config> {
+        load(&format!("{DRIVER}{extra}"))
+    }
+
+    #[test]
+    fn services_are_checked() {
+        let ok = with("[[service]]\nname = \"contact\"\nkind = \"contact\"\nrate_hz = 50\n[[service]]\nname = \"motion\"\nkind = \"motion\"\n").unwrap();
+        assert_eq!(ok.services.len(), 2);
+        assert_eq!(ok.services[1].mode(), skinware::service::ServiceMode::Sporadic);
+        let err = format!("{:#}", with("[[service]]\nname = \"m\"\nkind = \"motion\"\nrate_hz = 50\n").unwrap_err());
+        assert!(err.contains("service \"m\"") && err.contains("input \"contact\" is not a contact service"), "{err}");
+        let err = format!("{:#}", with("[[service]]\nname = \"c\"\nkind = \"contact\"\nmin_speed = 1\n").unwrap_err());
+        assert!(err.contains("`min_speed` does not apply to a contact service"), "{err}");
+        let err = format!("{:#}", with("[[service]]\nname = \"c\"\nkind = \"contact\"\nrate_hz = -5\n").unwrap_err());
+        assert!(err.contains("rate_hz -5 must be above 0"), "{err}");
+        let err = format!("{:#}", with("[[service]]\nname = \"v-1\"\nkind = \"contact\"\n").unwrap_err());
+        assert!(err.contains("channel name \"v-1\" is used twice"), "{err}");
+        let err = format!("{:#}", with("[[service]]\nname = \"c\"\nkind = \"vision\"\n").unwrap_err());
+        assert!(err.contains(":8:8:") && err.contains("unknown variant `vision`"), "{err}");
+    }
+
+    #[test]
+    fn regions_are_checked() {
+        let ok = with("[[region]]\nname = \"arms\"\nlinks = [\"left_forearm\"]\nmodules = [1]\nnear = { point = [0, 0, 1], radius = 0.1 }\n[[region.in_layer]]\nlayer = \"v-1\"\nuid_range = [400, 410]\n").unwrap();
+        let spec = ok.regions[0].spec().unwrap();
+        assert_eq!(spec.selectors.len(), 4);
+        let err = format!("{:#}", with("[[region]]\nname = \"r\"\nuid_range = [9, 3]\n").unwrap_err());
+        assert!(err.contains("uid_range [9, 3] is backwards"), "{err}");
+        let err = format!("{:#}", with("[[region]]\nname = \"r\"\nlink = \"torso\"\n").unwrap_err());
+        assert!(err.contains("unknown field `link`"), "{err}");
+        // Resolving against the skin happens when the geometry is built.
+        let config = with("[[region]]\nname = \"r\"\nlinks = [\"tail\"]\n").unwrap();
+        let err = format!("{:#}", crate::geometry::load_or_build_in(&config, &std::env::temp_dir()).unwrap_err());
+        assert!(err.contains("region \"r\": no sensor is on link \"tail\""), "{err}");
+    }
+
+    #[test]
+    fn a_skin_calib_calibration_is_imported() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/calibrated-hand.toml");
+        let config = Config::load(&path).unwrap();
+        let cache = std::env::temp_dir().join(format!("skin-calib-test-{}", std::process::id()));
+        let (geometry, _) = crate::geometry::load_or_build_in(&config, &cache).unwrap();
+        let _ = std::fs::remove_dir_all(&cache);
+        assert_eq!(geometry.sensor_count(), 24);
+        // uid 8: row 1, column 1 of the 5 mm grid.
+        assert!((geometry.positions[7][0] - 0.005).abs() < 1e-6 && (geometry.positions[7][1] - 0.005).abs() < 1e-6);
+        assert!((geometry.radii[0] - 0.002).abs() < 1e-7);
+        assert_eq!(geometry.region("palm").unwrap().len(), 12);
+        assert_eq!(geometry.links, ["palm", "fingers"]);
+        // A missing calibration file is named.
+        let broken = config.drivers[0].clone();
+        let mut config = config;
+        config.drivers = vec![crate::config::DriverConfig { calibration: Some("missing.calib".into()), ..broken }];
+        let err = format!("{:#}", crate::geometry::load_or_build_in(&config, &std::env::temp_dir()).unwrap_err());
+        assert!(err.contains("missing.calib") && err.contains("cannot read it"), "{err}");
     }
 
     #[test]

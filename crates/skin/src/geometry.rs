@@ -40,7 +40,11 @@ pub fn inputs(config: &Config) -> Result<(Vec<LayerTopology>, Calibration, Vec<R
 /// The geometry of `config`, from the cache when its inputs have not changed.
 /// The flag says whether it came from the cache.
 pub fn load_or_build(config: &Config) -> Result<(SkinGeometry, bool)> {
+    load_or_build_in(config, &skinware::geometry::cache_dir())
+}
+
+/// [`load_or_build`] with the cache in `cache`.
+pub fn load_or_build_in(config: &Config, cache: &std::path::Path) -> Result<(SkinGeometry, bool)> {
     let (layers, calibration, regions) = inputs(config)?;
-    let cache = skinware::geometry::cache_dir();
-    Ok(SkinGeometry::load_or_build(&cache, &config.skin, &layers, &calibration, &regions)?)
+    Ok(SkinGeometry::load_or_build(cache, &config.skin, &layers, &calibration, &regions)?)
 }

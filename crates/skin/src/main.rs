@@ -37,6 +37,8 @@ enum Command {
     Clean(commands::clean::Args),
     /// Pull (or plug back) a virtual layer's cable, as a fault injection.
     Pull(commands::pull::Args),
+    /// List the services: state, rate, schema, inputs, per-frame cost.
+    Services(commands::services::Args),
     /// The skin's geometry: neighbour graph and 2-D map statistics, build times.
     Geometry(commands::geometry::Args),
     /// Serve a live web view of a running skin (heatmap, layer states, reader modes).
@@ -59,6 +61,15 @@ enum Command {
     /// One application process of a benchmark (what `skin bench` starts).
     #[command(hide = true)]
     BenchApp(commands::bench::AppArgs),
+    /// Run one service of CONFIG in this process (what `skin run` starts).
+    #[command(hide = true)]
+    Service {
+        /// The TOML configuration.
+        config: PathBuf,
+        /// The service's name in it.
+        #[arg(long)]
+        name: String,
+    },
     /// Run one driver of CONFIG in this process (what `skin run` starts).
     #[command(hide = true)]
     Driver {
@@ -85,6 +96,8 @@ fn main() -> std::process::ExitCode {
         Command::Pull(args) => commands::pull::run(&args),
         Command::Driver { config, name } => commands::driver::run(&config, &name),
         Command::Bench { which } => commands::bench::run(&which),
+        Command::Services(args) => commands::services::run(&args),
+        Command::Service { config, name } => commands::service::run(&config, &name),
         Command::Geometry(args) => commands::geometry::run(&args),
         Command::View(args) => commands::view::run(&args),
         Command::Demo(args) => commands::demo::run(&args),

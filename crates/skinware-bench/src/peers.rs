@@ -18,11 +18,15 @@ use crate::rwlock_peer::RwLockChannel;
 pub const SENSORS: usize = 30_848;
 const FRAME_BYTES: usize = SENSORS * 2;
 /// The systems compared (iceoryx2 with the cargo feature `iceoryx2`).
+/// `skinware-spin` is skinware with readers that anticipate each frame
+/// ([`skinware::ReaderOptions::anticipate`]).
 #[cfg(feature = "iceoryx2")]
-pub const SYSTEMS: &[&str] = &["skinware", "rwlock", "iceoryx2"];
+pub const SYSTEMS: &[&str] = &["skinware", "skinware-spin", "rwlock", "iceoryx2"];
 /// The systems compared (iceoryx2 with the cargo feature `iceoryx2`).
 #[cfg(not(feature = "iceoryx2"))]
-pub const SYSTEMS: &[&str] = &["skinware", "rwlock"];
+pub const SYSTEMS: &[&str] = &["skinware", "skinware-spin", "rwlock"];
+/// How long before each frame is due an anticipating reader starts spinning.
+pub const ANTICIPATE: Duration = Duration::from_micros(100);
 /// Frames per second delivered.
 pub const RATE_HZ: f64 = 200.0;
 
@@ -96,8 +100,12 @@ pub struct Cyclictest {
 /// The whole `peers.json`.
 #[derive(Debug, Serialize)]
 pub struct PeersReport {
-    /// Median time of a plain `memcpy` of one frame, ns.
+    /// Median time of a plain `memcpy` of one frame, ns (source hot in this
+    /// core's cache: the lower bound of any copy).
     pub memcpy_ns: u64,
+    /// Median time of a `memcpy` of one frame that another core has just
+    /// written, ns: the cache state a reader of a fresh frame faces.
+    pub memcpy_cross_core_ns: u64,
     /// `cyclictest` on this machine in the same run.
     pub cyclictest_us: Cyclictest,
     /// Frame size, bytes.
@@ -134,6 +142,7 @@ pub fn run(options: &PeersOptions) -> Result<PeersReport> {
     }
     std::fs::create_dir_all(&options.out).with_context(|| format!("cannot create {}", options.out.display()))?;
     let memcpy_ns = measure_memcpy();
+    let memcpy_cross_core_ns = measure_memcpy_cross_core();
     let cyclictest_us = run_cyclictest(if options.quick { 2_000 } else { 20_000 });
     let mut records = Vec::new();
     for system in SYSTEMS {
@@ -165,8 +174,15 @@ pub fn run(options: &PeersOptions) -> Result<PeersReport> {
             });
         }
     }
-    let report =
-        PeersReport { memcpy_ns, cyclictest_us, frame_bytes: FRAME_BYTES, rate_hz: RATE_HZ, records, busy_readers };
+    let report = PeersReport {
+        memcpy_ns,
+        memcpy_cross_core_ns,
+        cyclictest_us,
+        frame_bytes: FRAME_BYTES,
+        rate_hz: RATE_HZ,
+        records,
+        busy_readers,
+    };
     print(&report, seconds);
     let json = options.out.join("peers.json");
     std::fs::write(&json, serde_json::to_vec_pretty(&report)?)?;
@@ -196,7 +212,10 @@ fn print(report: &PeersReport, seconds: f64) {
         "skin bench peers: {} B frames ({} sensors) at {} Hz to waiting reader processes, {seconds} s each",
         report.frame_bytes, SENSORS, report.rate_hz
     );
-    println!("memcpy of one frame: {} ns (median)", report.memcpy_ns);
+    println!(
+        "memcpy of one frame: {} ns (median, hot), {} ns (median, just written by another core)",
+        report.memcpy_ns, report.memcpy_cross_core_ns
+    );
     match &report.cyclictest_us.skipped {
         Some(why) => println!("cyclictest: skipped ({why})"),
         None => println!(
@@ -222,7 +241,7 @@ fn print(report: &PeersReport, seconds: f64) {
     let us = |ns: u64| ns as f64 / 1e3;
     for r in &report.records {
         println!(
-            "{:<9} {:>7} | {:>7.1}us {:>7.1}us {:>7.1}us {:>6.1} | {:>7.1}us {:>7.1}us {:>7.1}us {:>6.1} | {:>7.1}us {:>6.1}",
+            "{:<13} {:>7} | {:>7.1}us {:>7.1}us {:>7.1}us {:>6.1} | {:>7.1}us {:>7.1}us {:>7.1}us {:>6.1} | {:>7.1}us {:>6.1}",
             r.system,
             r.readers,
             us(r.publish_ns.p50),
@@ -252,6 +271,41 @@ fn measure_memcpy() -> u64 {
         })
         .collect();
     Percentiles::of(&mut samples).p50
+}
+
+/// Median time of a `memcpy` of one frame that a thread on another CPU has
+/// just written (both threads pinned, taking turns; the lock is not timed).
+fn measure_memcpy_cross_core() -> u64 {
+    let source = std::sync::Mutex::new(vec![0u8; FRAME_BYTES]);
+    let turn = std::sync::Barrier::new(2);
+    let rounds = 500u32;
+    std::thread::scope(|scope| {
+        scope.spawn(|| {
+            let _ = skinware::os::pin_to_cpus(&[0]);
+            for round in 0..rounds {
+                source.lock().unwrap_or_else(|p| p.into_inner()).fill(round as u8);
+                turn.wait();
+                turn.wait();
+            }
+        });
+        let reader = scope.spawn(|| {
+            let _ = skinware::os::pin_to_cpus(&[1]);
+            let mut target = vec![0u8; FRAME_BYTES];
+            let mut samples = Vec::with_capacity(rounds as usize);
+            for _ in 0..rounds {
+                turn.wait();
+                let frame = source.lock().unwrap_or_else(|p| p.into_inner());
+                let started = skinware::os::monotonic_ns();
+                target.copy_from_slice(std::hint::black_box(&frame));
+                std::hint::black_box(&mut target);
+                samples.push(skinware::os::monotonic_ns() - started);
+                drop(frame);
+                turn.wait();
+            }
+            Percentiles::of(&mut samples).p50
+        });
+        reader.join().unwrap_or(0)
+    })
 }
 
 /// Runs `cyclictest` (from rt-tests) for `loops` wake-ups at 1 kHz, SCHED_FIFO 80.
@@ -368,7 +422,7 @@ fn run_mode(
         let writer = scope.spawn(move || -> Result<Vec<u64>> {
             let created = (|| -> Result<Side> {
                 Ok(match system {
-                    "skinware" => {
+                    "skinware" | "skinware-spin" => {
                         let options = WriterOptions { period: Some(period), ..WriterOptions::default() };
                         Side::Skinware(Box::new(Writer::create(name, "frame", FRAME_BYTES, b"peers", &options)?))
                     }
@@ -515,8 +569,10 @@ pub fn run_reader(args: &PeerReaderArgs) -> Result<()> {
                 samples.reads += 1;
             }
         }
-        "skinware" => {
-            let mut reader = Reader::open(&args.name, "frame")?;
+        "skinware" | "skinware-spin" => {
+            let anticipate = (args.system == "skinware-spin").then_some(ANTICIPATE);
+            let options = skinware::ReaderOptions { anticipate, ..skinware::ReaderOptions::default() };
+            let mut reader = Reader::open_with(&args.name, "frame", &options)?;
             while running() {
                 if let Ok(frame) = reader.wait_newer(Duration::from_millis(100)) {
                     let holding = skinware::os::monotonic_ns();

@@ -52,6 +52,107 @@ impl CablePull {
     }
 }
 
+/// A contact scripted at a known place, time and velocity (for tests and
+/// demonstrations): it presses for `press_s`, slides at `velocity` for
+/// `slide_s`, and releases for `release_s`.
+#[derive(Clone, Debug, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScriptedContact {
+    /// Body part (link) name, e.g. `"left_forearm"`.
+    pub part: String,
+    /// Seconds after the driver starts.
+    pub at_s: f64,
+    /// Where it starts: angle around the part's axis, degrees.
+    pub angle_deg: f64,
+    /// Where it starts: height along the part's axis from its base, metres.
+    pub height: f64,
+    /// Sliding velocity along the surface, m/s: `[around the axis, along it]`.
+    #[serde(default)]
+    pub velocity: [f64; 2],
+    /// Seconds to press.
+    #[serde(default = "default_ramp_s")]
+    pub press_s: f64,
+    /// Seconds to slide (or hold, without velocity).
+    pub slide_s: f64,
+    /// Seconds to release.
+    #[serde(default = "default_ramp_s")]
+    pub release_s: f64,
+    /// Peak response above the baseline.
+    #[serde(default = "default_peak")]
+    pub peak: f64,
+    /// Gaussian radius of the pressure, metres.
+    #[serde(default = "default_sigma")]
+    pub sigma: f64,
+}
+
+fn default_ramp_s() -> f64 {
+    0.3
+}
+fn default_peak() -> f64 {
+    30_000.0
+}
+fn default_sigma() -> f64 {
+    0.015
+}
+
+impl ScriptedContact {
+    fn blob(&self) -> Result<Blob, String> {
+        let part = BODY
+            .iter()
+            .position(|p| p.name == self.part)
+            .ok_or_else(|| format!("contact on part {:?}: the parts are {}", self.part, part_names()))?;
+        let numbers = [self.at_s, self.angle_deg, self.height, self.velocity[0], self.velocity[1], self.peak];
+        if !numbers.iter().all(|v| v.is_finite())
+            || self.at_s < 0.0
+            || !(self.press_s > 0.0 && self.slide_s >= 0.0 && self.release_s > 0.0 && self.sigma > 0.0)
+        {
+            return Err(format!(
+                "contact on {}: times must be finite, at_s >= 0, press_s, release_s and sigma above 0",
+                self.part
+            ));
+        }
+        Ok(Blob {
+            part,
+            start_s: self.at_s,
+            press_s: self.press_s,
+            slide_s: self.slide_s,
+            release_s: self.release_s,
+            angle: self.angle_deg.to_radians(),
+            height: self.height,
+            velocity: self.velocity,
+            peak: self.peak,
+            sigma: self.sigma,
+        })
+    }
+
+    /// The true centre of the contact at `t` seconds after the driver
+    /// started: its 3-D position and outward normal, or `None` outside its life.
+    pub fn centre_at(&self, t: f64) -> Option<([f64; 3], [f64; 3])> {
+        let blob = self.blob().ok()?;
+        let (_, angle, height) = blob.at(t)?;
+        Some(surface_point(blob.part, angle, height))
+    }
+
+    /// The true surface velocity while sliding, in 3-D, at `t` seconds.
+    pub fn velocity_3d_at(&self, t: f64) -> Option<[f64; 3]> {
+        let blob = self.blob().ok()?;
+        let (_, angle, _) = blob.at(t)?;
+        let tangent = [-angle.sin(), angle.cos(), 0.0];
+        Some([tangent[0] * self.velocity[0], tangent[1] * self.velocity[0], self.velocity[1]])
+    }
+}
+
+fn part_names() -> String {
+    BODY.iter().map(|p| p.name).collect::<Vec<_>>().join(", ")
+}
+
+/// The point of body part `part` at `angle` around its axis and `height` along it, and its normal.
+fn surface_point(part: usize, angle: f64, height: f64) -> ([f64; 3], [f64; 3]) {
+    let p = BODY[part];
+    let normal = [angle.cos(), angle.sin(), 0.0];
+    ([p.base[0] + p.radius * normal[0], p.base[1] + p.radius * normal[1], p.base[2] + height], normal)
+}
+
 /// Parameters of the virtual skin.
 #[derive(Clone, Debug)]
 pub struct VirtualSkinConfig {
@@ -80,6 +181,14 @@ pub struct VirtualSkinConfig {
     /// generating `layers` layers of `sensors` sensors (then `sensors`,
     /// `layers`, `sensors_per_module`, `modules_per_patch` and `rt` are unused).
     pub explicit_layers: Option<Vec<LayerSpec>>,
+    /// Contacts at known places and times.
+    pub contacts: Vec<ScriptedContact>,
+    /// Whether random contacts press, slide and release all over the body.
+    pub random_contacts: bool,
+    /// Uids of taxels that are dead: their response never changes.
+    pub dead_taxels: Vec<u32>,
+    /// Uids of taxels that are stuck at saturation.
+    pub stuck_taxels: Vec<u32>,
 }
 
 impl Default for VirtualSkinConfig {
@@ -96,6 +205,10 @@ impl Default for VirtualSkinConfig {
             pull_files: None,
             rt: RtOptions::default(),
             explicit_layers: None,
+            contacts: Vec::new(),
+            random_contacts: true,
+            dead_taxels: Vec::new(),
+            stuck_taxels: Vec::new(),
         }
     }
 }
@@ -126,6 +239,9 @@ impl VirtualSkinConfig {
         };
         if !(rates[0] > 0.0 && rates[0] <= rates[1] && rates[1] <= 100_000.0) {
             return Err(format!("rate {rates:?} Hz must be positive, min <= max, at most 100 kHz"));
+        }
+        for contact in &self.contacts {
+            contact.blob()?;
         }
         for pull in &self.cable_pulls {
             if !self.layer_names().contains(&pull.layer) {
@@ -244,6 +360,12 @@ impl VirtualBody {
         VirtualBody { places, taxel_radius: pitch / 3.0 }
     }
 
+    /// The point of body part `part` (by name) at `angle_rad` around its axis
+    /// and `height` metres along it, with its outward normal.
+    pub fn surface_point(part: &str, angle_rad: f64, height: f64) -> Option<([f64; 3], [f64; 3])> {
+        BODY.iter().position(|p| p.name == part).map(|p| surface_point(p, angle_rad, height))
+    }
+
     /// The name of body part `part`.
     pub fn part_name(part: usize) -> &'static str {
         BODY.get(part).map_or("unknown", |p| p.name)
@@ -299,11 +421,13 @@ struct Contacts {
 }
 
 impl Contacts {
-    /// Blobs for `horizon_s` seconds: `lanes` independent sequences of blobs.
-    fn new(seed: u64, horizon_s: f64) -> Contacts {
+    /// Blobs for `horizon_s` seconds: the scripted ones, and (if `random`)
+    /// four independent sequences of random blobs.
+    fn new(seed: u64, horizon_s: f64, scripted: &[ScriptedContact], random_contacts: bool) -> Contacts {
         let mut random = SplitMix(seed ^ 0xC0A7_AC75);
-        let mut blobs = Vec::new();
-        for _lane in 0..4 {
+        let mut blobs: Vec<Blob> = scripted.iter().filter_map(|c| c.blob().ok()).collect();
+        let lanes = if random_contacts { 4 } else { 0 };
+        for _lane in 0..lanes {
             let mut t = random.range(0.0, 1.0);
             while t < horizon_s {
                 let part = (random.next() % BODY.len() as u64) as usize;
@@ -431,13 +555,19 @@ impl Driver for VirtualSkin {
 
     fn start(&mut self) -> Result<Vec<Box<dyn LayerSource>>, DriverError> {
         let started = Instant::now();
-        let contacts = Arc::new(Contacts::new(self.config.seed, 3600.0));
+        let contacts =
+            Arc::new(Contacts::new(self.config.seed, 3600.0, &self.config.contacts, self.config.random_contacts));
         let mut sources: Vec<Box<dyn LayerSource>> = Vec::new();
         for (l, spec) in self.layers.iter().enumerate() {
             let first = self.first_sensor[l];
             let count = spec.topology.sensors.len();
             let pulls = self.config.cable_pulls.iter().filter(|p| p.layer == spec.topology.name).cloned().collect();
+            let local = |uids: &[u32]| -> Vec<usize> {
+                uids.iter().filter_map(|&uid| spec.topology.sensor_by_uid(uid)).collect()
+            };
             sources.push(Box::new(VirtualLayer {
+                dead: local(&self.config.dead_taxels),
+                stuck: local(&self.config.stuck_taxels),
                 name: spec.topology.name.clone(),
                 body: self.body.clone(),
                 contacts: contacts.clone(),
@@ -455,6 +585,9 @@ impl Driver for VirtualSkin {
 }
 
 struct VirtualLayer {
+    /// Local indices of dead and stuck taxels.
+    dead: Vec<usize>,
+    stuck: Vec<usize>,
     name: String,
     body: Arc<VirtualBody>,
     contacts: Arc<Contacts>,
@@ -515,6 +648,12 @@ impl LayerSource for VirtualLayer {
         for response in self.responses.iter_mut() {
             let noise = (self.noise.next() % 17) as i32 - 8;
             *response = (i32::from(*response) + noise).clamp(0, i32::from(u16::MAX)) as u16;
+        }
+        for &k in &self.dead {
+            self.responses[k] = 1000;
+        }
+        for &k in &self.stuck {
+            self.responses[k] = u16::MAX;
         }
         frame.write_responses(0, &self.responses)?;
         Ok(())

@@ -153,6 +153,19 @@ pub enum Error {
         expected_version: u32,
     },
 
+    /// A service channel whose records are not the type the reader asked for.
+    #[error(
+        "channel {channel} is not a service of {expected}: {reason}; attach with the payload type its service publishes (`skin services` lists them)"
+    )]
+    NotThisService {
+        /// `skin/channel`.
+        channel: String,
+        /// The payload type asked for (schema name and version).
+        expected: String,
+        /// What differs.
+        reason: String,
+    },
+
     /// A payload larger than the channel's frame.
     #[error("payload of {given} bytes does not fit channel {channel}'s {capacity}-byte frame")]
     PayloadTooLarge {

@@ -71,6 +71,8 @@ mod reader;
 #[cfg(not(loom))]
 pub mod rt;
 #[cfg(not(loom))]
+pub mod service;
+#[cfg(not(loom))]
 pub mod shm;
 #[cfg(not(loom))]
 mod stats;

@@ -27,6 +27,15 @@ pub struct ReaderOptions {
     pub expect_schema: Option<(String, u32)>,
     /// Directory of the segments; `None` for [`shm::segment_dir`].
     pub dir: Option<PathBuf>,
+    /// As-soon-as-available reads of a periodic writer: wake up this long
+    /// before the next frame is due and spin until it is published, instead
+    /// of sleeping on the futex until the writer wakes the reader. The
+    /// wake-up then costs a timer expiry (what `cyclictest` measures) rather
+    /// than a futex wake across CPUs, and the writer makes no wake syscall.
+    /// The price is up to twice this much spinning per frame; a frame later
+    /// than that is waited for on the futex as usual. `None` (the default)
+    /// never spins.
+    pub anticipate: Option<Duration>,
 }
 
 /// Consecutive laps after which a read gives up with [`Error::Lapped`]. With
@@ -47,6 +56,7 @@ pub struct Reader {
     skin: String,
     channel: String,
     dir: PathBuf,
+    anticipate_ns: Option<u64>,
 }
 
 impl std::fmt::Debug for Reader {
@@ -105,6 +115,7 @@ impl Reader {
             skin: skin.to_owned(),
             channel: channel.to_owned(),
             dir,
+            anticipate_ns: options.anticipate.map(|d| d.as_nanos().min(u128::from(u64::MAX / 4)) as u64),
         })
     }
 
@@ -305,11 +316,44 @@ impl Reader {
         self.latest()
     }
 
+    /// With [`ReaderOptions::anticipate`]: sleeps (without announcing itself
+    /// to the writer) until shortly before the frame after `after` is due,
+    /// then spins until it is published. `Ok(true)` if it was; `Ok(false)`
+    /// leaves the wait to the futex.
+    fn anticipate(&self, after: u64, deadline: u64) -> Result<bool> {
+        let (Some(window), Some(period)) = (self.anticipate_ns, self.writer_period()) else {
+            return Ok(false);
+        };
+        if self.last.seq != after || self.last.published_ns == 0 {
+            return Ok(false);
+        }
+        let expected = self.last.published_ns.saturating_add(period.as_nanos().min(u128::from(u64::MAX / 4)) as u64);
+        let now = os::monotonic_ns();
+        if expected.saturating_add(window) <= now || expected.saturating_sub(window) >= deadline {
+            return Ok(false);
+        }
+        if expected.saturating_sub(window) > now && !self.stop.sleep_until(expected - window) {
+            return Err(Error::Stopped { channel: self.shared.label.clone() });
+        }
+        let ring = self.shared.ring();
+        let spin_until = expected.saturating_add(window).min(deadline);
+        while os::monotonic_ns() < spin_until {
+            if ring.published() > after {
+                return Ok(true);
+            }
+            std::hint::spin_loop();
+        }
+        Ok(false)
+    }
+
     /// Sleeps until a frame with sequence number above `after` is published.
     fn wait_beyond(&self, after: u64, timeout: Duration) -> Result<()> {
         let ring = self.shared.ring();
         let notify = &self.shared.doorbell().notify;
         let deadline = os::monotonic_ns().saturating_add(timeout.as_nanos().min(u64::MAX as u128) as u64);
+        if self.anticipate(after, deadline)? {
+            return Ok(());
+        }
         loop {
             if self.stop.is_stopped() {
                 return Err(Error::Stopped { channel: self.shared.label.clone() });

@@ -363,3 +363,40 @@ fn description_is_published_to_readers() {
     let reader = Reader::open_with("skin", "layer", &ReaderOptions { ..dir.reader() }).unwrap();
     assert_eq!(reader.description(), description);
 }
+
+#[test]
+fn an_anticipating_reader_gets_every_frame_and_falls_back_to_the_futex_when_one_is_late() {
+    let dir = SegmentDir::new("anticipate");
+    let period = Duration::from_millis(5);
+    let options = WriterOptions { period: Some(period), ..dir.writer() };
+    let mut writer = Writer::create("skin", "layer", 8, b"", &options).unwrap();
+    publish(&mut writer, 1);
+    let reader_options = ReaderOptions { anticipate: Some(Duration::from_micros(300)), ..dir.reader() };
+    let mut reader = Reader::open_with("skin", "layer", &reader_options).unwrap();
+    assert_eq!(reader.latest().unwrap().seq(), 1);
+    let writer_thread = std::thread::spawn(move || {
+        let mut ticker = Ticker::new(period);
+        let stop = Stop::new();
+        for value in 2..=40u16 {
+            ticker.wait(&stop);
+            if value == 30 {
+                // Late by many periods: the reader's spinning window passes.
+                std::thread::sleep(Duration::from_millis(40));
+            }
+            publish(&mut writer, value);
+        }
+        writer
+    });
+    let mut seen = Vec::new();
+    while seen.last() != Some(&40) {
+        let frame = reader.wait_newer(Duration::from_secs(5)).unwrap();
+        assert_eq!(frame.responses()[0] as u64, frame.seq());
+        seen.push(frame.seq());
+    }
+    let _writer = writer_thread.join().unwrap();
+    // Every frame, in order (a reader this fast skips none on a 5 ms period,
+    // except when this machine deschedules it for a whole period).
+    assert!(seen.windows(2).all(|w| w[0] < w[1]), "{seen:?}");
+    assert!(seen.len() >= 30, "{seen:?}");
+    assert_eq!(reader.stats().skipped, 39 - seen.len() as u64);
+}

@@ -18,5 +18,19 @@ pub fn run(args: &Args) -> Result<()> {
         println!("removed {}", path.display());
     }
     println!("{} stale channel(s) removed from {}", removed.len(), dir.display());
+    // A published geometry outlives nothing: it goes when its skin has no live writer.
+    let live: std::collections::HashSet<String> = skinware::list_channels(&dir)?
+        .into_iter()
+        .filter(|c| c.state != skinware::WriterState::Gone)
+        .map(|c| c.skin)
+        .collect();
+    for entry in std::fs::read_dir(&dir)?.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if let Some(skin) = name.strip_prefix("skinware-geometry.") {
+            if !live.contains(skin) && std::fs::remove_file(entry.path()).is_ok() {
+                println!("removed {} (the geometry of skin {skin}, which has no live writer)", entry.path().display());
+            }
+        }
+    }
     Ok(())
 }

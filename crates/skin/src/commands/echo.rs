@@ -5,6 +5,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use skinware::{Error, Reader, ReaderOptions, Ticker};
+use skinware_services::{MotionRecord, RegionContacts, TaxelState, contact_flags, motion_flags};
 
 /// How `echo` reads.
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -21,7 +22,11 @@ enum Mode {
 #[derive(clap::Args)]
 pub struct Args {
     /// The layer (channel) name.
-    layer: String,
+    #[arg(required_unless_present = "service", conflicts_with = "service")]
+    layer: Option<String>,
+    /// Print a service's output instead (contact, motion or taxel states, decoded).
+    #[arg(long)]
+    service: Option<String>,
     /// The skin.
     #[arg(long, default_value = "default")]
     skin: String,
@@ -45,8 +50,14 @@ pub struct Args {
 /// Runs `skin echo`.
 pub fn run(args: &Args) -> Result<()> {
     let options = ReaderOptions { allow_gone: true, ..ReaderOptions::default() };
-    let mut reader = Reader::open_with(&args.skin, &args.layer, &options)
-        .with_context(|| format!("cannot attach to layer {}/{}", args.skin, args.layer))?;
+    let (what, channel) = match (&args.layer, &args.service) {
+        (_, Some(service)) => ("service", service.as_str()),
+        (Some(layer), None) => ("layer", layer.as_str()),
+        (None, None) => anyhow::bail!("name a layer, or a service with --service"),
+    };
+    let mut reader = Reader::open_with(&args.skin, channel, &options)
+        .with_context(|| format!("cannot attach to {what} {}/{channel}", args.skin))?;
+    let decoder = if args.service.is_some() { Some(ServiceDecoder::new(&reader)?) } else { None };
     let timeout = Duration::from_secs_f64(args.timeout.clamp(0.001, 86_400.0));
     let mut ticker = Ticker::from_hz(args.rate.clamp(0.001, 100_000.0));
     let mut out = std::io::stdout().lock();
@@ -61,6 +72,18 @@ pub fn run(args: &Args) -> Result<()> {
             }
         };
         match result {
+            Ok(frame) if decoder.is_some() => {
+                let decoder = decoder.as_ref().expect("checked");
+                writeln!(
+                    out,
+                    "seq {} acquired {} ns status {:#x}",
+                    frame.seq(),
+                    frame.acquired_ns(),
+                    frame.status().0
+                )?;
+                decoder.print(frame.bytes(), args.full, &mut out)?;
+                printed += 1;
+            }
             Ok(frame) => {
                 let responses = frame.responses();
                 let (min, max) = responses.iter().fold((u16::MAX, 0), |(lo, hi), &r| (lo.min(r), hi.max(r)));
@@ -87,4 +110,129 @@ pub fn run(args: &Args) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Decodes the records of the services this crate knows.
+struct ServiceDecoder {
+    schema: String,
+    labels: Vec<String>,
+}
+
+impl ServiceDecoder {
+    fn new(reader: &Reader) -> Result<ServiceDecoder> {
+        use skinware::service::ServicePayload;
+        if reader.kind() != skinware::ChannelKind::Service {
+            anyhow::bail!("{} is a layer, not a service; drop --service to echo it", reader.label());
+        }
+        let (schema, version) = reader.schema();
+        let info = skinware::service::ServiceInfo::parse(&reader.description());
+        let expected = match schema.as_str() {
+            s if s == RegionContacts::SCHEMA => Some((RegionContacts::VERSION, std::mem::size_of::<RegionContacts>())),
+            s if s == MotionRecord::SCHEMA => Some((MotionRecord::VERSION, std::mem::size_of::<MotionRecord>())),
+            s if s == TaxelState::SCHEMA => Some((TaxelState::VERSION, std::mem::size_of::<TaxelState>())),
+            _ => None,
+        };
+        if let Some((expected_version, record_bytes)) = expected {
+            if version != expected_version || info.as_ref().is_none_or(|i| i.record_bytes != record_bytes) {
+                anyhow::bail!(
+                    "{} publishes {schema} version {version}; this skin command reads version {expected_version}: rebuild it against the same skinware",
+                    reader.label()
+                );
+            }
+        }
+        Ok(ServiceDecoder { schema, labels: info.map(|i| i.labels).unwrap_or_default() })
+    }
+
+    fn label(&self, k: usize) -> String {
+        self.labels.get(k).cloned().unwrap_or_else(|| format!("#{k}"))
+    }
+
+    fn print(&self, bytes: &[u8], full: bool, out: &mut impl Write) -> Result<()> {
+        use skinware::service::ServicePayload;
+        let mm = |v: f32| v * 1e3;
+        if self.schema == RegionContacts::SCHEMA {
+            let records: Vec<RegionContacts> = bytemuck::pod_collect_to_vec(bytes);
+            for (k, r) in records.iter().enumerate() {
+                let faulted = if r.flags & contact_flags::INPUT_FAULTED != 0 { " INPUT FAULTED" } else { "" };
+                writeln!(
+                    out,
+                    "  {}: {} contacts, {} dead, {} stuck{faulted}",
+                    self.label(k),
+                    r.count,
+                    r.dead,
+                    r.stuck
+                )?;
+                for c in r.contacts() {
+                    writeln!(
+                        out,
+                        "    {} taxels, area {:.1} cm², total {:.0}, peak {:.0} at sensor {}; centroid [{:.1}, {:.1}, {:.1}] mm, map [{:.1}, {:.1}] mm, normal [{:.2}, {:.2}, {:.2}]",
+                        c.taxels,
+                        c.area_m2 * 1e4,
+                        c.total,
+                        c.peak,
+                        c.peak_sensor,
+                        mm(c.centroid[0]),
+                        mm(c.centroid[1]),
+                        mm(c.centroid[2]),
+                        mm(c.map[0]),
+                        mm(c.map[1]),
+                        c.normal[0],
+                        c.normal[1],
+                        c.normal[2]
+                    )?;
+                }
+            }
+        } else if self.schema == MotionRecord::SCHEMA {
+            let records: Vec<MotionRecord> = bytemuck::pod_collect_to_vec(bytes);
+            for (k, r) in records.iter().enumerate() {
+                let state = if r.flags & motion_flags::SLIDING != 0 {
+                    "sliding"
+                } else if r.flags & motion_flags::CONTACT != 0 {
+                    "contact"
+                } else {
+                    "no contact"
+                };
+                let faulted = if r.flags & motion_flags::INPUT_FAULTED != 0 { " INPUT FAULTED" } else { "" };
+                write!(out, "  {}: {state}{faulted}", self.label(k))?;
+                if r.flags & motion_flags::CONTACT != 0 {
+                    write!(
+                        out,
+                        " for {:.2} s; {:.1} mm/s in 3-D, {:.1} mm/s at {:.0}° on the map; from [{:.1}, {:.1}, {:.1}] to [{:.1}, {:.1}, {:.1}] mm",
+                        r.duration_s,
+                        mm(r.speed_3d),
+                        mm(r.speed_map),
+                        r.direction_map_rad.to_degrees(),
+                        mm(r.start_3d[0]),
+                        mm(r.start_3d[1]),
+                        mm(r.start_3d[2]),
+                        mm(r.now_3d[0]),
+                        mm(r.now_3d[1]),
+                        mm(r.now_3d[2])
+                    )?;
+                }
+                writeln!(out)?;
+            }
+        } else if self.schema == TaxelState::SCHEMA {
+            let mut counts = [0usize; 5];
+            for &b in bytes {
+                counts[usize::from(b).min(4)] += 1;
+            }
+            writeln!(
+                out,
+                "  {} taxels: {} idle, {} touched, {} dead, {} stuck, {} without input",
+                bytes.len(),
+                counts[0],
+                counts[1],
+                counts[2],
+                counts[3],
+                counts[4]
+            )?;
+            if full {
+                writeln!(out, "  states {bytes:?}")?;
+            }
+        } else {
+            writeln!(out, "  {} bytes of schema {:?} (not decoded by this command)", bytes.len(), self.schema)?;
+        }
+        Ok(())
+    }
 }

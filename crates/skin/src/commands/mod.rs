@@ -10,5 +10,7 @@ pub mod ls;
 pub mod pull;
 pub mod region;
 pub mod run;
+pub mod service;
+pub mod services;
 pub mod top;
 pub mod view;

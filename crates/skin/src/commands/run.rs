@@ -11,10 +11,14 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 
-use crate::config::{Config, DriverConfig};
+use crate::config::{Config, RestartConfig};
 
+/// A supervised child process: a driver or a service.
 struct Supervised {
-    config: DriverConfig,
+    /// "driver" or "service": also the hidden subcommand that runs it.
+    role: &'static str,
+    name: String,
+    restart: RestartConfig,
     child: Option<Child>,
     started: Instant,
     restart_at: Option<Instant>,
@@ -22,14 +26,14 @@ struct Supervised {
     restarts: u32,
 }
 
-fn spawn_driver(config_path: &Path, name: &str) -> Result<Child> {
+fn spawn_child(config_path: &Path, role: &str, name: &str) -> Result<Child> {
     Command::new(std::env::current_exe().context("cannot find the skin executable")?)
-        .arg("driver")
+        .arg(role)
         .arg(config_path)
         .arg("--name")
         .arg(name)
         .spawn()
-        .with_context(|| format!("cannot start driver {name}"))
+        .with_context(|| format!("cannot start {role} {name}"))
 }
 
 /// Runs the supervisor until SIGINT or SIGTERM.
@@ -49,8 +53,8 @@ pub fn shutdown_on_signals() -> Result<Arc<AtomicBool>> {
 }
 
 /// Publishes the geometry of the config at `config_path`, starts its drivers
-/// and restarts any that exits, until `shutdown` is set; then stops them and
-/// removes the skin's channels and geometry.
+/// and services and restarts any that exits, until `shutdown` is set; then
+/// stops them and removes the skin's channels and geometry.
 pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
     let config = Config::load(config_path)?;
     let config_path = std::fs::canonicalize(config_path)?;
@@ -64,47 +68,59 @@ pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
         path = %published.display(),
         "geometry published"
     );
-    let mut drivers = Vec::new();
-    for driver in &config.drivers {
-        let child = spawn_driver(&config_path, &driver.name)?;
-        tracing::info!(driver = %driver.name, pid = child.id(), "driver started");
-        drivers.push(Supervised {
-            config: driver.clone(),
+    let roles = config
+        .drivers
+        .iter()
+        .map(|d| ("driver", &d.name, &d.restart))
+        .chain(config.services.iter().map(|s| ("service", &s.name, &s.restart)));
+    let mut children = Vec::new();
+    for (role, name, restart) in roles {
+        let child = spawn_child(&config_path, role, name)?;
+        tracing::info!(role, name = %name, pid = child.id(), "started");
+        children.push(Supervised {
+            role,
+            name: name.clone(),
+            restart: restart.clone(),
             child: Some(child),
             started: Instant::now(),
             restart_at: None,
-            backoff_s: driver.restart.min_backoff_s,
+            backoff_s: restart.min_backoff_s,
             restarts: 0,
         });
     }
-    println!("skin {}: {} driver(s) running; Ctrl-C to stop", config.skin, drivers.len());
+    println!(
+        "skin {}: {} supervised(s) and {} service(s) running; Ctrl-C to stop",
+        config.skin,
+        config.drivers.len(),
+        config.services.len()
+    );
     let mut layer_states: HashMap<String, &'static str> = HashMap::new();
     let mut next_state_poll = Instant::now();
     while !shutdown.load(Ordering::Relaxed) {
         let now = Instant::now();
-        for driver in &mut drivers {
-            let name = &driver.config.name;
-            if let Some(child) = &mut driver.child {
+        for supervised in &mut children {
+            let (name, role) = (&supervised.name, supervised.role);
+            if let Some(child) = &mut supervised.child {
                 if let Some(status) = child.try_wait()? {
-                    tracing::warn!(driver = %name, %status, backoff_s = driver.backoff_s, "driver exited; restarting");
-                    driver.child = None;
-                    driver.restart_at = Some(now + Duration::from_secs_f64(driver.backoff_s));
-                    driver.backoff_s = (driver.backoff_s * 2.0).min(driver.config.restart.max_backoff_s);
-                } else if now.duration_since(driver.started) > Duration::from_secs(30) {
-                    driver.backoff_s = driver.config.restart.min_backoff_s;
+                    tracing::warn!(role, name = %name, %status, backoff_s = supervised.backoff_s, "exited; restarting");
+                    supervised.child = None;
+                    supervised.restart_at = Some(now + Duration::from_secs_f64(supervised.backoff_s));
+                    supervised.backoff_s = (supervised.backoff_s * 2.0).min(supervised.restart.max_backoff_s);
+                } else if now.duration_since(supervised.started) > Duration::from_secs(30) {
+                    supervised.backoff_s = supervised.restart.min_backoff_s;
                 }
-            } else if driver.restart_at.is_some_and(|at| at <= now) {
-                match spawn_driver(&config_path, name) {
+            } else if supervised.restart_at.is_some_and(|at| at <= now) {
+                match spawn_child(&config_path, role, name) {
                     Ok(child) => {
-                        driver.restarts += 1;
-                        tracing::info!(driver = %name, pid = child.id(), restarts = driver.restarts, "driver restarted");
-                        driver.child = Some(child);
-                        driver.started = now;
-                        driver.restart_at = None;
+                        supervised.restarts += 1;
+                        tracing::info!(role, name = %name, pid = child.id(), restarts = supervised.restarts, "restarted");
+                        supervised.child = Some(child);
+                        supervised.started = now;
+                        supervised.restart_at = None;
                     }
                     Err(e) => {
-                        tracing::error!(driver = %name, "{e:#}");
-                        driver.restart_at = Some(now + Duration::from_secs_f64(driver.backoff_s));
+                        tracing::error!(role, name = %name, "{e:#}");
+                        supervised.restart_at = Some(now + Duration::from_secs_f64(supervised.backoff_s));
                     }
                 }
             }
@@ -117,19 +133,19 @@ pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
     }
 
     tracing::info!("shutting down");
-    for driver in &drivers {
-        if let Some(child) = &driver.child {
+    for supervised in &children {
+        if let Some(child) = &supervised.child {
             if let Some(pid) = rustix::process::Pid::from_raw(child.id() as i32) {
                 let _ = rustix::process::kill_process(pid, rustix::process::Signal::TERM);
             }
         }
     }
     let deadline = Instant::now() + Duration::from_secs(5);
-    for driver in &mut drivers {
-        if let Some(child) = &mut driver.child {
+    for supervised in &mut children {
+        if let Some(child) = &mut supervised.child {
             while child.try_wait()?.is_none() {
                 if Instant::now() > deadline {
-                    tracing::warn!(driver = %driver.config.name, "driver did not stop in 5 s; killing it");
+                    tracing::warn!(role = supervised.role, name = %supervised.name, "did not stop in 5 s; killing it");
                     let _ = child.kill();
                     let _ = child.wait();
                     break;

@@ -1,0 +1,124 @@
+//! `skin services`: the services of a skin, with their state, rate, inputs
+//! and per-frame cost.
+
+use std::io::Write;
+use std::time::Duration;
+
+use anyhow::Result;
+use serde::Serialize;
+use skinware::service::ServiceInfo;
+use skinware::{ChannelKind, FrameStatus, Reader, ReaderOptions};
+
+/// Arguments of `skin services`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Only this skin.
+    #[arg(long)]
+    skin: Option<String>,
+    /// Print JSON for scripts.
+    #[arg(long)]
+    json: bool,
+}
+
+/// One service as `skin services` reports it.
+#[derive(Debug, Serialize)]
+struct ServiceReport {
+    skin: String,
+    name: String,
+    state: &'static str,
+    schema: String,
+    schema_version: u32,
+    records: usize,
+    record_bytes: usize,
+    inputs: Vec<String>,
+    /// The newest frame says an input is faulted, gone or stale.
+    inputs_faulted: bool,
+    rate_hz: f64,
+    /// `None` for a sporadic service.
+    nominal_rate_hz: Option<f64>,
+    frames: u64,
+    faults: u64,
+    /// Mean per-frame cost (computing and publishing), ns.
+    cost_ns_mean: u64,
+    cost_ns_max: u64,
+    writer_pid: u32,
+}
+
+/// Runs `skin services`.
+pub fn run(args: &Args) -> Result<()> {
+    let channels = skinware::list_channels(&skinware::shm::segment_dir())?;
+    let mut readers = Vec::new();
+    for info in channels {
+        if args.skin.as_deref().is_some_and(|s| s != info.skin) || info.kind != Some(ChannelKind::Service) {
+            continue;
+        }
+        let options = ReaderOptions { allow_gone: true, ..ReaderOptions::default() };
+        if let Ok(reader) = Reader::open_with(&info.skin, &info.channel, &options) {
+            let before = reader.writer_stats().frames;
+            readers.push((info, reader, before));
+        }
+    }
+    let window = Duration::from_millis(500);
+    std::thread::sleep(window);
+    let mut reports = Vec::new();
+    for (info, mut reader, before) in readers {
+        let stats = reader.writer_stats();
+        let description = ServiceInfo::parse(&reader.description());
+        let (schema, schema_version) = reader.schema();
+        let state = reader.writer_state();
+        let inputs_faulted = reader.latest().map(|f| f.status().contains(FrameStatus::INPUT_FAULTED)).unwrap_or(false);
+        let rate = if state == skinware::WriterState::Gone {
+            0.0
+        } else {
+            (stats.frames - before) as f64 / window.as_secs_f64()
+        };
+        let record_bytes = description.as_ref().map_or(0, |d| d.record_bytes);
+        reports.push(ServiceReport {
+            skin: info.skin,
+            name: info.channel,
+            state: state.as_str(),
+            schema,
+            schema_version,
+            records: reader.payload_bytes().checked_div(record_bytes).unwrap_or(0),
+            record_bytes,
+            inputs: description.as_ref().map(|d| d.inputs.clone()).unwrap_or_default(),
+            inputs_faulted,
+            rate_hz: (rate * 10.0).round() / 10.0,
+            nominal_rate_hz: description.as_ref().and_then(|d| d.rate_hz),
+            frames: stats.frames,
+            faults: stats.faults,
+            cost_ns_mean: stats.write_ns_mean,
+            cost_ns_max: stats.write_ns_max,
+            writer_pid: reader.writer_pid(),
+        });
+    }
+    let mut out = std::io::stdout().lock();
+    if args.json {
+        serde_json::to_writer_pretty(&mut out, &serde_json::json!({ "services": reports }))?;
+        writeln!(out)?;
+        return Ok(());
+    }
+    if reports.is_empty() {
+        writeln!(out, "no services (add [[service]] tables to the config of `skin run`; see examples/README.md)")?;
+    }
+    for r in &reports {
+        let nominal = r.nominal_rate_hz.map_or("sporadic".to_owned(), |hz| format!("{hz:.1} Hz nominal"));
+        writeln!(
+            out,
+            "{}/{}  [{}{}]  {} v{}, {} records of {} B; {:.1} Hz measured ({nominal}); cost mean {:.0} µs, max {:.0} µs; inputs: {}",
+            r.skin,
+            r.name,
+            r.state,
+            if r.inputs_faulted { ", inputs faulted" } else { "" },
+            r.schema,
+            r.schema_version,
+            r.records,
+            r.record_bytes,
+            r.rate_hz,
+            r.cost_ns_mean as f64 / 1e3,
+            r.cost_ns_max as f64 / 1e3,
+            if r.inputs.len() > 6 { format!("{} layers", r.inputs.len()) } else { r.inputs.join(", ") }
+        )?;
+    }
+    Ok(())
+}

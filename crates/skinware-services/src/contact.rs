@@ -1,0 +1,409 @@
+//! Contact detection, in the spirit of iCub's skinManager: a per-taxel
+//! baseline that follows slow drift while the taxel is not touched, a touch
+//! threshold from each taxel's measured noise, contacts as connected groups
+//! of touched taxels on the neighbour graph, reported per region; and taxels
+//! that never change (dead) or sit at saturation (stuck).
+
+use skinware::geometry::SkinGeometry;
+use skinware::service::ServicePayload;
+
+/// Contacts reported per region and frame; more are counted in `flags`.
+pub const MAX_CONTACTS: usize = 8;
+
+/// One contact: a connected group of touched taxels within one region.
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
+pub struct Contact {
+    /// Touched taxels in it.
+    pub taxels: u32,
+    /// Global index of its most pressed taxel.
+    pub peak_sensor: u32,
+    /// Pressure-weighted centroid, metres.
+    pub centroid: [f32; 3],
+    /// Pressure-weighted mean outward normal (unit).
+    pub normal: [f32; 3],
+    /// Pressure-weighted centroid on the 2-D map, metres.
+    pub map: [f32; 2],
+    /// Sensing area of its taxels, m².
+    pub area_m2: f32,
+    /// Sum of responses above baseline.
+    pub total: f32,
+    /// Largest response above baseline.
+    pub peak: f32,
+}
+
+/// The contacts of one region in one frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
+pub struct RegionContacts {
+    /// Valid entries of `contacts`, largest total pressure first.
+    pub count: u32,
+    /// [`contact_flags`].
+    pub flags: u32,
+    /// Dead taxels in the region (never change).
+    pub dead: u32,
+    /// Stuck taxels in the region (saturated).
+    pub stuck: u32,
+    /// The contacts.
+    pub contacts: [Contact; MAX_CONTACTS],
+}
+
+impl RegionContacts {
+    /// The valid contacts.
+    pub fn contacts(&self) -> &[Contact] {
+        &self.contacts[..(self.count as usize).min(MAX_CONTACTS)]
+    }
+}
+
+impl ServicePayload for RegionContacts {
+    const SCHEMA: &'static str = "skinware.contacts";
+    const VERSION: u32 = 1;
+}
+
+/// Bits of [`RegionContacts::flags`].
+pub mod contact_flags {
+    /// A layer holding some of the region's taxels is faulted, gone or stale:
+    /// those taxels are left out, and contacts there are not seen.
+    pub const INPUT_FAULTED: u32 = 1;
+    /// More than [`super::MAX_CONTACTS`] contacts; the smallest were dropped.
+    pub const MORE_CONTACTS: u32 = 2;
+}
+
+/// The state of one taxel, published per taxel by the contact service's
+/// `NAME-taxels` channel.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(transparent)]
+pub struct TaxelState(pub u8);
+
+impl TaxelState {
+    /// Not touched.
+    pub const IDLE: TaxelState = TaxelState(0);
+    /// Above its touch threshold.
+    pub const TOUCHED: TaxelState = TaxelState(1);
+    /// Its response never changes.
+    pub const DEAD: TaxelState = TaxelState(2);
+    /// Its response sits at saturation.
+    pub const STUCK: TaxelState = TaxelState(3);
+    /// Its layer is faulted, gone or stale.
+    pub const NO_INPUT: TaxelState = TaxelState(4);
+}
+
+impl ServicePayload for TaxelState {
+    const SCHEMA: &'static str = "skinware.taxel-state";
+    const VERSION: u32 = 1;
+}
+
+/// Parameters of contact detection.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ContactParams {
+    /// The touch threshold is this many noise standard deviations above the baseline...
+    pub threshold_sigma: f32,
+    /// ...and at least this many response units.
+    pub min_threshold: f32,
+    /// Time constant of the baseline and noise estimates, seconds.
+    pub baseline_tau_s: f32,
+    /// A taxel whose response has not changed for this many frames is dead.
+    pub dead_frames: u32,
+    /// A response at or above this is saturated...
+    pub saturation: u16,
+    /// ...and a taxel saturated for this many frames is stuck.
+    pub stuck_frames: u32,
+}
+
+impl Default for ContactParams {
+    fn default() -> Self {
+        ContactParams {
+            threshold_sigma: 6.0,
+            min_threshold: 60.0,
+            baseline_tau_s: 3.0,
+            dead_frames: 100,
+            saturation: 65_000,
+            stuck_frames: 50,
+        }
+    }
+}
+
+/// Running per-region accumulation of one contact.
+#[derive(Clone, Copy, Default)]
+struct Accumulator {
+    weight: f64,
+    position: [f64; 3],
+    normal: [f64; 3],
+    map: [f64; 2],
+    map_weight: f64,
+    taxels: u32,
+    area: f64,
+    peak: f32,
+    peak_sensor: u32,
+}
+
+/// The contact detector's state: one baseline and noise estimate per taxel.
+pub struct ContactDetector {
+    params: ContactParams,
+    /// Region names (the geometry's, or one `skin` region for the whole skin).
+    names: Vec<String>,
+    /// Each sensor's regions, compressed rows.
+    member_offsets: Vec<u32>,
+    member_regions: Vec<u32>,
+    /// Each region's layers.
+    region_layers: Vec<Vec<usize>>,
+    layer_of: Vec<u16>,
+    baseline: Vec<f32>,
+    variance: Vec<f32>,
+    initialized: Vec<bool>,
+    last: Vec<u16>,
+    unchanged: Vec<u32>,
+    saturated: Vec<u32>,
+    residual: Vec<f32>,
+    states: Vec<TaxelState>,
+    component: Vec<u32>,
+    queue: Vec<u32>,
+    accumulators: Vec<Accumulator>,
+    touched_regions: Vec<u32>,
+    found: Vec<Vec<Contact>>,
+}
+
+impl ContactDetector {
+    /// A detector for the skin of `geometry`, reporting per region (or for
+    /// the whole skin as one region `skin` when the geometry has none).
+    pub fn new(geometry: &SkinGeometry, params: ContactParams) -> ContactDetector {
+        let n = geometry.sensor_count();
+        let (names, sets): (Vec<String>, Vec<Vec<u32>>) = if geometry.regions.names.is_empty() {
+            (vec!["skin".to_owned()], vec![(0..n as u32).collect()])
+        } else {
+            (geometry.regions.names.clone(), geometry.regions.sensors.clone())
+        };
+        let mut per_sensor: Vec<Vec<u32>> = vec![Vec::new(); n];
+        for (r, set) in sets.iter().enumerate() {
+            for &s in set {
+                per_sensor[s as usize].push(r as u32);
+            }
+        }
+        let mut member_offsets = vec![0u32];
+        let mut member_regions = Vec::new();
+        for regions in &per_sensor {
+            member_regions.extend_from_slice(regions);
+            member_offsets.push(member_regions.len() as u32);
+        }
+        let mut layer_of = vec![0u16; n];
+        for l in 0..geometry.layers.len() {
+            for s in &mut layer_of[geometry.layer_starts[l]..geometry.layer_starts[l + 1]] {
+                *s = l as u16;
+            }
+        }
+        let region_layers = sets
+            .iter()
+            .map(|set| {
+                let mut layers: Vec<usize> = set.iter().map(|&s| layer_of[s as usize] as usize).collect();
+                layers.sort_unstable();
+                layers.dedup();
+                layers
+            })
+            .collect();
+        let regions = names.len();
+        ContactDetector {
+            params,
+            names,
+            member_offsets,
+            member_regions,
+            region_layers,
+            layer_of,
+            baseline: vec![0.0; n],
+            variance: vec![0.0; n],
+            initialized: vec![false; n],
+            last: vec![0; n],
+            unchanged: vec![0; n],
+            saturated: vec![0; n],
+            residual: vec![0.0; n],
+            states: vec![TaxelState::IDLE; n],
+            component: vec![u32::MAX; n],
+            queue: Vec::new(),
+            accumulators: vec![Accumulator::default(); regions],
+            touched_regions: Vec::new(),
+            found: vec![Vec::new(); regions],
+        }
+    }
+
+    /// The regions reported, in record order.
+    pub fn region_names(&self) -> &[String] {
+        &self.names
+    }
+
+    /// Every taxel's state after the last [`update`](Self::update).
+    pub fn taxel_states(&self) -> &[TaxelState] {
+        &self.states
+    }
+
+    /// Processes one frame of the whole skin: `responses` in global order,
+    /// `layer_ok` per layer, `dt_s` seconds since the previous frame. Writes
+    /// one record per region into `out`.
+    pub fn update(
+        &mut self,
+        geometry: &SkinGeometry,
+        responses: &[u16],
+        layer_ok: &[bool],
+        dt_s: f32,
+        out: &mut [RegionContacts],
+    ) {
+        let p = &self.params;
+        let alpha = 1.0 - (-dt_s.max(0.0) / p.baseline_tau_s.max(1e-3)).exp();
+        for (i, &r) in responses.iter().enumerate() {
+            if !layer_ok[self.layer_of[i] as usize] {
+                self.states[i] = TaxelState::NO_INPUT;
+                continue;
+            }
+            let value = f32::from(r);
+            if !self.initialized[i] {
+                self.initialized[i] = true;
+                self.baseline[i] = value;
+                self.last[i] = r;
+            }
+            self.unchanged[i] = if r == self.last[i] { self.unchanged[i].saturating_add(1) } else { 0 };
+            self.last[i] = r;
+            self.saturated[i] = if r >= p.saturation { self.saturated[i].saturating_add(1) } else { 0 };
+            let residual = value - self.baseline[i];
+            let threshold = (p.threshold_sigma * self.variance[i].sqrt()).max(p.min_threshold);
+            // Saturated also means unchanged: test stuck first.
+            self.states[i] = if self.saturated[i] >= p.stuck_frames {
+                TaxelState::STUCK
+            } else if self.unchanged[i] >= p.dead_frames {
+                TaxelState::DEAD
+            } else if residual > threshold {
+                TaxelState::TOUCHED
+            } else {
+                TaxelState::IDLE
+            };
+            self.residual[i] = residual;
+            if self.states[i] == TaxelState::IDLE {
+                // Drift compensation and noise estimate, only while untouched.
+                self.baseline[i] += alpha * residual;
+                self.variance[i] += alpha * (residual * residual - self.variance[i]);
+            }
+        }
+        for found in &mut self.found {
+            found.clear();
+        }
+        let n = responses.len();
+        let mut next_component = 0u32;
+        for start in 0..n {
+            if self.states[start] != TaxelState::TOUCHED || self.component[start] != u32::MAX {
+                continue;
+            }
+            self.queue.clear();
+            self.queue.push(start as u32);
+            self.component[start] = next_component;
+            let mut k = 0;
+            while k < self.queue.len() {
+                let i = self.queue[k] as usize;
+                for &j in geometry.neighbours_of(i) {
+                    if self.states[j as usize] == TaxelState::TOUCHED && self.component[j as usize] == u32::MAX {
+                        self.component[j as usize] = next_component;
+                        self.queue.push(j);
+                    }
+                }
+                k += 1;
+            }
+            next_component += 1;
+            self.accumulate_component(geometry);
+        }
+        for (r, record) in out.iter_mut().enumerate() {
+            let found = &mut self.found[r];
+            found.sort_by(|a, b| b.total.total_cmp(&a.total));
+            let mut flags = 0;
+            if self.region_layers[r].iter().any(|&l| !layer_ok[l]) {
+                flags |= contact_flags::INPUT_FAULTED;
+            }
+            if found.len() > MAX_CONTACTS {
+                flags |= contact_flags::MORE_CONTACTS;
+            }
+            *record =
+                RegionContacts { count: found.len().min(MAX_CONTACTS) as u32, flags, ..RegionContacts::default() };
+            for (slot, contact) in record.contacts.iter_mut().zip(found.iter()) {
+                *slot = *contact;
+            }
+        }
+        // Dead and stuck counts per region.
+        for (i, state) in self.states.iter().enumerate() {
+            if *state == TaxelState::DEAD || *state == TaxelState::STUCK {
+                let regions =
+                    &self.member_regions[self.member_offsets[i] as usize..self.member_offsets[i + 1] as usize];
+                for &r in regions {
+                    if *state == TaxelState::DEAD {
+                        out[r as usize].dead += 1;
+                    } else {
+                        out[r as usize].stuck += 1;
+                    }
+                }
+            }
+        }
+        for c in self.component.iter_mut() {
+            *c = u32::MAX;
+        }
+    }
+
+    /// Splits the component in `queue` by region and adds one contact to each.
+    fn accumulate_component(&mut self, geometry: &SkinGeometry) {
+        self.touched_regions.clear();
+        for &i in &self.queue {
+            let i = i as usize;
+            let w = f64::from(self.residual[i].max(0.0));
+            let position = geometry.positions[i].map(f64::from);
+            let normal = geometry.normals[i].map(f64::from);
+            let radius = f64::from(geometry.radii[i]);
+            for &r in &self.member_regions[self.member_offsets[i] as usize..self.member_offsets[i + 1] as usize] {
+                let a = &mut self.accumulators[r as usize];
+                if a.taxels == 0 {
+                    self.touched_regions.push(r);
+                }
+                a.weight += w;
+                for c in 0..3 {
+                    a.position[c] += w * position[c];
+                    a.normal[c] += w * normal[c];
+                }
+                a.taxels += 1;
+                a.area += std::f64::consts::PI * radius * radius;
+                if self.residual[i] > a.peak || a.taxels == 1 {
+                    a.peak = self.residual[i];
+                    a.peak_sensor = i as u32;
+                }
+            }
+        }
+        // The map centroid, relative to the peak: a contact across a seam of
+        // the map keeps the taxels on the peak's side only.
+        for &i in &self.queue {
+            let i = i as usize;
+            let w = f64::from(self.residual[i].max(0.0));
+            let m = geometry.map.positions[i];
+            for &r in &self.member_regions[self.member_offsets[i] as usize..self.member_offsets[i + 1] as usize] {
+                let a = &mut self.accumulators[r as usize];
+                let peak = a.peak_sensor as usize;
+                let pm = geometry.map.positions[peak];
+                let map_step = ((m[0] - pm[0]).powi(2) + (m[1] - pm[1]).powi(2)).sqrt();
+                let p = geometry.positions[i];
+                let pp = geometry.positions[peak];
+                let step = ((p[0] - pp[0]).powi(2) + (p[1] - pp[1]).powi(2) + (p[2] - pp[2]).powi(2)).sqrt();
+                if map_step <= 2.0 * step + 1e-3 {
+                    a.map[0] += w * f64::from(m[0]);
+                    a.map[1] += w * f64::from(m[1]);
+                    a.map_weight += w;
+                }
+            }
+        }
+        for &r in &self.touched_regions {
+            let a = std::mem::take(&mut self.accumulators[r as usize]);
+            let w = a.weight.max(1e-12);
+            let norm = a.normal.iter().map(|v| v * v).sum::<f64>().sqrt().max(1e-12);
+            let mw = a.map_weight.max(1e-12);
+            self.found[r as usize].push(Contact {
+                taxels: a.taxels,
+                peak_sensor: a.peak_sensor,
+                centroid: a.position.map(|v| (v / w) as f32),
+                normal: a.normal.map(|v| (v / norm) as f32),
+                map: a.map.map(|v| (v / mw) as f32),
+                area_m2: a.area as f32,
+                total: a.weight as f32,
+                peak: a.peak,
+            });
+        }
+    }
+}

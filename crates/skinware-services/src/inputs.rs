@@ -1,0 +1,84 @@
+//! A service's view of the skin's layers: the newest responses of every
+//! layer in one global array (the geometry's sensor order), and which layers
+//! are healthy.
+
+use std::time::Duration;
+
+use skinware::geometry::SkinGeometry;
+use skinware::{Reader, ReaderOptions, WriterState};
+
+/// A layer whose newest frame is older than this many of its periods is stale.
+const STALE_PERIODS: u64 = 5;
+
+/// Readers of every layer of a skin.
+pub struct SkinInputs {
+    skin: String,
+    names: Vec<String>,
+    readers: Vec<Option<Reader>>,
+    starts: Vec<usize>,
+    /// Every sensor's newest response, in global order.
+    pub responses: Vec<u16>,
+    /// Whether each layer's responses are current (running, not faulted, not stale).
+    pub layer_ok: Vec<bool>,
+    /// The newest acquisition time over the layers, monotonic ns.
+    pub acquired_ns: u64,
+}
+
+impl SkinInputs {
+    /// Readers for the layers of `geometry`. Layers that do not exist yet are
+    /// retried on every [`update`](Self::update), and count as down meanwhile.
+    pub fn new(skin: &str, geometry: &SkinGeometry) -> SkinInputs {
+        let names: Vec<String> = geometry.layers.iter().map(|l| l.name.clone()).collect();
+        SkinInputs {
+            skin: skin.to_owned(),
+            readers: names.iter().map(|_| None).collect(),
+            names,
+            starts: geometry.layer_starts.clone(),
+            responses: vec![0; geometry.sensor_count()],
+            layer_ok: vec![false; geometry.layers.len()],
+            acquired_ns: 0,
+        }
+    }
+
+    /// The layer names.
+    pub fn names(&self) -> &[String] {
+        &self.names
+    }
+
+    /// Reads the newest frame of every layer. A layer is down when it cannot
+    /// be opened, its writer is not running, its frame is faulted, or its
+    /// newest frame is stale; its sensors then keep their last responses,
+    /// which callers must not use as fresh. Returns whether every layer is up.
+    pub fn update(&mut self) -> bool {
+        let now = skinware::os::monotonic_ns();
+        for l in 0..self.names.len() {
+            if self.readers[l].is_none() {
+                let options = ReaderOptions { allow_gone: true, ..ReaderOptions::default() };
+                self.readers[l] = Reader::open_with(&self.skin, &self.names[l], &options).ok();
+            }
+            let Some(reader) = &mut self.readers[l] else {
+                self.layer_ok[l] = false;
+                continue;
+            };
+            reader.follow_recreated();
+            let running = reader.writer_state() == WriterState::Running;
+            let period = reader.writer_period().unwrap_or(Duration::from_millis(100));
+            let range = self.starts[l]..self.starts[l + 1];
+            self.layer_ok[l] = match reader.latest() {
+                Ok(frame) if !frame.status().is_fault() && frame.responses().len() == range.len() => {
+                    self.responses[range].copy_from_slice(frame.responses());
+                    self.acquired_ns = self.acquired_ns.max(frame.acquired_ns());
+                    let age = now.saturating_sub(frame.published_ns());
+                    running && age <= STALE_PERIODS * period.as_nanos() as u64
+                }
+                _ => false,
+            };
+        }
+        self.layer_ok.iter().all(|&ok| ok)
+    }
+
+    /// The layer of global sensor `sensor`.
+    pub fn layer_of(&self, sensor: usize) -> usize {
+        self.starts.partition_point(|&s| s <= sensor) - 1
+    }
+}
