@@ -49,8 +49,8 @@ impl OverlaySource {
 
     /// The newest overlays. Never blocks: called once per update sent.
     pub fn poll(&mut self) -> Overlays {
-        // The motion and contact services do not exist yet; they are read here
-        // once they publish their channels.
+        // Not wired yet: the motion and contact services' channels are to be
+        // read here (their contacts become markers, their motions arrows).
         Overlays::default()
     }
 }
