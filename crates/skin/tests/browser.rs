@@ -364,6 +364,11 @@ fn demo_in_headless_chromium() {
     wait_for("a contact to be drawn", Duration::from_secs(30), || {
         (browser.run(CANVAS_PROBE)["lit"].as_u64()? > 20).then_some(())
     });
+    // The services' overlays: contact markers and motion arrows.
+    wait_for("contact markers and motion arrows", Duration::from_secs(30), || {
+        let stats = browser.run(STATS_PROBE);
+        (stats["updatesWithMarkers"].as_u64()? > 0 && stats["updatesWithArrows"].as_u64()? > 0).then_some(())
+    });
 
     // 2. Hovering names a taxel.
     let tooltip = browser.run(

@@ -53,6 +53,19 @@ fn humanoid_geometry_is_local_symmetric_and_flattens_with_little_distortion() {
     assert!(quality.flipped_fraction < 0.01, "{quality:?}");
     assert_eq!(quality.stacked_fraction, 0.0, "{quality:?}");
     assert!(!quality.pieces_overlap, "{quality:?}");
+    // Up on the robot is up on the map: neighbours that climb in 3-D climb on the map.
+    let (mut climbing, mut agreeing) = (0, 0);
+    for i in 0..n {
+        for &j in geometry.neighbours_of(i) {
+            let rise = geometry.positions[j as usize][2] - geometry.positions[i][2];
+            if rise.abs() > 0.5 * stats.mean_edge_m as f32 {
+                climbing += 1;
+                let map_rise = geometry.map.positions[j as usize][1] - geometry.map.positions[i][1];
+                agreeing += usize::from(map_rise * rise > 0.0);
+            }
+        }
+    }
+    assert!(agreeing as f64 > 0.99 * climbing as f64, "{agreeing} of {climbing} climbing edges climb on the map");
     // A tube is cut once, along a seam: a small share of the edges.
     assert!(quality.seam_edge_fraction < 0.02, "{quality:?}");
 }

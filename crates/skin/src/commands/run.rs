@@ -89,7 +89,7 @@ pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
         });
     }
     println!(
-        "skin {}: {} supervised(s) and {} service(s) running; Ctrl-C to stop",
+        "skin {}: {} driver(s) and {} service(s) running; Ctrl-C to stop",
         config.skin,
         config.drivers.len(),
         config.services.len()

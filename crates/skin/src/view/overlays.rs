@@ -3,7 +3,13 @@
 
 #![forbid(unsafe_code)]
 
-/// A motion, from where it started to where it is now on the map, metres.
+use std::time::{Duration, Instant};
+
+use skinware::service::ServiceReader;
+use skinware::{ChannelKind, ReaderOptions, WriterState};
+use skinware_services::{MotionRecord, RegionContacts, motion_flags};
+
+/// A sliding contact: from where it is on the map towards where it is going, metres.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Arrow {
     /// Tail, map metres.
@@ -33,24 +39,107 @@ pub struct Overlays {
     pub markers: Vec<Marker>,
 }
 
-/// Where the viewer gets its overlays from: the skin's services.
-#[derive(Debug)]
+/// Seconds of motion an arrow shows: it points from the contact to where it
+/// will be this much later at its current velocity.
+const ARROW_SECONDS: f32 = 0.5;
+/// How often the segment directory is searched for new services.
+const DISCOVERY_PERIOD: Duration = Duration::from_secs(1);
+
+/// Where the viewer gets its overlays from: the skin's contact and motion
+/// services, found by their schemas, whatever they are called.
 pub struct OverlaySource {
-    /// The skin whose services to read.
-    #[allow(dead_code)]
     skin: String,
+    contacts: Vec<(String, ServiceReader<RegionContacts>)>,
+    motions: Vec<(String, ServiceReader<MotionRecord>)>,
+    next_discovery: Instant,
+}
+
+impl std::fmt::Debug for OverlaySource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("OverlaySource")
+            .field("skin", &self.skin)
+            .field("contacts", &self.contacts.iter().map(|(n, _)| n).collect::<Vec<_>>())
+            .field("motions", &self.motions.iter().map(|(n, _)| n).collect::<Vec<_>>())
+            .finish()
+    }
 }
 
 impl OverlaySource {
     /// The overlay source of `skin`'s services.
     pub fn new(skin: &str) -> OverlaySource {
-        OverlaySource { skin: skin.to_owned() }
+        OverlaySource {
+            skin: skin.to_owned(),
+            contacts: Vec::new(),
+            motions: Vec::new(),
+            next_discovery: Instant::now(),
+        }
     }
 
-    /// The newest overlays. Never blocks: called once per update sent.
+    /// Attaches to services that appeared since the last look.
+    fn discover(&mut self) {
+        let Ok(channels) = skinware::list_channels(&skinware::shm::segment_dir()) else {
+            return;
+        };
+        let options = ReaderOptions { allow_gone: true, ..ReaderOptions::default() };
+        for channel in channels.iter().filter(|c| c.skin == self.skin && c.kind == Some(ChannelKind::Service)) {
+            let name = &channel.channel;
+            if self.contacts.iter().any(|(n, _)| n == name) || self.motions.iter().any(|(n, _)| n == name) {
+                continue;
+            }
+            // A channel of another schema refuses both; that is how they are told apart.
+            if let Ok(reader) = ServiceReader::<RegionContacts>::open_with(&self.skin, name, &options) {
+                self.contacts.push((name.clone(), reader));
+            } else if let Ok(reader) = ServiceReader::<MotionRecord>::open_with(&self.skin, name, &options) {
+                self.motions.push((name.clone(), reader));
+            }
+        }
+    }
+
+    /// The newest overlays. Never blocks: called once per update sent. A
+    /// service that is gone contributes nothing rather than stale marks.
     pub fn poll(&mut self) -> Overlays {
-        // Not wired yet: the motion and contact services' channels are to be
-        // read here (their contacts become markers, their motions arrows).
-        Overlays::default()
+        if Instant::now() >= self.next_discovery {
+            self.next_discovery = Instant::now() + DISCOVERY_PERIOD;
+            self.discover();
+        }
+        let mut overlays = Overlays::default();
+        // Overlapping regions report the same contact once each: keep one per peak taxel.
+        let mut peaks = std::collections::HashSet::new();
+        for (_, reader) in &mut self.contacts {
+            reader.reader().follow_recreated();
+            if reader.writer_state() == WriterState::Gone {
+                continue;
+            }
+            let Ok(frame) = reader.latest() else { continue };
+            for region in frame.records {
+                for contact in region.contacts() {
+                    if peaks.insert(contact.peak_sensor) {
+                        overlays.markers.push(Marker {
+                            at: contact.map,
+                            radius: (contact.area_m2 / std::f32::consts::PI).sqrt(),
+                            pressure: contact.peak,
+                        });
+                    }
+                }
+            }
+        }
+        let mut heads = Vec::new();
+        for (_, reader) in &mut self.motions {
+            reader.reader().follow_recreated();
+            if reader.writer_state() == WriterState::Gone {
+                continue;
+            }
+            let Ok(frame) = reader.latest() else { continue };
+            for record in frame.records {
+                if record.flags & motion_flags::SLIDING == 0 || heads.contains(&record.now_map) {
+                    continue;
+                }
+                heads.push(record.now_map);
+                let [x, y] = record.now_map;
+                let [vx, vy] = record.velocity_map;
+                overlays.arrows.push(Arrow { from: [x, y], to: [x + vx * ARROW_SECONDS, y + vy * ARROW_SECONDS] });
+            }
+        }
+        overlays
     }
 }

@@ -30,6 +30,8 @@ const stats = window.skinStats = {
   lastUpdateNumber: -1, mode: null, fps: 0, updatesPerSecond: 0, animationFrames: 0, renderMs: 0,
   // Per layer, the sequence number of the newest frame received.
   seqs: [],
+  // Overlays in the newest update, and how many updates carried some.
+  markers: 0, arrows: 0, updatesWithMarkers: 0, updatesWithArrows: 0,
 };
 
 let skin = null;         // decoded geometry
@@ -128,6 +130,10 @@ function applyUpdate(buffer) {
     next.markers.push([0, 4, 8, 12].map(d => view.getFloat32(at + d, true)));
   }
   overlays = next;
+  stats.markers = next.markers.length;
+  stats.arrows = next.arrows.length;
+  if (next.markers.length) stats.updatesWithMarkers++;
+  if (next.arrows.length) stats.updatesWithArrows++;
   for (const l of included) {
     const { first, count } = skin.layers[l];
     const fresh = new Uint16Array(buffer, at, count);

@@ -17,8 +17,9 @@
 //!   the line opposite the root that the shortest paths reach from both sides:
 //!   the only edges whose length the map does not keep. They are counted as
 //!   *seam* edges, not as distortion.
-//! * Each piece is turned to its principal axes (longest axis vertical) and the
-//!   pieces are shelf-packed without overlap, a few pitches apart.
+//! * Each piece is turned so that the robot's up is up on the map (or, for a
+//!   piece that does not climb, to its principal axes), and the pieces are
+//!   shelf-packed without overlap, a few pitches apart.
 //!
 //! The map measures itself ([`MapQuality`]): neighbour-distance error, seam
 //! edges, triangles of the neighbour graph whose orientation the map flips,
@@ -102,7 +103,7 @@ pub fn build(positions: &[[f64; 3]], normals: &[[f64; 3]], graph: &NeighbourGrap
         }
         let root = centre(members, positions, graph, &mut scratch);
         surface.exponential_map(root, &mut scratch, &mut placement);
-        principal_axes(members, &mut placement.uv);
+        surface.orient_up(members, &mut placement.uv);
     }
     let mut uv = placement.uv;
     let pitch = median_edge(positions, graph).max(1e-6);
@@ -298,6 +299,51 @@ impl Surface<'_> {
     }
 }
 
+impl Surface<'_> {
+    /// Turns a piece so that the robot's up (+z) points up (+y) on the map,
+    /// centred on 0: the map direction in which neighbour steps climb, summed
+    /// over the piece's edges (seams left out). A piece that does not climb
+    /// (a horizontal plate) is turned to its principal axes instead.
+    fn orient_up(&self, members: &[u32], uv: &mut [[f64; 2]]) {
+        let mut up = [0.0f64; 2];
+        let mut climb = 0.0;
+        for &i in members {
+            let i = i as usize;
+            for &j in self.graph.of(i) {
+                let j = j as usize;
+                let (step, map) =
+                    (distance(&self.positions[i], &self.positions[j]), [uv[j][0] - uv[i][0], uv[j][1] - uv[i][1]]);
+                let map_length = map[0].hypot(map[1]);
+                if map_length > SEAM_RATIO * step || map_length < 1e-12 {
+                    continue;
+                }
+                let rise = self.positions[j][2] - self.positions[i][2];
+                up[0] += rise * map[0] / map_length;
+                up[1] += rise * map[1] / map_length;
+                climb += rise.abs();
+            }
+        }
+        if up[0].hypot(up[1]) < 0.1 * climb || climb == 0.0 {
+            principal_axes(members, uv);
+            return;
+        }
+        let turn = std::f64::consts::FRAC_PI_2 - up[1].atan2(up[0]);
+        rotate_about_centroid(members, uv, turn);
+    }
+}
+
+/// Turns a piece by `turn` radians about its centroid, then centres it on 0.
+fn rotate_about_centroid(members: &[u32], uv: &mut [[f64; 2]], turn: f64) {
+    let count = members.len() as f64;
+    let mean = members.iter().fold([0.0, 0.0], |m, &i| [m[0] + uv[i as usize][0], m[1] + uv[i as usize][1]]);
+    let mean = [mean[0] / count, mean[1] / count];
+    let (sin, cos) = turn.sin_cos();
+    for &i in members {
+        let (x, y) = (uv[i as usize][0] - mean[0], uv[i as usize][1] - mean[1]);
+        uv[i as usize] = [x * cos - y * sin, x * sin + y * cos];
+    }
+}
+
 /// Turns a piece so that its longest principal axis is vertical, centred on 0.
 fn principal_axes(members: &[u32], uv: &mut [[f64; 2]]) {
     let count = members.len() as f64;
@@ -312,12 +358,7 @@ fn principal_axes(members: &[u32], uv: &mut [[f64; 2]]) {
     }
     // The major axis angle; rotate it onto +y.
     let major = 0.5 * (2.0 * sxy).atan2(sxx - syy);
-    let turn = std::f64::consts::FRAC_PI_2 - major;
-    let (sin, cos) = turn.sin_cos();
-    for &i in members {
-        let (x, y) = (uv[i as usize][0] - mean[0], uv[i as usize][1] - mean[1]);
-        uv[i as usize] = [x * cos - y * sin, x * sin + y * cos];
-    }
+    rotate_about_centroid(members, uv, std::f64::consts::FRAC_PI_2 - major);
 }
 
 fn median_edge(positions: &[[f64; 3]], graph: &NeighbourGraph) -> f64 {
