@@ -65,16 +65,32 @@ pub(crate) fn futex_wake_private(word: &AtomicU32) {
     let _ = futex::wake(word, futex::Flags::PRIVATE, i32::MAX as u32);
 }
 
-fn ofd_lock_request(kind: libc::c_short) -> libc::flock {
-    libc::flock { l_type: kind, l_whence: libc::SEEK_SET as libc::c_short, l_start: 0, l_len: 1, l_pid: 0 }
+fn ofd_lock_request(kind: libc::c_short, byte: libc::off_t) -> libc::flock {
+    libc::flock { l_type: kind, l_whence: libc::SEEK_SET as libc::c_short, l_start: byte, l_len: 1, l_pid: 0 }
 }
+
+/// The byte whose lock says the writer is alive.
+const LIVENESS_BYTE: libc::off_t = 0;
+/// The byte whose lock makes one would-be reviver the only one.
+const REVIVER_BYTE: libc::off_t = 1;
 
 /// Takes the writer's liveness lock: an exclusive open-file-description lock on
 /// byte 0. The kernel drops it when the last descriptor of that open file closes,
 /// in particular when the process dies, however it dies. Returns `false` if
 /// another open file description holds it.
 pub(crate) fn try_lock_writer(fd: impl AsFd) -> io::Result<bool> {
-    let mut request = ofd_lock_request(libc::F_WRLCK as libc::c_short);
+    try_lock_byte(fd, LIVENESS_BYTE)
+}
+
+/// Takes the reviver's lock (byte 1): whoever holds it may prepare a dead
+/// writer's segment for revival while readers still see it gone, and then take
+/// the liveness lock. Held for the writer's life, like the liveness lock.
+pub(crate) fn try_lock_reviver(fd: impl AsFd) -> io::Result<bool> {
+    try_lock_byte(fd, REVIVER_BYTE)
+}
+
+fn try_lock_byte(fd: impl AsFd, byte: libc::off_t) -> io::Result<bool> {
+    let mut request = ofd_lock_request(libc::F_WRLCK as libc::c_short, byte);
     // SAFETY: `fd` is a valid open descriptor for the duration of the call, and
     // `request` is a valid, initialised `struct flock` that F_OFD_SETLK only reads.
     let rc = unsafe { libc::fcntl(fd.as_fd().as_raw_fd(), libc::F_OFD_SETLK, &mut request) };
@@ -91,7 +107,7 @@ pub(crate) fn try_lock_writer(fd: impl AsFd) -> io::Result<bool> {
 /// Whether some open file description holds the writer's liveness lock. It only
 /// asks (F_OFD_GETLK), so probing can never get in a reviving writer's way.
 pub(crate) fn writer_lock_held(fd: impl AsFd) -> io::Result<bool> {
-    let mut request = ofd_lock_request(libc::F_RDLCK as libc::c_short);
+    let mut request = ofd_lock_request(libc::F_RDLCK as libc::c_short, LIVENESS_BYTE);
     // SAFETY: `fd` is a valid open descriptor for the duration of the call, and
     // `request` is a valid `struct flock` that F_OFD_GETLK reads and overwrites.
     let rc = unsafe { libc::fcntl(fd.as_fd().as_raw_fd(), libc::F_OFD_GETLK, &mut request) };

@@ -129,7 +129,20 @@ impl Writer {
         // another creator or a cleaner and tries again.
         for _ in 0..16 {
             if let Some((shared, revived)) = Writer::try_revive(&path, &label, &layout, &init)? {
-                return Writer::start(shared, revived, options);
+                // The header names this process before readers can see it alive.
+                let writer = Writer::start(shared, revived, options)?;
+                let locked = os::try_lock_writer(&writer.shared.file).map_err(|source| Error::Os {
+                    op: "lock",
+                    path: path.clone(),
+                    source,
+                })?;
+                if locked {
+                    return Ok(writer);
+                }
+                // Only a cleaner unlinking the dead segment takes the liveness
+                // lock without the reviver's: it is going; create a new one.
+                drop(writer);
+                continue;
             }
             let temp =
                 dir.join(format!("{}{skin}.{channel}.{}.{}", shm::TEMP_PREFIX, std::process::id(), os::monotonic_ns()));
@@ -167,9 +180,12 @@ impl Writer {
                 return Err(Error::Os { op: "open", path: path.to_owned(), source });
             }
         };
-        let locked =
-            os::try_lock_writer(&file).map_err(|source| Error::Os { op: "lock", path: path.to_owned(), source })?;
-        if !locked {
+        // The reviver's lock first, and the liveness lock only once the header
+        // names this process: until then readers see the channel gone, never
+        // "running" with the dead writer's pid.
+        let lock_error = |source| Error::Os { op: "lock", path: path.to_owned(), source };
+        let reviver = os::try_lock_reviver(&file).map_err(lock_error)?;
+        if !reviver || os::writer_lock_held(&file).map_err(lock_error)? {
             let pid = channel::map_validated(label.to_owned(), path.to_owned(), file, false)
                 .map(|shared| shared.header().writer_pid.load(Ordering::Relaxed))
                 .unwrap_or(0);

@@ -281,6 +281,65 @@ fn revival_continues_the_sequence_for_existing_readers() {
     assert_eq!(frame.responses(), &[50; 4]);
 }
 
+/// Set in the child process of the revival-order test: the directory its writer uses.
+const REVIVAL_CHILD_DIR: &str = "SKINWARE_TEST_REVIVAL_CHILD_DIR";
+
+#[test]
+fn a_reviving_writer_is_never_seen_running_before_it_owns_the_header() {
+    if let Some(path) = std::env::var_os(REVIVAL_CHILD_DIR) {
+        // The child: a writer that is SIGKILLed, so its header still says "running".
+        let options = WriterOptions { dir: Some(path.into()), unlink_on_drop: false, ..WriterOptions::default() };
+        let mut writer = Writer::create("skin", "layer", 8, b"topology", &options).unwrap();
+        publish(&mut writer, 1);
+        std::thread::sleep(Duration::from_secs(60));
+        return;
+    }
+    let dir = SegmentDir::new("revival-order");
+    let reader_options = ReaderOptions { allow_gone: true, ..dir.reader() };
+    for round in 0..40 {
+        let mut child = std::process::Command::new(std::env::current_exe().unwrap())
+            .args(["--exact", "a_reviving_writer_is_never_seen_running_before_it_owns_the_header", "--nocapture"])
+            .env(REVIVAL_CHILD_DIR, &dir.path)
+            .stdout(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        let started = Instant::now();
+        let reader = loop {
+            match Reader::open_with("skin", "layer", &reader_options) {
+                Ok(reader) if reader.writer_state() == WriterState::Running && reader.writer_pid() == child.id() => {
+                    break reader;
+                }
+                _ => {
+                    assert!(started.elapsed() < Duration::from_secs(20), "the child writer never came up");
+                    std::thread::sleep(Duration::from_millis(1));
+                }
+            }
+        };
+        let dead_generation = reader.writer_generation();
+        child.kill().unwrap();
+        child.wait().unwrap();
+        assert_eq!(reader.writer_state(), WriterState::Gone);
+        let options = dir.writer();
+        let reviver = std::thread::spawn(move || Writer::create("skin", "layer", 8, b"topology", &options).unwrap());
+        // Watch the revival as closely as a reader can: once the writer is seen
+        // alive, the header must already be the new writer's.
+        loop {
+            if reader.writer_state() == WriterState::Running {
+                assert_eq!(
+                    (reader.writer_pid(), reader.writer_generation()),
+                    (std::process::id(), dead_generation + 1),
+                    "round {round}: seen running with the killed writer's header"
+                );
+                break;
+            }
+            std::hint::spin_loop();
+        }
+        let revived = reviver.join().unwrap();
+        assert!(revived.revived());
+        drop(revived); // unlinks: the next round's child creates the channel afresh
+    }
+}
+
 #[test]
 fn readers_follow_a_re_created_channel() {
     let dir = SegmentDir::new("recreated");
