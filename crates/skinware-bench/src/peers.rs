@@ -26,7 +26,7 @@ pub const SYSTEMS: &[&str] = &["skinware", "skinware-spin", "rwlock", "iceoryx2"
 #[cfg(not(feature = "iceoryx2"))]
 pub const SYSTEMS: &[&str] = &["skinware", "skinware-spin", "rwlock"];
 /// How long before each frame is due an anticipating reader starts spinning.
-pub const ANTICIPATE: Duration = Duration::from_micros(100);
+pub const ANTICIPATE: Duration = Duration::from_micros(250);
 /// Frames per second delivered.
 pub const RATE_HZ: f64 = 200.0;
 

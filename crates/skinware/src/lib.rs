@@ -49,6 +49,8 @@
 pub struct ReadmeExamples;
 
 #[cfg(not(loom))]
+mod anticipate;
+#[cfg(not(loom))]
 mod channel;
 #[cfg(loom)]
 #[path = "channel/ring.rs"]

@@ -8,6 +8,7 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
+use crate::anticipate::Anticipation;
 use crate::channel::ring::{Meta, ReadFailure};
 use crate::channel::{self, ChannelKind, Shared};
 use crate::error::{Error, Result};
@@ -28,13 +29,14 @@ pub struct ReaderOptions {
     /// Directory of the segments; `None` for [`shm::segment_dir`].
     pub dir: Option<PathBuf>,
     /// As-soon-as-available reads of a periodic writer: wake up this long
-    /// before the next frame is due and spin until it is published, instead
-    /// of sleeping on the futex until the writer wakes the reader. The
-    /// wake-up then costs a timer expiry (what `cyclictest` measures) rather
-    /// than a futex wake across CPUs, and the writer makes no wake syscall.
-    /// The price is up to twice this much spinning per frame; a frame later
-    /// than that is waited for on the futex as usual. `None` (the default)
-    /// never spins.
+    /// before the next frame can be published (the earliest publication
+    /// phase on the writer's grid, learnt from the frames read) and spin until
+    /// it is, instead of sleeping on the futex until the writer wakes the
+    /// reader. The wake-up then costs a timer expiry (what `cyclictest`
+    /// measures) rather than a futex wake across CPUs, and the writer makes no
+    /// wake syscall. The price is up to three times this much spinning per
+    /// frame; a frame later than that is waited for on the futex as usual.
+    /// `None` (the default) never spins.
     pub anticipate: Option<Duration>,
 }
 
@@ -56,7 +58,7 @@ pub struct Reader {
     skin: String,
     channel: String,
     dir: PathBuf,
-    anticipate_ns: Option<u64>,
+    anticipation: Option<Anticipation>,
 }
 
 impl std::fmt::Debug for Reader {
@@ -115,7 +117,9 @@ impl Reader {
             skin: skin.to_owned(),
             channel: channel.to_owned(),
             dir,
-            anticipate_ns: options.anticipate.map(|d| d.as_nanos().min(u128::from(u64::MAX / 4)) as u64),
+            anticipation: options
+                .anticipate
+                .map(|d| Anticipation::new(d.as_nanos().min(u128::from(u64::MAX / 4)) as u64)),
         })
     }
 
@@ -256,6 +260,10 @@ impl Reader {
         match self.shared.ring().read_latest(&mut self.buffer, MAX_READ_ATTEMPTS) {
             Ok((meta, retries)) => {
                 let fresh = meta.seq != self.last.seq;
+                if let (true, Some(anticipation)) = (fresh, &mut self.anticipation) {
+                    let period = self.shared.header().period_ns.load(Ordering::Relaxed);
+                    anticipation.observe(meta.published_ns, period);
+                }
                 let skipped = if fresh && self.last.seq != 0 { meta.seq.saturating_sub(self.last.seq + 1) } else { 0 };
                 self.stats.record(os::monotonic_ns() - started, retries, skipped);
                 self.last = meta;
@@ -321,22 +329,27 @@ impl Reader {
     /// then spins until it is published. `Ok(true)` if it was; `Ok(false)`
     /// leaves the wait to the futex.
     fn anticipate(&self, after: u64, deadline: u64) -> Result<bool> {
-        let (Some(window), Some(period)) = (self.anticipate_ns, self.writer_period()) else {
+        let Some(anticipation) = &self.anticipation else {
             return Ok(false);
         };
         if self.last.seq != after || self.last.published_ns == 0 {
             return Ok(false);
         }
-        let expected = self.last.published_ns.saturating_add(period.as_nanos().min(u128::from(u64::MAX / 4)) as u64);
+        let Some(expected) = anticipation.next_expected(self.last.published_ns) else {
+            return Ok(false);
+        };
+        let window = anticipation.window_ns;
         let now = os::monotonic_ns();
-        if expected.saturating_add(window) <= now || expected.saturating_sub(window) >= deadline {
+        if expected.saturating_add(2 * window) <= now || expected.saturating_sub(window) >= deadline {
             return Ok(false);
         }
         if expected.saturating_sub(window) > now && !self.stop.sleep_until(expected - window) {
             return Err(Error::Stopped { channel: self.shared.label.clone() });
         }
         let ring = self.shared.ring();
-        let spin_until = expected.saturating_add(window).min(deadline);
+        // The writer's own wake-up jitter makes most frames later than the
+        // earliest expected: spin twice as long after it as before.
+        let spin_until = expected.saturating_add(2 * window).min(deadline);
         while os::monotonic_ns() < spin_until {
             if ring.published() > after {
                 return Ok(true);

@@ -1,0 +1,129 @@
+//! When a periodic writer's next frame is due, as seen by a reader that wants
+//! to be spinning just before it ([`crate::ReaderOptions::anticipate`]).
+//!
+//! The writer publishes on an absolute-time grid, each frame some wake-up
+//! latency and write time after its tick. The earliest publication phase seen
+//! recently is the best estimate of "tick + write time": a frame is never
+//! published earlier than that, while later ones are the writer's jitter. The
+//! phase is a rolling minimum over two windows of frames, so that a writer
+//! that changes its grid (a restart) is followed within two windows.
+
+#![forbid(unsafe_code)]
+
+/// Frames per window of the rolling minimum.
+const WINDOW_FRAMES: u32 = 256;
+
+/// The publication grid of one periodic writer, as observed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) struct Anticipation {
+    /// How long before the earliest expected publication to start spinning, ns.
+    pub window_ns: u64,
+    /// Publication time of the first frame observed: the grid's origin.
+    origin_ns: u64,
+    period_ns: u64,
+    /// Earliest phase (publication time minus grid point) in the current and
+    /// the previous window, ns.
+    earliest_now: i64,
+    earliest_before: i64,
+    frames_in_window: u32,
+    seeded: bool,
+}
+
+impl Anticipation {
+    pub(crate) fn new(window_ns: u64) -> Anticipation {
+        Anticipation { window_ns, ..Anticipation::default() }
+    }
+
+    /// The phase of `published_ns` on the grid, in (-period/2, period/2].
+    fn phase(&self, published_ns: u64) -> i64 {
+        let period = self.period_ns as i64;
+        let offset = (published_ns.wrapping_sub(self.origin_ns) as i64).rem_euclid(period);
+        if offset > period / 2 { offset - period } else { offset }
+    }
+
+    /// Takes note of a frame published at `published_ns` by a writer of period `period_ns`.
+    pub(crate) fn observe(&mut self, published_ns: u64, period_ns: u64) {
+        if period_ns == 0 {
+            return;
+        }
+        if !self.seeded || period_ns != self.period_ns {
+            *self = Anticipation {
+                window_ns: self.window_ns,
+                origin_ns: published_ns,
+                period_ns,
+                seeded: true,
+                ..Anticipation::default()
+            };
+            return;
+        }
+        let phase = self.phase(published_ns);
+        self.earliest_now = self.earliest_now.min(phase);
+        self.frames_in_window += 1;
+        if self.frames_in_window >= WINDOW_FRAMES {
+            self.earliest_before = self.earliest_now;
+            self.earliest_now = phase;
+            self.frames_in_window = 0;
+        }
+    }
+
+    /// The earliest time the frame after the one published at `last_published_ns` is expected.
+    pub(crate) fn next_expected(&self, last_published_ns: u64) -> Option<u64> {
+        if !self.seeded {
+            return None;
+        }
+        let earliest = self.earliest_now.min(self.earliest_before);
+        // The grid point of the last frame, then the next one.
+        let grid = (last_published_ns as i64).wrapping_sub(self.phase(last_published_ns));
+        let expected = grid.wrapping_add(self.period_ns as i64).wrapping_add(earliest);
+        u64::try_from(expected).ok()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const PERIOD: u64 = 5_000_000;
+
+    #[test]
+    fn the_earliest_phase_predicts_the_next_frame() {
+        let mut a = Anticipation::new(100_000);
+        let start = 1_000_000_000;
+        // Published 20-80 µs after each tick; the grid starts at `start`.
+        let jitter = [30_000, 20_000, 80_000, 45_000, 25_000];
+        for (k, j) in jitter.iter().enumerate() {
+            a.observe(start + k as u64 * PERIOD + j, PERIOD);
+        }
+        // Relative to the first frame (at +30 µs), the earliest was 10 µs sooner.
+        let last = start + 4 * PERIOD + 25_000;
+        assert_eq!(a.next_expected(last), Some(start + 5 * PERIOD + 20_000));
+    }
+
+    #[test]
+    fn a_late_frame_does_not_shift_the_grid() {
+        let mut a = Anticipation::new(100_000);
+        a.observe(10 * PERIOD, PERIOD);
+        a.observe(11 * PERIOD, PERIOD);
+        // Published 2 ms late: the next is still expected on the grid.
+        a.observe(12 * PERIOD + 2_000_000, PERIOD);
+        assert_eq!(a.next_expected(12 * PERIOD + 2_000_000), Some(13 * PERIOD));
+    }
+
+    #[test]
+    fn a_new_grid_is_followed_within_two_windows() {
+        let mut a = Anticipation::new(100_000);
+        for k in 0..10 {
+            a.observe(k * PERIOD, PERIOD);
+        }
+        // The writer restarts on a grid shifted by 1 ms.
+        let shift = 1_000_000;
+        for k in 10..10 + 2 * u64::from(WINDOW_FRAMES) + 1 {
+            a.observe(k * PERIOD + shift, PERIOD);
+        }
+        let last = 1000 * PERIOD + shift;
+        assert_eq!(a.next_expected(last), Some(1001 * PERIOD + shift));
+        // A new period re-seeds at once.
+        a.observe(7, 2 * PERIOD);
+        assert_eq!(a.next_expected(7), Some(7 + 2 * PERIOD));
+    }
+}
