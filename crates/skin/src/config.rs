@@ -108,8 +108,8 @@ impl ServiceConfig {
         skinware::shm::validate_name("service", &self.name)?;
         self.restart.check()?;
         if let Some(hz) = self.rate_hz {
-            if !(hz.is_finite() && hz > 0.0 && hz <= 10_000.0) {
-                bail!("rate_hz {hz} must be above 0 and at most 10000 (or absent for a sporadic service)");
+            if !(hz.is_finite() && (0.001..=10_000.0).contains(&hz)) {
+                bail!("rate_hz {hz} must be from 0.001 to 10000 (or absent for a sporadic service)");
             }
         }
         let positive = |what: &str, v: Option<f64>| -> Result<()> {
@@ -142,8 +142,12 @@ impl ServiceConfig {
         }
         if self.kind == ServiceKind::Motion {
             let input = self.input.as_deref().unwrap_or("contact");
-            if !services.iter().any(|s| s.name == input && s.kind == ServiceKind::Contact) {
-                bail!("its input {input:?} is not a contact service of this config; add one or set `input`");
+            match services.iter().find(|s| s.name == input && s.kind == ServiceKind::Contact) {
+                None => bail!("its input {input:?} is not a contact service of this config; add one or set `input`"),
+                Some(contact) if contact.rate_hz.is_none() => {
+                    bail!("its input {input:?} is sporadic; give the contact service a rate_hz to track motion on it")
+                }
+                Some(_) => {}
             }
         }
         Ok(())
@@ -206,6 +210,11 @@ impl IdSelection<'_> {
         if let Some([first, last]) = self.uid_range {
             if first > last {
                 bail!("region {region}: uid_range [{first}, {last}] is backwards");
+            }
+            if last - first >= 1_000_000 {
+                bail!(
+                    "region {region}: uid_range [{first}, {last}] spans more than a million uids; split it or use modules/patches"
+                );
             }
             uids.extend(first..=last);
         }
@@ -629,7 +638,7 @@ mod tests {
         let err = format!("{:#}", with("[[service]]\nname = \"c\"\nkind = \"contact\"\nmin_speed = 1\n").unwrap_err());
         assert!(err.contains("`min_speed` does not apply to a contact service"), "{err}");
         let err = format!("{:#}", with("[[service]]\nname = \"c\"\nkind = \"contact\"\nrate_hz = -5\n").unwrap_err());
-        assert!(err.contains("rate_hz -5 must be above 0"), "{err}");
+        assert!(err.contains("rate_hz -5 must be from 0.001 to 10000"), "{err}");
         let err = format!("{:#}", with("[[service]]\nname = \"v-1\"\nkind = \"contact\"\n").unwrap_err());
         assert!(err.contains("channel name \"v-1\" is used twice"), "{err}");
         let err = format!("{:#}", with("[[service]]\nname = \"c\"\nkind = \"vision\"\n").unwrap_err());

@@ -235,13 +235,16 @@ impl ContactDetector {
     }
 
     /// Processes one frame of the whole skin: `responses` in global order,
-    /// `layer_ok` per layer, `dt_s` seconds since the previous frame. Writes
-    /// one record per region into `out`.
+    /// `layer_ok` per layer, `layer_fresh` per layer (a new frame since the
+    /// previous update: dead and stuck taxels are counted in frames, not in
+    /// updates), `dt_s` seconds since the previous update. Writes one record
+    /// per region into `out`.
     pub fn update(
         &mut self,
         geometry: &SkinGeometry,
         responses: &[u16],
         layer_ok: &[bool],
+        layer_fresh: &[bool],
         dt_s: f32,
         out: &mut [RegionContacts],
     ) {
@@ -258,9 +261,11 @@ impl ContactDetector {
                 self.baseline[i] = value;
                 self.last[i] = r;
             }
-            self.unchanged[i] = if r == self.last[i] { self.unchanged[i].saturating_add(1) } else { 0 };
-            self.last[i] = r;
-            self.saturated[i] = if r >= p.saturation { self.saturated[i].saturating_add(1) } else { 0 };
+            if layer_fresh[self.layer_of[i] as usize] {
+                self.unchanged[i] = if r == self.last[i] { self.unchanged[i].saturating_add(1) } else { 0 };
+                self.last[i] = r;
+                self.saturated[i] = if r >= p.saturation { self.saturated[i].saturating_add(1) } else { 0 };
+            }
             let residual = value - self.baseline[i];
             let threshold = (p.threshold_sigma * self.variance[i].sqrt()).max(p.min_threshold);
             // Saturated also means unchanged: test stuck first.
@@ -405,5 +410,58 @@ impl ContactDetector {
                 peak: a.peak,
             });
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use skinware::TopologyBuilder;
+    use skinware::geometry::{Calibration, SensorCalibration};
+
+    fn strip() -> SkinGeometry {
+        let mut builder = TopologyBuilder::new("strip", "pressure", 1.0);
+        builder.patch(1).module(1, 1..=12);
+        let mut calibration = Calibration::new();
+        for uid in 1..=12u32 {
+            let place = SensorCalibration {
+                position: [f64::from(uid) * 0.005, 0.0, 0.0],
+                normal: [0.0, 0.0, 1.0],
+                radius: 0.002,
+                link: "palm".into(),
+            };
+            calibration.insert("strip", uid, place).unwrap();
+        }
+        SkinGeometry::build("s", &[builder.build().unwrap()], &calibration, &[]).unwrap()
+    }
+
+    #[test]
+    fn dead_and_stuck_are_counted_in_frames_not_in_updates() {
+        let geometry = strip();
+        let mut detector = ContactDetector::new(&geometry, ContactParams::default());
+        let mut out = [RegionContacts::default()];
+        let mut responses = [1000u16; 12];
+        responses[3] = u16::MAX;
+        // A slow layer: the same frame read 300 times by a faster service.
+        for update in 0..300 {
+            detector.update(&geometry, &responses, &[true], &[update == 0], 0.02, &mut out);
+        }
+        assert_eq!((out[0].dead, out[0].stuck), (0, 0), "one frame is not 100 unchanged frames");
+        // 120 new frames: the constant taxels are dead, the saturated one stuck.
+        for frame in 0..120u16 {
+            for (k, r) in responses.iter_mut().enumerate() {
+                if k != 3 && k != 7 {
+                    *r = 1000 + frame % 5;
+                }
+            }
+            detector.update(&geometry, &responses, &[true], &[true], 0.02, &mut out);
+        }
+        assert_eq!((out[0].dead, out[0].stuck), (1, 1), "{:?}", out[0]);
+        assert_eq!(detector.taxel_states()[7], TaxelState::DEAD);
+        assert_eq!(detector.taxel_states()[3], TaxelState::STUCK);
+        // A layer down: its taxels have no input and the region says so.
+        detector.update(&geometry, &responses, &[false], &[false], 0.02, &mut out);
+        assert_ne!(out[0].flags & contact_flags::INPUT_FAULTED, 0);
+        assert!(detector.taxel_states().iter().all(|s| *s == TaxelState::NO_INPUT));
     }
 }

@@ -20,6 +20,9 @@ pub struct SkinInputs {
     pub responses: Vec<u16>,
     /// Whether each layer's responses are current (running, not faulted, not stale).
     pub layer_ok: Vec<bool>,
+    /// Whether each layer published a new frame since the previous update.
+    pub layer_fresh: Vec<bool>,
+    last_seq: Vec<u64>,
     /// The newest acquisition time over the layers, monotonic ns.
     pub acquired_ns: u64,
 }
@@ -36,6 +39,8 @@ impl SkinInputs {
             starts: geometry.layer_starts.clone(),
             responses: vec![0; geometry.sensor_count()],
             layer_ok: vec![false; geometry.layers.len()],
+            layer_fresh: vec![false; geometry.layers.len()],
+            last_seq: vec![0; geometry.layers.len()],
             acquired_ns: 0,
         }
     }
@@ -56,6 +61,7 @@ impl SkinInputs {
                 let options = ReaderOptions { allow_gone: true, ..ReaderOptions::default() };
                 self.readers[l] = Reader::open_with(&self.skin, &self.names[l], &options).ok();
             }
+            self.layer_fresh[l] = false;
             let Some(reader) = &mut self.readers[l] else {
                 self.layer_ok[l] = false;
                 continue;
@@ -67,6 +73,8 @@ impl SkinInputs {
             self.layer_ok[l] = match reader.latest() {
                 Ok(frame) if !frame.status().is_fault() && frame.responses().len() == range.len() => {
                     self.responses[range].copy_from_slice(frame.responses());
+                    self.layer_fresh[l] = frame.seq() != self.last_seq[l];
+                    self.last_seq[l] = frame.seq();
                     self.acquired_ns = self.acquired_ns.max(frame.acquired_ns());
                     let age = now.saturating_sub(frame.published_ns());
                     running && age <= STALE_PERIODS * period.as_nanos() as u64

@@ -109,7 +109,7 @@ pub fn run_contact_service(
         let now = skinware::os::monotonic_ns();
         let dt_s = previous.map_or(0.0, |p| (now.saturating_sub(p)) as f32 * 1e-9);
         previous = Some(now);
-        detector.update(geometry, &inputs.responses, &inputs.layer_ok, dt_s, records);
+        detector.update(geometry, &inputs.responses, &inputs.layer_ok, &inputs.layer_fresh, dt_s, records);
         let status = if all_up { FrameStatus::OK } else { FrameStatus::INPUT_FAULTED };
         taxels.publish(detector.taxel_states(), status)?;
         Ok(StepOutcome { status, acquired_ns: (inputs.acquired_ns > 0).then_some(inputs.acquired_ns) })
@@ -147,7 +147,13 @@ pub fn run_motion_service(
         let period = contacts.reader().writer_period().unwrap_or(Duration::from_millis(100));
         let now = skinware::os::monotonic_ns();
         let mut status = FrameStatus::OK;
-        match contacts.latest() {
+        let newest = if contacts.reader().writer_period().is_none() {
+            // A sporadic contact service publishes only when asked.
+            contacts.request(Duration::from_millis(100))
+        } else {
+            contacts.latest()
+        };
+        match newest {
             Ok(frame) => {
                 let stale = now.saturating_sub(frame.published_ns) > 5 * period.as_nanos() as u64;
                 let input_ok = running && !stale;
@@ -160,7 +166,9 @@ pub fn run_motion_service(
                     tracker.update(frame.records, frame.acquired_ns as f64 * 1e-9, input_ok, records);
                 }
             }
-            Err(skinware::Error::NoFrameYet { .. }) => status = FrameStatus::INPUT_FAULTED,
+            Err(skinware::Error::NoFrameYet { .. } | skinware::Error::Timeout { .. }) => {
+                status = FrameStatus::INPUT_FAULTED
+            }
             Err(e) => return Err(e),
         }
         Ok(StepOutcome { status, acquired_ns: last_acquired })

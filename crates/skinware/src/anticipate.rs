@@ -44,6 +44,8 @@ impl Anticipation {
     /// Takes note of a frame published at `published_ns` by a writer of period `period_ns`.
     pub(crate) fn observe(&mut self, published_ns: u64, period_ns: u64) {
         if period_ns == 0 {
+            // A sporadic writer (e.g. revived as one) has no grid to anticipate.
+            self.seeded = false;
             return;
         }
         if !self.seeded || period_ns != self.period_ns {

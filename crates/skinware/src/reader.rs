@@ -150,7 +150,12 @@ impl Reader {
                 .schema_name
                 .iter()
                 .zip(&self.shared.header().schema_name)
-                .all(|(a, b)| a.load(Ordering::Relaxed) == b.load(Ordering::Relaxed));
+                .all(|(a, b)| a.load(Ordering::Relaxed) == b.load(Ordering::Relaxed))
+            && replacement.header().schema_version.load(Ordering::Relaxed)
+                == self.shared.header().schema_version.load(Ordering::Relaxed)
+            // A service's description says what each record is (its labels):
+            // a typed reader must not read another's records with its old labels.
+            && (replacement.kind != ChannelKind::Service || replacement.description() == self.shared.description());
         if !same_shape || !replacement.writer_alive().unwrap_or(false) {
             return false;
         }
@@ -332,7 +337,7 @@ impl Reader {
         let Some(anticipation) = &self.anticipation else {
             return Ok(false);
         };
-        if self.last.seq != after || self.last.published_ns == 0 {
+        if self.last.seq != after || self.last.published_ns == 0 || self.writer_period().is_none() {
             return Ok(false);
         }
         let Some(expected) = anticipation.next_expected(self.last.published_ns) else {

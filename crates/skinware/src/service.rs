@@ -191,13 +191,15 @@ impl<T: ServicePayload> ServiceWriter<T> {
         let record_bytes = std::mem::size_of::<T>();
         let records = spec.records;
         let period = match spec.mode {
-            ServiceMode::Periodic { hz } if hz.is_finite() && hz > 0.0 => Some(Duration::from_secs_f64(1.0 / hz)),
-            ServiceMode::Periodic { hz } => {
-                return Err(Error::InvalidLayout {
-                    channel: format!("{skin}/{}", spec.name),
-                    reason: format!("rate {hz} Hz must be above 0"),
-                });
-            }
+            ServiceMode::Periodic { hz } => match Duration::try_from_secs_f64(1.0 / hz) {
+                Ok(period) if hz.is_finite() && hz > 0.0 && period >= Duration::from_micros(1) => Some(period),
+                _ => {
+                    return Err(Error::InvalidLayout {
+                        channel: format!("{skin}/{}", spec.name),
+                        reason: format!("rate {hz} Hz must be finite, above 0 and at most 1 MHz"),
+                    });
+                }
+            },
             ServiceMode::Sporadic => None,
         };
         let options = WriterOptions {

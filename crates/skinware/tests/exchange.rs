@@ -459,3 +459,42 @@ fn an_anticipating_reader_gets_every_frame_and_falls_back_to_the_futex_when_one_
     assert!(seen.len() >= 30, "{seen:?}");
     assert_eq!(reader.stats().skipped, 39 - seen.len() as u64);
 }
+
+#[test]
+fn a_cleaner_racing_revivals_never_leaves_a_writer_on_an_unlinked_segment() {
+    let dir = SegmentDir::new("clean-revive");
+    let path = dir.segment("skin", "layer");
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let cleaner = {
+        let (path, stop) = (path.clone(), stop.clone());
+        std::thread::spawn(move || {
+            let mut removed = 0;
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                if skinware::remove_channel_if_stale(&path).unwrap() {
+                    removed += 1;
+                }
+            }
+            removed
+        })
+    };
+    let keep = WriterOptions { unlink_on_drop: false, ..dir.writer() };
+    let mut revived = 0;
+    for value in 1..=300u16 {
+        let mut writer = match Writer::create("skin", "layer", 8, b"topology", &keep) {
+            Ok(writer) => writer,
+            // The cleaner holds the segment's locks for a moment: try again.
+            Err(Error::Busy { .. }) => continue,
+            Err(e) => panic!("{e}"),
+        };
+        revived += usize::from(writer.revived());
+        publish(&mut writer, value);
+        // The writer must own the segment at the channel's path: a new reader finds it alive.
+        let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+        assert_eq!(reader.writer_state(), WriterState::Running);
+        assert_eq!(reader.latest().unwrap().responses()[0], value, "the writer publishes into another segment");
+        drop(writer);
+    }
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let removed = cleaner.join().unwrap();
+    println!("{revived} revivals, {removed} removals");
+}

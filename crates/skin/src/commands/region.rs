@@ -104,9 +104,18 @@ fn record(args: &RecordArgs) -> Result<()> {
     }
     for layer in &mut layers {
         for (level, &(count, mean, m2)) in layer.level.iter_mut().zip(&layer.stats) {
+            if count == 0.0 {
+                // No frame during the baseline: this layer cannot be judged.
+                continue;
+            }
             let sigma = if count > 1.0 { (m2 / (count - 1.0)).sqrt() } else { 0.0 };
             let threshold = if args.threshold > 0.0 { args.threshold } else { (10.0 * sigma).max(100.0) };
             *level = mean + threshold;
+        }
+    }
+    for layer in &layers {
+        if layer.stats.iter().all(|&(count, _, _)| count == 0.0) {
+            eprintln!("layer {} delivered no frame during the baseline; it is left out", layer.name);
         }
     }
     match args.seconds {

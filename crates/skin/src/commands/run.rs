@@ -128,6 +128,16 @@ pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
         if now >= next_state_poll {
             next_state_poll = now + Duration::from_millis(100);
             log_layer_changes(&config.skin, &mut layer_states);
+            // `skin clean` removes the geometry of a skin without a live
+            // writer, e.g. while every driver waits to restart: put it back.
+            if !published.exists() {
+                match geometry.publish(&skinware::shm::segment_dir()) {
+                    Ok(_) => {
+                        tracing::warn!(path = %published.display(), "the geometry had been removed; published again")
+                    }
+                    Err(e) => tracing::error!("cannot publish the geometry again: {e}"),
+                }
+            }
         }
         std::thread::sleep(Duration::from_millis(20));
     }

@@ -39,6 +39,21 @@ pub struct Overlays {
     pub markers: Vec<Marker>,
 }
 
+/// The newest frame of a running service, unless it is older than a few of
+/// its periods: a paused, faulted, hung or gone service shows nothing rather
+/// than stale marks.
+fn current<T: skinware::service::ServicePayload>(
+    reader: &mut ServiceReader<T>,
+) -> Option<skinware::service::ServiceFrame<'_, T>> {
+    if reader.writer_state() != WriterState::Running {
+        return None;
+    }
+    let period = reader.reader().writer_period().unwrap_or(Duration::from_millis(200));
+    let frame = reader.latest().ok()?;
+    let age = skinware::os::monotonic_ns().saturating_sub(frame.published_ns);
+    (age <= 5 * period.as_nanos() as u64).then_some(frame)
+}
+
 /// Seconds of motion an arrow shows: it points from the contact to where it
 /// will be this much later at its current velocity.
 const ARROW_SECONDS: f32 = 0.5;
@@ -107,10 +122,7 @@ impl OverlaySource {
         let mut peaks = std::collections::HashSet::new();
         for (_, reader) in &mut self.contacts {
             reader.reader().follow_recreated();
-            if reader.writer_state() == WriterState::Gone {
-                continue;
-            }
-            let Ok(frame) = reader.latest() else { continue };
+            let Some(frame) = current(reader) else { continue };
             for region in frame.records {
                 for contact in region.contacts() {
                     if peaks.insert(contact.peak_sensor) {
@@ -126,10 +138,7 @@ impl OverlaySource {
         let mut heads = Vec::new();
         for (_, reader) in &mut self.motions {
             reader.reader().follow_recreated();
-            if reader.writer_state() == WriterState::Gone {
-                continue;
-            }
-            let Ok(frame) = reader.latest() else { continue };
+            let Some(frame) = current(reader) else { continue };
             for record in frame.records {
                 if record.flags & motion_flags::SLIDING == 0 || heads.contains(&record.now_map) {
                     continue;

@@ -251,6 +251,11 @@ impl LayerJob {
     /// Publishes the writer's state at once when it changes, and the rates at
     /// the end of each window.
     fn refresh_state(&self, reader: &mut Reader, window: &mut RateWindow) {
+        if reader.writer_state() == WriterState::Gone {
+            // A driver that stopped cleanly removed its channel; its restart
+            // makes a new one, which every reader mode must follow.
+            reader.follow_recreated();
+        }
         let state = reader.writer_state();
         let elapsed = window.started.elapsed();
         let rates = (elapsed >= RATE_WINDOW).then(|| {

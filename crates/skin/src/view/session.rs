@@ -107,6 +107,8 @@ pub fn run(mut socket: WebSocket<TcpStream>, site: &Site) -> Result<()> {
         if credit == 0 {
             continue;
         }
+        // Outside the board's lock: it may search the segment directory.
+        let newest_overlays = overlays.poll();
         let taken = sampler.take_newer(seen_version, IDLE_POLL, |board| {
             let updates: Vec<LayerUpdate<'_>> = board
                 .layers
@@ -126,7 +128,7 @@ pub fn run(mut socket: WebSocket<TcpStream>, site: &Site) -> Result<()> {
                     }
                 })
                 .collect();
-            protocol::encode_update(&mut message, updates_sent, mode, &updates, &overlays.poll());
+            protocol::encode_update(&mut message, updates_sent, mode, &updates, &newest_overlays);
             board.version
         });
         if let Some(version) = taken {

@@ -131,9 +131,12 @@ fn remove_if_unowned(path: &Path) -> Result<bool> {
             return Err(Error::Os { op: "open", path: path.to_owned(), source });
         }
     };
-    let locked =
-        crate::os::try_lock_writer(&file).map_err(|source| Error::Os { op: "lock", path: path.to_owned(), source })?;
-    if !locked {
+    // The reviver's lock first, as a reviving writer takes it: a segment being
+    // revived (liveness lock not yet taken) is not stale.
+    let lock_error = |source| Error::Os { op: "lock", path: path.to_owned(), source };
+    if !crate::os::try_lock_reviver(&file).map_err(lock_error)?
+        || !crate::os::try_lock_writer(&file).map_err(lock_error)?
+    {
         return Ok(false);
     }
     let ours = file.metadata().ok().map(|m| (m.dev(), m.ino()));

@@ -410,7 +410,9 @@ pub fn cache_dir() -> PathBuf {
 }
 
 fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), GeometryError> {
-    let temporary = path.with_extension(format!("tmp{}", std::process::id()));
+    // A hidden sibling, so that no reader or cleaner takes it for a geometry.
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let temporary = path.with_file_name(format!(".{name}.tmp{}", std::process::id()));
     std::fs::write(&temporary, bytes).map_err(|source| GeometryError::Io {
         op: "write",
         path: temporary.clone(),
