@@ -162,7 +162,9 @@ struct IdSelection<'a> {
     patches: &'a [u32],
 }
 
-/// `[[region.in_layer]]`: ids of one layer.
+/// `[[region.in_layer]]`: ids of one layer. Its id fields repeat
+/// [`RegionConfig`]'s on purpose: serde's `flatten` would lose
+/// `deny_unknown_fields` and the line:column of errors.
 #[derive(Debug, Deserialize, Clone, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct InLayer {

@@ -32,13 +32,21 @@ pub struct LayerReport {
     pub tree: Vec<(u32, Vec<(u32, usize)>)>,
 }
 
-/// Opens every layer channel of `skin` (or of all skins) and measures their
-/// rates over `window`.
-pub fn gather(skin: Option<&str>, window: Duration) -> Result<Vec<LayerReport>> {
+/// A channel with a reader on it and its writer's rate, measured.
+pub struct Sampled {
+    pub info: skinware::ChannelInfo,
+    pub reader: Reader,
+    /// Frames per second published during the sampling window (0 if gone).
+    pub rate_hz: f64,
+}
+
+/// Opens every channel of kind `kind` of `skin` (or of all skins) and
+/// measures their writers' rates over `window`.
+pub fn sample_channels(skin: Option<&str>, kind: ChannelKind, window: Duration) -> Result<Vec<Sampled>> {
     let channels = skinware::list_channels(&skinware::shm::segment_dir())?;
     let mut readers = Vec::new();
     for info in channels {
-        if skin.is_some_and(|s| s != info.skin) || info.kind != Some(ChannelKind::Layer) {
+        if skin.is_some_and(|s| s != info.skin) || info.kind != Some(kind) {
             continue;
         }
         let options = ReaderOptions { allow_gone: true, ..ReaderOptions::default() };
@@ -50,13 +58,26 @@ pub fn gather(skin: Option<&str>, window: Duration) -> Result<Vec<LayerReport>> 
     let started = std::time::Instant::now();
     std::thread::sleep(window);
     let elapsed = started.elapsed().as_secs_f64();
+    Ok(readers
+        .into_iter()
+        .map(|(info, reader, before)| {
+            let frames = reader.writer_stats().frames;
+            let gone = reader.writer_state() == skinware::WriterState::Gone;
+            let rate = if gone { 0.0 } else { frames.saturating_sub(before) as f64 / elapsed };
+            Sampled { info, reader, rate_hz: (rate * 10.0).round() / 10.0 }
+        })
+        .collect())
+}
+
+/// Opens every layer channel of `skin` (or of all skins) and measures their
+/// rates over `window`.
+pub fn gather(skin: Option<&str>, window: Duration) -> Result<Vec<LayerReport>> {
     let mut reports = Vec::new();
-    for (info, mut reader, before) in readers {
+    for Sampled { info, mut reader, rate_hz } in sample_channels(skin, ChannelKind::Layer, window)? {
         let stats: WriterStats = reader.writer_stats();
         let topology = reader.topology().ok();
         let latency_ns = reader.latest().map(|f| f.published_ns().saturating_sub(f.acquired_ns())).unwrap_or(0);
         let state = reader.writer_state();
-        let rate_hz = if state == skinware::WriterState::Gone { 0.0 } else { (stats.frames - before) as f64 / elapsed };
         let tree = topology
             .as_ref()
             .map(|t| {
@@ -74,7 +95,7 @@ pub fn gather(skin: Option<&str>, window: Duration) -> Result<Vec<LayerReport>> 
             sensors: topology.as_ref().map_or(0, |t| t.sensors.len()),
             modules: topology.as_ref().map_or(0, |t| t.modules.len()),
             patches: topology.as_ref().map_or(0, |t| t.patches.len()),
-            rate_hz: (rate_hz * 10.0).round() / 10.0,
+            rate_hz,
             nominal_rate_hz: topology.as_ref().map_or(0.0, |t| t.rate_hz),
             frames: stats.frames,
             overruns: stats.overruns,

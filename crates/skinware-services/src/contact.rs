@@ -250,8 +250,12 @@ impl ContactDetector {
     ) {
         let p = &self.params;
         let alpha = 1.0 - (-dt_s.max(0.0) / p.baseline_tau_s.max(1e-3)).exp();
-        for (i, &r) in responses.iter().enumerate() {
-            if !layer_ok[self.layer_of[i] as usize] {
+        // Inputs shorter than the skin (a caller's mistake) leave the rest as
+        // "no input" rather than panicking.
+        let is = |flags: &[bool], layer: u16| flags.get(usize::from(layer)).copied().unwrap_or(false);
+        self.states.fill(TaxelState::NO_INPUT);
+        for (i, &r) in responses.iter().take(self.states.len()).enumerate() {
+            if !is(layer_ok, self.layer_of[i]) {
                 self.states[i] = TaxelState::NO_INPUT;
                 continue;
             }
@@ -261,7 +265,7 @@ impl ContactDetector {
                 self.baseline[i] = value;
                 self.last[i] = r;
             }
-            if layer_fresh[self.layer_of[i] as usize] {
+            if is(layer_fresh, self.layer_of[i]) {
                 self.unchanged[i] = if r == self.last[i] { self.unchanged[i].saturating_add(1) } else { 0 };
                 self.last[i] = r;
                 self.saturated[i] = if r >= p.saturation { self.saturated[i].saturating_add(1) } else { 0 };
@@ -288,7 +292,7 @@ impl ContactDetector {
         for found in &mut self.found {
             found.clear();
         }
-        let n = responses.len();
+        let n = self.states.len();
         let mut next_component = 0u32;
         for start in 0..n {
             if self.states[start] != TaxelState::TOUCHED || self.component[start] != u32::MAX {
@@ -311,11 +315,11 @@ impl ContactDetector {
             next_component += 1;
             self.accumulate_component(geometry);
         }
-        for (r, record) in out.iter_mut().enumerate() {
+        for (r, record) in out.iter_mut().enumerate().take(self.found.len()) {
             let found = &mut self.found[r];
             found.sort_by(|a, b| b.total.total_cmp(&a.total));
             let mut flags = 0;
-            if self.region_layers[r].iter().any(|&l| !layer_ok[l]) {
+            if self.region_layers[r].iter().any(|&l| !layer_ok.get(l).copied().unwrap_or(false)) {
                 flags |= contact_flags::INPUT_FAULTED;
             }
             if found.len() > MAX_CONTACTS {
@@ -333,10 +337,11 @@ impl ContactDetector {
                 let regions =
                     &self.member_regions[self.member_offsets[i] as usize..self.member_offsets[i + 1] as usize];
                 for &r in regions {
+                    let Some(record) = out.get_mut(r as usize) else { continue };
                     if *state == TaxelState::DEAD {
-                        out[r as usize].dead += 1;
+                        record.dead += 1;
                     } else {
-                        out[r as usize].stuck += 1;
+                        record.stuck += 1;
                     }
                 }
             }
@@ -433,6 +438,15 @@ mod tests {
             calibration.insert("strip", uid, place).unwrap();
         }
         SkinGeometry::build("s", &[builder.build().unwrap()], &calibration, &[]).unwrap()
+    }
+
+    #[test]
+    fn short_inputs_are_no_input_not_a_panic() {
+        let geometry = strip();
+        let mut detector = ContactDetector::new(&geometry, ContactParams::default());
+        let mut out = [];
+        detector.update(&geometry, &[1000; 5], &[], &[], 0.02, &mut out);
+        assert!(detector.taxel_states().iter().all(|s| *s == TaxelState::NO_INPUT));
     }
 
     #[test]

@@ -2,13 +2,8 @@
 //! layer in one global array (the geometry's sensor order), and which layers
 //! are healthy.
 
-use std::time::Duration;
-
 use skinware::geometry::SkinGeometry;
 use skinware::{Reader, ReaderOptions, WriterState};
-
-/// A layer whose newest frame is older than this many of its periods is stale.
-const STALE_PERIODS: u64 = 5;
 
 /// Readers of every layer of a skin.
 pub struct SkinInputs {
@@ -55,7 +50,6 @@ impl SkinInputs {
     /// newest frame is stale; its sensors then keep their last responses,
     /// which callers must not use as fresh. Returns whether every layer is up.
     pub fn update(&mut self) -> bool {
-        let now = skinware::os::monotonic_ns();
         for l in 0..self.names.len() {
             if self.readers[l].is_none() {
                 let options = ReaderOptions { allow_gone: true, ..ReaderOptions::default() };
@@ -68,7 +62,6 @@ impl SkinInputs {
             };
             reader.follow_recreated();
             let running = reader.writer_state() == WriterState::Running;
-            let period = reader.writer_period().unwrap_or(Duration::from_millis(100));
             let range = self.starts[l]..self.starts[l + 1];
             self.layer_ok[l] = match reader.latest() {
                 Ok(frame) if !frame.status().is_fault() && frame.responses().len() == range.len() => {
@@ -76,8 +69,7 @@ impl SkinInputs {
                     self.layer_fresh[l] = frame.seq() != self.last_seq[l];
                     self.last_seq[l] = frame.seq();
                     self.acquired_ns = self.acquired_ns.max(frame.acquired_ns());
-                    let age = now.saturating_sub(frame.published_ns());
-                    running && age <= STALE_PERIODS * period.as_nanos() as u64
+                    running && !crate::is_stale(frame.published_ns(), reader.writer_period())
                 }
                 _ => false,
             };

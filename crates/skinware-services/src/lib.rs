@@ -81,6 +81,20 @@ pub struct MotionServiceConfig {
     pub params: MotionParams,
 }
 
+/// A periodic writer's frame older than this many of its periods is stale:
+/// its writer has stopped publishing without saying so.
+pub const STALE_PERIODS: u32 = 5;
+
+/// Whether a frame published at `published_ns` by a writer of period
+/// `period` (`None`: sporadic, whose frames are as fresh as the last
+/// request) is stale now.
+pub fn is_stale(published_ns: u64, period: Option<Duration>) -> bool {
+    period.is_some_and(|period| {
+        let age = skinware::os::monotonic_ns().saturating_sub(published_ns);
+        u128::from(age) > u128::from(STALE_PERIODS) * period.as_nanos()
+    })
+}
+
 /// The per-taxel channel of contact service `name`.
 pub fn taxel_channel(name: &str) -> String {
     format!("{name}-taxels")
@@ -144,10 +158,9 @@ pub fn run_motion_service(
     service.run(|records| -> Result<StepOutcome, skinware::Error> {
         contacts.reader().follow_recreated();
         let running = contacts.writer_state() == WriterState::Running;
-        let period = contacts.reader().writer_period().unwrap_or(Duration::from_millis(100));
-        let now = skinware::os::monotonic_ns();
+        let period = contacts.reader().writer_period();
         let mut status = FrameStatus::OK;
-        let newest = if contacts.reader().writer_period().is_none() {
+        let newest = if period.is_none() {
             // A sporadic contact service publishes only when asked.
             contacts.request(Duration::from_millis(100))
         } else {
@@ -155,8 +168,7 @@ pub fn run_motion_service(
         };
         match newest {
             Ok(frame) => {
-                let stale = now.saturating_sub(frame.published_ns) > 5 * period.as_nanos() as u64;
-                let input_ok = running && !stale;
+                let input_ok = running && !is_stale(frame.published_ns, period);
                 if !input_ok || frame.status.contains(FrameStatus::INPUT_FAULTED) {
                     status = FrameStatus::INPUT_FAULTED;
                 }

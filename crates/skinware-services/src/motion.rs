@@ -153,9 +153,10 @@ fn fill(record: &mut MotionRecord, track: &Track, params: &MotionParams) {
     let speed = velocity.iter().map(|v| v * v).sum::<f64>().sqrt();
     record.velocity_3d = velocity.map(|v| v as f32);
     record.speed_3d = speed as f32;
-    let on_map: Vec<&Sample> = track.samples.iter().skip(track.map_from).collect();
-    if on_map.len() >= 3 {
-        let velocity_map: [f64; 2] = [0, 1].map(|c| slope(on_map.iter().map(|s| (s.t, s.map[c]))));
+    // Only the samples since the last seam crossing are continuous on the map.
+    let on_map = || track.samples.iter().skip(track.map_from);
+    if on_map().count() >= 3 {
+        let velocity_map: [f64; 2] = [0, 1].map(|c| slope(on_map().map(|s| (s.t, s.map[c]))));
         record.velocity_map = velocity_map.map(|v| v as f32);
         record.speed_map = velocity_map[0].hypot(velocity_map[1]) as f32;
         record.direction_map_rad = velocity_map[1].atan2(velocity_map[0]) as f32;

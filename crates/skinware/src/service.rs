@@ -242,63 +242,16 @@ impl<T: ServicePayload> ServiceWriter<T> {
     }
 
     /// Publishes one frame of records with `status` (e.g.
-    /// [`FrameStatus::INPUT_FAULTED`] when an input is down).
+    /// [`FrameStatus::INPUT_FAULTED`] when an input is down). A service that
+    /// runs its own loop uses this; [`run`](Self::run) does it for a step.
     pub fn publish(&mut self, records: &[T], status: FrameStatus) -> Result<u64> {
-        self.publish_computed(records, status, None)
-    }
-
-    /// Publishes like [`publish`](Self::publish), counting the frame's cost in
-    /// the channel's write-time statistics from `computing_since_ns`
-    /// ([`crate::os::monotonic_ns`]) rather than from the copy: `skin top`
-    /// then shows what the service spends per frame.
-    pub fn publish_computed(
-        &mut self,
-        records: &[T],
-        status: FrameStatus,
-        computing_since_ns: Option<u64>,
-    ) -> Result<u64> {
         if records.len() != self.records {
             return Err(Error::InvalidLayout {
                 channel: self.writer.label().to_owned(),
                 reason: format!("{} records given, the service publishes {}", records.len(), self.records),
             });
         }
-        let mut frame = self.writer.begin();
-        if let Some(since) = computing_since_ns {
-            frame.count_from(since);
-        }
-        if let Err(e) = frame.write_bytes(0, bytemuck::cast_slice(records)) {
-            frame.discard();
-            return Err(e);
-        }
-        frame.set_status(status);
-        Ok(frame.publish())
-    }
-
-    /// Publishes one frame with acquisition time `acquired_ns` (the time of
-    /// the inputs it was computed from), counting its cost from `computing_since_ns`.
-    pub fn publish_at(
-        &mut self,
-        records: &[T],
-        status: FrameStatus,
-        acquired_ns: u64,
-        computing_since_ns: u64,
-    ) -> Result<u64> {
-        if records.len() != self.records {
-            return Err(Error::InvalidLayout {
-                channel: self.writer.label().to_owned(),
-                reason: format!("{} records given, the service publishes {}", records.len(), self.records),
-            });
-        }
-        let mut frame = self.writer.begin();
-        frame.count_from(computing_since_ns);
-        if let Err(e) = frame.write_bytes(0, bytemuck::cast_slice(records)) {
-            frame.discard();
-            return Err(e);
-        }
-        frame.set_status(status);
-        frame.set_acquired_ns(acquired_ns);
-        Ok(frame.publish())
+        self.writer.publish_bytes(bytemuck::cast_slice(records), status)
     }
 
     /// Records per frame.

@@ -592,14 +592,6 @@ impl FrameWriter<'_> {
         self.acquired_ns = Some(ns);
     }
 
-    /// Counts the frame's write time (in the channel's statistics) from
-    /// `since_ns` instead of from [`Writer::begin`]: for writers, such as
-    /// services, whose work for a frame starts before they begin it.
-    pub fn count_from(&mut self, since_ns: u64) {
-        self.acquired_ns.get_or_insert(self.started_ns);
-        self.started_ns = since_ns.min(self.started_ns);
-    }
-
     /// Sets the frame's status flags.
     pub fn set_status(&mut self, status: FrameStatus) {
         self.status = status;

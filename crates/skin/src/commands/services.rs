@@ -7,7 +7,9 @@ use std::time::Duration;
 use anyhow::Result;
 use serde::Serialize;
 use skinware::service::ServiceInfo;
-use skinware::{ChannelKind, FrameStatus, Reader, ReaderOptions};
+use skinware::{ChannelKind, FrameStatus};
+
+use crate::layers::Sampled;
 
 /// Arguments of `skin services`.
 #[derive(clap::Args)]
@@ -46,32 +48,15 @@ struct ServiceReport {
 
 /// Runs `skin services`.
 pub fn run(args: &Args) -> Result<()> {
-    let channels = skinware::list_channels(&skinware::shm::segment_dir())?;
-    let mut readers = Vec::new();
-    for info in channels {
-        if args.skin.as_deref().is_some_and(|s| s != info.skin) || info.kind != Some(ChannelKind::Service) {
-            continue;
-        }
-        let options = ReaderOptions { allow_gone: true, ..ReaderOptions::default() };
-        if let Ok(reader) = Reader::open_with(&info.skin, &info.channel, &options) {
-            let before = reader.writer_stats().frames;
-            readers.push((info, reader, before));
-        }
-    }
-    let window = Duration::from_millis(500);
-    std::thread::sleep(window);
+    let sampled =
+        crate::layers::sample_channels(args.skin.as_deref(), ChannelKind::Service, Duration::from_millis(500))?;
     let mut reports = Vec::new();
-    for (info, mut reader, before) in readers {
+    for Sampled { info, mut reader, rate_hz } in sampled {
         let stats = reader.writer_stats();
         let description = ServiceInfo::parse(&reader.description());
         let (schema, schema_version) = reader.schema();
         let state = reader.writer_state();
         let inputs_faulted = reader.latest().map(|f| f.status().contains(FrameStatus::INPUT_FAULTED)).unwrap_or(false);
-        let rate = if state == skinware::WriterState::Gone {
-            0.0
-        } else {
-            (stats.frames - before) as f64 / window.as_secs_f64()
-        };
         let record_bytes = description.as_ref().map_or(0, |d| d.record_bytes);
         reports.push(ServiceReport {
             skin: info.skin,
@@ -83,7 +68,7 @@ pub fn run(args: &Args) -> Result<()> {
             record_bytes,
             inputs: description.as_ref().map(|d| d.inputs.clone()).unwrap_or_default(),
             inputs_faulted,
-            rate_hz: (rate * 10.0).round() / 10.0,
+            rate_hz,
             nominal_rate_hz: description.as_ref().and_then(|d| d.rate_hz),
             frames: stats.frames,
             faults: stats.faults,

@@ -48,10 +48,9 @@ fn current<T: skinware::service::ServicePayload>(
     if reader.writer_state() != WriterState::Running {
         return None;
     }
-    let period = reader.reader().writer_period().unwrap_or(Duration::from_millis(200));
+    let period = reader.reader().writer_period();
     let frame = reader.latest().ok()?;
-    let age = skinware::os::monotonic_ns().saturating_sub(frame.published_ns);
-    (age <= 5 * period.as_nanos() as u64).then_some(frame)
+    (!skinware_services::is_stale(frame.published_ns, period)).then_some(frame)
 }
 
 /// Seconds of motion an arrow shows: it points from the contact to where it

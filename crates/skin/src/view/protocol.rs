@@ -10,6 +10,7 @@ use skinware::WriterState;
 use skinware::geometry::{SensorRef, SkinGeometry};
 
 use super::overlays::Overlays;
+use super::sampler::LayerSlot;
 
 /// Bumped on any change of the layout below; the page refuses other versions.
 pub const PROTOCOL_VERSION: u8 = 1;
@@ -63,23 +64,20 @@ pub fn state_code(state: WriterState) -> u8 {
     }
 }
 
-/// What one update says about one layer.
+/// One layer in an update: its newest state as sampled, and whether its
+/// responses go along (only when they changed since the last update sent).
 #[derive(Clone, Copy, Debug)]
 pub struct LayerUpdate<'a> {
-    /// The writer's state.
-    pub state: WriterState,
-    /// Frames the writer published per second, measured.
-    pub writer_rate_hz: f32,
-    /// Fresh frames this browser's reader obtained per second, measured.
-    pub read_rate_hz: f32,
-    /// Publish time minus acquisition time of the newest frame, milliseconds.
-    pub latency_ms: f32,
-    /// Sequence number of the newest frame read (0: none yet).
-    pub seq: u64,
-    /// Whether that frame carries the fault status.
-    pub fault_frame: bool,
-    /// The frame's responses, if they changed since the last update sent.
-    pub responses: Option<&'a [u16]>,
+    /// The layer's slot on the board.
+    pub slot: &'a LayerSlot,
+    /// Send its responses.
+    pub with_responses: bool,
+}
+
+impl<'a> LayerUpdate<'a> {
+    fn responses(&self) -> Option<&'a [u16]> {
+        self.with_responses.then_some(self.slot.responses.as_slice())
+    }
 }
 
 /// A browser's request, decoded from its JSON text message.
@@ -174,7 +172,7 @@ pub fn encode_update(out: &mut Vec<u8>, number: u32, mode: ReadMode, layers: &[L
     out.clear();
     let arrows = overlays.arrows.len().min(usize::from(u16::MAX));
     let markers = overlays.markers.len().min(usize::from(u16::MAX));
-    let responses: usize = layers.iter().filter_map(|l| l.responses).map(<[u16]>::len).sum();
+    let responses: usize = layers.iter().filter_map(LayerUpdate::responses).map(<[u16]>::len).sum();
     out.reserve(
         UPDATE_HEADER_BYTES
             + layers.len() * LAYER_RECORD_BYTES
@@ -190,17 +188,18 @@ pub fn encode_update(out: &mut Vec<u8>, number: u32, mode: ReadMode, layers: &[L
     out.extend_from_slice(&[0; 4]);
     for layer in layers.iter().take(usize::from(u16::MAX)) {
         let mut flags = 0;
-        if layer.responses.is_some() {
+        let slot = layer.slot;
+        if layer.with_responses {
             flags |= FLAG_RESPONSES;
         }
-        if layer.fault_frame {
+        if slot.fault_frame {
             flags |= FLAG_FAULT_FRAME;
         }
-        out.extend_from_slice(&[state_code(layer.state), flags, 0, 0]);
-        out.extend_from_slice(&layer.writer_rate_hz.to_le_bytes());
-        out.extend_from_slice(&layer.read_rate_hz.to_le_bytes());
-        out.extend_from_slice(&layer.latency_ms.to_le_bytes());
-        out.extend_from_slice(&layer.seq.to_le_bytes());
+        out.extend_from_slice(&[state_code(slot.state), flags, 0, 0]);
+        out.extend_from_slice(&slot.writer_rate_hz.to_le_bytes());
+        out.extend_from_slice(&slot.read_rate_hz.to_le_bytes());
+        out.extend_from_slice(&slot.latency_ms.to_le_bytes());
+        out.extend_from_slice(&slot.seq.to_le_bytes());
     }
     for arrow in &overlays.arrows[..arrows] {
         for value in [arrow.from[0], arrow.from[1], arrow.to[0], arrow.to[1]] {
@@ -212,7 +211,7 @@ pub fn encode_update(out: &mut Vec<u8>, number: u32, mode: ReadMode, layers: &[L
             out.extend_from_slice(&value.to_le_bytes());
         }
     }
-    for responses in layers.iter().filter_map(|l| l.responses) {
+    for responses in layers.iter().filter_map(LayerUpdate::responses) {
         for response in responses {
             out.extend_from_slice(&response.to_le_bytes());
         }
@@ -241,35 +240,24 @@ mod tests {
                 Marker { at: [-1.0, 2.0], radius: 0.05, pressure: 7.5 },
             ],
         };
-        let fresh = [10u16, 20, 30];
+        let slot = |state, writer_rate_hz, read_rate_hz, latency_ms, seq, fault_frame, responses: &[u16]| LayerSlot {
+            state,
+            writer_rate_hz,
+            read_rate_hz,
+            latency_ms,
+            seq,
+            fault_frame,
+            responses: responses.to_vec(),
+        };
+        let slots = [
+            slot(WriterState::Running, 41.5, 40.0, 0.25, 77, false, &[10, 20, 30]),
+            slot(WriterState::Faulted, 0.0, 0.0, 0.0, 5, true, &[9, 9]),
+            slot(WriterState::Gone, 0.0, 0.0, 0.0, 0, false, &[65535, 1]),
+        ];
         let layers = [
-            LayerUpdate {
-                state: WriterState::Running,
-                writer_rate_hz: 41.5,
-                read_rate_hz: 40.0,
-                latency_ms: 0.25,
-                seq: 77,
-                fault_frame: false,
-                responses: Some(&fresh),
-            },
-            LayerUpdate {
-                state: WriterState::Faulted,
-                writer_rate_hz: 0.0,
-                read_rate_hz: 0.0,
-                latency_ms: 0.0,
-                seq: 5,
-                fault_frame: true,
-                responses: None,
-            },
-            LayerUpdate {
-                state: WriterState::Gone,
-                writer_rate_hz: 0.0,
-                read_rate_hz: 0.0,
-                latency_ms: 0.0,
-                seq: 0,
-                fault_frame: false,
-                responses: Some(&[65535, 1]),
-            },
+            LayerUpdate { slot: &slots[0], with_responses: true },
+            LayerUpdate { slot: &slots[1], with_responses: false },
+            LayerUpdate { slot: &slots[2], with_responses: true },
         ];
         let mut out = vec![0xAA; 3];
         encode_update(&mut out, 9, ReadMode::Periodic { rate_hz: 30.0 }, &layers, &overlays);

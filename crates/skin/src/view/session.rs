@@ -117,15 +117,7 @@ pub fn run(mut socket: WebSocket<TcpStream>, site: &Site) -> Result<()> {
                 .map(|(slot, sent)| {
                     let changed = slot.seq != 0 && slot.seq != *sent;
                     *sent = slot.seq;
-                    LayerUpdate {
-                        state: slot.state,
-                        writer_rate_hz: slot.writer_rate_hz,
-                        read_rate_hz: slot.read_rate_hz,
-                        latency_ms: slot.latency_ms,
-                        seq: slot.seq,
-                        fault_frame: slot.fault_frame,
-                        responses: changed.then_some(slot.responses.as_slice()),
-                    }
+                    LayerUpdate { slot, with_responses: changed }
                 })
                 .collect();
             protocol::encode_update(&mut message, updates_sent, mode, &updates, &newest_overlays);

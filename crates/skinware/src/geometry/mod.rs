@@ -195,7 +195,7 @@ impl SkinGeometry {
         let input_hash = input_hash(skin, layers, calibration, regions);
         let mut layer_starts = vec![0];
         let (mut positions, mut normals, mut radii) = (Vec::new(), Vec::new(), Vec::new());
-        let mut link_names: BTreeMap<String, u16> = BTreeMap::new();
+        let mut link_names: BTreeMap<String, usize> = BTreeMap::new();
         let mut link_of = Vec::new();
         let mut sensor_links: Vec<&str> = Vec::new();
         for layer in layers {
@@ -211,15 +211,20 @@ impl SkinGeometry {
                 normals.push(c.normal);
                 radii.push(c.radius as f32);
                 sensor_links.push(&c.link);
-                let next = link_names.len() as u16;
-                link_of.push(*link_names.entry(c.link.clone()).or_insert(next));
+                let next = link_names.len();
+                let link = *link_names.entry(c.link.clone()).or_insert(next);
+                link_of.push(u16::try_from(link).map_err(|_| GeometryError::Calibration {
+                    source_name: format!("layer {}", layer.name),
+                    line: 0,
+                    message: format!("more than {} robot links; links are meant to be body parts", u16::MAX),
+                })?);
             }
             layer_starts.push(positions.len());
         }
         // Links are numbered by first appearance; list them in that order.
         let mut links = vec![String::new(); link_names.len()];
         for (name, &index) in &link_names {
-            links[index as usize] = name.clone();
+            links[index] = name.clone();
         }
         let mut by_link = vec![Vec::new(); links.len()];
         for (s, &l) in link_of.iter().enumerate() {
