@@ -80,8 +80,22 @@ pub struct PeerRecord {
     pub copy_ns: Summary,
     /// `copy_ns.p50 / memcpy_ns`.
     pub copy_vs_memcpy: f64,
+    /// `copy_ns.p50 / memcpy_woken_ns`: against a plain `memcpy` in the same
+    /// state as a waiting reader.
+    pub copy_vs_woken_memcpy: f64,
     /// Frames the readers received, all together.
     pub frames_received: usize,
+}
+
+/// A wake-up latency, µs.
+#[derive(Debug, Default, Serialize)]
+pub struct WakeLatency {
+    /// Median.
+    pub p50: f64,
+    /// 99th percentile.
+    pub p99: f64,
+    /// Worst case.
+    pub max: f64,
 }
 
 /// `cyclictest`'s wake-up latency, µs.
@@ -106,6 +120,13 @@ pub struct PeersReport {
     /// Median time of a `memcpy` of one frame that another core has just
     /// written, ns: the cache state a reader of a fresh frame faces.
     pub memcpy_cross_core_ns: u64,
+    /// Median time of a `memcpy` of one frame that another CPU has just
+    /// written, by a real-time thread woken for it after idling 5 ms, ns: the
+    /// state of a waiting reader, without the library.
+    pub memcpy_woken_ns: u64,
+    /// A bare futex wake from one CPU to a thread sleeping on the other, µs:
+    /// the floor under every waiting reader's latency.
+    pub futex_wake_us: WakeLatency,
     /// `cyclictest` on this machine in the same run.
     pub cyclictest_us: Cyclictest,
     /// Frame size, bytes.
@@ -143,6 +164,8 @@ pub fn run(options: &PeersOptions) -> Result<PeersReport> {
     std::fs::create_dir_all(&options.out).with_context(|| format!("cannot create {}", options.out.display()))?;
     let memcpy_ns = measure_memcpy();
     let memcpy_cross_core_ns = measure_memcpy_cross_core();
+    let memcpy_woken_ns = measure_memcpy_woken(woken_rounds(options.quick));
+    let futex_wake_us = measure_futex_wake(woken_rounds(options.quick));
     let cyclictest_us = run_cyclictest(if options.quick { 2_000 } else { 20_000 });
     let mut records = Vec::new();
     for system in SYSTEMS {
@@ -154,6 +177,7 @@ pub fn run(options: &PeersOptions) -> Result<PeersReport> {
                 publish_vs_memcpy: publish.p50 as f64 / memcpy_ns.max(1) as f64,
                 latency_vs_memcpy: latency.p50 as f64 / memcpy_ns.max(1) as f64,
                 copy_vs_memcpy: copy.p50 as f64 / memcpy_ns.max(1) as f64,
+                copy_vs_woken_memcpy: copy.p50 as f64 / memcpy_woken_ns.max(1) as f64,
                 publish_ns: publish.into(),
                 latency_ns: latency.into(),
                 copy_ns: copy.into(),
@@ -177,6 +201,8 @@ pub fn run(options: &PeersOptions) -> Result<PeersReport> {
     let report = PeersReport {
         memcpy_ns,
         memcpy_cross_core_ns,
+        memcpy_woken_ns,
+        futex_wake_us,
         cyclictest_us,
         frame_bytes: FRAME_BYTES,
         rate_hz: RATE_HZ,
@@ -213,8 +239,12 @@ fn print(report: &PeersReport, seconds: f64) {
         report.frame_bytes, SENSORS, report.rate_hz
     );
     println!(
-        "memcpy of one frame: {} ns (median, hot), {} ns (median, just written by another core)",
-        report.memcpy_ns, report.memcpy_cross_core_ns
+        "memcpy of one frame (median): {} ns hot, {} ns just written by another core, {} ns by a reader woken for it",
+        report.memcpy_ns, report.memcpy_cross_core_ns, report.memcpy_woken_ns
+    );
+    println!(
+        "futex wake across CPUs: p50 {:.0} us, p99 {:.0} us, max {:.0} us",
+        report.futex_wake_us.p50, report.futex_wake_us.p99, report.futex_wake_us.max
     );
     match &report.cyclictest_us.skipped {
         Some(why) => println!("cyclictest: skipped ({why})"),
@@ -224,7 +254,7 @@ fn print(report: &PeersReport, seconds: f64) {
         ),
     }
     println!(
-        "\n{:<9} {:>7} | {:>9} {:>9} {:>9} {:>6} | {:>9} {:>9} {:>9} {:>6} | {:>9} {:>6}",
+        "\nx cpy: against the hot memcpy; x woken: against the memcpy by a woken reader\n{:<13} {:>7} | {:>9} {:>9} {:>9} {:>6} | {:>9} {:>9} {:>9} {:>6} | {:>9} {:>6} {:>7}",
         "system",
         "readers",
         "pub p50",
@@ -236,12 +266,13 @@ fn print(report: &PeersReport, seconds: f64) {
         "lat max",
         "x cpy",
         "copy p50",
-        "x cpy"
+        "x cpy",
+        "x woken"
     );
     let us = |ns: u64| ns as f64 / 1e3;
     for r in &report.records {
         println!(
-            "{:<13} {:>7} | {:>7.1}us {:>7.1}us {:>7.1}us {:>6.1} | {:>7.1}us {:>7.1}us {:>7.1}us {:>6.1} | {:>7.1}us {:>6.1}",
+            "{:<13} {:>7} | {:>7.1}us {:>7.1}us {:>7.1}us {:>6.1} | {:>7.1}us {:>7.1}us {:>7.1}us {:>6.1} | {:>7.1}us {:>6.1} {:>7.2}",
             r.system,
             r.readers,
             us(r.publish_ns.p50),
@@ -253,7 +284,8 @@ fn print(report: &PeersReport, seconds: f64) {
             us(r.latency_ns.max),
             r.latency_vs_memcpy,
             us(r.copy_ns.p50),
-            r.copy_vs_memcpy
+            r.copy_vs_memcpy,
+            r.copy_vs_woken_memcpy
         );
     }
 }
@@ -306,6 +338,122 @@ fn measure_memcpy_cross_core() -> u64 {
         });
         reader.join().unwrap_or(0)
     })
+}
+
+/// Frames of the same-run baselines that mimic a waiting reader: one every
+/// 5 ms, as in the comparison itself, so the reader's CPU idles in between.
+fn woken_rounds(quick: bool) -> u32 {
+    if quick { 100 } else { 1_000 }
+}
+
+/// Median time of a plain `memcpy` of a frame that another CPU has just
+/// written, by a real-time thread that slept until it was published: exactly
+/// the state of a waiting reader (its CPU idle for 5 ms, the frame in the
+/// writer's cache, its own buffer possibly evicted), with the library taken
+/// out. The wake and the lock are not timed.
+fn measure_memcpy_woken(rounds: u32) -> u64 {
+    let shared = std::sync::Mutex::new((0u32, vec![0u8; FRAME_BYTES]));
+    let published = std::sync::Condvar::new();
+    let stop = Stop::new();
+    std::thread::scope(|scope| {
+        scope.spawn(|| {
+            let _ = skinware::os::pin_to_cpus(&[0]);
+            let _ = skinware::os::set_fifo_priority(80);
+            let mut ticker = Ticker::new(Duration::from_secs_f64(1.0 / RATE_HZ));
+            for round in 1..=rounds {
+                if ticker.wait(&stop).is_none() {
+                    break;
+                }
+                let mut frame = shared.lock().unwrap_or_else(|p| p.into_inner());
+                frame.1.fill(round as u8);
+                frame.0 = round;
+                drop(frame);
+                published.notify_one();
+            }
+        });
+        let reader = scope.spawn(|| {
+            let _ = skinware::os::pin_to_cpus(&[1]);
+            let _ = skinware::os::set_fifo_priority(70);
+            let mut target = vec![0u8; FRAME_BYTES];
+            let mut samples = Vec::with_capacity(rounds as usize);
+            let mut last = 0;
+            while last < rounds {
+                let guard = shared.lock().unwrap_or_else(|p| p.into_inner());
+                let (frame, timed_out) = published
+                    .wait_timeout_while(guard, Duration::from_secs(1), |frame| frame.0 == last)
+                    .unwrap_or_else(|p| p.into_inner());
+                if timed_out.timed_out() {
+                    break;
+                }
+                let started = skinware::os::monotonic_ns();
+                target.copy_from_slice(std::hint::black_box(&frame.1));
+                std::hint::black_box(&mut target);
+                samples.push(skinware::os::monotonic_ns() - started);
+                last = frame.0;
+            }
+            samples
+        });
+        let mut samples = reader.join().unwrap_or_default();
+        stop.stop();
+        if samples.is_empty() { 0 } else { Percentiles::of(&mut samples).p50 }
+    })
+}
+
+/// Wake-up latency of a bare futex: a real-time thread on one CPU stamps the
+/// time and wakes a real-time thread sleeping on the other, every 5 ms. This is
+/// the floor under any reader woken by a writer (skinware's doorbell, the
+/// rwlock's condition variable, iceoryx2's event), where `cyclictest` measures
+/// a timer waking its own CPU.
+fn measure_futex_wake(rounds: u32) -> WakeLatency {
+    use rustix::thread::futex;
+    use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+    let word = AtomicU32::new(0);
+    let stamp = AtomicU64::new(0);
+    let stop = Stop::new();
+    let mut samples = std::thread::scope(|scope| {
+        let reader = scope.spawn(|| {
+            let _ = skinware::os::pin_to_cpus(&[1]);
+            let _ = skinware::os::set_fifo_priority(70);
+            let mut samples = Vec::with_capacity(rounds as usize);
+            let mut last = 0;
+            let timeout = rustix::time::Timespec { tv_sec: 1, tv_nsec: 0 };
+            while last < rounds {
+                let now = word.load(Ordering::Acquire);
+                if now == last {
+                    if let Err(rustix::io::Errno::TIMEDOUT) =
+                        futex::wait(&word, futex::Flags::PRIVATE, last, Some(&timeout))
+                    {
+                        break;
+                    }
+                    continue;
+                }
+                samples.push(skinware::os::monotonic_ns().saturating_sub(stamp.load(Ordering::Acquire)));
+                last = now;
+            }
+            samples
+        });
+        scope.spawn(|| {
+            let _ = skinware::os::pin_to_cpus(&[0]);
+            let _ = skinware::os::set_fifo_priority(80);
+            let mut ticker = Ticker::new(Duration::from_secs_f64(1.0 / RATE_HZ));
+            for round in 1..=rounds {
+                if ticker.wait(&stop).is_none() {
+                    break;
+                }
+                stamp.store(skinware::os::monotonic_ns(), Ordering::Release);
+                word.store(round, Ordering::Release);
+                let _ = futex::wake(&word, futex::Flags::PRIVATE, 1);
+            }
+        });
+        let samples = reader.join().unwrap_or_default();
+        stop.stop();
+        samples
+    });
+    if samples.is_empty() {
+        return WakeLatency::default();
+    }
+    let p = Percentiles::of(&mut samples);
+    WakeLatency { p50: p.p50 as f64 / 1e3, p99: p.p99 as f64 / 1e3, max: p.max as f64 / 1e3 }
 }
 
 /// Runs `cyclictest` (from rt-tests) for `loops` wake-ups at 1 kHz, SCHED_FIFO 80.

@@ -53,6 +53,9 @@ mod anticipate;
 #[cfg(not(loom))]
 mod channel;
 #[cfg(loom)]
+#[path = "channel/copy.rs"]
+mod copy;
+#[cfg(loom)]
 #[path = "channel/ring.rs"]
 mod loom_ring;
 

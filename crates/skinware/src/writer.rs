@@ -539,7 +539,9 @@ impl FrameWriter<'_> {
             return Err(self.too_large((index + 1) * 2));
         }
         let word = &self.payload[index / 4];
-        let shift = (index % 4) * 16;
+        // Readers see the payload as native-order u16s (`Frame::responses`).
+        let lane = if cfg!(target_endian = "little") { index % 4 } else { 3 - index % 4 };
+        let shift = lane * 16;
         let current = word.load(Ordering::Relaxed);
         let updated = (current & !(0xffff << shift)) | (u64::from(value) << shift);
         word.store(updated, Ordering::Relaxed);
@@ -551,24 +553,8 @@ impl FrameWriter<'_> {
         if first.saturating_add(values.len()) > self.len_responses() {
             return Err(self.too_large((first + values.len()) * 2));
         }
-        if first % 4 == 0 {
-            let mut chunks = values.chunks_exact(4);
-            for (word, chunk) in self.payload[first / 4..].iter().zip(&mut chunks) {
-                let value = u64::from(chunk[0])
-                    | u64::from(chunk[1]) << 16
-                    | u64::from(chunk[2]) << 32
-                    | u64::from(chunk[3]) << 48;
-                word.store(value, Ordering::Relaxed);
-            }
-            let done = values.len() - chunks.remainder().len();
-            for (i, &value) in chunks.remainder().iter().enumerate() {
-                self.set_response(first + done + i, value)?;
-            }
-        } else {
-            for (i, &value) in values.iter().enumerate() {
-                self.set_response(first + i, value)?;
-            }
-        }
+        // Responses are u16 in native byte order, so they are the payload's bytes.
+        ring::store_bytes(self.payload, first * 2, bytemuck::cast_slice(values));
         Ok(())
     }
 

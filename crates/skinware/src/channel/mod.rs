@@ -5,6 +5,7 @@
 //! memory into Rust references; the protocol itself ([`ring`]) is safe code
 //! over atomics.
 
+pub(crate) mod copy;
 pub(crate) mod layout;
 pub(crate) mod registry;
 pub(crate) mod ring;
