@@ -34,12 +34,17 @@ need((out / "paper.png").stat().st_size > 1000, "paper.png missing or empty")
 peers = json.loads((out / "peers.json").read_text())
 need(is_count(peers.get("memcpy_ns")) and peers["memcpy_ns"] > 0, "peers.json: memcpy_ns missing")
 need("cyclictest_us" in peers, "peers.json: cyclictest_us missing")
+for key in ("memcpy_cross_core_ns", "memcpy_woken_ns"):
+    need(is_count(peers.get(key)) and peers[key] > 0, f"peers.json: {key} missing")
+wake = peers.get("futex_wake_us", {})
+need(all(isinstance(wake.get(k), (int, float)) and wake[k] > 0 for k in ("p50", "p99", "max")), "peers.json: futex_wake_us missing")
 seen = {(r.get("system"), r.get("readers")) for r in peers.get("records", [])}
 need(seen == {(s, n) for s in ("skinware", "skinware-spin", "rwlock", "iceoryx2") for n in (1, 4, 15)}, f"peers.json: records {sorted(seen)}")
 for record in peers.get("records", []):
     for side in ("publish_ns", "latency_ns"):
         for key in ("p50", "p99", "max"):
             need(is_count(record.get(side, {}).get(key)), f"peers.json: {record.get('system')}/{record.get('readers')} {side}.{key} missing")
+    need(isinstance(record.get("copy_vs_woken_memcpy"), (int, float)), f"peers.json: {record.get('system')}/{record.get('readers')} copy_vs_woken_memcpy missing")
     need(record.get("frames_received", 0) > 0, f"peers.json: {record.get('system')}/{record.get('readers')} received no frames")
 
 busy = {(r.get("system"), r.get("readers")) for r in peers.get("busy_readers", [])}

@@ -34,6 +34,9 @@ type EventService = iceoryx2::service::port_factory::event::PortFactory<ipc::Ser
 /// both sides: a one-sample subscriber buffer with safe overflow, so that a
 /// reader always gets the newest frame.
 fn services(name: &str) -> Result<(Node<ipc::Service>, FrameService, EventService)> {
+    // Its default configuration is what we want; say so only on errors
+    // (IOX2_LOG_LEVEL still overrides).
+    set_log_level_from_env_or(LogLevel::Error);
     let node = NodeBuilder::new().create::<ipc::Service>().map_err(e("node"))?;
     let (data, event) = names(name)?;
     let frames = node

@@ -1,7 +1,9 @@
 //! `skin bench peers`: the same 30,848-sensor frames delivered to 1, 4 and 15
-//! waiting reader processes through skinware and through the lock-based
-//! baseline, with a plain `memcpy` of one frame and `cyclictest`'s wake-up
-//! latency measured in the same run.
+//! waiting reader processes through skinware, the lock-based baseline and
+//! (with the `iceoryx2` feature) iceoryx2, with the machine's own floors
+//! measured in the same run: a plain `memcpy` of one frame (hot, just written
+//! by another CPU, and by a reader woken for it), a bare cross-CPU futex wake,
+//! and `cyclictest`'s timer wake-up latency.
 
 use std::path::PathBuf;
 use std::process::Command;
@@ -198,6 +200,8 @@ pub fn run(options: &PeersOptions) -> Result<PeersReport> {
             });
         }
     }
+    // The readers' sample files are gone by now; leave no empty directory behind.
+    let _ = std::fs::remove_dir(options.out.join("peers-work"));
     let report = PeersReport {
         memcpy_ns,
         memcpy_cross_core_ns,
