@@ -32,14 +32,22 @@ pub struct AppSamples {
     pub read_ns: Vec<Vec<u64>>,
     /// Per layer: the reader's rate, Hz (0 for asap).
     pub rate_hz: Vec<f64>,
+    /// When this process had opened every layer and started reading, and
+    /// when it stopped (CLOCK_MONOTONIC), ns.
+    pub window_ns: [u64; 2],
 }
 
 /// Runs the application role.
 pub fn run(args: &AppArgs) -> Result<()> {
-    let deadline = Instant::now() + Duration::from_secs_f64(args.seconds);
+    let mut readers = Vec::new();
+    for layer in &args.layers {
+        readers.push(Reader::open(&args.skin, layer).with_context(|| format!("application cannot open {layer}"))?);
+    }
+    let duration = Duration::from_secs_f64(args.seconds);
+    let started_ns = skinware::os::monotonic_ns();
+    let deadline = Instant::now() + duration;
     let mut threads = Vec::new();
-    for (l, layer) in args.layers.iter().enumerate() {
-        let mut reader = Reader::open(&args.skin, layer).with_context(|| format!("application cannot open {layer}"))?;
+    for (l, mut reader) in readers.into_iter().enumerate() {
         let mut seed = args.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (l as u64 + 1);
         seed ^= seed >> 29;
         let rate_hz = if args.mode == "asap" { 0.0 } else { 10.0 + (seed % 9001) as f64 / 100.0 };
@@ -67,7 +75,8 @@ pub fn run(args: &AppArgs) -> Result<()> {
             (samples, rate_hz)
         }));
     }
-    let mut result = AppSamples::default();
+    let window_ns = [started_ns, started_ns + duration.as_nanos() as u64];
+    let mut result = AppSamples { window_ns, ..AppSamples::default() };
     for thread in threads {
         let (samples, rate) = thread.join().map_err(|_| anyhow::anyhow!("reader thread panicked"))?;
         result.read_ns.push(samples);

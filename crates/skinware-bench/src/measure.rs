@@ -50,15 +50,42 @@ impl Percentiles {
     }
 }
 
+/// One timed frame of a writer.
+#[derive(Clone, Copy, Debug)]
+pub struct WriterSample {
+    /// When `begin` was called (CLOCK_MONOTONIC, comparable across processes), ns.
+    pub started_ns: u64,
+    /// From `begin` to the end of `publish`, ns.
+    pub took_ns: u64,
+}
+
+/// The writers' times of the frames begun while every application process
+/// was up and reading: the start-up and exit of the processes themselves
+/// (exec, page faults, TLB shootdowns) are not what the experiment measures.
+///
+/// Fails, naming the fix, if the applications never all ran at once.
+pub fn steady_state(samples: &[WriterSample], windows: &[[u64; 2]]) -> Result<Vec<u64>> {
+    let from = windows.iter().map(|w| w[0]).max().unwrap_or(0);
+    let to = windows.iter().map(|w| w[1]).min().unwrap_or(u64::MAX);
+    if from >= to {
+        anyhow::bail!(
+            "the {} application processes never all ran at the same time (they took too long to start); \
+             give each configuration more time with --seconds",
+            windows.len()
+        );
+    }
+    Ok(samples.iter().filter(|s| (from..to).contains(&s.started_ns)).map(|s| s.took_ns).collect())
+}
+
 /// Runs one writer thread per layer until `stop`, each at its layer's rate,
 /// filling every frame from a driver-side buffer (as a driver copies from its
-/// bus) and timing `begin` to `publish`. Returns each layer's samples, ns.
+/// bus) and timing `begin` to `publish`. Returns each layer's samples.
 pub fn run_writers(
     skin: &str,
     layers: &[LayerTopology],
     stop: &Stop,
     dir: Option<PathBuf>,
-) -> Result<Vec<std::thread::JoinHandle<Vec<u64>>>> {
+) -> Result<Vec<std::thread::JoinHandle<Vec<WriterSample>>>> {
     let mut threads = Vec::new();
     for topology in layers {
         let period = Duration::from_secs_f64(1.0 / topology.rate_hz);
@@ -80,7 +107,7 @@ pub fn run_writers(
                 if frame.write_responses(0, &bus).is_ok() {
                     frame.publish();
                 }
-                samples.push(skinware::os::monotonic_ns() - started);
+                samples.push(WriterSample { started_ns: started, took_ns: skinware::os::monotonic_ns() - started });
             }
             samples
         }));
@@ -111,6 +138,15 @@ pub fn spawn_app(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn steady_state_keeps_only_frames_begun_while_every_app_ran() {
+        let samples: Vec<WriterSample> = (0..10).map(|i| WriterSample { started_ns: i * 100, took_ns: i }).collect();
+        let kept = steady_state(&samples, &[[150, 800], [250, 950]]).unwrap();
+        assert_eq!(kept, vec![3, 4, 5, 6, 7]);
+        let error = steady_state(&samples, &[[100, 300], [400, 900]]).unwrap_err().to_string();
+        assert!(error.contains("--seconds"), "{error}");
+    }
 
     #[test]
     fn percentiles_of_known_samples() {

@@ -31,7 +31,8 @@ pub struct PaperRecord {
     pub layers: usize,
     /// Application processes.
     pub apps: usize,
-    /// Writers' execution time per frame (all layers pooled), ns.
+    /// Writers' execution time per frame (all layers pooled, frames begun
+    /// while every application was up and reading), ns.
     pub writer_ns: Percentiles,
     /// Readers' time to obtain one frame of a layer (all apps and layers pooled), ns.
     pub reader_ns: Percentiles,
@@ -120,6 +121,7 @@ fn run_one(options: &PaperOptions, work: &Path, layers: usize, apps: usize, seco
         children.push((child, out));
     }
     let mut reader_samples = Vec::new();
+    let mut windows = Vec::new();
     let mut failure = None;
     for (mut child, out) in children {
         let status = child.wait()?;
@@ -129,6 +131,7 @@ fn run_one(options: &PaperOptions, work: &Path, layers: usize, apps: usize, seco
         }
         let samples: AppSamples = serde_json::from_slice(&std::fs::read(&out)?)?;
         reader_samples.extend(samples.read_ns.into_iter().flatten());
+        windows.push(samples.window_ns);
     }
     // Let the writers run a little past the last reader, then stop them.
     std::thread::sleep(Duration::from_millis(50));
@@ -140,6 +143,8 @@ fn run_one(options: &PaperOptions, work: &Path, layers: usize, apps: usize, seco
     if let Some(failure) = failure {
         bail!("{failure} in configuration {layers} layers x {apps} apps");
     }
+    let mut writer_samples = measure::steady_state(&writer_samples, &windows)
+        .with_context(|| format!("configuration {layers} layers x {apps} apps"))?;
     Ok(PaperRecord {
         layers,
         apps,

@@ -65,7 +65,7 @@ impl From<Percentiles> for Summary {
 /// One (system, readers) result.
 #[derive(Debug, Serialize)]
 pub struct PeerRecord {
-    /// `skinware` or `rwlock`.
+    /// One of [`SYSTEMS`].
     pub system: String,
     /// Reader processes.
     pub readers: usize,

@@ -91,9 +91,10 @@ pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
     }
     let app_samples: AppSamples = serde_json::from_slice(&std::fs::read(&out)?)?;
     let _ = std::fs::remove_file(&out);
+    let window = [app_samples.window_ns];
     let mut all = [
-        writer_samples[0].clone(),
-        writer_samples[1].clone(),
+        measure::steady_state(&writer_samples[0], &window)?,
+        measure::steady_state(&writer_samples[1], &window)?,
         app_samples.read_ns.first().cloned().unwrap_or_default(),
         app_samples.read_ns.get(1).cloned().unwrap_or_default(),
     ];

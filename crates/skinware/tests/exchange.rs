@@ -40,6 +40,41 @@ fn latest_returns_newest_with_metadata_and_skips() {
 }
 
 #[test]
+fn responses_written_one_by_one_or_from_any_offset_read_back_in_order() {
+    // 75 responses: more than one 16-word block of the wide copy, an odd
+    // count, so every path (wide blocks, whole words, partial words) is used.
+    let dir = SegmentDir::new("lanes");
+    let mut writer = Writer::create("skin", "layer", 150, b"", &dir.writer()).unwrap();
+    let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+    let expected: Vec<u16> = (0..75u16).map(|i| i.wrapping_mul(877) ^ 0x5a5a).collect();
+
+    let mut frame = writer.begin();
+    assert_eq!(frame.len_responses(), 75);
+    for (index, &value) in expected.iter().enumerate().rev() {
+        frame.set_response(index, value).unwrap();
+    }
+    frame.publish();
+    assert_eq!(reader.latest().unwrap().responses(), expected.as_slice());
+
+    for first in [1, 2, 3, 5, 17, 74] {
+        let mut frame = writer.begin();
+        frame.write_responses(0, &[0xffff; 75]).unwrap();
+        frame.write_responses(first, &expected[first..]).unwrap();
+        frame.write_responses(0, &expected[..first]).unwrap();
+        frame.publish();
+        assert_eq!(reader.latest().unwrap().responses(), expected.as_slice(), "first = {first}");
+    }
+
+    let mut frame = writer.begin();
+    frame.write_responses(0, &expected).unwrap();
+    frame.set_response(40, 7).unwrap();
+    frame.publish();
+    let mut changed = expected.clone();
+    changed[40] = 7;
+    assert_eq!(reader.latest().unwrap().responses(), changed.as_slice());
+}
+
+#[test]
 fn frames_carry_status_and_acquisition_time() {
     let dir = SegmentDir::new("status");
     let mut writer = Writer::create("skin", "layer", 8, b"", &dir.writer()).unwrap();

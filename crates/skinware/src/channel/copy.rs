@@ -13,9 +13,13 @@
 //! could do; here that is a sequence of relaxed 8-byte atomic loads or stores,
 //! one per word, in some order within the block:
 //!
-//! * on x86-64 every aligned 8-byte part of a 16-byte SSE access is read or
-//!   written as a unit (the words are 8-byte aligned, so never split across a
-//!   cache line), so each word is still accessed atomically;
+//! * the words are 8-byte aligned, so no word of a 16-byte SSE access is
+//!   split across a cache line, and on every x86-64 implementation each such
+//!   word is read or written as a unit. The architecture manuals only promise
+//!   that accesses wider than 8 bytes "may be implemented as multiple
+//!   accesses", so the protocol does not rest on it: a word torn by a racing
+//!   writer was written after the writer's odd stamp, so the reader's stamp
+//!   check discards the copy exactly as it would a stale word;
 //! * the order of the words within one copy does not matter to the protocol:
 //!   the reader validates the whole copy afterwards, and the writer publishes
 //!   the whole frame afterwards;
@@ -120,9 +124,9 @@ fn store_blocks(dst: &[AtomicU64], src: &[u8]) -> usize {
         return 0;
     }
     // SAFETY: `src` is valid for reads and `dst` for writes of
-    // `blocks * BLOCK_WORDS * 8` bytes, and `movdqu` needs no alignment; `dst` is atomics, which may be written
-    // through a shared reference, and `src` is private memory, so they do not
-    // overlap. Only the single writer stores into `dst`, and readers load it
+    // `blocks * BLOCK_WORDS * 8` bytes, and `movdqu` needs no alignment; `dst`
+    // is atomics, which may be written through a shared reference, and `src`
+    // is private memory, so they do not overlap. Only the single writer stores into `dst`, and readers load it
     // atomically, so these stores are, word by word, the relaxed atomic stores
     // the seqlock expects (see the module comment).
     unsafe {

@@ -173,8 +173,16 @@ impl<'a> Ring<'a> {
 /// Writes `bytes` into payload `words` starting at byte `offset`, a word at a time.
 ///
 /// Partial words at either end are read, merged and stored back; this is only
-/// sound for the single writer, which is the only caller.
+/// sound for the single writer, which is the only caller. Callers check the
+/// range against the payload first (and report it as an error), so a range
+/// past the end here is a bug in this crate.
 pub(crate) fn store_bytes(words: &[AtomicU64], offset: usize, bytes: &[u8]) {
+    assert!(
+        offset.checked_add(bytes.len()).is_some_and(|end| end <= words.len() * 8),
+        "store_bytes: {} bytes at offset {offset} past a {}-byte payload",
+        bytes.len(),
+        words.len() * 8
+    );
     let mut pos = offset;
     let mut rest = bytes;
     while !rest.is_empty() {
@@ -278,6 +286,15 @@ mod tests {
         assert_eq!(&bytes[..3], &[255, 255, 255]);
         assert_eq!(&bytes[3..13], &[1, 2, 3, 4, 5, 6, 7, 8, 9, 10]);
         assert!(bytes[13..].iter().all(|&b| b == 255));
+    }
+
+    #[test]
+    #[should_panic(expected = "past a 16-byte payload")]
+    fn store_bytes_refuses_a_range_past_the_payload() {
+        // Word-aligned, so without the check the wide path would find no words
+        // left and never advance.
+        let words: Vec<AtomicU64> = (0..2).map(|_| AtomicU64::new(0)).collect();
+        store_bytes(&words, 0, &[0; 24]);
     }
 
     #[test]
