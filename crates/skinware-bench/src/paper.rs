@@ -18,8 +18,13 @@ pub struct PaperOptions {
     pub quick: bool,
     /// Where `paper.json` and `paper.png` go.
     pub out: PathBuf,
-    /// Seconds per configuration (default 1 quick, 4 full).
+    /// Seconds per configuration and round (default 1 quick, 4 full).
     pub seconds: Option<f64>,
+    /// Times the whole grid of configurations is run (default 1 quick, 3
+    /// full). Rounds are interleaved and each configuration's samples pooled
+    /// over them, so that a slow drift of a shared machine's load does not
+    /// fall on one configuration.
+    pub rounds: Option<u32>,
     /// This executable, re-run for the application processes.
     pub exe: PathBuf,
 }
@@ -48,31 +53,51 @@ pub fn run(options: &PaperOptions) -> Result<Vec<PaperRecord>> {
     if !(seconds.is_finite() && seconds > 0.0) {
         bail!("--seconds must be a positive number of seconds");
     }
+    let rounds = options.rounds.unwrap_or(if options.quick { 1 } else { 3 });
+    if rounds == 0 {
+        bail!("--rounds must be at least 1");
+    }
     std::fs::create_dir_all(&options.out).with_context(|| format!("cannot create {}", options.out.display()))?;
     let work = options.out.join("paper-work");
     std::fs::create_dir_all(&work)?;
-    let total = (layer_counts.len() * app_counts.len()) as u64;
+    let total = (layer_counts.len() * app_counts.len()) as u64 * u64::from(rounds);
     let progress = indicatif::ProgressBar::new(total).with_style(
         indicatif::ProgressStyle::with_template(
             "{bar:40} {pos}/{len} configurations, {elapsed} elapsed, ~{eta} left  {msg}",
         )
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    let mut records = Vec::new();
-    for &layers in &layer_counts {
-        for &apps in &app_counts {
-            progress.set_message(format!("{layers} layer(s), {apps} app(s)"));
-            records.push(run_one(options, &work, layers, apps, seconds)?);
+    let configurations: Vec<(usize, usize)> =
+        layer_counts.iter().flat_map(|&layers| app_counts.iter().map(move |&apps| (layers, apps))).collect();
+    let mut pooled: Vec<Samples> = configurations.iter().map(|_| Samples::default()).collect();
+    for round in 1..=rounds {
+        for (&(layers, apps), pool) in configurations.iter().zip(&mut pooled) {
+            progress.set_message(format!("round {round}/{rounds}: {layers} layer(s), {apps} app(s)"));
+            let samples = run_one(options, &work, layers, apps, seconds)?;
+            pool.writer_ns.extend(samples.writer_ns);
+            pool.reader_ns.extend(samples.reader_ns);
+            pool.writer_rates_hz = samples.writer_rates_hz;
             progress.inc(1);
         }
     }
     progress.finish_and_clear();
+    let records: Vec<PaperRecord> = configurations
+        .iter()
+        .zip(pooled)
+        .map(|(&(layers, apps), mut pool)| PaperRecord {
+            layers,
+            apps,
+            writer_ns: Percentiles::of(&mut pool.writer_ns),
+            reader_ns: Percentiles::of(&mut pool.reader_ns),
+            writer_rates_hz: pool.writer_rates_hz,
+        })
+        .collect();
     let _ = std::fs::remove_dir_all(&work);
 
     println!(
         "skin bench paper: 30,848 sensors, writers at random 30-50 Hz, apps reading every layer at random 10-100 Hz"
     );
-    println!("{seconds} s per configuration; times in microseconds\n");
+    println!("{rounds} round(s) of {seconds} s per configuration; times in microseconds\n");
     println!(
         "{:>6} {:>4} | {:>8} {:>8} {:>8} {:>8} | {:>8} {:>8} {:>8} {:>8}",
         "layers", "apps", "wr p50", "wr p99", "wr p99.9", "wr max", "rd p50", "rd p99", "rd p99.9", "rd max"
@@ -101,7 +126,15 @@ pub fn run(options: &PaperOptions) -> Result<Vec<PaperRecord>> {
     Ok(records)
 }
 
-fn run_one(options: &PaperOptions, work: &Path, layers: usize, apps: usize, seconds: f64) -> Result<PaperRecord> {
+/// One run of one configuration.
+#[derive(Default)]
+struct Samples {
+    writer_ns: Vec<u64>,
+    reader_ns: Vec<u64>,
+    writer_rates_hz: Vec<f64>,
+}
+
+fn run_one(options: &PaperOptions, work: &Path, layers: usize, apps: usize, seconds: f64) -> Result<Samples> {
     let skin = format!("bench{}L{layers}A{apps}", std::process::id());
     let config = VirtualSkinConfig {
         layers,
@@ -143,13 +176,11 @@ fn run_one(options: &PaperOptions, work: &Path, layers: usize, apps: usize, seco
     if let Some(failure) = failure {
         bail!("{failure} in configuration {layers} layers x {apps} apps");
     }
-    let mut writer_samples = measure::steady_state(&writer_samples, &windows)
+    let writer_samples = measure::steady_state(&writer_samples, &windows)
         .with_context(|| format!("configuration {layers} layers x {apps} apps"))?;
-    Ok(PaperRecord {
-        layers,
-        apps,
-        writer_ns: Percentiles::of(&mut writer_samples),
-        reader_ns: Percentiles::of(&mut reader_samples),
+    Ok(Samples {
+        writer_ns: writer_samples,
+        reader_ns: reader_samples,
         writer_rates_hz: topologies.iter().map(|t| t.rate_hz).collect(),
     })
 }

@@ -8,10 +8,10 @@ use anyhow::{Context, Result};
 #[derive(clap::Subcommand)]
 pub enum Which {
     /// The paper's performance test (Fig. 6): 1..5 layers x 1..15 apps.
-    Paper(Common),
+    Paper(PaperArgs),
     /// The paper's Table I: a 180-sensor CAN layer and a 708-sensor EtherCAT layer.
     Table1(Common),
-    /// The whole-skin frame to 1, 4 and 15 waiting readers: skinware, a lock-based baseline, memcpy, cyclictest.
+    /// The whole-skin frame to 1, 4 and 15 waiting readers: skinware, iceoryx2 (feature), a lock-based baseline, memcpy, cyclictest.
     Peers(Common),
 }
 
@@ -24,9 +24,20 @@ pub struct Common {
     /// Directory for the JSON and plots.
     #[arg(long, default_value = "target/bench")]
     out: PathBuf,
-    /// Seconds per configuration (overrides the default of --quick or the full run).
+    /// Seconds per configuration (and round; overrides the default of --quick or the full run).
     #[arg(long)]
     seconds: Option<f64>,
+}
+
+/// Options of `skin bench paper`.
+#[derive(clap::Args)]
+pub struct PaperArgs {
+    #[command(flatten)]
+    common: Common,
+    /// Times to run the whole grid, interleaved, pooling each configuration's
+    /// samples (default 1 with --quick, 3 for the full run).
+    #[arg(long)]
+    rounds: Option<u32>,
 }
 
 /// Arguments of the hidden `bench-app` role.
@@ -50,11 +61,12 @@ pub struct AppArgs {
 pub fn run(which: &Which) -> Result<()> {
     let exe = std::env::current_exe().context("cannot find the skin executable")?;
     match which {
-        Which::Paper(common) => {
+        Which::Paper(PaperArgs { common, rounds }) => {
             let options = skinware_bench::paper::PaperOptions {
                 quick: common.quick,
                 out: common.out.clone(),
                 seconds: common.seconds,
+                rounds: *rounds,
                 exe,
             };
             skinware_bench::paper::run(&options).map(|_| ())
