@@ -33,7 +33,7 @@ pub struct AppSamples {
     /// Per layer: the reader's rate, Hz (0 for asap).
     pub rate_hz: Vec<f64>,
     /// When this process had opened every layer and started reading, and
-    /// when it stopped (CLOCK_MONOTONIC), ns.
+    /// its deadline to stop (CLOCK_MONOTONIC), ns.
     pub window_ns: [u64; 2],
 }
 

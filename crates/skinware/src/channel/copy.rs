@@ -126,9 +126,10 @@ fn store_blocks(dst: &[AtomicU64], src: &[u8]) -> usize {
     // SAFETY: `src` is valid for reads and `dst` for writes of
     // `blocks * BLOCK_WORDS * 8` bytes, and `movdqu` needs no alignment; `dst`
     // is atomics, which may be written through a shared reference, and `src`
-    // is private memory, so they do not overlap. Only the single writer stores into `dst`, and readers load it
-    // atomically, so these stores are, word by word, the relaxed atomic stores
-    // the seqlock expects (see the module comment).
+    // is private memory, so they do not overlap. Only the single writer
+    // stores into `dst`, and readers load it atomically, so these stores are,
+    // word by word, the relaxed atomic stores the seqlock expects (see the
+    // module comment).
     unsafe {
         std::arch::asm!(
             "2:",
