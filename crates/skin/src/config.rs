@@ -4,8 +4,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use serde::Deserialize;
-use skinware::geometry::{RegionSpec, Selector};
 use skinware_drivers::{CablePull, Rate, ScriptedContact, VirtualSkin, VirtualSkinConfig};
+use skinware_geometry::{RegionSpec, Selector};
 
 /// A whole configuration file.
 #[derive(Debug, Deserialize)]
@@ -67,10 +67,10 @@ pub struct ServiceConfig {
 
 impl ServiceConfig {
     /// Periodic at `rate_hz`, or sporadic.
-    pub fn mode(&self) -> skinware::service::ServiceMode {
+    pub fn mode(&self) -> skinware_services::framework::ServiceMode {
         match self.rate_hz {
-            Some(hz) => skinware::service::ServiceMode::Periodic { hz },
-            None => skinware::service::ServiceMode::Sporadic,
+            Some(hz) => skinware_services::framework::ServiceMode::Periodic { hz },
+            None => skinware_services::framework::ServiceMode::Sporadic,
         }
     }
 
@@ -634,7 +634,7 @@ mod tests {
     fn services_are_checked() {
         let ok = with("[[service]]\nname = \"contact\"\nkind = \"contact\"\nrate_hz = 50\n[[service]]\nname = \"motion\"\nkind = \"motion\"\n").unwrap();
         assert_eq!(ok.services.len(), 2);
-        assert_eq!(ok.services[1].mode(), skinware::service::ServiceMode::Sporadic);
+        assert_eq!(ok.services[1].mode(), skinware_services::framework::ServiceMode::Sporadic);
         let err = format!("{:#}", with("[[service]]\nname = \"m\"\nkind = \"motion\"\nrate_hz = 50\n").unwrap_err());
         assert!(err.contains("service \"m\"") && err.contains("input \"contact\" is not a contact service"), "{err}");
         let err = format!("{:#}", with("[[service]]\nname = \"c\"\nkind = \"contact\"\nmin_speed = 1\n").unwrap_err());

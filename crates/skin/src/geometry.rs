@@ -3,7 +3,7 @@
 
 use anyhow::{Context, Result};
 use skinware::LayerTopology;
-use skinware::geometry::{Calibration, GeometryError, RegionSpec, SkinGeometry};
+use skinware_geometry::{Calibration, GeometryError, RegionSpec, SkinGeometry};
 
 use crate::config::Config;
 
@@ -40,7 +40,7 @@ pub fn inputs(config: &Config) -> Result<(Vec<LayerTopology>, Calibration, Vec<R
 /// The geometry of `config`, from the cache when its inputs have not changed.
 /// The flag says whether it came from the cache.
 pub fn load_or_build(config: &Config) -> Result<(SkinGeometry, bool)> {
-    load_or_build_in(config, &skinware::geometry::cache_dir())
+    load_or_build_in(config, &skinware_geometry::cache_dir())
 }
 
 /// [`load_or_build`] with the cache in `cache`.

@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output};
 use std::time::{Duration, Instant};
 
-use skinware::service::ServiceReader;
 use skinware::{FrameStatus, ReaderOptions};
+use skinware_services::framework::ServiceReader;
 use skinware_services::{MotionRecord, motion_flags};
 
 const CONFIG: &str = r#"

@@ -5,8 +5,8 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use skinware::driver::{Driver, DriverError, LayerSource, LayerSpec};
-use skinware::geometry::{Calibration, SensorCalibration};
 use skinware::{FrameWriter, RtOptions, TopologyBuilder};
+use skinware_geometry::{Calibration, SensorCalibration};
 
 /// A layer's acquisition rate.
 #[derive(Clone, Debug, PartialEq, serde::Deserialize, serde::Serialize)]

@@ -2,10 +2,10 @@
 //! body parts, split over five layers.
 
 use skinware::Driver;
-use skinware::geometry::{RegionSpec, Selector, SkinGeometry};
 use skinware_drivers::{VirtualSkin, VirtualSkinConfig};
+use skinware_geometry::{RegionSpec, Selector, SkinGeometry};
 
-fn humanoid() -> (Vec<skinware::LayerTopology>, skinware::geometry::Calibration) {
+fn humanoid() -> (Vec<skinware::LayerTopology>, skinware_geometry::Calibration) {
     let skin = VirtualSkin::new(VirtualSkinConfig { layers: 5, ..VirtualSkinConfig::default() }).unwrap();
     let layers = skin.layers().into_iter().map(|l| l.topology).collect();
     (layers, skin.calibration())

@@ -9,11 +9,11 @@
 
 use std::time::{Duration, Instant};
 
-use skinware::geometry::{RegionSpec, Selector, SkinGeometry};
-use skinware::service::{ServiceMode, ServicePayload, ServiceReader, ServiceSpec, ServiceWriter};
 use skinware::{Driver, DriverHandler, FrameStatus, HandlerOptions, Ticker, WriterOptions};
 use skinware_drivers::{VirtualSkin, VirtualSkinConfig};
+use skinware_geometry::{RegionSpec, Selector, SkinGeometry};
 use skinware_services::SkinInputs;
+use skinware_services::framework::{ServiceMode, ServicePayload, ServiceReader, ServiceSpec, ServiceWriter};
 
 /// The record this application publishes per region.
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]

@@ -4,8 +4,8 @@
 //! of touched taxels on the neighbour graph, reported per region; and taxels
 //! that never change (dead) or sit at saturation (stuck).
 
-use skinware::geometry::SkinGeometry;
-use skinware::service::ServicePayload;
+use crate::framework::ServicePayload;
+use skinware_geometry::SkinGeometry;
 
 /// Contacts reported per region and frame; more are counted in `flags`.
 pub const MAX_CONTACTS: usize = 8;
@@ -422,7 +422,7 @@ impl ContactDetector {
 mod tests {
     use super::*;
     use skinware::TopologyBuilder;
-    use skinware::geometry::{Calibration, SensorCalibration};
+    use skinware_geometry::{Calibration, SensorCalibration};
 
     fn strip() -> SkinGeometry {
         let mut builder = TopologyBuilder::new("strip", "pressure", 1.0);

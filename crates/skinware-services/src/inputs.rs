@@ -2,8 +2,8 @@
 //! layer in one global array (the geometry's sensor order), and which layers
 //! are healthy.
 
-use skinware::geometry::SkinGeometry;
 use skinware::{Reader, ReaderOptions, WriterState};
+use skinware_geometry::SkinGeometry;
 
 /// Readers of every layer of a skin.
 pub struct SkinInputs {

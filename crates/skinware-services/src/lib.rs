@@ -1,6 +1,10 @@
 //! Skinware services: users of tactile data that publish processed data to
-//! other users, through the same exchange as the layers (see
-//! [`skinware::service`] for the framework).
+//! other users, through the same exchange as the layers.
+//!
+//! * [`framework`]: what every service is made of: typed records
+//!   ([`ServicePayload`]), a [`ServiceWriter`] that publishes them
+//!   periodically or on request, and a [`ServiceReader`] that refuses records
+//!   of another type or version.
 //!
 //! * [`contact`]: per-taxel baseline with drift compensation, a touch
 //!   threshold from the measured noise, contacts per region (centroid in 3-D
@@ -16,7 +20,7 @@
 //! [`run_contact_service`] and [`run_motion_service`].
 //!
 //! ```no_run
-//! use skinware::service::ServiceReader;
+//! use skinware_services::framework::ServiceReader;
 //! use skinware_services::{RegionContacts, MotionRecord, motion_flags};
 //!
 //! let mut motion = ServiceReader::<MotionRecord>::open("default", "motion")?;
@@ -33,16 +37,19 @@
 #![forbid(unsafe_code)]
 
 pub mod contact;
+pub mod framework;
 pub mod inputs;
 pub mod motion;
 
 use std::time::Duration;
 
-use skinware::geometry::SkinGeometry;
-use skinware::service::{ServiceMode, ServiceReader, ServiceSpec, ServiceWriter, StepOutcome};
 use skinware::{FrameStatus, ReaderOptions, Stop, WriterOptions, WriterState};
+use skinware_geometry::SkinGeometry;
 
 pub use contact::{Contact, ContactDetector, ContactParams, MAX_CONTACTS, RegionContacts, TaxelState, contact_flags};
+pub use framework::{
+    ServiceFrame, ServiceInfo, ServiceMode, ServicePayload, ServiceReader, ServiceSpec, ServiceWriter, StepOutcome,
+};
 pub use inputs::SkinInputs;
 pub use motion::{MotionParams, MotionRecord, MotionTracker, motion_flags};
 
@@ -54,7 +61,7 @@ pub enum ServiceError {
     Exchange(#[from] skinware::Error),
     /// The skin's geometry is missing or unusable.
     #[error(transparent)]
-    Geometry(#[from] skinware::geometry::GeometryError),
+    Geometry(#[from] skinware_geometry::GeometryError),
 }
 
 /// The contact service's settings.

@@ -5,7 +5,7 @@
 
 use std::collections::VecDeque;
 
-use skinware::service::ServicePayload;
+use crate::framework::ServicePayload;
 
 use crate::contact::{RegionContacts, contact_flags};
 

@@ -6,10 +6,10 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use skinware::geometry::{RegionSpec, Selector, SkinGeometry};
-use skinware::service::{ServiceMode, ServiceReader};
 use skinware::{Driver, DriverHandler, FrameStatus, HandlerOptions, Stop, WriterOptions};
 use skinware_drivers::{Rate, ScriptedContact, VirtualBody, VirtualSkin, VirtualSkinConfig};
+use skinware_geometry::{RegionSpec, Selector, SkinGeometry};
+use skinware_services::framework::{ServiceMode, ServiceReader};
 use skinware_services::{
     ContactParams, ContactServiceConfig, MotionParams, MotionRecord, MotionServiceConfig, RegionContacts, TaxelState,
     contact_flags, motion_flags, run_contact_service, run_motion_service, taxel_channel,
@@ -120,7 +120,7 @@ fn start(skin: &str, dead: Vec<u32>, stuck: Vec<u32>) -> (Running, Arc<SkinGeome
     (Running { stop, handler: Some(handler), threads, pull_files }, geometry)
 }
 
-fn open<T: skinware::service::ServicePayload>(skin: &str, name: &str) -> ServiceReader<T> {
+fn open<T: skinware_services::framework::ServicePayload>(skin: &str, name: &str) -> ServiceReader<T> {
     let deadline = Instant::now() + Duration::from_secs(10);
     loop {
         match ServiceReader::<T>::open(skin, name) {

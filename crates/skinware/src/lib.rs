@@ -68,15 +68,11 @@ mod error;
 #[cfg(not(loom))]
 mod frame;
 #[cfg(not(loom))]
-pub mod geometry;
-#[cfg(not(loom))]
 pub mod os;
 #[cfg(not(loom))]
 mod reader;
 #[cfg(not(loom))]
 pub mod rt;
-#[cfg(not(loom))]
-pub mod service;
 #[cfg(not(loom))]
 pub mod shm;
 #[cfg(not(loom))]

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use skinware::WriterState;
-use skinware::geometry::SkinGeometry;
+use skinware_geometry::SkinGeometry;
 
 use crate::config::Config;
 use crate::view::{self, Site};

@@ -120,12 +120,12 @@ struct ServiceDecoder {
 
 impl ServiceDecoder {
     fn new(reader: &Reader) -> Result<ServiceDecoder> {
-        use skinware::service::ServicePayload;
+        use skinware_services::framework::ServicePayload;
         if reader.kind() != skinware::ChannelKind::Service {
             anyhow::bail!("{} is a layer, not a service; drop --service to echo it", reader.label());
         }
         let (schema, version) = reader.schema();
-        let info = skinware::service::ServiceInfo::parse(&reader.description());
+        let info = skinware_services::framework::ServiceInfo::parse(&reader.description());
         let expected = match schema.as_str() {
             s if s == RegionContacts::SCHEMA => Some((RegionContacts::VERSION, std::mem::size_of::<RegionContacts>())),
             s if s == MotionRecord::SCHEMA => Some((MotionRecord::VERSION, std::mem::size_of::<MotionRecord>())),
@@ -148,7 +148,7 @@ impl ServiceDecoder {
     }
 
     fn print(&self, bytes: &[u8], full: bool, out: &mut impl Write) -> Result<()> {
-        use skinware::service::ServicePayload;
+        use skinware_services::framework::ServicePayload;
         let mm = |v: f32| v * 1e3;
         if self.schema == RegionContacts::SCHEMA {
             let records: Vec<RegionContacts> = bytemuck::pod_collect_to_vec(bytes);

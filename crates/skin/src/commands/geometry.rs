@@ -4,7 +4,7 @@ use std::io::Write;
 use std::path::PathBuf;
 
 use anyhow::Result;
-use skinware::geometry::SkinGeometry;
+use skinware_geometry::SkinGeometry;
 
 /// Arguments of `skin geometry`.
 #[derive(clap::Args)]

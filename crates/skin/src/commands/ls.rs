@@ -67,7 +67,7 @@ pub fn run(args: &Args) -> Result<()> {
 
 fn regions(args: &Args) -> Result<()> {
     let skin = args.skin.as_deref().unwrap_or("default");
-    let geometry = skinware::geometry::SkinGeometry::open(skin)?;
+    let geometry = skinware_geometry::SkinGeometry::open(skin)?;
     let r = &geometry.regions;
     let mut out = std::io::stdout().lock();
     if args.json {

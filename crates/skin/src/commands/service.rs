@@ -5,8 +5,8 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use skinware::geometry::{GeometryError, SkinGeometry};
 use skinware::{Stop, WriterOptions};
+use skinware_geometry::{GeometryError, SkinGeometry};
 
 use crate::config::ServiceKind;
 

@@ -6,8 +6,8 @@ use std::time::Duration;
 
 use anyhow::Result;
 use serde::Serialize;
-use skinware::service::ServiceInfo;
 use skinware::{ChannelKind, FrameStatus};
+use skinware_services::framework::ServiceInfo;
 
 use crate::layers::Sampled;
 

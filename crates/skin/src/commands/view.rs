@@ -1,7 +1,7 @@
 //! `skin view`: a live web view of a running skin.
 
 use anyhow::{Context, Result};
-use skinware::geometry::SkinGeometry;
+use skinware_geometry::SkinGeometry;
 
 use crate::view::{self, Site};
 

@@ -5,8 +5,8 @@
 
 use std::time::{Duration, Instant};
 
-use skinware::service::ServiceReader;
 use skinware::{ChannelKind, ReaderOptions, WriterState};
+use skinware_services::framework::ServiceReader;
 use skinware_services::{MotionRecord, RegionContacts, motion_flags};
 
 /// A sliding contact: from where it is on the map towards where it is going, metres.
@@ -42,9 +42,9 @@ pub struct Overlays {
 /// The newest frame of a running service, unless it is older than a few of
 /// its periods: a paused, faulted, hung or gone service shows nothing rather
 /// than stale marks.
-fn current<T: skinware::service::ServicePayload>(
+fn current<T: skinware_services::framework::ServicePayload>(
     reader: &mut ServiceReader<T>,
-) -> Option<skinware::service::ServiceFrame<'_, T>> {
+) -> Option<skinware_services::framework::ServiceFrame<'_, T>> {
     if reader.writer_state() != WriterState::Running {
         return None;
     }

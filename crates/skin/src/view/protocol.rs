@@ -7,7 +7,7 @@
 #![forbid(unsafe_code)]
 
 use skinware::WriterState;
-use skinware::geometry::{SensorRef, SkinGeometry};
+use skinware_geometry::{SensorRef, SkinGeometry};
 
 use super::overlays::Overlays;
 use super::sampler::LayerSlot;

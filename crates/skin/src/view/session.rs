@@ -11,7 +11,7 @@ use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use skinware::geometry::SkinGeometry;
+use skinware_geometry::SkinGeometry;
 use tungstenite::{Message, WebSocket};
 
 use super::overlays::OverlaySource;

@@ -8,7 +8,7 @@
 //! [`Error::NotThisService`], never misread bytes.
 //!
 //! ```
-//! use skinware::service::{ServiceMode, ServicePayload, ServiceReader, ServiceSpec, ServiceWriter};
+//! use skinware_services::framework::{ServiceMode, ServicePayload, ServiceReader, ServiceSpec, ServiceWriter};
 //! use skinware::{FrameStatus, WriterOptions};
 //!
 //! #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -36,13 +36,9 @@
 
 use std::time::Duration;
 
-use crate::channel::ChannelKind;
-use crate::error::{Error, Result};
-use crate::frame::FrameStatus;
-use crate::reader::{Reader, ReaderOptions};
-use crate::rt::Ticker;
-use crate::stats::WriterState;
-use crate::writer::{Writer, WriterOptions};
+use skinware::{
+    ChannelKind, Error, FrameStatus, Reader, ReaderOptions, Result, Ticker, Writer, WriterOptions, WriterState,
+};
 
 const DESCRIPTION_MAGIC: &str = "SKSERV01";
 
@@ -226,7 +222,7 @@ impl<T: ServicePayload> ServiceWriter<T> {
         F: FnMut(&mut [T]) -> std::result::Result<StepOutcome, E>,
     {
         let ServiceWriter { writer, buffer, mode, .. } = self;
-        let mut fill = |frame: &mut crate::writer::FrameWriter<'_>| -> std::result::Result<(), String> {
+        let mut fill = |frame: &mut skinware::FrameWriter<'_>| -> std::result::Result<(), String> {
             let outcome = step(buffer).map_err(|e| e.to_string())?;
             frame.write_bytes(0, bytemuck::cast_slice(buffer)).map_err(|e| e.to_string())?;
             frame.set_status(outcome.status);
@@ -379,7 +375,7 @@ impl<T: ServicePayload> ServiceReader<T> {
     }
 }
 
-fn copy_out<'r, T: ServicePayload>(frame: &crate::frame::Frame<'_>, records: &'r mut [T]) -> ServiceFrame<'r, T> {
+fn copy_out<'r, T: ServicePayload>(frame: &skinware::Frame<'_>, records: &'r mut [T]) -> ServiceFrame<'r, T> {
     // The frame's bytes may not be aligned for T: copy bytewise into aligned records.
     bytemuck::cast_slice_mut::<T, u8>(records).copy_from_slice(frame.bytes());
     ServiceFrame {

@@ -3,8 +3,10 @@
 
 use std::time::Duration;
 
-use skinware::service::{ServiceMode, ServicePayload, ServiceReader, ServiceSpec, ServiceWriter, StepOutcome};
 use skinware::{Error, FrameStatus, Stop, Writer, WriterOptions};
+use skinware_services::framework::{
+    ServiceMode, ServicePayload, ServiceReader, ServiceSpec, ServiceWriter, StepOutcome,
+};
 
 #[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]

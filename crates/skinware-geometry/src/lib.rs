@@ -27,7 +27,7 @@ pub use map2d::{MapQuality, SkinMap};
 pub use neighbours::NeighbourGraph;
 pub use regions::{RegionIndex, RegionSpec, Selector};
 
-use crate::topology::LayerTopology;
+use skinware::LayerTopology;
 
 /// Bumped whenever the computation or the encoding changes, so that caches
 /// made by another version are recomputed.
@@ -349,7 +349,7 @@ impl SkinGeometry {
 
     /// The geometry published for `skin` in the segment directory.
     pub fn open(skin: &str) -> Result<SkinGeometry, GeometryError> {
-        SkinGeometry::open_in(&crate::shm::segment_dir(), skin)
+        SkinGeometry::open_in(&skinware::shm::segment_dir(), skin)
     }
 
     /// The geometry published for `skin` in `dir`.

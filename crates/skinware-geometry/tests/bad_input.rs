@@ -2,7 +2,7 @@
 //! the file, the line and the fix; the cache follows its inputs.
 
 use skinware::TopologyBuilder;
-use skinware::geometry::{Calibration, GeometryError, RegionSpec, Selector, SkinGeometry};
+use skinware_geometry::{Calibration, GeometryError, RegionSpec, Selector, SkinGeometry};
 
 fn calibration_error(text: &str) -> String {
     match Calibration::parse(text, "skin.calib") {
@@ -84,7 +84,7 @@ fn strip() -> (Vec<skinware::LayerTopology>, Calibration) {
     let mut calibration = Calibration::new();
     for uid in 1..=12u32 {
         let (row, column) = ((uid - 1) / 6, (uid - 1) % 6);
-        let sensor = skinware::geometry::SensorCalibration {
+        let sensor = skinware_geometry::SensorCalibration {
             position: [column as f64 * 0.005, row as f64 * 0.005, 0.0],
             normal: [0.0, 0.0, 1.0],
             radius: 0.002,

@@ -5,7 +5,7 @@
 #![forbid(unsafe_code)]
 
 use super::{BuildTimes, MapQuality, NeighbourGraph, NeighbourStats, RegionIndex, SkinGeometry, SkinMap};
-use crate::topology::LayerTopology;
+use skinware::LayerTopology;
 
 const MAGIC: &[u8; 8] = b"SKGEOM01";
 
