@@ -4,10 +4,10 @@
 
 #![forbid(unsafe_code)]
 
+use crate::sync::{AtomicU64, Ordering};
 use std::panic::AssertUnwindSafe;
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::thread::JoinHandle;
 use std::time::Duration;
 

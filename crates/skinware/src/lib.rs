@@ -50,14 +50,7 @@ pub struct ReadmeExamples;
 
 #[cfg(not(loom))]
 mod anticipate;
-#[cfg(not(loom))]
 mod channel;
-#[cfg(loom)]
-#[path = "channel/copy.rs"]
-mod copy;
-#[cfg(loom)]
-#[path = "channel/ring.rs"]
-mod loom_ring;
 
 mod sync;
 

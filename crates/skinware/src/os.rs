@@ -1,16 +1,19 @@
 //! Thin wrappers over the operating-system primitives the exchange relies on:
 //! the monotonic clock, futexes, open-file-description locks and real-time
-//! scheduling. The only `unsafe` here is the two `fcntl`/`sched_setscheduler`
+//! scheduling. The protocols that use them live in `channel/` (the doorbell,
+//! liveness); this module only makes the calls. The only `unsafe` here is the two `fcntl`/`sched_setscheduler`
 //! calls that `rustix` does not wrap.
 
 use std::io;
 use std::num::NonZeroU32;
 use std::os::fd::{AsFd, AsRawFd};
-use std::sync::atomic::AtomicU32;
 use std::time::Duration;
 
 use rustix::thread::futex;
 use rustix::time::{ClockId, Timespec, clock_gettime};
+
+use crate::channel::doorbell::{Futex, Wake};
+use crate::sync::AtomicU32;
 
 /// Nanoseconds on CLOCK_MONOTONIC: the clock of every timestamp in a frame.
 pub fn monotonic_ns() -> u64 {
@@ -22,15 +25,6 @@ fn timespec_from_ns(ns: u64) -> Timespec {
     Timespec { tv_sec: (ns / 1_000_000_000) as i64, tv_nsec: (ns % 1_000_000_000) as i64 }
 }
 
-/// How a futex wait ended.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Wake {
-    /// Woken, interrupted, or the word no longer held the expected value: re-check.
-    Recheck,
-    /// The timeout or deadline passed.
-    TimedOut,
-}
-
 fn wake_from(result: rustix::io::Result<()>) -> io::Result<Wake> {
     use rustix::io::Errno;
     match result {
@@ -40,16 +34,25 @@ fn wake_from(result: rustix::io::Result<()>) -> io::Result<Wake> {
     }
 }
 
-/// Sleeps while the process-shared futex `word` holds `expected`, at most `timeout`.
-pub(crate) fn futex_wait_shared(word: &AtomicU32, expected: u32, timeout: Duration) -> io::Result<Wake> {
-    let timeout = timespec_from_ns(timeout.as_nanos().min(u64::MAX as u128) as u64);
-    wake_from(futex::wait(word, futex::Flags::empty(), expected, Some(&timeout)))
-}
+/// Process-shared futexes on words in shared memory: what the doorbell
+/// protocol ([`crate::channel::doorbell`]) sleeps and wakes with.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct SharedFutex;
 
-/// Wakes every process sleeping on the process-shared futex `word`.
-pub(crate) fn futex_wake_shared(word: &AtomicU32) {
-    // A failed wake can only be EFAULT on a bad address, which a mapped word is not.
-    let _ = futex::wake(word, futex::Flags::empty(), i32::MAX as u32);
+impl Futex for SharedFutex {
+    fn now_ns(&self) -> u64 {
+        monotonic_ns()
+    }
+
+    fn wait(&self, word: &AtomicU32, expected: u32, timeout: Duration) -> io::Result<Wake> {
+        let timeout = timespec_from_ns(timeout.as_nanos().min(u64::MAX as u128) as u64);
+        wake_from(futex::wait(word.as_std(), futex::Flags::empty(), expected, Some(&timeout)))
+    }
+
+    fn wake_all(&self, word: &AtomicU32) {
+        // A failed wake can only be EFAULT on a bad address, which a mapped word is not.
+        let _ = futex::wake(word.as_std(), futex::Flags::empty(), i32::MAX as u32);
+    }
 }
 
 /// Sleeps while the process-private futex `word` holds `expected`, until the
@@ -57,12 +60,12 @@ pub(crate) fn futex_wake_shared(word: &AtomicU32) {
 pub(crate) fn futex_wait_private_until(word: &AtomicU32, expected: u32, deadline_ns: u64) -> io::Result<Wake> {
     let deadline = timespec_from_ns(deadline_ns);
     let any = NonZeroU32::new(u32::MAX).unwrap_or(NonZeroU32::MIN);
-    wake_from(futex::wait_bitset(word, futex::Flags::PRIVATE, expected, Some(&deadline), any))
+    wake_from(futex::wait_bitset(word.as_std(), futex::Flags::PRIVATE, expected, Some(&deadline), any))
 }
 
 /// Wakes every thread of this process sleeping on the private futex `word`.
 pub(crate) fn futex_wake_private(word: &AtomicU32) {
-    let _ = futex::wake(word, futex::Flags::PRIVATE, i32::MAX as u32);
+    let _ = futex::wake(word.as_std(), futex::Flags::PRIVATE, i32::MAX as u32);
 }
 
 fn ofd_lock_request(kind: libc::c_short, byte: libc::off_t) -> libc::flock {

@@ -5,18 +5,21 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use crate::anticipate::Anticipation;
+use crate::channel::ChannelKind;
+use crate::channel::doorbell::{self, WaitEnd};
+use crate::channel::layout;
 use crate::channel::ring::{Meta, ReadFailure};
-use crate::channel::{self, ChannelKind, Shared};
+use crate::channel::segment::{self, Shared};
 use crate::error::{Error, Result};
 use crate::frame::Frame;
-use crate::os::{self, Wake};
+use crate::os::{self, SharedFutex};
 use crate::rt::{Stop, Ticker};
 use crate::shm;
 use crate::stats::{ReaderStats, WriterState, WriterStats};
+use crate::sync::Ordering;
 
 /// How a reader attaches.
 #[derive(Clone, Debug, Default)]
@@ -76,7 +79,7 @@ impl Reader {
     /// Attaches with options.
     pub fn open_with(skin: &str, channel: &str, options: &ReaderOptions) -> Result<Reader> {
         let dir = options.dir.clone().unwrap_or_else(shm::segment_dir);
-        let shared = channel::open_segment(&dir, skin, channel, false)?;
+        let shared = segment::open_segment(&dir, skin, channel, false)?;
         let header = shared.header();
         if !options.allow_gone {
             let alive = shared.writer_alive().map_err(|source| Error::Os {
@@ -92,7 +95,7 @@ impl Reader {
             }
         }
         if let Some((expected, expected_version)) = &options.expect_schema {
-            let found = crate::channel::layout::decode_schema(&header.schema_name);
+            let found = layout::decode_schema(&header.schema_name);
             let found_version = header.schema_version.load(Ordering::Relaxed);
             if &found != expected || found_version != *expected_version {
                 return Err(Error::SchemaMismatch {
@@ -140,7 +143,7 @@ impl Reader {
         if current.is_none() || current == ours {
             return false;
         }
-        let Ok(replacement) = channel::open_segment(&self.dir, &self.skin, &self.channel, false) else {
+        let Ok(replacement) = segment::open_segment(&self.dir, &self.skin, &self.channel, false) else {
             return false;
         };
         let same_shape = replacement.layout.payload_bytes == self.shared.layout.payload_bytes
@@ -205,7 +208,7 @@ impl Reader {
     /// The payload schema (name, version).
     pub fn schema(&self) -> (String, u32) {
         let header = self.shared.header();
-        (crate::channel::layout::decode_schema(&header.schema_name), header.schema_version.load(Ordering::Relaxed))
+        (layout::decode_schema(&header.schema_name), header.schema_version.load(Ordering::Relaxed))
     }
 
     /// The writer's nominal period, or `None` for a sporadic writer.
@@ -219,8 +222,7 @@ impl Reader {
     /// Whether the writer is running, paused, faulted or gone. One `fcntl`
     /// query; not part of reading frames.
     pub fn writer_state(&self) -> WriterState {
-        let alive = self.shared.writer_alive().unwrap_or(false);
-        WriterState::from_code(self.shared.header().state.load(Ordering::Acquire), alive)
+        self.shared.writer_state()
     }
 
     /// The process id of the current (or last) writer.
@@ -306,9 +308,7 @@ impl Reader {
     pub fn request(&mut self, timeout: Duration) -> Result<Frame<'_>> {
         let after = self.published_seq();
         if self.writer_period().is_none() {
-            let requests = &self.shared.doorbell().requests;
-            requests.fetch_add(1, Ordering::Release);
-            os::futex_wake_shared(requests);
+            doorbell::request(&self.shared.doorbell().requests, &SharedFutex);
         }
         if let Err(e) = self.wait_beyond(after, timeout) {
             if matches!(e, Error::Timeout { .. }) && self.follow_recreated() {
@@ -366,37 +366,19 @@ impl Reader {
 
     /// Sleeps until a frame with sequence number above `after` is published.
     fn wait_beyond(&self, after: u64, timeout: Duration) -> Result<()> {
-        let ring = self.shared.ring();
-        let notify = &self.shared.doorbell().notify;
         let deadline = os::monotonic_ns().saturating_add(timeout.as_nanos().min(u64::MAX as u128) as u64);
         if self.anticipate(after, deadline)? {
             return Ok(());
         }
-        loop {
-            if self.stop.is_stopped() {
-                return Err(Error::Stopped { channel: self.shared.label.clone() });
-            }
-            let seen = notify.load(Ordering::Acquire);
-            if ring.published() > after {
-                return Ok(());
-            }
-            // Announce ourselves, then re-check: a publish between our check and
-            // the announcement changed the word, so the futex wait below returns
-            // at once instead of missing it.
-            let announced = notify.fetch_or(1, Ordering::AcqRel);
-            if announced >> 1 != seen >> 1 || ring.published() > after {
-                continue;
-            }
-            let now = os::monotonic_ns();
-            if now >= deadline {
-                return Err(Error::Timeout { channel: self.shared.label.clone(), timeout });
-            }
-            match os::futex_wait_shared(notify, announced | 1, Duration::from_nanos(deadline - now)) {
-                Ok(Wake::Recheck) | Ok(Wake::TimedOut) => {}
-                Err(source) => {
-                    return Err(Error::Os { op: "futex wait", path: self.shared.path.clone(), source });
-                }
-            }
+        let ring = self.shared.ring();
+        let stop = &self.stop;
+        let notify = &self.shared.doorbell().notify;
+        match doorbell::wait_for_frame(notify, || ring.published(), after, deadline, || stop.is_stopped(), &SharedFutex)
+        {
+            Ok(WaitEnd::Ready) => Ok(()),
+            Ok(WaitEnd::TimedOut) => Err(Error::Timeout { channel: self.shared.label.clone(), timeout }),
+            Ok(WaitEnd::Stopped) => Err(Error::Stopped { channel: self.shared.label.clone() }),
+            Err(source) => Err(Error::Os { op: "futex wait", path: self.shared.path.clone(), source }),
         }
     }
 }

@@ -3,12 +3,13 @@
 
 #![forbid(unsafe_code)]
 
-use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex, Weak};
 use std::time::Duration;
 
-use crate::channel::Shared;
-use crate::os::{self, Wake};
+use crate::channel::doorbell::{self, Wake};
+use crate::channel::segment::Shared;
+use crate::os::{self, SharedFutex};
+use crate::sync::{AtomicU32, Ordering};
 
 /// A cloneable signal that stops blocking calls: [`Ticker::wait`],
 /// [`Reader::wait_newer`](crate::Reader::wait_newer), [`Reader::request`](crate::Reader::request),
@@ -46,16 +47,9 @@ impl Stop {
         os::futex_wake_private(&self.inner.word);
         let channels = self.inner.channels.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
         for shared in channels.iter().filter_map(Weak::upgrade) {
-            // Change the words before waking: a thread that checked the flag just
-            // before it was set and is about to sleep then finds a different
-            // value and returns at once, instead of sleeping to its timeout.
-            // Both changes are harmless to others: waiters only look for a change,
-            // and the writer's next publish overwrites `notify`.
             let doorbell = shared.doorbell();
-            doorbell.notify.fetch_add(2, Ordering::Release);
-            doorbell.requests.fetch_add(1, Ordering::Release);
-            os::futex_wake_shared(&doorbell.notify);
-            os::futex_wake_shared(&doorbell.requests);
+            doorbell::nudge(&doorbell.notify, &SharedFutex);
+            doorbell::nudge(&doorbell.requests, &SharedFutex);
         }
     }
 

@@ -112,7 +112,7 @@ impl Mapping {
     ///
     /// # Safety
     /// `offset + 8 * count <= len` and `offset` is a multiple of 8.
-    pub unsafe fn words(&self, offset: usize, count: usize) -> &[std::sync::atomic::AtomicU64] {
+    pub unsafe fn words(&self, offset: usize, count: usize) -> &[crate::sync::AtomicU64] {
         debug_assert!(offset + 8 * count <= self.len);
         debug_assert_eq!(offset % 8, 0);
         // SAFETY: in bounds and aligned (caller; mmap returns page-aligned memory);

@@ -3,7 +3,8 @@
 
 #![forbid(unsafe_code)]
 
-use std::sync::atomic::Ordering::Relaxed;
+use crate::sync::AtomicU64;
+use crate::sync::Ordering::Relaxed;
 
 use crate::channel::layout::{HISTOGRAM_BUCKETS, SharedStats};
 
@@ -143,7 +144,7 @@ pub(crate) fn bucket_of(ns: u64) -> usize {
 }
 
 /// Adds one to a single-writer counter without a locked instruction.
-pub(crate) fn bump(counter: &std::sync::atomic::AtomicU64, by: u64) {
+pub(crate) fn bump(counter: &AtomicU64, by: u64) {
     counter.store(counter.load(Relaxed).wrapping_add(by), Relaxed);
 }
 

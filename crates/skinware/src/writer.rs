@@ -2,22 +2,23 @@
 
 #![forbid(unsafe_code)]
 
-use std::fs::File;
-use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
-use crate::channel::layout::Layout;
+use crate::channel::doorbell::{self, WaitEnd};
+use crate::channel::layout::{Layout, SCHEMA_NAME_BYTES};
+use crate::channel::liveness::{self, FileIdentity};
 use crate::channel::ring::{self, Meta};
-use crate::channel::{self, ChannelKind, SegmentInit, Shared};
+use crate::channel::segment::{self, SegmentInit, Shared};
+use crate::channel::{self, ChannelKind};
 use crate::error::{Error, Result};
 use crate::frame::FrameStatus;
-use crate::os::{self, Wake};
+use crate::os::{self, SharedFutex};
 use crate::rt::{Stop, Ticker};
 use crate::shm;
 use crate::stats::{self, WriterState, WriterStats};
+use crate::sync::{AtomicU64, Ordering};
 
 /// How a channel is created.
 #[derive(Clone, Debug)]
@@ -75,22 +76,13 @@ pub struct Writer {
     stop: Stop,
     unlink_on_drop: bool,
     revived: bool,
-    identity: (u64, u64),
+    identity: FileIdentity,
 }
 
 impl std::fmt::Debug for Writer {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Writer").field("channel", &self.shared.label).field("next_seq", &self.next_seq).finish()
     }
-}
-
-fn file_identity(file: &File, path: &Path) -> Result<(u64, u64)> {
-    let meta = file.metadata().map_err(|source| Error::Os { op: "stat", path: path.to_owned(), source })?;
-    Ok((meta.dev(), meta.ino()))
-}
-
-fn path_identity(path: &Path) -> Option<(u64, u64)> {
-    std::fs::metadata(path).ok().map(|meta| (meta.dev(), meta.ino()))
 }
 
 impl Writer {
@@ -110,7 +102,7 @@ impl Writer {
         let label = channel::label(skin, channel);
         let layout = Layout::compute(payload_bytes as u64, options.slots as u64, description.len() as u64)
             .map_err(|reason| Error::InvalidLayout { channel: label.clone(), reason })?;
-        if options.schema_name.len() > crate::channel::layout::SCHEMA_NAME_BYTES {
+        if options.schema_name.len() > SCHEMA_NAME_BYTES {
             return Err(Error::InvalidLayout {
                 channel: label,
                 reason: format!("schema name {:?} is longer than 32 bytes", options.schema_name),
@@ -128,15 +120,10 @@ impl Writer {
         // A bounded loop: each pass either creates, revives, or loses a race with
         // another creator or a cleaner and tries again.
         for _ in 0..16 {
-            if let Some((shared, revived)) = Writer::try_revive(&path, &label, &layout, &init)? {
+            if let Some(shared) = liveness::claim_dead_segment(&path, &label, &layout, &init)? {
                 // The header names this process before readers can see it alive.
-                let writer = Writer::start(shared, revived, options)?;
-                let locked = os::try_lock_writer(&writer.shared.file).map_err(|source| Error::Os {
-                    op: "lock",
-                    path: path.clone(),
-                    source,
-                })?;
-                if locked {
+                let writer = Writer::start(shared, true, options)?;
+                if liveness::go_live(&writer.shared)? {
                     return Ok(writer);
                 }
                 // Only a cleaner unlinking the dead segment takes the liveness
@@ -144,103 +131,53 @@ impl Writer {
                 drop(writer);
                 continue;
             }
-            let temp =
-                dir.join(format!("{}{skin}.{channel}.{}.{}", shm::TEMP_PREFIX, std::process::id(), os::monotonic_ns()));
-            let mut shared = channel::create_segment(&temp, label.clone(), layout, &init)?;
-            match rustix::fs::renameat_with(
-                rustix::fs::CWD,
-                &temp,
-                rustix::fs::CWD,
-                &path,
-                rustix::fs::RenameFlags::NOREPLACE,
-            ) {
-                Ok(()) => {
-                    shared.path = path;
-                    return Writer::start(shared, false, options);
-                }
-                Err(rustix::io::Errno::EXIST) => {
-                    let _ = std::fs::remove_file(&temp);
-                }
-                Err(e) => {
-                    let _ = std::fs::remove_file(&temp);
-                    return Err(Error::Os { op: "rename", path, source: e.into() });
-                }
+            if let Some(shared) = Writer::create_new(&dir, &path, skin, channel, &label, layout, &init)? {
+                return Writer::start(shared, false, options);
             }
         }
         Err(Error::Os { op: "create", path, source: std::io::ErrorKind::ResourceBusy.into() })
     }
 
-    /// Takes over an existing segment if its writer is dead and its layout
-    /// matches. `Ok(None)` if there is no segment (any more).
-    fn try_revive(path: &Path, label: &str, layout: &Layout, init: &SegmentInit<'_>) -> Result<Option<(Shared, bool)>> {
-        let file = match File::options().read(true).write(true).open(path) {
-            Ok(file) => file,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-            Err(source) => {
-                return Err(Error::Os { op: "open", path: path.to_owned(), source });
+    /// Creates a complete segment under a temporary name and renames it into
+    /// place, unless another writer got there first (`Ok(None)`).
+    fn create_new(
+        dir: &Path,
+        path: &Path,
+        skin: &str,
+        channel: &str,
+        label: &str,
+        layout: Layout,
+        init: &SegmentInit<'_>,
+    ) -> Result<Option<Shared>> {
+        let temp =
+            dir.join(format!("{}{skin}.{channel}.{}.{}", shm::TEMP_PREFIX, std::process::id(), os::monotonic_ns()));
+        let mut shared = segment::create_segment(&temp, label.to_owned(), layout, init)?;
+        match rustix::fs::renameat_with(
+            rustix::fs::CWD,
+            &temp,
+            rustix::fs::CWD,
+            path,
+            rustix::fs::RenameFlags::NOREPLACE,
+        ) {
+            Ok(()) => {
+                shared.path = path.to_owned();
+                Ok(Some(shared))
             }
-        };
-        // The reviver's lock first, and the liveness lock only once the header
-        // names this process: until then readers see the channel gone, never
-        // "running" with the dead writer's pid.
-        let lock_error = |source| Error::Os { op: "lock", path: path.to_owned(), source };
-        let reviver = os::try_lock_reviver(&file).map_err(lock_error)?;
-        if !reviver || os::writer_lock_held(&file).map_err(lock_error)? {
-            let pid = channel::map_validated(label.to_owned(), path.to_owned(), file, false)
-                .map(|shared| shared.header().writer_pid.load(Ordering::Relaxed))
-                .unwrap_or(0);
-            return Err(Error::Busy { channel: label.to_owned(), pid });
+            Err(rustix::io::Errno::EXIST) => {
+                let _ = std::fs::remove_file(&temp);
+                Ok(None)
+            }
+            Err(e) => {
+                let _ = std::fs::remove_file(&temp);
+                Err(Error::Os { op: "rename", path: path.to_owned(), source: e.into() })
+            }
         }
-        // A cleaner may have unlinked the file between our open and our lock.
-        if path_identity(path) != Some(file_identity(&file, path)?) {
-            return Ok(None);
-        }
-        let shared = channel::map_validated(label.to_owned(), path.to_owned(), file, true)?;
-        let mismatch = |field: &'static str, existing: String, wanted: String| Error::LayoutMismatch {
-            channel: label.to_owned(),
-            field,
-            existing,
-            wanted,
-        };
-        let existing = shared.layout;
-        if existing.payload_bytes != layout.payload_bytes {
-            return Err(mismatch("frame bytes", existing.payload_bytes.to_string(), layout.payload_bytes.to_string()));
-        }
-        if existing.slot_count != layout.slot_count {
-            return Err(mismatch("frame buffers", existing.slot_count.to_string(), layout.slot_count.to_string()));
-        }
-        if shared.kind != init.kind {
-            return Err(mismatch("kind", format!("{:?}", shared.kind), format!("{:?}", init.kind)));
-        }
-        let header = shared.header();
-        let schema = crate::channel::layout::decode_schema(&header.schema_name);
-        let schema_version = header.schema_version.load(Ordering::Relaxed);
-        if schema != init.schema_name || schema_version != init.schema_version {
-            return Err(mismatch(
-                "schema",
-                format!("{schema} v{schema_version}"),
-                format!("{} v{}", init.schema_name, init.schema_version),
-            ));
-        }
-        if shared.description() != init.description {
-            return Err(mismatch(
-                "description (topology)",
-                format!("{} bytes", existing.description_bytes),
-                format!("{} different bytes", init.description.len()),
-            ));
-        }
-        Ok(Some((shared, true)))
     }
 
     fn start(shared: Shared, revived: bool, options: &WriterOptions) -> Result<Writer> {
-        let identity = file_identity(&shared.file, &shared.path)?;
-        let header = shared.header();
-        header.writer_pid.store(std::process::id(), Ordering::Relaxed);
-        header.period_ns.store(options.period.map_or(0, |p| p.as_nanos() as u64), Ordering::Relaxed);
-        stats::bump(&header.generation, 1);
-        header.state_changed_ns.store(os::monotonic_ns(), Ordering::Relaxed);
-        header.state.store(WriterState::RUNNING, Ordering::Release);
-        let served_requests = shared.doorbell().requests.load(Ordering::Acquire);
+        let identity = liveness::file_identity(&shared.file, &shared.path)?;
+        liveness::introduce_writer(shared.header(), options.period.map_or(0, |p| p.as_nanos() as u64));
+        let served_requests = doorbell::requests_served(&shared.doorbell().requests);
         let next_seq = shared.ring().next_seq();
         let shared = Arc::new(shared);
         let stop = Stop::new();
@@ -321,15 +258,12 @@ impl Writer {
     /// Tells readers what the writer is doing: running, paused or faulted.
     /// (`Gone` is what readers see once the writer is dropped or dies.)
     pub fn set_state(&self, state: WriterState) {
-        let header = self.shared.header();
-        if header.state.swap(state.code(), Ordering::Release) != state.code() {
-            header.state_changed_ns.store(os::monotonic_ns(), Ordering::Relaxed);
-        }
+        liveness::set_state(self.shared.header(), state);
     }
 
     /// The state this writer last set.
     pub fn state(&self) -> WriterState {
-        WriterState::from_code(self.shared.header().state.load(Ordering::Acquire), true)
+        self.shared.stored_state()
     }
 
     /// Whether dropping the writer removes its channel.
@@ -367,26 +301,19 @@ impl Writer {
     /// request, `Ok(false)` on timeout, [`Error::Stopped`] when stopped.
     pub fn wait_request(&mut self, timeout: Duration) -> Result<bool> {
         let deadline = os::monotonic_ns().saturating_add(timeout.as_nanos().min(u64::MAX as u128) as u64);
+        let stop = &self.stop;
         let requests = &self.shared.doorbell().requests;
-        loop {
-            if self.stop.is_stopped() {
-                return Err(Error::Stopped { channel: self.shared.label.clone() });
-            }
-            let seen = requests.load(Ordering::Acquire);
-            if seen != self.served_requests {
-                self.served_requests = seen;
-                return Ok(true);
-            }
-            let now = os::monotonic_ns();
-            if now >= deadline {
-                return Ok(false);
-            }
-            match os::futex_wait_shared(requests, seen, Duration::from_nanos(deadline - now)) {
-                Ok(Wake::Recheck) | Ok(Wake::TimedOut) => {}
-                Err(source) => {
-                    return Err(Error::Os { op: "futex wait", path: self.shared.path.clone(), source });
-                }
-            }
+        match doorbell::wait_for_request(
+            requests,
+            &mut self.served_requests,
+            deadline,
+            || stop.is_stopped(),
+            &SharedFutex,
+        ) {
+            Ok(WaitEnd::Ready) => Ok(true),
+            Ok(WaitEnd::TimedOut) => Ok(false),
+            Ok(WaitEnd::Stopped) => Err(Error::Stopped { channel: self.shared.label.clone() }),
+            Err(source) => Err(Error::Os { op: "futex wait", path: self.shared.path.clone(), source }),
         }
     }
 
@@ -451,13 +378,6 @@ impl Writer {
     }
 }
 
-fn set_state(shared: &Shared, state: WriterState) {
-    let header = shared.header();
-    if header.state.swap(state.code(), Ordering::Release) != state.code() {
-        header.state_changed_ns.store(os::monotonic_ns(), Ordering::Relaxed);
-    }
-}
-
 /// Sets a live writer's state from another thread (see [`Writer::state_handle`]).
 #[derive(Clone)]
 pub struct WriterStateHandle {
@@ -467,12 +387,12 @@ pub struct WriterStateHandle {
 impl WriterStateHandle {
     /// Sets the state readers see.
     pub fn set(&self, state: WriterState) {
-        set_state(&self.shared, state);
+        liveness::set_state(self.shared.header(), state);
     }
 
     /// The state last set.
     pub fn get(&self) -> WriterState {
-        WriterState::from_code(self.shared.header().state.load(Ordering::Acquire), true)
+        self.shared.stored_state()
     }
 
     /// `skin/channel`.
@@ -483,15 +403,10 @@ impl WriterStateHandle {
 
 impl Drop for Writer {
     fn drop(&mut self) {
-        let header = self.shared.header();
-        header.state.store(WriterState::STOPPED, Ordering::Release);
-        header.state_changed_ns.store(os::monotonic_ns(), Ordering::Relaxed);
-        // Change the futex word and wake sleeping readers, so that a reader
-        // about to sleep does not miss the wake; they re-check and see no new
-        // frame (`writer_state` tells them why).
-        self.shared.doorbell().notify.fetch_add(2, Ordering::Release);
-        os::futex_wake_shared(&self.shared.doorbell().notify);
-        if self.unlink_on_drop && path_identity(&self.shared.path) == Some(self.identity) {
+        liveness::retire_writer(self.shared.header());
+        // Readers asleep re-check, see no new frame, and `writer_state` tells them why.
+        doorbell::nudge(&self.shared.doorbell().notify, &SharedFutex);
+        if self.unlink_on_drop && liveness::path_identity(&self.shared.path) == Some(self.identity) {
             let _ = std::fs::remove_file(&self.shared.path);
         }
     }
@@ -602,12 +517,7 @@ impl FrameWriter<'_> {
             status: self.status.0,
         });
         *self.next_seq += 1;
-        // Wake sleeping readers only if one announced itself; the swap also clears
-        // the announcement, so a reader that died asleep costs one wake at most.
-        let announced = self.shared.doorbell().notify.swap((seq as u32) << 1, Ordering::Release);
-        if announced & 1 != 0 {
-            os::futex_wake_shared(&self.shared.doorbell().notify);
-        }
+        doorbell::ring(&self.shared.doorbell().notify, seq, &SharedFutex);
         let header = self.shared.header();
         stats::record_write(&header.stats, os::monotonic_ns() - self.started_ns, self.status.is_fault());
         seq

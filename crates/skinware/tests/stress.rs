@@ -15,7 +15,10 @@
 //!
 //! It has its own `main` (no libtest harness) because it spawns itself.
 
-mod common;
+#![allow(clippy::disallowed_types)]
+
+#[path = "integration/util.rs"]
+mod util;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -263,7 +266,7 @@ fn parent_main() {
         .and_then(|s| s.parse().ok())
         .unwrap_or_else(|| skinware::os::monotonic_ns() | 1);
     println!("stress: {seconds} s of reader faults, {READERS} reader processes, seed {seed}");
-    let segments = common::SegmentDir::new("stress");
+    let segments = util::SegmentDir::new("stress");
     let reports = segments.path.join("reports");
     std::fs::create_dir_all(&reports).unwrap();
     // Reports live beside the segments; the segment check below ignores them.

@@ -10,8 +10,8 @@
 //! Every field is an atomic, so that any process may read any field at any time
 //! without a data race, even of a segment that is foreign or being torn down.
 
+use crate::sync::{AtomicU32, AtomicU64};
 use std::mem::{align_of, size_of};
-use std::sync::atomic::{AtomicU32, AtomicU64};
 
 use crate::channel::ring::META_WORDS;
 
@@ -200,7 +200,7 @@ impl Layout {
 
     /// Reads the layout a header declares, checking it is self-consistent.
     pub fn from_header(header: &Header) -> Result<Layout, String> {
-        use std::sync::atomic::Ordering::Relaxed;
+        use crate::sync::Ordering::Relaxed;
         let declared = Layout {
             payload_bytes: header.payload_bytes.load(Relaxed),
             slot_count: header.slot_count.load(Relaxed),
@@ -241,7 +241,7 @@ pub(crate) fn encode_schema(name: &str) -> [u64; SCHEMA_NAME_BYTES / 8] {
 pub(crate) fn decode_schema(words: &[AtomicU64; SCHEMA_NAME_BYTES / 8]) -> String {
     let bytes: Vec<u8> = words
         .iter()
-        .flat_map(|w| w.load(std::sync::atomic::Ordering::Relaxed).to_le_bytes())
+        .flat_map(|w| w.load(crate::sync::Ordering::Relaxed).to_le_bytes())
         .take_while(|&b| b != 0)
         .collect();
     String::from_utf8_lossy(&bytes).into_owned()

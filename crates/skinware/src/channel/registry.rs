@@ -4,14 +4,15 @@
 #![forbid(unsafe_code)]
 
 use std::fs::File;
-use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::Ordering;
 
-use crate::channel::{self, ChannelKind};
+use super::liveness::remove_if_unowned;
+use super::segment;
+use super::{ChannelKind, label};
 use crate::error::{Error, Result};
 use crate::shm;
 use crate::stats::{WriterState, WriterStats};
+use crate::sync::Ordering;
 
 /// One channel found in the segment directory.
 #[derive(Clone, Debug)]
@@ -67,11 +68,10 @@ fn inspect(dir: &Path, skin: &str, channel: &str) -> ChannelInfo {
         stats: WriterStats::default(),
         problem: None,
     };
-    match channel::open_segment(dir, skin, channel, false) {
+    match segment::open_segment(dir, skin, channel, false) {
         Ok(shared) => {
             let header = shared.header();
-            let alive = shared.writer_alive().unwrap_or(false);
-            info.state = WriterState::from_code(header.state.load(Ordering::Acquire), alive);
+            info.state = shared.writer_state();
             info.kind = Some(shared.kind);
             info.writer_pid = header.writer_pid.load(Ordering::Relaxed);
             info.payload_bytes = shared.layout.payload_bytes;
@@ -98,9 +98,9 @@ pub fn remove_stale_channels(dir: &Path, include_invalid: bool) -> Result<Vec<Pa
         let Some(name) = name.to_str() else { continue };
         let path = entry.path();
         let candidate = if let Some((skin, channel)) = shm::parse_segment_name(name) {
-            let label = channel::label(skin, channel);
+            let label = label(skin, channel);
             match File::options().read(true).write(true).open(&path) {
-                Ok(file) => match channel::validate(&file, &path, &label) {
+                Ok(file) => match segment::validate(&file, &path, &label) {
                     Ok(_) => true,
                     Err(_) => include_invalid,
                 },
@@ -121,29 +121,4 @@ pub fn remove_stale_channels(dir: &Path, include_invalid: bool) -> Result<Vec<Pa
 /// reviving it). `Ok(false)` if a writer holds it or it is already gone.
 pub fn remove_channel_if_stale(path: &Path) -> Result<bool> {
     remove_if_unowned(path)
-}
-
-fn remove_if_unowned(path: &Path) -> Result<bool> {
-    let file = match File::options().read(true).write(true).open(path) {
-        Ok(file) => file,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(false),
-        Err(source) => {
-            return Err(Error::Os { op: "open", path: path.to_owned(), source });
-        }
-    };
-    // The reviver's lock first, as a reviving writer takes it: a segment being
-    // revived (liveness lock not yet taken) is not stale.
-    let lock_error = |source| Error::Os { op: "lock", path: path.to_owned(), source };
-    if !crate::os::try_lock_reviver(&file).map_err(lock_error)?
-        || !crate::os::try_lock_writer(&file).map_err(lock_error)?
-    {
-        return Ok(false);
-    }
-    let ours = file.metadata().ok().map(|m| (m.dev(), m.ino()));
-    let current = std::fs::metadata(path).ok().map(|m| (m.dev(), m.ino()));
-    if ours.is_none() || ours != current {
-        return Ok(false);
-    }
-    std::fs::remove_file(path).map_err(|source| Error::Os { op: "remove", path: path.to_owned(), source })?;
-    Ok(true)
 }

@@ -1,12 +1,10 @@
 //! Every way opening or creating a channel can be given bad input gets its own
 //! typed error, with a message naming the channel and what to do.
 
-mod common;
-
 use std::io::{Seek, SeekFrom, Write};
 use std::os::unix::fs::PermissionsExt;
 
-use common::SegmentDir;
+use crate::util::SegmentDir;
 use skinware::{Error, Reader, ReaderOptions, Writer, WriterOptions, WriterState};
 
 /// Byte offsets of header fields (see `channel/layout.rs`), for corrupting them.

@@ -1,4 +1,4 @@
-//! Helpers shared by the integration tests.
+//! Helpers shared by the integration tests (and the stress harness).
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};

@@ -1,11 +1,9 @@
 //! The exchange between a writer and readers in one process: reader modes,
 //! writer modes, statistics, liveness, revival, read-only mapping, cleaning.
 
-mod common;
-
 use std::time::{Duration, Instant};
 
-use common::SegmentDir;
+use crate::util::SegmentDir;
 use skinware::{Error, FrameStatus, Reader, ReaderOptions, Stop, Ticker, Writer, WriterOptions, WriterState};
 
 fn publish(writer: &mut Writer, value: u16) -> u64 {
@@ -333,7 +331,11 @@ fn a_reviving_writer_is_never_seen_running_before_it_owns_the_header() {
     let reader_options = ReaderOptions { allow_gone: true, ..dir.reader() };
     for round in 0..40 {
         let mut child = std::process::Command::new(std::env::current_exe().unwrap())
-            .args(["--exact", "a_reviving_writer_is_never_seen_running_before_it_owns_the_header", "--nocapture"])
+            .args([
+                "--exact",
+                "exchange::a_reviving_writer_is_never_seen_running_before_it_owns_the_header",
+                "--nocapture",
+            ])
             .env(REVIVAL_CHILD_DIR, &dir.path)
             .stdout(std::process::Stdio::null())
             .spawn()

@@ -1,13 +1,11 @@
 //! The driver handler contains a driver's failures (error, panic, hang) to the
 //! layer they happen in, and refuses to revive channels with a changed topology.
 
-mod common;
-
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use common::SegmentDir;
+use crate::util::SegmentDir;
 use skinware::driver::HandlerError;
 use skinware::{
     Driver, DriverError, DriverHandler, FrameWriter, HandlerOptions, LayerSource, LayerSpec, Reader, RtOptions,
