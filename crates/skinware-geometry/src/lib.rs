@@ -31,7 +31,7 @@ use skinware::LayerTopology;
 
 /// Bumped whenever the computation or the encoding changes, so that caches
 /// made by another version are recomputed.
-pub const GEOMETRY_VERSION: u32 = 1;
+pub const GEOMETRY_VERSION: u32 = 2;
 
 /// Errors of calibration, regions and the published geometry.
 #[derive(Debug, thiserror::Error)]
@@ -78,12 +78,13 @@ pub enum GeometryError {
         path: PathBuf,
     },
     /// A published or cached geometry that cannot be decoded.
-    #[error("geometry file {path} is unreadable: {reason}; remove it (it is recomputed) or rerun `skin run`")]
+    #[error("geometry file {path} is unreadable ({source}); remove it (it is recomputed) or rerun `skin run`")]
     Corrupt {
         /// The file.
         path: PathBuf,
-        /// Why.
-        reason: String,
+        /// What was wrong, and where.
+        #[source]
+        source: skinware::wire::DecodeError,
     },
     /// An I/O failure writing or reading a geometry file.
     #[error("{op} {path}: {source}")]
@@ -362,7 +363,7 @@ impl SkinGeometry {
             }
             Err(source) => return Err(GeometryError::Io { op: "read", path, source }),
         };
-        SkinGeometry::decode(&bytes).map_err(|reason| GeometryError::Corrupt { path, reason })
+        SkinGeometry::decode(&bytes).map_err(|source| GeometryError::Corrupt { path, source })
     }
 
     /// The geometry from the cache in `cache_dir` if one was computed from the

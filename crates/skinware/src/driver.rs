@@ -155,45 +155,8 @@ impl DriverHandler {
     ) -> Result<DriverHandler, HandlerError> {
         let name = driver.name().to_owned();
         let specs = driver.layers();
-        let mut writers = Vec::with_capacity(specs.len());
-        for spec in &specs {
-            let topology = &spec.topology;
-            let period = if topology.rate_hz == 0.0 {
-                None
-            } else {
-                let period = Duration::try_from_secs_f64(1.0 / topology.rate_hz)
-                    .ok()
-                    .filter(|_| topology.rate_hz.is_finite() && topology.rate_hz > 1e-6);
-                match period {
-                    Some(period) => Some(period),
-                    None => {
-                        return Err(HandlerError::Rate {
-                            driver: name,
-                            layer: topology.name.clone(),
-                            rate_hz: topology.rate_hz,
-                        });
-                    }
-                }
-            };
-            let writer_options = WriterOptions {
-                slots: options.slots,
-                period,
-                group_access: options.group_access,
-                // Until every layer has started, a failure must not remove a
-                // channel that readers of a revived layer are attached to.
-                unlink_on_drop: false,
-                dir: options.dir.clone(),
-                ..WriterOptions::default()
-            };
-            let writer =
-                Writer::create(skin, &topology.name, topology.frame_bytes(), &topology.encode(), &writer_options)
-                    .map_err(|source| HandlerError::Channel {
-                        driver: name.clone(),
-                        layer: topology.name.clone(),
-                        source: Box::new(source),
-                    })?;
-            writers.push(writer);
-        }
+        let writers =
+            specs.iter().map(|spec| create_layer_writer(skin, &name, spec, options)).collect::<Result<Vec<_>, _>>()?;
         let sources = driver.start().map_err(|source| HandlerError::Start { driver: name.clone(), source })?;
         if sources.len() != specs.len() {
             return Err(HandlerError::SourceCount { driver: name, layers: specs.len(), sources: sources.len() });
@@ -204,22 +167,10 @@ impl DriverHandler {
         for ((mut writer, source), spec) in writers.into_iter().zip(sources).zip(&specs) {
             writer.set_stop(&stop);
             writer.set_unlink_on_drop(options.unlink_on_stop);
-            let busy_since = Arc::new(AtomicU64::new(0));
-            let period_ns =
-                if spec.topology.rate_hz > 0.0 { (1e9 / spec.topology.rate_hz) as u64 } else { 1_000_000_000 };
-            watches.push(LayerWatch {
-                state: writer.state_handle(),
-                busy_since: busy_since.clone(),
-                timeout_ns: period_ns.saturating_mul(u64::from(options.timeout_periods.max(1))),
-            });
-            let rt = spec.rt.clone();
-            let rate_hz = spec.topology.rate_hz;
-            let thread_name = format!("writer-{}", spec.topology.name);
-            let thread = std::thread::Builder::new()
-                .name(thread_name)
-                .spawn(move || run_layer(writer, source, rt, rate_hz, busy_since))
-                .map_err(|e| HandlerError::Start { driver: driver.name().to_owned(), source: Box::new(e) })?;
+            let (thread, watch) = spawn_layer(writer, source, spec, options.timeout_periods)
+                .map_err(|e| HandlerError::Start { driver: name.clone(), source: Box::new(e) })?;
             threads.push(thread);
+            watches.push(watch);
         }
         let watchdog_stop = stop.clone();
         let watchdog = std::thread::Builder::new()
@@ -266,6 +217,70 @@ impl Drop for DriverHandler {
     fn drop(&mut self) {
         self.stop.stop();
     }
+}
+
+/// A layer's period from its rate: `None` for a sporadic layer (rate 0), an
+/// error for a rate that is not a usable number of Hz.
+fn layer_period(driver: &str, spec: &LayerSpec) -> Result<Option<Duration>, HandlerError> {
+    let rate_hz = spec.topology.rate_hz;
+    if rate_hz == 0.0 {
+        return Ok(None);
+    }
+    Duration::try_from_secs_f64(1.0 / rate_hz)
+        .ok()
+        .filter(|_| rate_hz.is_finite() && rate_hz > 1e-6)
+        .map(Some)
+        .ok_or_else(|| HandlerError::Rate { driver: driver.to_owned(), layer: spec.topology.name.clone(), rate_hz })
+}
+
+/// Creates (or revives) one layer's channel, publishing its topology.
+fn create_layer_writer(
+    skin: &str,
+    driver: &str,
+    spec: &LayerSpec,
+    options: &HandlerOptions,
+) -> Result<Writer, HandlerError> {
+    let topology = &spec.topology;
+    let writer_options = WriterOptions {
+        slots: options.slots,
+        period: layer_period(driver, spec)?,
+        group_access: options.group_access,
+        // Until every layer has started, a failure must not remove a
+        // channel that readers of a revived layer are attached to.
+        unlink_on_drop: false,
+        dir: options.dir.clone(),
+        ..WriterOptions::default()
+    };
+    Writer::create(skin, &topology.name, topology.frame_bytes(), &topology.encode(), &writer_options).map_err(
+        |source| HandlerError::Channel {
+            driver: driver.to_owned(),
+            layer: topology.name.clone(),
+            source: Box::new(source),
+        },
+    )
+}
+
+/// Starts one layer's writer thread and returns it with what the watchdog
+/// needs to notice a hung acquisition.
+fn spawn_layer(
+    writer: Writer,
+    source: Box<dyn LayerSource>,
+    spec: &LayerSpec,
+    timeout_periods: u32,
+) -> std::io::Result<(JoinHandle<()>, LayerWatch)> {
+    let busy_since = Arc::new(AtomicU64::new(0));
+    let period_ns = if spec.topology.rate_hz > 0.0 { (1e9 / spec.topology.rate_hz) as u64 } else { 1_000_000_000 };
+    let watch = LayerWatch {
+        state: writer.state_handle(),
+        busy_since: busy_since.clone(),
+        timeout_ns: period_ns.saturating_mul(u64::from(timeout_periods.max(1))),
+    };
+    let rt = spec.rt.clone();
+    let rate_hz = spec.topology.rate_hz;
+    let thread = std::thread::Builder::new()
+        .name(format!("writer-{}", spec.topology.name))
+        .spawn(move || run_layer(writer, source, rt, rate_hz, busy_since))?;
+    Ok((thread, watch))
 }
 
 fn run_layer(mut writer: Writer, mut source: Box<dyn LayerSource>, rt: RtOptions, rate_hz: f64, busy: Arc<AtomicU64>) {

@@ -10,7 +10,7 @@ use std::path::PathBuf;
 #[non_exhaustive]
 pub enum Error {
     /// A skin or channel name that cannot be used as a segment name.
-    #[error("invalid {what} name {name:?}: {reason}; use 1 to {max} characters from A-Z a-z 0-9 _ -", max = crate::shm::MAX_NAME_LEN)]
+    #[error("invalid {what} name {name:?}: {reason}; use 1 to {max_len} characters from A-Z a-z 0-9 _ -")]
     InvalidName {
         /// "skin" or "channel".
         what: &'static str,
@@ -18,6 +18,8 @@ pub enum Error {
         name: String,
         /// Why it was refused.
         reason: &'static str,
+        /// The longest name allowed ([`crate::shm::MAX_NAME_LEN`]).
+        max_len: usize,
     },
 
     /// A layout parameter out of range (zero buffers, an empty frame, sizes too large).

@@ -73,6 +73,8 @@ mod stats;
 #[cfg(not(loom))]
 pub mod topology;
 #[cfg(not(loom))]
+pub mod wire;
+#[cfg(not(loom))]
 mod writer;
 
 #[cfg(not(loom))]

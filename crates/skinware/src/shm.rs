@@ -42,7 +42,7 @@ pub fn validate_name(what: &'static str, name: &str) -> Result<()> {
         None
     };
     match reason {
-        Some(reason) => Err(Error::InvalidName { what, name: name.to_owned(), reason }),
+        Some(reason) => Err(Error::InvalidName { what, name: name.to_owned(), reason, max_len: MAX_NAME_LEN }),
         None => Ok(()),
     }
 }

@@ -8,6 +8,8 @@
 use std::collections::HashMap;
 use std::ops::Range;
 
+use crate::wire::{DecodeError, Decoder, Encoder};
+
 /// One sensor (taxel).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Sensor {
@@ -99,12 +101,13 @@ pub enum TopologyError {
         layer: String,
     },
     /// The description bytes are not a topology of this version.
-    #[error("the topology published in channel {channel} cannot be decoded: {reason}")]
+    #[error("the topology published in channel {channel} cannot be decoded: {source}")]
     Malformed {
         /// Channel label.
         channel: String,
-        /// What was wrong.
-        reason: String,
+        /// What was wrong, and where.
+        #[source]
+        source: DecodeError,
     },
 }
 
@@ -177,11 +180,13 @@ impl TopologyBuilder {
                 let first_sensor = topology.sensors.len();
                 for &uid in uids {
                     if let Some(&previous) = topology.by_uid.get(&uid) {
-                        let first_module: usize = topology.sensors[previous].module;
+                        // The first occurrence may be in this very module, not
+                        // pushed yet.
+                        let first_module = topology.modules.get(topology.sensors[previous].module);
                         return Err(TopologyError::DuplicateUid {
                             layer: layer(),
                             uid,
-                            first_module: topology.modules[first_module].id,
+                            first_module: first_module.map_or(*module_id, |m| m.id),
                             second_module: *module_id,
                         });
                     }
@@ -226,87 +231,48 @@ impl LayerTopology {
         self.sensors.len() * 2
     }
 
-    /// Serialises the topology for a channel's description area.
+    /// Serialises the topology for a channel's description area, in the
+    /// [`wire`](crate::wire) encoding:
+    /// `SKTOPO01`, name, sensor type, rate (f64), then the patches, each with
+    /// its id and its modules, each with its id and its sensors' uids.
     pub fn encode(&self) -> Vec<u8> {
-        let mut out = Vec::with_capacity(64 + self.sensors.len() * 4 + self.modules.len() * 12);
-        out.extend_from_slice(TOPOLOGY_MAGIC);
-        for text in [&self.name, &self.sensor_type] {
-            out.extend_from_slice(&(text.len() as u32).to_le_bytes());
-            out.extend_from_slice(text.as_bytes());
-        }
-        out.extend_from_slice(&self.rate_hz.to_le_bytes());
-        out.extend_from_slice(&(self.patches.len() as u32).to_le_bytes());
+        let mut out = Encoder::with_capacity(TOPOLOGY_MAGIC, 64 + self.sensors.len() * 4 + self.modules.len() * 12);
+        out.str(&self.name);
+        out.str(&self.sensor_type);
+        out.f64(self.rate_hz);
+        out.count(self.patches.len());
+        let uids: Vec<u32> = self.sensors.iter().map(|s| s.uid).collect();
         for patch in &self.patches {
-            out.extend_from_slice(&patch.id.to_le_bytes());
-            out.extend_from_slice(&(patch.modules.len() as u32).to_le_bytes());
+            out.u32(patch.id);
+            out.count(patch.modules.len());
             for module in &self.modules[patch.modules.clone()] {
-                out.extend_from_slice(&module.id.to_le_bytes());
-                out.extend_from_slice(&(module.sensors.len() as u32).to_le_bytes());
-                for sensor in &self.sensors[module.sensors.clone()] {
-                    out.extend_from_slice(&sensor.uid.to_le_bytes());
-                }
+                out.u32(module.id);
+                out.u32s(&uids[module.sensors.clone()]);
             }
         }
-        out
+        out.finish()
     }
 
     /// Reads a topology from a channel's description area; `channel` names it in errors.
     pub fn decode(bytes: &[u8], channel: &str) -> Result<LayerTopology, TopologyError> {
-        let malformed =
-            |reason: &str| TopologyError::Malformed { channel: channel.to_owned(), reason: reason.to_owned() };
-        let mut input = Decoder { bytes, at: 0 };
-        if input.take(8).ok_or_else(|| malformed("too short"))? != TOPOLOGY_MAGIC {
-            return Err(malformed("it does not start with the topology magic; is this a layer channel?"));
-        }
-        let name = input.text().ok_or_else(|| malformed("bad layer name"))?;
-        let sensor_type = input.text().ok_or_else(|| malformed("bad sensor type"))?;
-        let rate_hz = f64::from_le_bytes(input.array().ok_or_else(|| malformed("no rate"))?);
+        let malformed = |source| TopologyError::Malformed { channel: channel.to_owned(), source };
+        let mut input = Decoder::new(bytes, "topology", TOPOLOGY_MAGIC).map_err(malformed)?;
+        let name = input.str("layer name").map_err(malformed)?;
+        let sensor_type = input.str("sensor type").map_err(malformed)?;
+        let rate_hz = input.f64("rate").map_err(malformed)?;
         let mut builder = TopologyBuilder::new(&name, &sensor_type, rate_hz);
-        let patches = input.u32().ok_or_else(|| malformed("no patch count"))?;
+        // A patch is at least its id and module count; a module its id and sensor count.
+        let patches = input.count("patches", 8).map_err(malformed)?;
         for _ in 0..patches {
-            let id = input.u32().ok_or_else(|| malformed("truncated patch"))?;
-            builder.patch(id);
-            let modules = input.u32().ok_or_else(|| malformed("truncated patch"))?;
+            builder.patch(input.u32("patch id").map_err(malformed)?);
+            let modules = input.count("modules", 8).map_err(malformed)?;
             for _ in 0..modules {
-                let id = input.u32().ok_or_else(|| malformed("truncated module"))?;
-                let count = input.u32().ok_or_else(|| malformed("truncated module"))? as usize;
-                if count > input.remaining() / 4 {
-                    return Err(malformed("a module claims more sensors than the description holds"));
-                }
-                let uids: Vec<u32> = (0..count).filter_map(|_| input.u32()).collect();
-                builder.module(id, uids);
+                let id = input.u32("module id").map_err(malformed)?;
+                builder.module(id, input.u32s("sensor uids").map_err(malformed)?);
             }
         }
-        if input.remaining() != 0 {
-            return Err(malformed("trailing bytes after the topology"));
-        }
+        input.finish().map_err(malformed)?;
         builder.build()
-    }
-}
-
-struct Decoder<'a> {
-    bytes: &'a [u8],
-    at: usize,
-}
-
-impl<'a> Decoder<'a> {
-    fn take(&mut self, n: usize) -> Option<&'a [u8]> {
-        let slice = self.bytes.get(self.at..self.at.checked_add(n)?)?;
-        self.at += n;
-        Some(slice)
-    }
-    fn array<const N: usize>(&mut self) -> Option<[u8; N]> {
-        self.take(N)?.try_into().ok()
-    }
-    fn u32(&mut self) -> Option<u32> {
-        self.array().map(u32::from_le_bytes)
-    }
-    fn text(&mut self) -> Option<String> {
-        let len = self.u32()? as usize;
-        String::from_utf8(self.take(len)?.to_vec()).ok()
-    }
-    fn remaining(&self) -> usize {
-        self.bytes.len() - self.at
     }
 }
 
@@ -347,6 +313,10 @@ mod tests {
             assert!(LayerTopology::decode(&bytes[..cut], "s/arm").is_err(), "cut at {cut}");
         }
         assert!(matches!(LayerTopology::decode(b"stress", "s/x"), Err(TopologyError::Malformed { .. })));
+        let mut trailing = bytes.clone();
+        trailing.push(0);
+        let err = LayerTopology::decode(&trailing, "s/arm").unwrap_err();
+        assert!(err.to_string().contains(&format!("at byte {}", bytes.len())), "{err}");
     }
 
     #[test]
@@ -356,6 +326,13 @@ mod tests {
         assert_eq!(
             dup.build().unwrap_err(),
             TopologyError::DuplicateUid { layer: "l".into(), uid: 6, first_module: 1, second_module: 2 }
+        );
+        // A uid repeated inside one module (it used to index past the modules).
+        let mut within = TopologyBuilder::new("l", "p", 1.0);
+        within.patch(1).module(3, [7, 8, 7]);
+        assert_eq!(
+            within.build().unwrap_err(),
+            TopologyError::DuplicateUid { layer: "l".into(), uid: 7, first_module: 3, second_module: 3 }
         );
         let mut empty = TopologyBuilder::new("l", "p", 1.0);
         empty.patch(1).module(9, []);
