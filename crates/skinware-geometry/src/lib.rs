@@ -194,69 +194,17 @@ impl SkinGeometry {
     ) -> Result<SkinGeometry, GeometryError> {
         let started = Instant::now();
         let input_hash = input_hash(skin, layers, calibration, regions);
-        let mut layer_starts = vec![0];
-        let (mut positions, mut normals, mut radii) = (Vec::new(), Vec::new(), Vec::new());
-        let mut link_names: BTreeMap<String, usize> = BTreeMap::new();
-        let mut link_of = Vec::new();
-        let mut sensor_links: Vec<&str> = Vec::new();
-        for layer in layers {
-            for sensor in &layer.sensors {
-                let c = calibration.get(&layer.name, &layer.sensor_type, sensor.uid).ok_or_else(|| {
-                    GeometryError::Uncalibrated {
-                        layer: layer.name.clone(),
-                        sensor_type: layer.sensor_type.clone(),
-                        uid: sensor.uid,
-                    }
-                })?;
-                positions.push(c.position);
-                normals.push(c.normal);
-                radii.push(c.radius as f32);
-                sensor_links.push(&c.link);
-                let next = link_names.len();
-                let link = *link_names.entry(c.link.clone()).or_insert(next);
-                link_of.push(u16::try_from(link).map_err(|_| GeometryError::Calibration {
-                    source_name: format!("layer {}", layer.name),
-                    line: 0,
-                    message: format!("more than {} robot links; links are meant to be body parts", u16::MAX),
-                })?);
-            }
-            layer_starts.push(positions.len());
-        }
-        // Links are numbered by first appearance; list them in that order.
-        let mut links = vec![String::new(); link_names.len()];
-        for (name, &index) in &link_names {
-            links[index] = name.clone();
-        }
-        let mut by_link = vec![Vec::new(); links.len()];
-        for (s, &l) in link_of.iter().enumerate() {
-            by_link[l as usize].push(s as u32);
-        }
-        let mut types: BTreeMap<&str, Vec<u32>> = BTreeMap::new();
-        for (l, layer) in layers.iter().enumerate() {
-            types.entry(&layer.sensor_type).or_default().extend(layer_starts[l] as u32..layer_starts[l + 1] as u32);
-        }
-        let by_type = types.into_iter().map(|(t, s)| (t.to_owned(), s)).collect();
+        let placed = place_sensors(layers, calibration)?;
+        let (links, by_link) = link_index(&placed.link_names, &placed.link_of);
+        let by_type = type_index(layers, &placed.layer_starts);
         let indices_ms = ms(started);
 
         let stage = Instant::now();
-        let mut facts = Vec::with_capacity(positions.len());
-        for (l, layer) in layers.iter().enumerate() {
-            for (k, sensor) in layer.sensors.iter().enumerate() {
-                let module = &layer.modules[sensor.module];
-                let g = layer_starts[l] + k;
-                facts.push(regions::SensorFacts {
-                    layer: &layer.name,
-                    uid: sensor.uid,
-                    module_id: module.id,
-                    patch_id: layer.patches[module.patch].id,
-                    link: sensor_links[g],
-                    position: positions[g],
-                });
-            }
-        }
+        let facts = region_facts(layers, &placed);
         let region_index = RegionIndex::build(regions, &facts)?;
         let regions_ms = ms(stage);
 
+        let Placed { layer_starts, positions, normals, radii, link_of, .. } = placed;
         let stage = Instant::now();
         let graph = neighbours::build(&positions, &normals);
         let neighbour_stats = neighbour_stats(&positions, &graph);
@@ -398,6 +346,97 @@ impl SkinGeometry {
         write_atomically(&path, &geometry.encode())?;
         Ok((geometry, false))
     }
+}
+
+/// Every sensor's calibrated place and link, in global order.
+struct Placed<'a> {
+    /// Global index of each layer's first sensor, plus the total at the end.
+    layer_starts: Vec<usize>,
+    positions: Vec<[f64; 3]>,
+    normals: Vec<[f64; 3]>,
+    radii: Vec<f32>,
+    /// Link names and their indices, numbered by first appearance.
+    link_names: BTreeMap<String, usize>,
+    /// Each sensor's link, an index into `link_names`.
+    link_of: Vec<u16>,
+    /// Each sensor's link name, as the calibration spells it.
+    sensor_links: Vec<&'a str>,
+}
+
+/// Looks every sensor of `layers` up in `calibration`, layer after layer.
+fn place_sensors<'a>(layers: &[LayerTopology], calibration: &'a Calibration) -> Result<Placed<'a>, GeometryError> {
+    let mut layer_starts = vec![0];
+    let (mut positions, mut normals, mut radii) = (Vec::new(), Vec::new(), Vec::new());
+    let mut link_names: BTreeMap<String, usize> = BTreeMap::new();
+    let mut link_of = Vec::new();
+    let mut sensor_links: Vec<&str> = Vec::new();
+    for layer in layers {
+        for sensor in &layer.sensors {
+            let c = calibration.get(&layer.name, &layer.sensor_type, sensor.uid).ok_or_else(|| {
+                GeometryError::Uncalibrated {
+                    layer: layer.name.clone(),
+                    sensor_type: layer.sensor_type.clone(),
+                    uid: sensor.uid,
+                }
+            })?;
+            positions.push(c.position);
+            normals.push(c.normal);
+            radii.push(c.radius as f32);
+            sensor_links.push(&c.link);
+            let next = link_names.len();
+            let link = *link_names.entry(c.link.clone()).or_insert(next);
+            link_of.push(u16::try_from(link).map_err(|_| GeometryError::Calibration {
+                source_name: format!("layer {}", layer.name),
+                line: 0,
+                message: format!("more than {} robot links; links are meant to be body parts", u16::MAX),
+            })?);
+        }
+        layer_starts.push(positions.len());
+    }
+    Ok(Placed { layer_starts, positions, normals, radii, link_names, link_of, sensor_links })
+}
+
+/// The link names in index order, and the sensors on each link.
+fn link_index(link_names: &BTreeMap<String, usize>, link_of: &[u16]) -> (Vec<String>, Vec<Vec<u32>>) {
+    // Links are numbered by first appearance; list them in that order.
+    let mut links = vec![String::new(); link_names.len()];
+    for (name, &index) in link_names {
+        links[index] = name.clone();
+    }
+    let mut by_link = vec![Vec::new(); links.len()];
+    for (s, &l) in link_of.iter().enumerate() {
+        by_link[l as usize].push(s as u32);
+    }
+    (links, by_link)
+}
+
+/// The sensor types, in name order, and their sensors.
+fn type_index(layers: &[LayerTopology], layer_starts: &[usize]) -> Vec<(String, Vec<u32>)> {
+    let mut types: BTreeMap<&str, Vec<u32>> = BTreeMap::new();
+    for (l, layer) in layers.iter().enumerate() {
+        types.entry(&layer.sensor_type).or_default().extend(layer_starts[l] as u32..layer_starts[l + 1] as u32);
+    }
+    types.into_iter().map(|(t, s)| (t.to_owned(), s)).collect()
+}
+
+/// What region selectors look at, per sensor in global order.
+fn region_facts<'a>(layers: &'a [LayerTopology], placed: &Placed<'a>) -> Vec<regions::SensorFacts<'a>> {
+    let mut facts = Vec::with_capacity(placed.positions.len());
+    for (l, layer) in layers.iter().enumerate() {
+        for (k, sensor) in layer.sensors.iter().enumerate() {
+            let module = &layer.modules[sensor.module];
+            let g = placed.layer_starts[l] + k;
+            facts.push(regions::SensorFacts {
+                layer: &layer.name,
+                uid: sensor.uid,
+                module_id: module.id,
+                patch_id: layer.patches[module.patch].id,
+                link: placed.sensor_links[g],
+                position: placed.positions[g],
+            });
+        }
+    }
+    facts
 }
 
 /// The directory where geometry caches live: `$SKINWARE_CACHE_DIR`, else

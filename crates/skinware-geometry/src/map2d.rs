@@ -420,24 +420,7 @@ fn measure(
     uv: &[[f64; 2]],
     bounds: &[[f64; 4]],
 ) -> MapQuality {
-    let map_distance = |i: usize, j: usize| ((uv[i][0] - uv[j][0]).powi(2) + (uv[i][1] - uv[j][1]).powi(2)).sqrt();
-    let is_seam = |i: usize, j: usize| map_distance(i, j) > SEAM_RATIO * distance(&positions[i], &positions[j]);
-    let mut errors = Vec::new();
-    let mut seams = 0usize;
-    for i in 0..graph.len() {
-        for &j in graph.of(i) {
-            let j = j as usize;
-            if j <= i {
-                continue;
-            }
-            if is_seam(i, j) {
-                seams += 1;
-                continue;
-            }
-            let d3 = distance(&positions[i], &positions[j]).max(1e-12);
-            errors.push((map_distance(i, j) - d3).abs() / d3);
-        }
-    }
+    let (mut errors, seams) = edge_errors(positions, graph, uv);
     let edges = errors.len() + seams;
     let mean_relative_error = if errors.is_empty() { 0.0 } else { errors.iter().sum::<f64>() / errors.len() as f64 };
     let p95_relative_error = if errors.is_empty() {
@@ -446,6 +429,60 @@ fn measure(
         let k = ((errors.len() as f64 * 0.95) as usize).min(errors.len() - 1);
         *errors.select_nth_unstable_by(k, f64::total_cmp).1
     };
+    let (triangles, flipped) = count_flipped_triangles(positions, normals, graph, uv);
+    let stacked = count_stacked(positions, uv);
+    MapQuality {
+        mean_relative_error,
+        p95_relative_error,
+        seam_edge_fraction: if edges == 0 { 0.0 } else { seams as f64 / edges as f64 },
+        triangles,
+        flipped_fraction: if triangles == 0 { 0.0 } else { flipped as f64 / triangles as f64 },
+        stacked_fraction: if uv.is_empty() { 0.0 } else { stacked as f64 / uv.len() as f64 },
+        pieces_overlap: pieces_overlap(bounds),
+        pieces: bounds.len(),
+    }
+}
+
+/// The distance between sensors `i` and `j` on the map.
+fn map_distance(uv: &[[f64; 2]], i: usize, j: usize) -> f64 {
+    ((uv[i][0] - uv[j][0]).powi(2) + (uv[i][1] - uv[j][1]).powi(2)).sqrt()
+}
+
+/// Whether the edge `i`-`j` is cut by the map (stretched past [`SEAM_RATIO`]).
+fn is_seam(positions: &[[f64; 3]], uv: &[[f64; 2]], i: usize, j: usize) -> bool {
+    map_distance(uv, i, j) > SEAM_RATIO * distance(&positions[i], &positions[j])
+}
+
+/// The relative length error of every edge the map keeps, and the number of seam edges.
+fn edge_errors(positions: &[[f64; 3]], graph: &NeighbourGraph, uv: &[[f64; 2]]) -> (Vec<f64>, usize) {
+    let mut errors = Vec::new();
+    let mut seams = 0usize;
+    for i in 0..graph.len() {
+        for &j in graph.of(i) {
+            let j = j as usize;
+            if j <= i {
+                continue;
+            }
+            if is_seam(positions, uv, i, j) {
+                seams += 1;
+                continue;
+            }
+            let d3 = distance(&positions[i], &positions[j]).max(1e-12);
+            errors.push((map_distance(uv, i, j) - d3).abs() / d3);
+        }
+    }
+    (errors, seams)
+}
+
+/// Triangles of the neighbour graph without a seam edge, and how many of
+/// them the map turns over relative to the surface's outward side.
+fn count_flipped_triangles(
+    positions: &[[f64; 3]],
+    normals: &[[f64; 3]],
+    graph: &NeighbourGraph,
+    uv: &[[f64; 2]],
+) -> (usize, usize) {
+    let is_seam = |i: usize, j: usize| is_seam(positions, uv, i, j);
     let (mut triangles, mut flipped) = (0usize, 0usize);
     for i in 0..graph.len() {
         let around = graph.of(i);
@@ -471,12 +508,17 @@ fn measure(
             }
         }
     }
+    (triangles, flipped)
+}
+
+/// Sensors whose nearest neighbour on the map is much nearer than their
+/// nearest neighbour in 3-D ([`STACKED_FRACTION`]): the map stacks them.
+fn count_stacked(positions: &[[f64; 3]], uv: &[[f64; 2]]) -> usize {
     let tree3 = super::neighbours::spatial_index(positions);
     let nearest3 = super::neighbours::nearest_distances(&tree3, positions);
     let tree2: RTree<GeomWithData<[f64; 2], u32>> =
         RTree::bulk_load(uv.iter().enumerate().map(|(i, p)| GeomWithData::new(*p, i as u32)).collect());
-    let stacked = uv
-        .iter()
+    uv.iter()
         .enumerate()
         .filter(|&(i, p)| {
             tree2.nearest_neighbor_iter(p).find(|c| c.data as usize != i).is_some_and(|c| {
@@ -484,7 +526,11 @@ fn measure(
                 ((g[0] - p[0]).powi(2) + (g[1] - p[1]).powi(2)).sqrt() < STACKED_FRACTION * nearest3[i]
             })
         })
-        .count();
+        .count()
+}
+
+/// Whether any two pieces' bounds overlap.
+fn pieces_overlap(bounds: &[[f64; 4]]) -> bool {
     let mut pieces_overlap = false;
     for a in 0..bounds.len() {
         for b in a + 1..bounds.len() {
@@ -494,16 +540,7 @@ fn measure(
             }
         }
     }
-    MapQuality {
-        mean_relative_error,
-        p95_relative_error,
-        seam_edge_fraction: if edges == 0 { 0.0 } else { seams as f64 / edges as f64 },
-        triangles,
-        flipped_fraction: if triangles == 0 { 0.0 } else { flipped as f64 / triangles as f64 },
-        stacked_fraction: if uv.is_empty() { 0.0 } else { stacked as f64 / uv.len() as f64 },
-        pieces_overlap,
-        pieces: bounds.len(),
-    }
+    pieces_overlap
 }
 
 #[cfg(test)]

@@ -248,6 +248,18 @@ impl ContactDetector {
         dt_s: f32,
         out: &mut [RegionContacts],
     ) {
+        self.classify_taxels(responses, layer_ok, layer_fresh, dt_s);
+        self.find_contacts(geometry);
+        self.write_region_records(layer_ok, out);
+        self.count_dead_and_stuck(out);
+        // Unlabelled again, so that the next frame's search starts clean.
+        for c in self.component.iter_mut() {
+            *c = u32::MAX;
+        }
+    }
+
+    /// Follows each taxel's baseline and noise, and sets its state.
+    fn classify_taxels(&mut self, responses: &[u16], layer_ok: &[bool], layer_fresh: &[bool], dt_s: f32) {
         let p = &self.params;
         let alpha = 1.0 - (-dt_s.max(0.0) / p.baseline_tau_s.max(1e-3)).exp();
         // Inputs shorter than the skin (a caller's mistake) leave the rest as
@@ -289,6 +301,11 @@ impl ContactDetector {
                 self.variance[i] += alpha * (residual * residual - self.variance[i]);
             }
         }
+    }
+
+    /// Groups the touched taxels into connected components on the neighbour
+    /// graph and adds each, split by region, to `found`.
+    fn find_contacts(&mut self, geometry: &SkinGeometry) {
         for found in &mut self.found {
             found.clear();
         }
@@ -298,23 +315,33 @@ impl ContactDetector {
             if self.states[start] != TaxelState::TOUCHED || self.component[start] != u32::MAX {
                 continue;
             }
-            self.queue.clear();
-            self.queue.push(start as u32);
-            self.component[start] = next_component;
-            let mut k = 0;
-            while k < self.queue.len() {
-                let i = self.queue[k] as usize;
-                for &j in geometry.neighbours_of(i) {
-                    if self.states[j as usize] == TaxelState::TOUCHED && self.component[j as usize] == u32::MAX {
-                        self.component[j as usize] = next_component;
-                        self.queue.push(j);
-                    }
-                }
-                k += 1;
-            }
+            self.collect_component(geometry, start, next_component);
             next_component += 1;
             self.accumulate_component(geometry);
         }
+    }
+
+    /// Breadth-first search from `start` over touched taxels, labelling them
+    /// `component` and leaving them in `queue`.
+    fn collect_component(&mut self, geometry: &SkinGeometry, start: usize, component: u32) {
+        self.queue.clear();
+        self.queue.push(start as u32);
+        self.component[start] = component;
+        let mut k = 0;
+        while k < self.queue.len() {
+            let i = self.queue[k] as usize;
+            for &j in geometry.neighbours_of(i) {
+                if self.states[j as usize] == TaxelState::TOUCHED && self.component[j as usize] == u32::MAX {
+                    self.component[j as usize] = component;
+                    self.queue.push(j);
+                }
+            }
+            k += 1;
+        }
+    }
+
+    /// Writes each region's largest contacts and its flags into `out`.
+    fn write_region_records(&mut self, layer_ok: &[bool], out: &mut [RegionContacts]) {
         for (r, record) in out.iter_mut().enumerate().take(self.found.len()) {
             let found = &mut self.found[r];
             found.sort_by(|a, b| b.total.total_cmp(&a.total));
@@ -331,7 +358,10 @@ impl ContactDetector {
                 *slot = *contact;
             }
         }
-        // Dead and stuck counts per region.
+    }
+
+    /// Adds the dead and stuck taxels to the counts of their regions' records.
+    fn count_dead_and_stuck(&self, out: &mut [RegionContacts]) {
         for (i, state) in self.states.iter().enumerate() {
             if *state == TaxelState::DEAD || *state == TaxelState::STUCK {
                 let regions =
@@ -345,9 +375,6 @@ impl ContactDetector {
                     }
                 }
             }
-        }
-        for c in self.component.iter_mut() {
-            *c = u32::MAX;
         }
     }
 

@@ -146,21 +146,31 @@ fn nearest_sensor(geometry: &SkinGeometry, point: [f64; 3]) -> usize {
         .unwrap()
 }
 
-#[test]
-fn motion_direction_speed_and_contact_centroid_match_the_script() {
-    let skin = format!("svc{}", std::process::id());
-    let (running, geometry) = start(&skin, Vec::new(), Vec::new());
-    let mut motion = open::<MotionRecord>(&skin, "motion");
-    let mut contact = open::<RegionContacts>(&skin, "contact");
-    assert_eq!(motion.labels(), ["torso", "left_forearm", "right_shin"]);
-    let pitch = geometry.neighbour_stats.mean_edge_m;
+/// Errors of the motion service's slide estimates against the script, one per sample.
+#[derive(Default)]
+struct SlideErrors {
+    direction: Vec<f64>,
+    speed: Vec<f64>,
+    map_direction: Vec<f64>,
+    map_speed: Vec<f64>,
+}
 
-    // Wait until the slide is well under way, then sample it.
-    let (mut direction_errors, mut speed_errors) = (Vec::new(), Vec::new());
-    let (mut map_direction_errors, mut map_speed_errors) = (Vec::new(), Vec::new());
+fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn worst(v: &[f64]) -> f64 {
+    v.iter().copied().fold(0.0, f64::max)
+}
+
+/// Samples the left forearm's slide once it is well under way: the errors
+/// of at least 40 samples, and where the service says the slide started.
+fn sample_slide(motion: &mut ServiceReader<MotionRecord>, geometry: &SkinGeometry) -> (SlideErrors, [f32; 3]) {
+    let mut errors = SlideErrors::default();
     let mut started: Option<[f32; 3]> = None;
     let deadline = Instant::now() + Duration::from_secs(20);
-    while direction_errors.len() < 40 && Instant::now() < deadline {
+    while errors.direction.len() < 40 && Instant::now() < deadline {
         let frame = motion.wait_newer(Duration::from_secs(2)).unwrap();
         let record = frame.records[1];
         if record.flags & motion_flags::SLIDING == 0 || record.duration_s < 1.0 {
@@ -168,62 +178,73 @@ fn motion_direction_speed_and_contact_centroid_match_the_script() {
         }
         assert_eq!(record.flags & motion_flags::INPUT_FAULTED, 0);
         started.get_or_insert(record.start_3d);
-        // Truth at the measured place: the tangent around the axis and the axis.
-        let now = record.now_3d.map(f64::from);
-        let angle = (now[1] - 0.0).atan2(now[0] - 0.24);
-        let truth = [-angle.sin() * SLIDE_VELOCITY[0], angle.cos() * SLIDE_VELOCITY[0], SLIDE_VELOCITY[1]];
-        let truth_speed = SLIDE_VELOCITY[0].hypot(SLIDE_VELOCITY[1]);
-        let measured = record.velocity_3d.map(f64::from);
-        let cos = (0..3).map(|c| measured[c] * truth[c]).sum::<f64>()
-            / (measured.iter().map(|v| v * v).sum::<f64>().sqrt() * truth_speed);
-        direction_errors.push(cos.clamp(-1.0, 1.0).acos().to_degrees());
-        speed_errors.push((f64::from(record.speed_3d) - truth_speed).abs() / truth_speed);
-        // On the map: where the truth moves the contact, through the map.
-        let height = now[2] - 0.85;
-        let ahead_angle = angle + 0.02 * SLIDE_VELOCITY[0] / truth_speed / FOREARM_RADIUS;
-        let ahead_height = height + 0.02 * SLIDE_VELOCITY[1] / truth_speed;
-        let (ahead, _) = VirtualBody::surface_point("left_forearm", ahead_angle, ahead_height).unwrap();
-        let (here, _) = VirtualBody::surface_point("left_forearm", angle, height).unwrap();
-        let (a, b) = (
-            geometry.map.positions[nearest_sensor(&geometry, here)],
-            geometry.map.positions[nearest_sensor(&geometry, ahead)],
-        );
-        let map_truth = [f64::from(b[0] - a[0]), f64::from(b[1] - a[1])];
-        map_direction_errors.push(angle_between(record.velocity_map.map(f64::from), map_truth));
-        map_speed_errors.push((f64::from(record.speed_map) - truth_speed).abs() / truth_speed);
+        add_slide_errors(&record, geometry, &mut errors);
     }
-    assert!(direction_errors.len() >= 40, "the slide was not reported as sliding often enough");
-    let median = |v: &mut Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
-    let worst = |v: &[f64]| v.iter().copied().fold(0.0, f64::max);
+    assert!(errors.direction.len() >= 40, "the slide was not reported as sliding often enough");
+    (errors, started.unwrap())
+}
+
+/// Compares one sliding record with the script's truth at the measured place.
+fn add_slide_errors(record: &MotionRecord, geometry: &SkinGeometry, errors: &mut SlideErrors) {
+    // Truth at the measured place: the tangent around the axis and the axis.
+    let now = record.now_3d.map(f64::from);
+    let angle = (now[1] - 0.0).atan2(now[0] - 0.24);
+    let truth = [-angle.sin() * SLIDE_VELOCITY[0], angle.cos() * SLIDE_VELOCITY[0], SLIDE_VELOCITY[1]];
+    let truth_speed = SLIDE_VELOCITY[0].hypot(SLIDE_VELOCITY[1]);
+    let measured = record.velocity_3d.map(f64::from);
+    let cos = (0..3).map(|c| measured[c] * truth[c]).sum::<f64>()
+        / (measured.iter().map(|v| v * v).sum::<f64>().sqrt() * truth_speed);
+    errors.direction.push(cos.clamp(-1.0, 1.0).acos().to_degrees());
+    errors.speed.push((f64::from(record.speed_3d) - truth_speed).abs() / truth_speed);
+    // On the map: where the truth moves the contact, through the map.
+    let height = now[2] - 0.85;
+    let ahead_angle = angle + 0.02 * SLIDE_VELOCITY[0] / truth_speed / FOREARM_RADIUS;
+    let ahead_height = height + 0.02 * SLIDE_VELOCITY[1] / truth_speed;
+    let (ahead, _) = VirtualBody::surface_point("left_forearm", ahead_angle, ahead_height).unwrap();
+    let (here, _) = VirtualBody::surface_point("left_forearm", angle, height).unwrap();
+    let (a, b) = (
+        geometry.map.positions[nearest_sensor(geometry, here)],
+        geometry.map.positions[nearest_sensor(geometry, ahead)],
+    );
+    let map_truth = [f64::from(b[0] - a[0]), f64::from(b[1] - a[1])];
+    errors.map_direction.push(angle_between(record.velocity_map.map(f64::from), map_truth));
+    errors.map_speed.push((f64::from(record.speed_map) - truth_speed).abs() / truth_speed);
+}
+
+/// Prints the slide's errors and checks the worst of each.
+fn check_slide_errors(mut errors: SlideErrors) {
     eprintln!(
         "3-D direction error median {:.1}° worst {:.1}°; speed error median {:.1}% worst {:.1}%",
-        median(&mut direction_errors),
-        worst(&direction_errors),
-        100.0 * median(&mut speed_errors),
-        100.0 * worst(&speed_errors)
+        median(&mut errors.direction),
+        worst(&errors.direction),
+        100.0 * median(&mut errors.speed),
+        100.0 * worst(&errors.speed)
     );
     eprintln!(
         "map direction error median {:.1}° worst {:.1}°; map speed error median {:.1}% worst {:.1}%",
-        median(&mut map_direction_errors),
-        worst(&map_direction_errors),
-        100.0 * median(&mut map_speed_errors),
-        100.0 * worst(&map_speed_errors)
+        median(&mut errors.map_direction),
+        worst(&errors.map_direction),
+        100.0 * median(&mut errors.map_speed),
+        100.0 * worst(&errors.map_speed)
     );
-    assert!(worst(&direction_errors) < 20.0, "{direction_errors:?}");
-    assert!(worst(&speed_errors) < 0.25, "{speed_errors:?}");
-    assert!(worst(&map_direction_errors) < 20.0, "{map_direction_errors:?}");
-    assert!(worst(&map_speed_errors) < 0.25, "{map_speed_errors:?}");
-    // It started where the script pressed.
+    assert!(worst(&errors.direction) < 20.0, "{:?}", errors.direction);
+    assert!(worst(&errors.speed) < 0.25, "{:?}", errors.speed);
+    assert!(worst(&errors.map_direction) < 20.0, "{:?}", errors.map_direction);
+    assert!(worst(&errors.map_speed) < 0.25, "{:?}", errors.map_speed);
+}
+
+/// The slide started where the script pressed.
+fn check_slide_start(started: [f32; 3], pitch: f64) {
     let (start_truth, _) = VirtualBody::surface_point("left_forearm", 30f64.to_radians(), 0.06).unwrap();
-    let start = started.unwrap().map(f64::from);
+    let start = started.map(f64::from);
     let start_error = (0..3).map(|c| (start[c] - start_truth[c]).powi(2)).sum::<f64>().sqrt();
     eprintln!("start error {:.1} mm (pitch {:.1} mm)", start_error * 1e3, pitch * 1e3);
     assert!(start_error < 2.0 * pitch, "started {start:?}, truth {start_truth:?}");
+}
 
-    // The held contact's centroid.
+/// The contact held on the torso: its centroid, normal and map centroid; and
+/// no contact on the right shin.
+fn check_held_contact(contact: &mut ServiceReader<RegionContacts>, geometry: &SkinGeometry, pitch: f64) {
     let (truth, truth_normal) = VirtualBody::surface_point("torso", 100f64.to_radians(), 0.3).unwrap();
     let frame = contact.wait_newer(Duration::from_secs(2)).unwrap();
     let torso = frame.records[0];
@@ -245,13 +266,15 @@ fn motion_direction_speed_and_contact_centroid_match_the_script() {
     assert!(normal_cos > 0.99);
     assert!(c.taxels > 10 && c.peak > 15_000.0);
     // The map centroid sits at the map position of the taxel nearest the truth.
-    let m = geometry.map.positions[nearest_sensor(&geometry, truth)];
+    let m = geometry.map.positions[nearest_sensor(geometry, truth)];
     let map_error = f64::from((c.map[0] - m[0]).hypot(c.map[1] - m[1]));
     assert!(map_error < 2.0 * pitch, "map centroid {:?} vs {m:?}", c.map);
     // No contact where there is none.
     assert_eq!(frame.records[2].count, 0);
+}
 
-    // The services' own cost per frame, from their channels' statistics.
+/// Prints the services' own cost per frame, from their channels' statistics.
+fn print_service_costs(contact: &mut ServiceReader<RegionContacts>, motion: &mut ServiceReader<MotionRecord>) {
     for (name, stats) in [("contact", contact.reader().writer_stats()), ("motion", motion.reader().writer_stats())] {
         eprintln!(
             "{name}: {} frames, per-frame cost p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs",
@@ -261,6 +284,22 @@ fn motion_direction_speed_and_contact_centroid_match_the_script() {
             stats.write_ns_max as f64 / 1e3
         );
     }
+}
+
+#[test]
+fn motion_direction_speed_and_contact_centroid_match_the_script() {
+    let skin = format!("svc{}", std::process::id());
+    let (running, geometry) = start(&skin, Vec::new(), Vec::new());
+    let mut motion = open::<MotionRecord>(&skin, "motion");
+    let mut contact = open::<RegionContacts>(&skin, "contact");
+    assert_eq!(motion.labels(), ["torso", "left_forearm", "right_shin"]);
+    let pitch = geometry.neighbour_stats.mean_edge_m;
+
+    let (errors, started) = sample_slide(&mut motion, &geometry);
+    check_slide_errors(errors);
+    check_slide_start(started, pitch);
+    check_held_contact(&mut contact, &geometry, pitch);
+    print_service_costs(&mut contact, &mut motion);
     drop(running);
 }
 

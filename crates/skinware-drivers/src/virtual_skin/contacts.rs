@@ -1,0 +1,201 @@
+//! Contacts as pressure blobs: the scripted ones, at known places and times,
+//! and the random ones that press, slide and release all over the body.
+
+use super::SplitMix;
+use super::body::{BODY, SensorPlace, part_names, surface_point};
+
+/// A contact scripted at a known place, time and velocity (for tests and
+/// demonstrations): it presses for `press_s`, slides at `velocity` for
+/// `slide_s`, and releases for `release_s`.
+#[derive(Clone, Debug, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScriptedContact {
+    /// Body part (link) name, e.g. `"left_forearm"`.
+    pub part: String,
+    /// Seconds after the driver starts.
+    pub at_s: f64,
+    /// Where it starts: angle around the part's axis, degrees.
+    pub angle_deg: f64,
+    /// Where it starts: height along the part's axis from its base, metres.
+    pub height: f64,
+    /// Sliding velocity along the surface, m/s: `[around the axis, along it]`.
+    #[serde(default)]
+    pub velocity: [f64; 2],
+    /// Seconds to press.
+    #[serde(default = "default_ramp_s")]
+    pub press_s: f64,
+    /// Seconds to slide (or hold, without velocity).
+    pub slide_s: f64,
+    /// Seconds to release.
+    #[serde(default = "default_ramp_s")]
+    pub release_s: f64,
+    /// Peak response above the baseline.
+    #[serde(default = "default_peak")]
+    pub peak: f64,
+    /// Gaussian radius of the pressure, metres.
+    #[serde(default = "default_sigma")]
+    pub sigma: f64,
+}
+
+fn default_ramp_s() -> f64 {
+    0.3
+}
+fn default_peak() -> f64 {
+    30_000.0
+}
+fn default_sigma() -> f64 {
+    0.015
+}
+
+impl ScriptedContact {
+    pub(super) fn blob(&self) -> Result<Blob, String> {
+        let part = BODY
+            .iter()
+            .position(|p| p.name == self.part)
+            .ok_or_else(|| format!("contact on part {:?}: the parts are {}", self.part, part_names()))?;
+        let numbers = [self.at_s, self.angle_deg, self.height, self.velocity[0], self.velocity[1], self.peak];
+        if !numbers.iter().all(|v| v.is_finite())
+            || self.at_s < 0.0
+            || !(self.press_s > 0.0 && self.slide_s >= 0.0 && self.release_s > 0.0 && self.sigma > 0.0)
+        {
+            return Err(format!(
+                "contact on {}: times must be finite, at_s >= 0, press_s, release_s and sigma above 0",
+                self.part
+            ));
+        }
+        Ok(Blob {
+            part,
+            start_s: self.at_s,
+            press_s: self.press_s,
+            slide_s: self.slide_s,
+            release_s: self.release_s,
+            angle: self.angle_deg.to_radians(),
+            height: self.height,
+            velocity: self.velocity,
+            peak: self.peak,
+            sigma: self.sigma,
+        })
+    }
+
+    /// The true centre of the contact at `t` seconds after the driver
+    /// started: its 3-D position and outward normal, or `None` outside its life.
+    pub fn centre_at(&self, t: f64) -> Option<([f64; 3], [f64; 3])> {
+        let blob = self.blob().ok()?;
+        let (_, angle, height) = blob.at(t)?;
+        Some(surface_point(blob.part, angle, height))
+    }
+
+    /// The true surface velocity while sliding, in 3-D, at `t` seconds.
+    pub fn velocity_3d_at(&self, t: f64) -> Option<[f64; 3]> {
+        let blob = self.blob().ok()?;
+        let (_, angle, _) = blob.at(t)?;
+        let tangent = [-angle.sin(), angle.cos(), 0.0];
+        Some([tangent[0] * self.velocity[0], tangent[1] * self.velocity[0], self.velocity[1]])
+    }
+}
+
+/// One pressure blob's life: it presses, slides along the surface, releases.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Blob {
+    part: usize,
+    start_s: f64,
+    press_s: f64,
+    slide_s: f64,
+    release_s: f64,
+    angle: f64,
+    height: f64,
+    /// Sliding velocity along the surface: (arc length m/s, height m/s).
+    velocity: [f64; 2],
+    peak: f64,
+    sigma: f64,
+}
+
+impl Blob {
+    fn end_s(&self) -> f64 {
+        self.start_s + self.press_s + self.slide_s + self.release_s
+    }
+
+    /// Amplitude (0..1) and surface position (angle, height) at time `t`.
+    fn at(&self, t: f64) -> Option<(f64, f64, f64)> {
+        let local = t - self.start_s;
+        if local < 0.0 || t >= self.end_s() {
+            return None;
+        }
+        let moving = (local - self.press_s).clamp(0.0, self.slide_s);
+        let radius = BODY[self.part].radius;
+        let angle = self.angle + self.velocity[0] * moving / radius;
+        let height = self.height + self.velocity[1] * moving;
+        let amplitude = if local < self.press_s {
+            local / self.press_s
+        } else if local < self.press_s + self.slide_s {
+            1.0
+        } else {
+            1.0 - (local - self.press_s - self.slide_s) / self.release_s
+        };
+        Some((amplitude, angle, height))
+    }
+}
+
+/// The contact schedule: a few blobs at a time, each drawn from the seed.
+#[derive(Debug)]
+pub(super) struct Contacts {
+    blobs: Vec<Blob>,
+}
+
+impl Contacts {
+    /// Blobs for `horizon_s` seconds: the scripted ones, and (if `random`)
+    /// four independent sequences of random blobs.
+    pub(super) fn new(seed: u64, horizon_s: f64, scripted: &[ScriptedContact], random_contacts: bool) -> Contacts {
+        let mut random = SplitMix(seed ^ 0xC0A7_AC75);
+        let mut blobs: Vec<Blob> = scripted.iter().filter_map(|c| c.blob().ok()).collect();
+        let lanes = if random_contacts { 4 } else { 0 };
+        for _lane in 0..lanes {
+            let mut t = random.range(0.0, 1.0);
+            while t < horizon_s {
+                let part = (random.next() % BODY.len() as u64) as usize;
+                let speed = random.range(0.02, 0.12);
+                let direction = random.range(0.0, std::f64::consts::TAU);
+                let blob = Blob {
+                    part,
+                    start_s: t,
+                    press_s: random.range(0.2, 0.5),
+                    slide_s: random.range(0.8, 2.5),
+                    release_s: random.range(0.2, 0.5),
+                    angle: random.range(0.0, std::f64::consts::TAU),
+                    height: random.range(0.2, 0.8) * BODY[part].height,
+                    velocity: [speed * direction.cos(), speed * direction.sin()],
+                    peak: random.range(15_000.0, 50_000.0),
+                    sigma: random.range(0.012, 0.03),
+                };
+                t = blob.end_s() + random.range(0.1, 1.0);
+                blobs.push(blob);
+            }
+        }
+        Contacts { blobs }
+    }
+
+    /// Adds the pressure of every blob alive at `t` seconds to the responses
+    /// of the sensors at `places`.
+    pub(super) fn press(&self, t: f64, places: &[SensorPlace], responses: &mut [u16]) {
+        for blob in &self.blobs {
+            let Some((amplitude, angle, height)) = blob.at(t) else {
+                continue;
+            };
+            let radius = BODY[blob.part].radius;
+            let reach = 3.0 * blob.sigma;
+            for (response, place) in responses.iter_mut().zip(places) {
+                if place.part != blob.part || (place.height - height).abs() > reach {
+                    continue;
+                }
+                let mut dangle = (place.angle - angle).rem_euclid(std::f64::consts::TAU);
+                if dangle > std::f64::consts::PI {
+                    dangle -= std::f64::consts::TAU;
+                }
+                let arc = dangle * radius;
+                let d2 = arc * arc + (place.height - height).powi(2);
+                let pressure = blob.peak * amplitude * (-d2 / (2.0 * blob.sigma * blob.sigma)).exp();
+                *response = (f64::from(*response) + pressure).min(f64::from(u16::MAX)) as u16;
+            }
+        }
+    }
+}

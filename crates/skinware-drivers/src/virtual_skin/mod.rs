@@ -1,0 +1,333 @@
+//! The virtual skin: a deterministic simulation of a skin-covered humanoid.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+use skinware::driver::{Driver, DriverError, LayerSource, LayerSpec};
+use skinware::{FrameWriter, RtOptions};
+use skinware_geometry::{Calibration, SensorCalibration};
+
+mod body;
+mod contacts;
+mod faults;
+
+pub use body::{SensorPlace, VirtualBody};
+pub use contacts::ScriptedContact;
+pub use faults::CablePull;
+
+use body::generate_layers;
+use contacts::Contacts;
+use faults::LayerFaults;
+
+/// A layer's acquisition rate.
+#[derive(Clone, Debug, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(untagged, deny_unknown_fields)]
+pub enum Rate {
+    /// A fixed rate in Hz.
+    Fixed(f64),
+    /// A rate drawn uniformly from `random = [min, max]` Hz, once per layer (the
+    /// paper's "random 30-50 Hz").
+    Random {
+        /// `[min, max]` in Hz.
+        random: [f64; 2],
+    },
+}
+
+/// Parameters of the virtual skin.
+#[derive(Clone, Debug)]
+pub struct VirtualSkinConfig {
+    /// Driver name (also the prefix of its layer names: `NAME-0`, `NAME-1`, ...).
+    pub name: String,
+    /// Total sensors over all layers.
+    pub sensors: usize,
+    /// Number of layers the sensors are split over (equally).
+    pub layers: usize,
+    /// Sensors per module (the last module of a layer may have fewer).
+    pub sensors_per_module: usize,
+    /// Modules per patch, drawn from this inclusive range.
+    pub modules_per_patch: (usize, usize),
+    /// Acquisition rate of each layer.
+    pub rate: Rate,
+    /// Seed of every random choice (rates, patch sizes, contacts, noise).
+    pub seed: u64,
+    /// Scheduled cable pulls.
+    pub cable_pulls: Vec<CablePull>,
+    /// Files whose existence pulls a layer's cable (one per layer, same order
+    /// as the layers); `None` for no on-command pulls.
+    pub pull_files: Option<Vec<PathBuf>>,
+    /// Real-time settings of every layer's writer thread.
+    pub rt: RtOptions,
+    /// Layers with a given topology and real-time settings, instead of
+    /// generating `layers` layers of `sensors` sensors (then `sensors`,
+    /// `layers`, `sensors_per_module`, `modules_per_patch` and `rt` are unused).
+    pub explicit_layers: Option<Vec<LayerSpec>>,
+    /// Contacts at known places and times.
+    pub contacts: Vec<ScriptedContact>,
+    /// Whether random contacts press, slide and release all over the body.
+    pub random_contacts: bool,
+    /// Uids of taxels that are dead: their response never changes.
+    pub dead_taxels: Vec<u32>,
+    /// Uids of taxels that are stuck at saturation.
+    pub stuck_taxels: Vec<u32>,
+}
+
+impl Default for VirtualSkinConfig {
+    fn default() -> Self {
+        VirtualSkinConfig {
+            name: "virtual".into(),
+            sensors: 30_848,
+            layers: 1,
+            sensors_per_module: 12,
+            modules_per_patch: (4, 16),
+            rate: Rate::Random { random: [30.0, 50.0] },
+            seed: 1,
+            cable_pulls: Vec::new(),
+            pull_files: None,
+            rt: RtOptions::default(),
+            explicit_layers: None,
+            contacts: Vec::new(),
+            random_contacts: true,
+            dead_taxels: Vec::new(),
+            stuck_taxels: Vec::new(),
+        }
+    }
+}
+
+impl VirtualSkinConfig {
+    /// Checks the parameters, saying what is wrong.
+    pub fn validate(&self) -> Result<(), String> {
+        if let Some(layers) = &self.explicit_layers {
+            if layers.is_empty() {
+                return Err("no layers given".into());
+            }
+        } else if self.layers == 0 || self.sensors < self.layers {
+            return Err(format!(
+                "{} sensors cannot be split over {} layers; give at least one sensor per layer",
+                self.sensors, self.layers
+            ));
+        }
+        if self.sensors_per_module == 0 {
+            return Err("sensors_per_module must be at least 1".into());
+        }
+        let (min, max) = self.modules_per_patch;
+        if min == 0 || min > max {
+            return Err(format!("modules_per_patch [{min}, {max}] must be a range with 1 <= min <= max"));
+        }
+        let rates = match &self.rate {
+            Rate::Fixed(hz) => [*hz, *hz],
+            Rate::Random { random } => *random,
+        };
+        if !(rates[0] > 0.0 && rates[0] <= rates[1] && rates[1] <= 100_000.0) {
+            return Err(format!("rate {rates:?} Hz must be positive, min <= max, at most 100 kHz"));
+        }
+        for contact in &self.contacts {
+            contact.blob()?;
+        }
+        for pull in &self.cable_pulls {
+            if !self.layer_names().contains(&pull.layer) {
+                return Err(format!(
+                    "cable pull names layer {:?}, which is not one of {:?}",
+                    pull.layer,
+                    self.layer_names()
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The layer names: `NAME-0 .. NAME-(L-1)`.
+    pub fn layer_names(&self) -> Vec<String> {
+        if let Some(layers) = &self.explicit_layers {
+            return layers.iter().map(|l| l.topology.name.clone()).collect();
+        }
+        (0..self.layers).map(|l| format!("{}-{l}", self.name)).collect()
+    }
+}
+
+/// A small deterministic generator (SplitMix64).
+#[derive(Clone)]
+struct SplitMix(u64);
+
+impl SplitMix {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    fn unit(&mut self) -> f64 {
+        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.unit()
+    }
+}
+
+/// The virtual skin driver.
+pub struct VirtualSkin {
+    config: VirtualSkinConfig,
+    body: Arc<VirtualBody>,
+    layers: Vec<LayerSpec>,
+    /// Global index of each layer's first sensor.
+    first_sensor: Vec<usize>,
+}
+
+impl VirtualSkin {
+    /// Builds the body, the topology of every layer and its rate.
+    pub fn new(config: VirtualSkinConfig) -> Result<VirtualSkin, String> {
+        config.validate()?;
+        if let Some(explicit) = &config.explicit_layers {
+            let total: usize = explicit.iter().map(|l| l.topology.sensors.len()).sum();
+            let mut first_sensor = Vec::new();
+            let mut next = 0;
+            for layer in explicit {
+                first_sensor.push(next);
+                next += layer.topology.sensors.len();
+            }
+            let layers = explicit.clone();
+            return Ok(VirtualSkin { body: Arc::new(VirtualBody::new(total)), config, layers, first_sensor });
+        }
+        let body = Arc::new(VirtualBody::new(config.sensors));
+        let (layers, first_sensor) = generate_layers(&config)?;
+        Ok(VirtualSkin { config, body, layers, first_sensor })
+    }
+
+    /// The simulated body (positions and normals of every sensor, in global order).
+    pub fn body(&self) -> &VirtualBody {
+        &self.body
+    }
+
+    /// The virtual skin's own calibration: every sensor's place on the body,
+    /// keyed by layer name and uid, its link the body part.
+    pub fn calibration(&self) -> Calibration {
+        let mut calibration = Calibration::new();
+        for (l, spec) in self.layers.iter().enumerate() {
+            for (k, sensor) in spec.topology.sensors.iter().enumerate() {
+                let place = &self.body.places[self.first_sensor[l] + k];
+                let entry = SensorCalibration {
+                    position: place.position,
+                    normal: place.normal,
+                    radius: self.body.taxel_radius,
+                    link: VirtualBody::part_name(place.part).to_owned(),
+                };
+                calibration
+                    .insert(&spec.topology.name, sensor.uid, entry)
+                    .expect("the virtual body's places are finite with unit normals");
+            }
+        }
+        calibration
+    }
+}
+
+impl Driver for VirtualSkin {
+    fn name(&self) -> &str {
+        &self.config.name
+    }
+
+    fn layers(&self) -> Vec<LayerSpec> {
+        self.layers.clone()
+    }
+
+    fn start(&mut self) -> Result<Vec<Box<dyn LayerSource>>, DriverError> {
+        let started = Instant::now();
+        let contacts =
+            Arc::new(Contacts::new(self.config.seed, 3600.0, &self.config.contacts, self.config.random_contacts));
+        let mut sources: Vec<Box<dyn LayerSource>> = Vec::new();
+        for (l, spec) in self.layers.iter().enumerate() {
+            let first = self.first_sensor[l];
+            let count = spec.topology.sensors.len();
+            let pulls = self.config.cable_pulls.iter().filter(|p| p.layer == spec.topology.name).cloned().collect();
+            let local = |uids: &[u32]| -> Vec<usize> {
+                uids.iter().filter_map(|&uid| spec.topology.sensor_by_uid(uid)).collect()
+            };
+            let faults = LayerFaults {
+                dead: local(&self.config.dead_taxels),
+                stuck: local(&self.config.stuck_taxels),
+                pulls,
+                pull_file: self.config.pull_files.as_ref().and_then(|files| files.get(l).cloned()),
+                pull_file_seen: (Instant::now(), false),
+            };
+            sources.push(Box::new(VirtualLayer {
+                faults,
+                name: spec.topology.name.clone(),
+                body: self.body.clone(),
+                contacts: contacts.clone(),
+                sensors: first..first + count,
+                started,
+                noise: SplitMix(self.config.seed ^ (l as u64 + 1).wrapping_mul(0x5851_F42D)),
+                responses: vec![0; count],
+            }));
+        }
+        Ok(sources)
+    }
+}
+
+struct VirtualLayer {
+    faults: LayerFaults,
+    name: String,
+    body: Arc<VirtualBody>,
+    contacts: Arc<Contacts>,
+    sensors: std::ops::Range<usize>,
+    started: Instant,
+    noise: SplitMix,
+    responses: Vec<u16>,
+}
+
+impl LayerSource for VirtualLayer {
+    fn acquire(&mut self, frame: &mut FrameWriter<'_>) -> Result<(), DriverError> {
+        let t = self.started.elapsed().as_secs_f64();
+        if self.faults.cable_pulled(t) {
+            return Err(format!("cable pulled: layer {} does not answer", self.name).into());
+        }
+        let places = &self.body.places[self.sensors.clone()];
+        for (response, place) in self.responses.iter_mut().zip(places) {
+            // Baseline with a slow drift, different per sensor.
+            let drift = 40.0 * (0.05 * t + place.angle + place.height * 7.0).sin();
+            *response = (1000.0 + drift) as u16;
+        }
+        self.contacts.press(t, places, &mut self.responses);
+        for response in self.responses.iter_mut() {
+            let noise = (self.noise.next() % 17) as i32 - 8;
+            *response = (i32::from(*response) + noise).clamp(0, i32::from(u16::MAX)) as u16;
+        }
+        self.faults.apply_to(&mut self.responses);
+        frame.write_responses(0, &self.responses)?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_skin_matches_the_paper() {
+        let skin = VirtualSkin::new(VirtualSkinConfig { layers: 5, ..VirtualSkinConfig::default() }).unwrap();
+        let layers = skin.layers();
+        assert_eq!(layers.iter().map(|l| l.topology.sensors.len()).sum::<usize>(), 30_848);
+        for layer in &layers {
+            let topology = &layer.topology;
+            assert!((30.0..=50.0).contains(&topology.rate_hz), "{}", topology.rate_hz);
+            assert!(topology.modules.iter().all(|m| m.sensors.len() <= 12));
+            // All patches but a layer's last have 4..=16 modules.
+            let full = &topology.patches[..topology.patches.len() - 1];
+            assert!(full.iter().all(|p| (4..=16).contains(&p.modules.len())));
+        }
+        let uids: std::collections::HashSet<u32> =
+            layers.iter().flat_map(|l| l.topology.sensors.iter().map(|s| s.uid)).collect();
+        assert_eq!(uids.len(), 30_848, "uids must be unique over the whole skin");
+    }
+
+    #[test]
+    fn invalid_parameters_are_explained() {
+        let zero = VirtualSkinConfig { layers: 0, ..VirtualSkinConfig::default() };
+        assert!(zero.validate().unwrap_err().contains("layers"));
+        let bad_pull = VirtualSkinConfig {
+            cable_pulls: vec![CablePull { layer: "nope".into(), at_s: 0.0, duration_s: 1.0, every_s: None }],
+            ..VirtualSkinConfig::default()
+        };
+        assert!(bad_pull.validate().unwrap_err().contains("nope"));
+    }
+}

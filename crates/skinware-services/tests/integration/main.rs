@@ -1,0 +1,5 @@
+//! The services' integration tests, as one test binary (one link instead of
+//! one per file).
+
+mod framework;
+mod scripted;
