@@ -34,13 +34,14 @@
 
 #![forbid(unsafe_code)]
 
+use skinware::wire::{DecodeError, Decoder, Encoder};
 use std::time::Duration;
 
 use skinware::{
     ChannelKind, Error, FrameStatus, Reader, ReaderOptions, Result, Ticker, Writer, WriterOptions, WriterState,
 };
 
-const DESCRIPTION_MAGIC: &str = "SKSERV01";
+const DESCRIPTION_MAGIC: &[u8; 8] = b"SKSERV02";
 
 /// A service's record type: plain old data, with a schema name (at most 32
 /// bytes) and a version to bump whenever the layout or meaning changes.
@@ -89,16 +90,18 @@ impl ServiceSpec {
         ServiceSpec { name: name.to_owned(), records, labels: Vec::new(), mode, inputs: Vec::new() }
     }
 
-    fn description(&self, schema: &str, version: u32, record_bytes: usize) -> String {
-        let mode = match self.mode {
-            ServiceMode::Periodic { hz } => format!("periodic {hz}"),
-            ServiceMode::Sporadic => "sporadic".to_owned(),
-        };
-        format!(
-            "{DESCRIPTION_MAGIC}\nschema {schema} {version}\nrecord_bytes {record_bytes}\nmode {mode}\ninputs {}\nlabels {}\n",
-            self.inputs.join(" "),
-            self.labels.join(" ")
-        )
+    fn description(&self, schema: &str, version: u32, record_bytes: usize) -> Vec<u8> {
+        ServiceInfo {
+            schema: (schema.to_owned(), version),
+            record_bytes,
+            rate_hz: match self.mode {
+                ServiceMode::Periodic { hz } => Some(hz),
+                ServiceMode::Sporadic => None,
+            },
+            inputs: self.inputs.clone(),
+            labels: self.labels.clone(),
+        }
+        .encode()
     }
 }
 
@@ -118,36 +121,48 @@ pub struct ServiceInfo {
 }
 
 impl ServiceInfo {
-    /// Parses a service channel's description.
-    pub fn parse(description: &[u8]) -> Option<ServiceInfo> {
-        let text = std::str::from_utf8(description).ok()?;
-        let mut lines = text.lines();
-        if lines.next()? != DESCRIPTION_MAGIC {
-            return None;
-        }
-        let mut info = ServiceInfo {
-            schema: (String::new(), 0),
-            record_bytes: 0,
-            rate_hz: None,
-            inputs: Vec::new(),
-            labels: Vec::new(),
-        };
-        for line in lines {
-            let (key, value) = line.split_once(' ').unwrap_or((line, ""));
-            let words = || value.split_whitespace().map(str::to_owned).collect::<Vec<_>>();
-            match key {
-                "schema" => {
-                    let (name, version) = value.rsplit_once(' ')?;
-                    info.schema = (name.to_owned(), version.parse().ok()?);
-                }
-                "record_bytes" => info.record_bytes = value.parse().ok()?,
-                "mode" => info.rate_hz = value.strip_prefix("periodic ").and_then(|hz| hz.parse().ok()),
-                "inputs" => info.inputs = words(),
-                "labels" => info.labels = words(),
-                _ => {}
+    /// The description's encoding (skinware's [`wire`](skinware::wire)
+    /// format): `SKSERV02`, schema name and version, record bytes, the mode
+    /// (0 sporadic, 1 periodic with its rate), inputs, labels.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut out = Encoder::new(DESCRIPTION_MAGIC);
+        out.str(&self.schema.0);
+        out.u32(self.schema.1);
+        out.count(self.record_bytes);
+        match self.rate_hz {
+            Some(hz) => {
+                out.u32(1);
+                out.f64(hz);
             }
+            None => out.u32(0),
         }
-        Some(info)
+        out.strs(&self.inputs);
+        out.strs(&self.labels);
+        out.finish()
+    }
+
+    /// Decodes a service channel's description.
+    pub fn decode(description: &[u8]) -> Result<ServiceInfo, DecodeError> {
+        let mut input = Decoder::new(description, "service description", DESCRIPTION_MAGIC)?;
+        let schema = (input.str("schema name")?, input.u32("schema version")?);
+        let record_bytes = input.u32("record bytes")? as usize;
+        let rate_hz = match input.u32("mode")? {
+            0 => None,
+            1 => Some(input.f64("rate")?),
+            other => {
+                return Err(input.invalid("mode", format!("mode {other} is neither 0 (sporadic) nor 1 (periodic)")));
+            }
+        };
+        let inputs = input.strs("inputs")?;
+        let labels = input.strs("labels")?;
+        input.finish()?;
+        Ok(ServiceInfo { schema, record_bytes, rate_hz, inputs, labels })
+    }
+
+    /// [`decode`](Self::decode), for callers that only need to know whether
+    /// it is a service description.
+    pub fn parse(description: &[u8]) -> Option<ServiceInfo> {
+        ServiceInfo::decode(description).ok()
     }
 }
 
@@ -206,7 +221,7 @@ impl<T: ServicePayload> ServiceWriter<T> {
             ..options.clone()
         };
         let description = spec.description(T::SCHEMA, T::VERSION, record_bytes);
-        let writer = Writer::create(skin, &spec.name, records * record_bytes, description.as_bytes(), &options)?;
+        let writer = Writer::create(skin, &spec.name, records * record_bytes, &description, &options)?;
         Ok(ServiceWriter { writer, records, mode: spec.mode, buffer: vec![T::zeroed(); records] })
     }
 
@@ -313,8 +328,8 @@ impl<T: ServicePayload> ServiceReader<T> {
                 expected_version: T::VERSION,
             });
         }
-        let info = ServiceInfo::parse(&reader.description())
-            .ok_or_else(|| mismatch("its description is not a service description".into()))?;
+        let info = ServiceInfo::decode(&reader.description())
+            .map_err(|e| mismatch(format!("its description is not a service description ({e})")))?;
         let record_bytes = std::mem::size_of::<T>();
         if info.record_bytes != record_bytes {
             return Err(mismatch(format!(

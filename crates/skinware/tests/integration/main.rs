@@ -6,7 +6,9 @@
 // from `sync` is for the library (see `clippy.toml`).
 #![allow(clippy::disallowed_types)]
 
+mod alloc_bound;
 mod bad_input;
 mod driver;
 mod exchange;
 mod util;
+mod wire;
