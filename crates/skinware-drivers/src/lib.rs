@@ -11,4 +11,4 @@
 
 pub mod virtual_skin;
 
-pub use virtual_skin::{CablePull, Rate, ScriptedContact, VirtualBody, VirtualSkin, VirtualSkinConfig};
+pub use virtual_skin::{CablePull, InvalidConfig, Rate, ScriptedContact, VirtualBody, VirtualSkin, VirtualSkinConfig};

@@ -50,20 +50,24 @@ impl Calibration {
     /// Adds (or replaces) the calibration of sensor `uid` under `key`, a layer
     /// name or a sensor type. The normal is normalised; a zero or non-finite
     /// value is refused.
-    pub fn insert(&mut self, key: &str, uid: u32, mut sensor: SensorCalibration) -> Result<(), String> {
+    pub fn insert(&mut self, key: &str, uid: u32, sensor: SensorCalibration) -> Result<(), GeometryError> {
+        self.try_insert(key, uid, sensor).map_err(|reason| GeometryError::Sensor { key: key.to_owned(), uid, reason })
+    }
+
+    fn try_insert(&mut self, key: &str, uid: u32, mut sensor: SensorCalibration) -> Result<(), String> {
         let finite = sensor.position.iter().chain(&sensor.normal).all(|v| v.is_finite()) && sensor.radius.is_finite();
         if !finite {
-            return Err(format!("{key} uid {uid}: a coordinate is not a finite number"));
+            return Err(format!("a coordinate is not a finite number"));
         }
         let norm = sensor.normal.iter().map(|n| n * n).sum::<f64>().sqrt();
         if norm < 1e-12 {
-            return Err(format!("{key} uid {uid}: the normal is zero; give the outward direction of the sensor"));
+            return Err(format!("the normal is zero; give the outward direction of the sensor"));
         }
         if sensor.radius < 0.0 {
-            return Err(format!("{key} uid {uid}: radius {} is negative", sensor.radius));
+            return Err(format!("radius {} is negative", sensor.radius));
         }
         if sensor.link.is_empty() || sensor.link.chars().any(char::is_whitespace) {
-            return Err(format!("{key} uid {uid}: link {:?} must be one word", sensor.link));
+            return Err(format!("link {:?} must be one word", sensor.link));
         }
         sensor.normal = sensor.normal.map(|n| n / norm);
         let entry = (key.to_owned(), uid);
@@ -173,7 +177,7 @@ fn parse_native<'a>(
         if calibration.get(fields[0], fields[0], uid).is_some() {
             return Err(error(line, format!("{} uid {uid} is calibrated twice", fields[0])));
         }
-        calibration.insert(fields[0], uid, sensor).map_err(|m| error(line, m))?;
+        calibration.insert(fields[0], uid, sensor).map_err(|e| error(line, e.to_string()))?;
     }
     Ok(calibration)
 }
@@ -213,7 +217,7 @@ fn parse_skin_calib<'a>(
         if calibration.get(fields[0], fields[0], uid).is_some() {
             return Err(error(line, format!("type {} uid {uid} is calibrated twice", fields[0])));
         }
-        calibration.insert(fields[0], uid, sensor).map_err(|m| error(line, m))?;
+        calibration.insert(fields[0], uid, sensor).map_err(|e| error(line, e.to_string()))?;
     }
     if calibration.len() != count {
         return Err(error(

@@ -47,6 +47,16 @@ pub enum GeometryError {
         /// What is wrong and how to fix it.
         message: String,
     },
+    /// A sensor calibration that cannot be used (not finite, no normal, ...).
+    #[error("{key} uid {uid}: {reason}")]
+    Sensor {
+        /// The layer name or sensor type it was given under.
+        key: String,
+        /// The sensor's uid.
+        uid: u32,
+        /// What is wrong and how to fix it.
+        reason: String,
+    },
     /// A sensor without calibration.
     #[error(
         "layer {layer}: sensor uid {uid} has no calibration (looked for key {layer:?} and sensor type {sensor_type:?}); add a line for it to the calibration file"

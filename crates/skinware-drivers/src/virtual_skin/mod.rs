@@ -94,9 +94,22 @@ impl Default for VirtualSkinConfig {
     }
 }
 
+/// A virtual skin configuration that cannot be built: what is wrong and the
+/// accepted values.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{reason}")]
+pub struct InvalidConfig {
+    /// What is wrong, naming the parameter.
+    pub reason: String,
+}
+
 impl VirtualSkinConfig {
     /// Checks the parameters, saying what is wrong.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidConfig> {
+        self.check().map_err(|reason| InvalidConfig { reason })
+    }
+
+    fn check(&self) -> Result<(), String> {
         if let Some(layers) = &self.explicit_layers {
             if layers.is_empty() {
                 return Err("no layers given".into());
@@ -176,7 +189,7 @@ pub struct VirtualSkin {
 
 impl VirtualSkin {
     /// Builds the body, the topology of every layer and its rate.
-    pub fn new(config: VirtualSkinConfig) -> Result<VirtualSkin, String> {
+    pub fn new(config: VirtualSkinConfig) -> Result<VirtualSkin, InvalidConfig> {
         config.validate()?;
         if let Some(explicit) = &config.explicit_layers {
             let total: usize = explicit.iter().map(|l| l.topology.sensors.len()).sum();
@@ -190,7 +203,7 @@ impl VirtualSkin {
             return Ok(VirtualSkin { body: Arc::new(VirtualBody::new(total)), config, layers, first_sensor });
         }
         let body = Arc::new(VirtualBody::new(config.sensors));
-        let (layers, first_sensor) = generate_layers(&config)?;
+        let (layers, first_sensor) = generate_layers(&config).map_err(|reason| InvalidConfig { reason })?;
         Ok(VirtualSkin { config, body, layers, first_sensor })
     }
 
@@ -323,11 +336,11 @@ mod tests {
     #[test]
     fn invalid_parameters_are_explained() {
         let zero = VirtualSkinConfig { layers: 0, ..VirtualSkinConfig::default() };
-        assert!(zero.validate().unwrap_err().contains("layers"));
+        assert!(zero.validate().unwrap_err().reason.contains("layers"));
         let bad_pull = VirtualSkinConfig {
             cable_pulls: vec![CablePull { layer: "nope".into(), at_s: 0.0, duration_s: 1.0, every_s: None }],
             ..VirtualSkinConfig::default()
         };
-        assert!(bad_pull.validate().unwrap_err().contains("nope"));
+        assert!(bad_pull.validate().unwrap_err().reason.contains("nope"));
     }
 }
