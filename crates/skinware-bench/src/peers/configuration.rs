@@ -2,7 +2,8 @@
 //! publishing frames through one system, and the reader processes receiving
 //! them.
 
-use std::process::Command;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command};
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
@@ -42,12 +43,6 @@ pub(super) fn run_mode(
     // between threads), says it is ready, waits for the readers to attach,
     // then publishes in real time until stopped. Running it in its own thread
     // also keeps SCHED_FIFO away from this thread, whose children inherit it.
-    enum Side {
-        Skinware(Box<Writer>),
-        RwLock(RwLockChannel),
-        #[cfg(feature = "iceoryx2")]
-        Iceoryx2(Box<crate::iceoryx2_peer::IceoryxWriter>),
-    }
     let bytes: Vec<u8> = frame.iter().flat_map(|value| value.to_ne_bytes()).collect();
     let (ready_tx, ready_rx) = std::sync::mpsc::channel::<Result<()>>();
     let (go_tx, go_rx) = std::sync::mpsc::channel::<()>();
@@ -56,21 +51,7 @@ pub(super) fn run_mode(
         let (ready_tx, go_rx) = (ready_tx, go_rx);
         let (stop, frame, bytes, name) = (&stop, &frame, &bytes, &name);
         let writer = scope.spawn(move || -> Result<Vec<u64>> {
-            let created = (|| -> Result<Side> {
-                Ok(match system {
-                    "skinware" | "skinware-spin" => {
-                        let options = WriterOptions { period: Some(period), ..WriterOptions::default() };
-                        Side::Skinware(Box::new(Writer::create(name, "frame", FRAME_BYTES, b"peers", &options)?))
-                    }
-                    #[cfg(feature = "iceoryx2")]
-                    "iceoryx2" => Side::Iceoryx2(Box::new(crate::iceoryx2_peer::IceoryxWriter::create(name, SENSORS)?)),
-                    _ => Side::RwLock(RwLockChannel::create(
-                        &dir.join(format!("skinware-bench-rwlock.{name}")),
-                        FRAME_BYTES,
-                    )?),
-                })
-            })();
-            let mut side = match created {
+            let mut side = match Side::create(system, name, &dir, period) {
                 Ok(side) => {
                     let _ = ready_tx.send(Ok(()));
                     side
@@ -83,40 +64,10 @@ pub(super) fn run_mode(
             if go_rx.recv().is_err() {
                 return Ok(Vec::new());
             }
-            let _ = RtOptions { fifo_priority: Some(80), ..RtOptions::default() }.apply();
-            let mut publish = Vec::with_capacity((RATE_HZ * seconds) as usize + 16);
-            let mut ticker = Ticker::new(period);
-            while ticker.wait(stop).is_some() {
-                let started = skinware::os::monotonic_ns();
-                match &mut side {
-                    Side::Skinware(writer) => {
-                        let mut guard = writer.begin();
-                        guard.write_responses(0, frame)?;
-                        guard.publish();
-                    }
-                    Side::RwLock(channel) => {
-                        channel.publish(bytes)?;
-                    }
-                    #[cfg(feature = "iceoryx2")]
-                    Side::Iceoryx2(writer) => writer.publish(frame)?,
-                }
-                publish.push(skinware::os::monotonic_ns() - started);
-            }
-            Ok(publish)
+            publish_frames(&mut side, period, seconds, stop, frame, bytes)
         });
         ready_rx.recv().map_err(|_| anyhow::anyhow!("the writer thread ended early"))??;
-        for reader in 0..readers {
-            let out = work.join(format!("{name}-{reader}.json"));
-            let child = Command::new(&options.exe)
-                .args(["bench-peer-reader", "--system", system, "--name", name, "--mode", mode])
-                .args(["--seconds", &(seconds + 30.0).to_string()])
-                .arg("--out")
-                .arg(&out)
-                .stdin(std::process::Stdio::piped())
-                .spawn()
-                .context("cannot start a peer reader process")?;
-            children.push((child, out));
-        }
+        children = spawn_readers(&options.exe, &work, system, name, mode, readers, seconds)?;
         // Give every reader time to attach and start waiting.
         std::thread::sleep(Duration::from_millis(300));
         let _ = go_tx.send(());
@@ -125,6 +76,100 @@ pub(super) fn run_mode(
         writer.join().map_err(|_| anyhow::anyhow!("the writer thread panicked"))?
     })?;
     let mut publish = publish;
+    let (mut latency, mut copy, frames) = collect_readers(children, system, mode)?;
+    Ok((Percentiles::of(&mut publish), Percentiles::of(&mut latency), Percentiles::of(&mut copy), frames))
+}
+
+/// The writer's end of the system under test.
+enum Side {
+    Skinware(Box<Writer>),
+    RwLock(RwLockChannel),
+    #[cfg(feature = "iceoryx2")]
+    Iceoryx2(Box<crate::iceoryx2_peer::IceoryxWriter>),
+}
+
+impl Side {
+    /// Creates the writer's end of channel `name` of `system` (rwlock's
+    /// segment in `dir`).
+    fn create(system: &str, name: &str, dir: &Path, period: Duration) -> Result<Side> {
+        Ok(match system {
+            "skinware" | "skinware-spin" => {
+                let options = WriterOptions { period: Some(period), ..WriterOptions::default() };
+                Side::Skinware(Box::new(Writer::create(name, "frame", FRAME_BYTES, b"peers", &options)?))
+            }
+            #[cfg(feature = "iceoryx2")]
+            "iceoryx2" => Side::Iceoryx2(Box::new(crate::iceoryx2_peer::IceoryxWriter::create(name, SENSORS)?)),
+            _ => Side::RwLock(RwLockChannel::create(&dir.join(format!("skinware-bench-rwlock.{name}")), FRAME_BYTES)?),
+        })
+    }
+}
+
+/// Publishes `frame` (as `bytes` for rwlock) once a period, in real time,
+/// until stopped. Returns each publication's cost, ns.
+fn publish_frames(
+    side: &mut Side,
+    period: Duration,
+    seconds: f64,
+    stop: &Stop,
+    frame: &[u16],
+    bytes: &[u8],
+) -> Result<Vec<u64>> {
+    let _ = RtOptions { fifo_priority: Some(80), ..RtOptions::default() }.apply();
+    let mut publish = Vec::with_capacity((RATE_HZ * seconds) as usize + 16);
+    let mut ticker = Ticker::new(period);
+    while ticker.wait(stop).is_some() {
+        let started = skinware::os::monotonic_ns();
+        match side {
+            Side::Skinware(writer) => {
+                let mut guard = writer.begin();
+                guard.write_responses(0, frame)?;
+                guard.publish();
+            }
+            Side::RwLock(channel) => {
+                channel.publish(bytes)?;
+            }
+            #[cfg(feature = "iceoryx2")]
+            Side::Iceoryx2(writer) => writer.publish(frame)?,
+        }
+        publish.push(skinware::os::monotonic_ns() - started);
+    }
+    Ok(publish)
+}
+
+/// Starts the reader processes of one configuration; each writes its samples
+/// to a file in `work`.
+fn spawn_readers(
+    exe: &Path,
+    work: &Path,
+    system: &str,
+    name: &str,
+    mode: &str,
+    readers: usize,
+    seconds: f64,
+) -> Result<Vec<(Child, PathBuf)>> {
+    let mut children = Vec::new();
+    for reader in 0..readers {
+        let out = work.join(format!("{name}-{reader}.json"));
+        let child = Command::new(exe)
+            .args(["bench-peer-reader", "--system", system, "--name", name, "--mode", mode])
+            .args(["--seconds", &(seconds + 30.0).to_string()])
+            .arg("--out")
+            .arg(&out)
+            .stdin(std::process::Stdio::piped())
+            .spawn()
+            .context("cannot start a peer reader process")?;
+        children.push((child, out));
+    }
+    Ok(children)
+}
+
+/// Stops the reader processes and pools their samples. Returns (latency,
+/// copy, frames or reads received).
+fn collect_readers(
+    mut children: Vec<(Child, PathBuf)>,
+    system: &str,
+    mode: &str,
+) -> Result<(Vec<u64>, Vec<u64>, usize)> {
     let mut latency = Vec::new();
     let mut copy = Vec::new();
     let mut busy_reads = 0;
@@ -145,5 +190,5 @@ pub(super) fn run_mode(
         let _ = std::fs::remove_file(&out);
     }
     let frames = if mode == "busy" { busy_reads } else { latency.len() };
-    Ok((Percentiles::of(&mut publish), Percentiles::of(&mut latency), Percentiles::of(&mut copy), frames))
+    Ok((latency, copy, frames))
 }

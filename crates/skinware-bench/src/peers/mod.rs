@@ -8,10 +8,14 @@
 mod configuration;
 mod cyclictest;
 mod futex_wake;
+#[cfg(feature = "iceoryx2")]
+mod iceoryx2_reader;
 mod memcpy;
 mod reader;
 mod report;
+mod rwlock_reader;
 mod setup;
+mod skinware_reader;
 
 use anyhow::{Context, Result, bail};
 
@@ -19,7 +23,6 @@ use self::configuration::{run_mode, run_one};
 use self::cyclictest::run_cyclictest;
 use self::futex_wake::measure_futex_wake;
 use self::memcpy::{measure_memcpy, measure_memcpy_cross_core, measure_memcpy_woken};
-use self::report::print;
 use self::setup::{FRAME_BYTES, woken_rounds};
 
 pub use self::cyclictest::Cyclictest;
@@ -84,26 +87,6 @@ pub fn run(options: &PeersOptions) -> Result<PeersReport> {
         records,
         busy_readers,
     };
-    print(&report, seconds);
-    let json = options.out.join("peers.json");
-    std::fs::write(&json, serde_json::to_vec_pretty(&report)?)?;
-    println!("\nwith readers copying back to back (on request, never waiting):");
-    println!(
-        "{:<9} {:>7} | {:>9} {:>9} {:>9} | {:>9} {:>10}",
-        "system", "readers", "pub p50", "pub p99", "pub max", "published", "reads"
-    );
-    for r in &report.busy_readers {
-        println!(
-            "{:<9} {:>7} | {:>7.1}us {:>7.1}us {:>7.1}us | {:>9} {:>10}",
-            r.system,
-            r.readers,
-            r.publish_ns.p50 as f64 / 1e3,
-            r.publish_ns.p99 as f64 / 1e3,
-            r.publish_ns.max as f64 / 1e3,
-            r.frames_published,
-            r.reads
-        );
-    }
-    println!("\nwrote {}", json.display());
+    report::print_and_write(&report, seconds, &options.out)?;
     Ok(report)
 }

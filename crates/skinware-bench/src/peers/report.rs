@@ -1,5 +1,8 @@
 //! The report of `skin bench peers`: `peers.json` and the printed table.
 
+use std::path::Path;
+
+use anyhow::Result;
 use serde::{Deserialize, Serialize};
 
 use super::cyclictest::Cyclictest;
@@ -95,7 +98,7 @@ pub struct BusyRecord {
     pub reads: usize,
 }
 
-pub(super) fn print(report: &PeersReport, seconds: f64) {
+fn print(report: &PeersReport, seconds: f64) {
     println!(
         "skin bench peers: {} B frames ({} sensors) at {} Hz to waiting reader processes, {seconds} s each",
         report.frame_bytes, SENSORS, report.rate_hz
@@ -150,4 +153,31 @@ pub(super) fn print(report: &PeersReport, seconds: f64) {
             r.copy_vs_woken_memcpy
         );
     }
+}
+
+/// Prints the report, writes it to `peers.json` in `out`, then prints the
+/// busy readers' table.
+pub(super) fn print_and_write(report: &PeersReport, seconds: f64, out: &Path) -> Result<()> {
+    print(report, seconds);
+    let json = out.join("peers.json");
+    std::fs::write(&json, serde_json::to_vec_pretty(report)?)?;
+    println!("\nwith readers copying back to back (on request, never waiting):");
+    println!(
+        "{:<9} {:>7} | {:>9} {:>9} {:>9} | {:>9} {:>10}",
+        "system", "readers", "pub p50", "pub p99", "pub max", "published", "reads"
+    );
+    for r in &report.busy_readers {
+        println!(
+            "{:<9} {:>7} | {:>7.1}us {:>7.1}us {:>7.1}us | {:>9} {:>10}",
+            r.system,
+            r.readers,
+            r.publish_ns.p50 as f64 / 1e3,
+            r.publish_ns.p99 as f64 / 1e3,
+            r.publish_ns.max as f64 / 1e3,
+            r.frames_published,
+            r.reads
+        );
+    }
+    println!("\nwrote {}", json.display());
+    Ok(())
 }
