@@ -22,6 +22,7 @@ pub mod app;
 mod iceoryx2_peer;
 pub mod measure;
 pub mod paper;
+mod paper_record;
 pub mod peers;
 mod plot;
 mod rwlock_peer;

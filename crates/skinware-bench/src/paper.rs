@@ -4,12 +4,13 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
-use serde::Serialize;
 use skinware::Stop;
 use skinware_drivers::{Rate, VirtualSkin, VirtualSkinConfig};
 
 use crate::app::AppSamples;
 use crate::measure::{self, Percentiles};
+
+pub use crate::paper_record::PaperRecord;
 
 /// Options of `skin bench paper`.
 #[derive(Clone, Debug)]
@@ -27,22 +28,6 @@ pub struct PaperOptions {
     pub rounds: Option<u32>,
     /// This executable, re-run for the application processes.
     pub exe: PathBuf,
-}
-
-/// One configuration's result.
-#[derive(Debug, Serialize)]
-pub struct PaperRecord {
-    /// Layers the 30,848 sensors were split over.
-    pub layers: usize,
-    /// Application processes.
-    pub apps: usize,
-    /// Writers' execution time per frame (all layers pooled, frames begun
-    /// while every application was up and reading), ns.
-    pub writer_ns: Percentiles,
-    /// Readers' time to obtain one frame of a layer (all apps and layers pooled), ns.
-    pub reader_ns: Percentiles,
-    /// The layers' acquisition rates, Hz.
-    pub writer_rates_hz: Vec<f64>,
 }
 
 /// Runs the experiment, prints a table, writes `paper.json` and `paper.png`.
