@@ -21,11 +21,15 @@
 mod util;
 
 use std::collections::BTreeMap;
+
+use rustix::process::Signal;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
-use skinware::{Error, Reader, ReaderOptions, RtOptions, Stop, Ticker, Writer, WriterOptions, WriterState};
+use skinware::{
+    Error, Reader, ReaderOptions, RtOptions, Stop, Ticker, Writer, WriterOptions, WriterState, WriterStats,
+};
 
 const SKIN: &str = "stress";
 const CHANNEL: &str = "layer";
@@ -258,8 +262,15 @@ impl Chaos {
     }
 }
 
+/// What the chaos phase did.
+#[derive(Default)]
+struct ChaosCounts {
+    kills: u64,
+    stops: u64,
+    kills_while_stopped: u64,
+}
+
 fn parent_main() {
-    use rustix::process::Signal;
     let seconds: u64 = std::env::var("SKINWARE_STRESS_SECS").ok().and_then(|s| s.parse().ok()).unwrap_or(10);
     let seed = std::env::var("SKINWARE_STRESS_SEED")
         .ok()
@@ -272,33 +283,98 @@ fn parent_main() {
     // Reports live beside the segments; the segment check below ignores them.
     let dir = segments.path.clone();
 
-    let mut writer_process = Command::new(std::env::current_exe().unwrap())
+    let (mut writer_process, observer) = start_writer(&dir);
+    let mut readers: Vec<ReaderProcess> = (0..READERS).map(|id| spawn_reader(&dir, &reports, id)).collect();
+
+    // Calm phase: the writer's overrun rate with readers that behave.
+    std::thread::sleep(Duration::from_secs(2));
+    let calm = observer.writer_stats();
+    let mut finished_reports: BTreeMap<usize, PathBuf> = BTreeMap::new();
+    let counts = run_chaos(&mut readers, &mut finished_reports, &dir, &reports, seed, seconds);
+    let faulty = observer.writer_stats();
+
+    // Let the survivors run on calmly, then stop the writer: they see it gone and exit.
+    for process in readers.iter_mut() {
+        signal(&process.child, Signal::CONT);
+        process.stopped_until = None;
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    drop(writer_process.stdin.take()); // the writer stops when its stdin closes
+    let writer_status = writer_process.wait().unwrap();
+    assert!(writer_status.success(), "the writer process failed: {writer_status}");
+    let final_stats = observer.writer_stats();
+    let last_seq = observer.published_seq();
+    assert_eq!(observer.writer_state(), WriterState::Gone);
+    drop(observer);
+
+    let survivors_done = collect_survivors(readers, &mut finished_reports);
+    let (total, silent) = sum_reports(&finished_reports);
+    let (calm_rate, faulty_rate) = print_summary(&calm, &faulty, &final_stats, last_seq, &total, &counts);
+    println!(
+        "stress: reads checked by {} reader processes ({} exited cleanly, {} killed before reporting)",
+        finished_reports.len(),
+        survivors_done,
+        silent
+    );
+
+    if std::env::var_os("SKINWARE_STRESS_CONTROL").is_some() {
+        println!("stress: CONTROL run (reader processes never read): the missed periods above are the machine's");
+        return;
+    }
+    assert_eq!(total.torn, 0, "torn frames were read");
+    assert_eq!(total.backwards, 0, "a reader's sequence went back");
+    assert!(total.reads > 1000, "too few reads to mean anything: {}", total.reads);
+    assert!(counts.kills > 0 && counts.stops > 0, "no chaos happened");
+    assert!(last_seq as f64 >= 0.5 * (seconds + 2) as f64 * 1000.0, "the writer fell far behind 1 kHz: {last_seq}");
+    // Reader faults must not make the writer miss periods. On this non-RT
+    // kernel, process churn alone makes a SCHED_FIFO writer miss up to about
+    // 1 % of 1 ms periods (the control run, SKINWARE_STRESS_CONTROL=1, shows
+    // it without any reading), so the bound is 2x the calm rate + 2 %. A
+    // writer that waited on a killed or stopped reader would miss nearly every
+    // period after the first fault and fail it by far.
+    assert!(
+        faulty_rate <= 2.0 * calm_rate + 0.02,
+        "the writer missed more periods while readers failed ({faulty_rate:.4}) than before ({calm_rate:.4})"
+    );
+    let leftovers: Vec<String> = segments.files().into_iter().filter(|name| name != "reports").collect();
+    assert!(leftovers.is_empty(), "segments left behind: {leftovers:?}");
+    println!("stress: ok");
+}
+
+/// Starts the writer process and waits until a reader can attach to it.
+fn start_writer(dir: &Path) -> (Child, Reader) {
+    let writer_process = Command::new(std::env::current_exe().unwrap())
         .env("SKINWARE_STRESS_ROLE", "writer")
-        .env("SKINWARE_SHM_DIR", &dir)
+        .env("SKINWARE_SHM_DIR", dir)
         .stdin(std::process::Stdio::piped())
         .spawn()
         .expect("spawn writer process");
-    let observe = ReaderOptions { dir: Some(dir.clone()), ..Default::default() };
+    let observe = ReaderOptions { dir: Some(dir.to_owned()), ..Default::default() };
     let opened = Instant::now();
-    let observer = loop {
+    loop {
         match Reader::open_with(SKIN, CHANNEL, &observe) {
-            Ok(reader) => break reader,
+            Ok(reader) => return (writer_process, reader),
             Err(e) if opened.elapsed() > Duration::from_secs(20) => {
                 panic!("the writer never came up: {e}")
             }
             Err(_) => std::thread::sleep(Duration::from_millis(10)),
         }
-    };
-    let mut readers: Vec<ReaderProcess> = (0..READERS).map(|id| spawn_reader(&dir, &reports, id)).collect();
-    let mut next_id = READERS;
+    }
+}
 
-    // Calm phase: the writer's overrun rate with readers that behave.
-    std::thread::sleep(Duration::from_secs(2));
-    let calm = observer.writer_stats();
-
+/// For `seconds`, every 20-100 ms: SIGKILLs a reader (and starts another) or
+/// SIGSTOPs one for up to a second.
+fn run_chaos(
+    readers: &mut Vec<ReaderProcess>,
+    finished_reports: &mut BTreeMap<usize, PathBuf>,
+    dir: &Path,
+    reports: &Path,
+    seed: u64,
+    seconds: u64,
+) -> ChaosCounts {
     let mut chaos = Chaos(seed);
-    let (mut kills, mut stops, mut kills_while_stopped) = (0u64, 0u64, 0u64);
-    let mut finished_reports: BTreeMap<usize, PathBuf> = BTreeMap::new();
+    let mut counts = ChaosCounts::default();
+    let mut next_id = readers.len();
     let started = Instant::now();
     while started.elapsed() < Duration::from_secs(seconds) {
         std::thread::sleep(Duration::from_millis(20 + chaos.next(80)));
@@ -316,37 +392,27 @@ fn parent_main() {
                 let mut dead = readers.swap_remove(victim);
                 signal(&dead.child, Signal::KILL);
                 let _ = dead.child.wait();
-                kills += 1;
-                kills_while_stopped += u64::from(stopped);
+                counts.kills += 1;
+                counts.kills_while_stopped += u64::from(stopped);
                 finished_reports.insert(next_id + 1_000_000, dead.report);
-                readers.push(spawn_reader(&dir, &reports, next_id));
+                readers.push(spawn_reader(dir, reports, next_id));
                 next_id += 1;
             }
             _ => {
                 if readers[victim].stopped_until.is_none() {
                     signal(&readers[victim].child, Signal::STOP);
                     readers[victim].stopped_until = Some(now + Duration::from_millis(50 + chaos.next(950)));
-                    stops += 1;
+                    counts.stops += 1;
                 }
             }
         }
     }
-    let faulty = observer.writer_stats();
+    counts
+}
 
-    // Let the survivors run on calmly, then stop the writer: they see it gone and exit.
-    for process in readers.iter_mut() {
-        signal(&process.child, Signal::CONT);
-        process.stopped_until = None;
-    }
-    std::thread::sleep(Duration::from_millis(500));
-    drop(writer_process.stdin.take()); // the writer stops when its stdin closes
-    let writer_status = writer_process.wait().unwrap();
-    assert!(writer_status.success(), "the writer process failed: {writer_status}");
-    let final_stats = observer.writer_stats();
-    let last_seq = observer.published_seq();
-    assert_eq!(observer.writer_state(), WriterState::Gone);
-    drop(observer);
-
+/// Waits (30 s at most) for the surviving readers, which must exit cleanly
+/// once they see the writer gone; returns how many did.
+fn collect_survivors(readers: Vec<ReaderProcess>, finished_reports: &mut BTreeMap<usize, PathBuf>) -> usize {
     let mut survivors_done = 0;
     let deadline = Instant::now() + Duration::from_secs(30);
     for (index, mut process) in readers.into_iter().enumerate() {
@@ -365,7 +431,11 @@ fn parent_main() {
         survivors_done += 1;
         finished_reports.insert(index, process.report);
     }
+    survivors_done
+}
 
+/// The readers' reports added up, and how many readers died before writing one.
+fn sum_reports(finished_reports: &BTreeMap<usize, PathBuf>) -> (Report, usize) {
     let mut total = Report::default();
     let mut silent = 0;
     for report in finished_reports.values() {
@@ -378,20 +448,30 @@ fn parent_main() {
         total.backwards += report.backwards;
         total.repeats += report.repeats;
     }
+    (total, silent)
+}
+
+/// Prints what the run measured; returns the writer's missed-period rates
+/// (calm, during faults).
+fn print_summary(
+    calm: &WriterStats,
+    faulty: &WriterStats,
+    final_stats: &WriterStats,
+    last_seq: u64,
+    total: &Report,
+    counts: &ChaosCounts,
+) -> (f64, f64) {
     let calm_frames = calm.frames.max(1);
     let faulty_frames = (faulty.frames - calm.frames).max(1);
     let calm_rate = calm.missed_periods as f64 / calm_frames as f64;
     let faulty_rate = (faulty.missed_periods - calm.missed_periods) as f64 / faulty_frames as f64;
     println!("stress: frames published  {last_seq}");
-    println!(
-        "stress: reads checked     {} by {} reader processes ({} exited cleanly, {} killed before reporting)",
-        total.reads,
-        finished_reports.len(),
-        survivors_done,
-        silent
-    );
+    println!("stress: reads checked     {}", total.reads);
     println!("stress: repeats (periodic readers faster than the writer) {}", total.repeats);
-    println!("stress: SIGKILLs {kills} ({kills_while_stopped} while stopped), SIGSTOPs {stops}");
+    println!(
+        "stress: SIGKILLs {} ({} while stopped), SIGSTOPs {}",
+        counts.kills, counts.kills_while_stopped, counts.stops
+    );
     println!("stress: torn frames       {}", total.torn);
     println!("stress: sequence went back {}", total.backwards);
     println!(
@@ -410,27 +490,5 @@ fn parent_main() {
         final_stats.write_ns_max,
         final_stats.write_ns_quantile(0.99)
     );
-
-    if std::env::var_os("SKINWARE_STRESS_CONTROL").is_some() {
-        println!("stress: CONTROL run (reader processes never read): the missed periods above are the machine's");
-        return;
-    }
-    assert_eq!(total.torn, 0, "torn frames were read");
-    assert_eq!(total.backwards, 0, "a reader's sequence went back");
-    assert!(total.reads > 1000, "too few reads to mean anything: {}", total.reads);
-    assert!(kills > 0 && stops > 0, "no chaos happened");
-    assert!(last_seq as f64 >= 0.5 * (seconds + 2) as f64 * 1000.0, "the writer fell far behind 1 kHz: {last_seq}");
-    // Reader faults must not make the writer miss periods. On this non-RT
-    // kernel, process churn alone makes a SCHED_FIFO writer miss up to about
-    // 1 % of 1 ms periods (the control run, SKINWARE_STRESS_CONTROL=1, shows
-    // it without any reading), so the bound is 2x the calm rate + 2 %. A
-    // writer that waited on a killed or stopped reader would miss nearly every
-    // period after the first fault and fail it by far.
-    assert!(
-        faulty_rate <= 2.0 * calm_rate + 0.02,
-        "the writer missed more periods while readers failed ({faulty_rate:.4}) than before ({calm_rate:.4})"
-    );
-    let leftovers: Vec<String> = segments.files().into_iter().filter(|name| name != "reports").collect();
-    assert!(leftovers.is_empty(), "segments left behind: {leftovers:?}");
-    println!("stress: ok");
+    (calm_rate, faulty_rate)
 }
