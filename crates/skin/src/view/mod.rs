@@ -16,4 +16,5 @@ pub mod sampler;
 pub mod server;
 pub mod session;
 
-pub use server::{Site, bind, serve};
+pub use server::{bind, serve};
+pub use session::Site;

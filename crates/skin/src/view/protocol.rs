@@ -10,7 +10,7 @@ use skinware::WriterState;
 use skinware_geometry::{SensorRef, SkinGeometry};
 
 use super::overlays::Overlays;
-use super::sampler::LayerSlot;
+use super::sampler::{LayerSlot, ReadMode};
 
 /// Bumped on any change of the layout below; the page refuses other versions.
 pub const PROTOCOL_VERSION: u8 = 1;
@@ -28,31 +28,6 @@ pub const OVERLAY_RECORD_BYTES: usize = 16;
 pub const FLAG_RESPONSES: u8 = 1;
 /// Flag of a layer record: its newest frame carries the fault status.
 pub const FLAG_FAULT_FRAME: u8 = 2;
-
-/// How the server reads the layers for one browser.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum ReadMode {
-    /// On absolute time at this rate, whether or not the layers published.
-    Periodic {
-        /// Reads per second.
-        rate_hz: f64,
-    },
-    /// Every frame, as soon as its layer publishes it.
-    Asap,
-    /// One frame per layer each time the browser asks.
-    Request,
-}
-
-impl ReadMode {
-    /// The code in update headers.
-    pub fn code(self) -> u8 {
-        match self {
-            ReadMode::Periodic { .. } => 0,
-            ReadMode::Asap => 1,
-            ReadMode::Request => 2,
-        }
-    }
-}
 
 /// The code of a writer state in layer records.
 pub fn state_code(state: WriterState) -> u8 {

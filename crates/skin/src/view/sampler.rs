@@ -11,7 +11,31 @@ use std::time::{Duration, Instant};
 
 use skinware::{Error, Reader, ReaderOptions, Stop, Ticker, WriterState};
 
-use super::protocol::ReadMode;
+/// How the server reads the layers for one browser.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ReadMode {
+    /// On absolute time at this rate, whether or not the layers published.
+    Periodic {
+        /// Reads per second.
+        rate_hz: f64,
+    },
+    /// Every frame, as soon as its layer publishes it.
+    Asap,
+    /// One frame per layer each time the browser asks.
+    Request,
+}
+
+impl ReadMode {
+    /// The code in update headers.
+    pub fn code(self) -> u8 {
+        match self {
+            ReadMode::Periodic { .. } => 0,
+            ReadMode::Asap => 1,
+            ReadMode::Request => 2,
+        }
+    }
+}
+
 
 /// How long a blocking read waits before it looks at the writer's state again,
 /// so that a fault or a vanished writer shows within this time.

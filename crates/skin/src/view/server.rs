@@ -5,14 +5,14 @@
 
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream, ToSocketAddrs};
-use std::path::PathBuf;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use tungstenite::WebSocket;
 use tungstenite::protocol::Role;
+
+use super::session::Site;
 
 const PAGE_HTML: &str = include_str!("page.html");
 const PAGE_JS: &str = include_str!("page.js");
@@ -42,17 +42,6 @@ pub fn bind(listen: &str) -> Result<TcpListener> {
         tracing::warn!(%address, "listening beyond loopback: anyone who can reach this address can watch the skin");
     }
     Ok(listener)
-}
-
-/// What every connection needs to know.
-#[derive(Clone, Debug)]
-pub struct Site {
-    /// The skin to show.
-    pub skin: String,
-    /// Segment directory; `None` for the default.
-    pub dir: Option<PathBuf>,
-    /// Set on SIGINT/SIGTERM: connections close and [`serve`] returns.
-    pub shutdown: Arc<AtomicBool>,
 }
 
 /// Serves the page and its WebSocket until `site.shutdown` is set.

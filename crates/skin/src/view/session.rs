@@ -7,6 +7,9 @@
 #![forbid(unsafe_code)]
 
 use std::net::TcpStream;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
@@ -15,9 +18,8 @@ use skinware_geometry::SkinGeometry;
 use tungstenite::{Message, WebSocket};
 
 use super::overlays::OverlaySource;
-use super::protocol::{self, ClientMessage, LayerUpdate, ReadMode};
-use super::sampler::{LayerToRead, Sampler};
-use super::server::Site;
+use super::protocol::{self, ClientMessage, LayerUpdate};
+use super::sampler::{LayerToRead, ReadMode, Sampler};
 
 /// Updates the server may send ahead of the browser's acknowledgements.
 const MAX_CREDIT: u32 = 4;
@@ -35,6 +37,17 @@ fn is_timeout(error: &tungstenite::Error) -> bool {
 
 fn is_closed(error: &tungstenite::Error) -> bool {
     matches!(error, tungstenite::Error::ConnectionClosed | tungstenite::Error::AlreadyClosed)
+}
+
+/// What every connection needs to know.
+#[derive(Clone, Debug)]
+pub struct Site {
+    /// The skin to show.
+    pub skin: String,
+    /// Segment directory; `None` for the default.
+    pub dir: Option<PathBuf>,
+    /// Set on SIGINT/SIGTERM: connections close and [`serve`] returns.
+    pub shutdown: Arc<AtomicBool>,
 }
 
 /// Serves one browser until it leaves or the viewer shuts down.

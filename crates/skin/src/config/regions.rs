@@ -1,0 +1,111 @@
+//! `[[region]]` tables: named sets of sensors, resolved against the skin when
+//! its geometry is built.
+
+use anyhow::{Result, bail};
+use serde::Deserialize;
+use skinware_geometry::{RegionSpec, Selector};
+
+/// Sensors chosen by id, in one layer (`[[region.in_layer]]`) or in all of them.
+struct IdSelection<'a> {
+    uids: &'a [u32],
+    uid_range: Option<[u32; 2]>,
+    modules: &'a [u32],
+    patches: &'a [u32],
+}
+
+/// `[[region.in_layer]]`: ids of one layer. Its id fields repeat
+/// [`RegionConfig`]'s on purpose: serde's `flatten` would lose
+/// `deny_unknown_fields` and the line:column of errors.
+#[derive(Debug, Deserialize, Clone, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct InLayer {
+    pub layer: String,
+    #[serde(default)]
+    pub uids: Vec<u32>,
+    pub uid_range: Option<[u32; 2]>,
+    #[serde(default)]
+    pub modules: Vec<u32>,
+    #[serde(default)]
+    pub patches: Vec<u32>,
+}
+
+/// `near = { point = [x, y, z], radius = r }`, metres.
+#[derive(Debug, Deserialize, Clone, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Near {
+    pub point: [f64; 3],
+    pub radius: f64,
+}
+
+/// One `[[region]]`: the union of everything it names.
+#[derive(Debug, Deserialize, Clone, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RegionConfig {
+    pub name: String,
+    #[serde(default)]
+    pub uids: Vec<u32>,
+    pub uid_range: Option<[u32; 2]>,
+    #[serde(default)]
+    pub modules: Vec<u32>,
+    #[serde(default)]
+    pub patches: Vec<u32>,
+    #[serde(default)]
+    pub links: Vec<String>,
+    pub near: Option<Near>,
+    #[serde(default, rename = "in_layer")]
+    pub in_layers: Vec<InLayer>,
+}
+
+impl IdSelection<'_> {
+    fn selectors(&self, layer: Option<&str>, region: &str, out: &mut Vec<Selector>) -> Result<()> {
+        let layer = layer.map(str::to_owned);
+        let mut uids = self.uids.to_vec();
+        if let Some([first, last]) = self.uid_range {
+            if first > last {
+                bail!("region {region}: uid_range [{first}, {last}] is backwards");
+            }
+            if last - first >= 1_000_000 {
+                bail!(
+                    "region {region}: uid_range [{first}, {last}] spans more than a million uids; split it or use modules/patches"
+                );
+            }
+            uids.extend(first..=last);
+        }
+        if !uids.is_empty() {
+            out.push(Selector::Uids { layer: layer.clone(), uids });
+        }
+        if !self.modules.is_empty() {
+            out.push(Selector::Modules { layer: layer.clone(), ids: self.modules.to_vec() });
+        }
+        if !self.patches.is_empty() {
+            out.push(Selector::Patches { layer, ids: self.patches.to_vec() });
+        }
+        Ok(())
+    }
+}
+
+impl RegionConfig {
+    /// The library's form of this region.
+    pub fn spec(&self) -> Result<RegionSpec> {
+        let mut selectors = Vec::new();
+        let ids =
+            IdSelection { uids: &self.uids, uid_range: self.uid_range, modules: &self.modules, patches: &self.patches };
+        ids.selectors(None, &self.name, &mut selectors)?;
+        for link in &self.links {
+            selectors.push(Selector::Link(link.clone()));
+        }
+        if let Some(near) = &self.near {
+            selectors.push(Selector::Near { point: near.point, radius: near.radius });
+        }
+        for in_layer in &self.in_layers {
+            let ids = IdSelection {
+                uids: &in_layer.uids,
+                uid_range: in_layer.uid_range,
+                modules: &in_layer.modules,
+                patches: &in_layer.patches,
+            };
+            ids.selectors(Some(&in_layer.layer), &self.name, &mut selectors)?;
+        }
+        Ok(RegionSpec { name: self.name.clone(), selectors })
+    }
+}
