@@ -149,90 +149,105 @@ impl ServiceDecoder {
 
     fn print(&self, bytes: &[u8], full: bool, out: &mut impl Write) -> Result<()> {
         use skinware_services::framework::ServicePayload;
-        let mm = |v: f32| v * 1e3;
         if self.schema == RegionContacts::SCHEMA {
-            let records: Vec<RegionContacts> = bytemuck::pod_collect_to_vec(bytes);
-            for (k, r) in records.iter().enumerate() {
-                let faulted = if r.flags & contact_flags::INPUT_FAULTED != 0 { " INPUT FAULTED" } else { "" };
-                writeln!(
-                    out,
-                    "  {}: {} contacts, {} dead, {} stuck{faulted}",
-                    self.label(k),
-                    r.count,
-                    r.dead,
-                    r.stuck
-                )?;
-                for c in r.contacts() {
-                    writeln!(
-                        out,
-                        "    {} taxels, area {:.1} cm², total {:.0}, peak {:.0} at sensor {}; centroid [{:.1}, {:.1}, {:.1}] mm, map [{:.1}, {:.1}] mm, normal [{:.2}, {:.2}, {:.2}]",
-                        c.taxels,
-                        c.area_m2 * 1e4,
-                        c.total,
-                        c.peak,
-                        c.peak_sensor,
-                        mm(c.centroid[0]),
-                        mm(c.centroid[1]),
-                        mm(c.centroid[2]),
-                        mm(c.map[0]),
-                        mm(c.map[1]),
-                        c.normal[0],
-                        c.normal[1],
-                        c.normal[2]
-                    )?;
-                }
-            }
+            self.print_contacts(bytes, out)?;
         } else if self.schema == MotionRecord::SCHEMA {
-            let records: Vec<MotionRecord> = bytemuck::pod_collect_to_vec(bytes);
-            for (k, r) in records.iter().enumerate() {
-                let state = if r.flags & motion_flags::SLIDING != 0 {
-                    "sliding"
-                } else if r.flags & motion_flags::CONTACT != 0 {
-                    "contact"
-                } else {
-                    "no contact"
-                };
-                let faulted = if r.flags & motion_flags::INPUT_FAULTED != 0 { " INPUT FAULTED" } else { "" };
-                write!(out, "  {}: {state}{faulted}", self.label(k))?;
-                if r.flags & motion_flags::CONTACT != 0 {
-                    write!(
-                        out,
-                        " for {:.2} s; {:.1} mm/s in 3-D, {:.1} mm/s at {:.0}° on the map; from [{:.1}, {:.1}, {:.1}] to [{:.1}, {:.1}, {:.1}] mm",
-                        r.duration_s,
-                        mm(r.speed_3d),
-                        mm(r.speed_map),
-                        r.direction_map_rad.to_degrees(),
-                        mm(r.start_3d[0]),
-                        mm(r.start_3d[1]),
-                        mm(r.start_3d[2]),
-                        mm(r.now_3d[0]),
-                        mm(r.now_3d[1]),
-                        mm(r.now_3d[2])
-                    )?;
-                }
-                writeln!(out)?;
-            }
+            self.print_motion(bytes, out)?;
         } else if self.schema == TaxelState::SCHEMA {
-            let mut counts = [0usize; 5];
-            for &b in bytes {
-                counts[usize::from(b).min(4)] += 1;
-            }
-            writeln!(
-                out,
-                "  {} taxels: {} idle, {} touched, {} dead, {} stuck, {} without input",
-                bytes.len(),
-                counts[0],
-                counts[1],
-                counts[2],
-                counts[3],
-                counts[4]
-            )?;
-            if full {
-                writeln!(out, "  states {bytes:?}")?;
-            }
+            print_taxel_states(bytes, full, out)?;
         } else {
             writeln!(out, "  {} bytes of schema {:?} (not decoded by this command)", bytes.len(), self.schema)?;
         }
         Ok(())
     }
+
+    /// One line per region, then one per contact in it.
+    fn print_contacts(&self, bytes: &[u8], out: &mut impl Write) -> Result<()> {
+        let records: Vec<RegionContacts> = bytemuck::pod_collect_to_vec(bytes);
+        for (k, r) in records.iter().enumerate() {
+            let faulted = if r.flags & contact_flags::INPUT_FAULTED != 0 { " INPUT FAULTED" } else { "" };
+            writeln!(out, "  {}: {} contacts, {} dead, {} stuck{faulted}", self.label(k), r.count, r.dead, r.stuck)?;
+            for c in r.contacts() {
+                writeln!(
+                    out,
+                    "    {} taxels, area {:.1} cm², total {:.0}, peak {:.0} at sensor {}; centroid [{:.1}, {:.1}, {:.1}] mm, map [{:.1}, {:.1}] mm, normal [{:.2}, {:.2}, {:.2}]",
+                    c.taxels,
+                    c.area_m2 * 1e4,
+                    c.total,
+                    c.peak,
+                    c.peak_sensor,
+                    mm(c.centroid[0]),
+                    mm(c.centroid[1]),
+                    mm(c.centroid[2]),
+                    mm(c.map[0]),
+                    mm(c.map[1]),
+                    c.normal[0],
+                    c.normal[1],
+                    c.normal[2]
+                )?;
+            }
+        }
+        Ok(())
+    }
+
+    /// One line per region: its state and, in contact, how it moves.
+    fn print_motion(&self, bytes: &[u8], out: &mut impl Write) -> Result<()> {
+        let records: Vec<MotionRecord> = bytemuck::pod_collect_to_vec(bytes);
+        for (k, r) in records.iter().enumerate() {
+            let state = if r.flags & motion_flags::SLIDING != 0 {
+                "sliding"
+            } else if r.flags & motion_flags::CONTACT != 0 {
+                "contact"
+            } else {
+                "no contact"
+            };
+            let faulted = if r.flags & motion_flags::INPUT_FAULTED != 0 { " INPUT FAULTED" } else { "" };
+            write!(out, "  {}: {state}{faulted}", self.label(k))?;
+            if r.flags & motion_flags::CONTACT != 0 {
+                write!(
+                    out,
+                    " for {:.2} s; {:.1} mm/s in 3-D, {:.1} mm/s at {:.0}° on the map; from [{:.1}, {:.1}, {:.1}] to [{:.1}, {:.1}, {:.1}] mm",
+                    r.duration_s,
+                    mm(r.speed_3d),
+                    mm(r.speed_map),
+                    r.direction_map_rad.to_degrees(),
+                    mm(r.start_3d[0]),
+                    mm(r.start_3d[1]),
+                    mm(r.start_3d[2]),
+                    mm(r.now_3d[0]),
+                    mm(r.now_3d[1]),
+                    mm(r.now_3d[2])
+                )?;
+            }
+            writeln!(out)?;
+        }
+        Ok(())
+    }
+}
+
+/// Metres to millimetres.
+fn mm(v: f32) -> f32 {
+    v * 1e3
+}
+
+/// How many taxels are in each state, and with `full` every taxel's state.
+fn print_taxel_states(bytes: &[u8], full: bool, out: &mut impl Write) -> Result<()> {
+    let mut counts = [0usize; 5];
+    for &b in bytes {
+        counts[usize::from(b).min(4)] += 1;
+    }
+    writeln!(
+        out,
+        "  {} taxels: {} idle, {} touched, {} dead, {} stuck, {} without input",
+        bytes.len(),
+        counts[0],
+        counts[1],
+        counts[2],
+        counts[3],
+        counts[4]
+    )?;
+    if full {
+        writeln!(out, "  states {bytes:?}")?;
+    }
+    Ok(())
 }

@@ -3,13 +3,14 @@
 //! exponential backoff, and its layers are revived by the new process.
 
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
+use skinware_geometry::SkinGeometry;
 
 use crate::config::{Config, RestartConfig};
 
@@ -58,7 +59,41 @@ pub fn shutdown_on_signals() -> Result<Arc<AtomicBool>> {
 pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
     let config = Config::load(config_path)?;
     let config_path = std::fs::canonicalize(config_path)?;
-    let (geometry, cached) = crate::geometry::load_or_build(&config)?;
+    let (geometry, published) = publish_geometry(&config)?;
+    let mut children = start_children(&config, &config_path)?;
+    println!(
+        "skin {}: {} driver(s) and {} service(s) running; Ctrl-C to stop",
+        config.skin,
+        config.drivers.len(),
+        config.services.len()
+    );
+    let mut layer_states: HashMap<String, &'static str> = HashMap::new();
+    let mut next_state_poll = Instant::now();
+    while !shutdown.load(Ordering::Relaxed) {
+        let now = Instant::now();
+        for supervised in &mut children {
+            supervised.check(&config_path, now)?;
+        }
+        if now >= next_state_poll {
+            next_state_poll = now + Duration::from_millis(100);
+            log_layer_changes(&config.skin, &mut layer_states);
+            republish_if_removed(&geometry, &published);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+
+    tracing::info!("shutting down");
+    stop_children(&mut children)?;
+    remove_skin_channels(&config)?;
+    let _ = std::fs::remove_file(&published);
+    println!("skin {}: stopped, channels removed", config.skin);
+    Ok(())
+}
+
+/// Builds (or loads from the cache) the geometry of `config` and publishes
+/// it; returns it with the path it was published at.
+fn publish_geometry(config: &Config) -> Result<(SkinGeometry, PathBuf)> {
+    let (geometry, cached) = crate::geometry::load_or_build(config)?;
     let published = geometry.publish(&skinware::shm::segment_dir())?;
     tracing::info!(
         sensors = geometry.sensor_count(),
@@ -68,6 +103,11 @@ pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
         path = %published.display(),
         "geometry published"
     );
+    Ok((geometry, published))
+}
+
+/// Starts every driver, then every service, of `config`, each in its own process.
+fn start_children(config: &Config, config_path: &Path) -> Result<Vec<Supervised>> {
     let roles = config
         .drivers
         .iter()
@@ -75,7 +115,7 @@ pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
         .chain(config.services.iter().map(|s| ("service", &s.name, &s.restart)));
     let mut children = Vec::new();
     for (role, name, restart) in roles {
-        let child = spawn_child(&config_path, role, name)?;
+        let child = spawn_child(config_path, role, name)?;
         tracing::info!(role, name = %name, pid = child.id(), "started");
         children.push(Supervised {
             role,
@@ -88,62 +128,60 @@ pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
             restarts: 0,
         });
     }
-    println!(
-        "skin {}: {} driver(s) and {} service(s) running; Ctrl-C to stop",
-        config.skin,
-        config.drivers.len(),
-        config.services.len()
-    );
-    let mut layer_states: HashMap<String, &'static str> = HashMap::new();
-    let mut next_state_poll = Instant::now();
-    while !shutdown.load(Ordering::Relaxed) {
-        let now = Instant::now();
-        for supervised in &mut children {
-            let (name, role) = (&supervised.name, supervised.role);
-            if let Some(child) = &mut supervised.child {
-                if let Some(status) = child.try_wait()? {
-                    tracing::warn!(role, name = %name, %status, backoff_s = supervised.backoff_s, "exited; restarting");
-                    supervised.child = None;
-                    supervised.restart_at = Some(now + Duration::from_secs_f64(supervised.backoff_s));
-                    supervised.backoff_s = (supervised.backoff_s * 2.0).min(supervised.restart.max_backoff_s);
-                } else if now.duration_since(supervised.started) > Duration::from_secs(30) {
-                    supervised.backoff_s = supervised.restart.min_backoff_s;
-                }
-            } else if supervised.restart_at.is_some_and(|at| at <= now) {
-                match spawn_child(&config_path, role, name) {
-                    Ok(child) => {
-                        supervised.restarts += 1;
-                        tracing::info!(role, name = %name, pid = child.id(), restarts = supervised.restarts, "restarted");
-                        supervised.child = Some(child);
-                        supervised.started = now;
-                        supervised.restart_at = None;
-                    }
-                    Err(e) => {
-                        tracing::error!(role, name = %name, "{e:#}");
-                        supervised.restart_at = Some(now + Duration::from_secs_f64(supervised.backoff_s));
-                    }
-                }
-            }
-        }
-        if now >= next_state_poll {
-            next_state_poll = now + Duration::from_millis(100);
-            log_layer_changes(&config.skin, &mut layer_states);
-            // `skin clean` removes the geometry of a skin without a live
-            // writer, e.g. while every driver waits to restart: put it back.
-            if !published.exists() {
-                match geometry.publish(&skinware::shm::segment_dir()) {
-                    Ok(_) => {
-                        tracing::warn!(path = %published.display(), "the geometry had been removed; published again")
-                    }
-                    Err(e) => tracing::error!("cannot publish the geometry again: {e}"),
-                }
-            }
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    Ok(children)
+}
 
-    tracing::info!("shutting down");
-    for supervised in &children {
+impl Supervised {
+    /// One look at this child at `now`: notices that it exited (and schedules
+    /// its restart after the backoff), or restarts it when that time has come.
+    fn check(&mut self, config_path: &Path, now: Instant) -> Result<()> {
+        let (name, role) = (&self.name, self.role);
+        if let Some(child) = &mut self.child {
+            if let Some(status) = child.try_wait()? {
+                tracing::warn!(role, name = %name, %status, backoff_s = self.backoff_s, "exited; restarting");
+                self.child = None;
+                self.restart_at = Some(now + Duration::from_secs_f64(self.backoff_s));
+                self.backoff_s = (self.backoff_s * 2.0).min(self.restart.max_backoff_s);
+            } else if now.duration_since(self.started) > Duration::from_secs(30) {
+                // Up for a while: the next crash starts from the shortest backoff again.
+                self.backoff_s = self.restart.min_backoff_s;
+            }
+        } else if self.restart_at.is_some_and(|at| at <= now) {
+            match spawn_child(config_path, role, name) {
+                Ok(child) => {
+                    self.restarts += 1;
+                    tracing::info!(role, name = %name, pid = child.id(), restarts = self.restarts, "restarted");
+                    self.child = Some(child);
+                    self.started = now;
+                    self.restart_at = None;
+                }
+                Err(e) => {
+                    tracing::error!(role, name = %name, "{e:#}");
+                    self.restart_at = Some(now + Duration::from_secs_f64(self.backoff_s));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// `skin clean` removes the geometry of a skin without a live writer, e.g.
+/// while every driver waits to restart: put it back.
+fn republish_if_removed(geometry: &SkinGeometry, published: &Path) {
+    if !published.exists() {
+        match geometry.publish(&skinware::shm::segment_dir()) {
+            Ok(_) => {
+                tracing::warn!(path = %published.display(), "the geometry had been removed; published again")
+            }
+            Err(e) => tracing::error!("cannot publish the geometry again: {e}"),
+        }
+    }
+}
+
+/// SIGTERMs every running child, then waits up to 5 s in all for them to
+/// exit, SIGKILLing those that do not.
+fn stop_children(children: &mut [Supervised]) -> Result<()> {
+    for supervised in children.iter() {
         if let Some(child) = &supervised.child {
             if let Some(pid) = rustix::process::Pid::from_raw(child.id() as i32) {
                 let _ = rustix::process::kill_process(pid, rustix::process::Signal::TERM);
@@ -151,7 +189,7 @@ pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
         }
     }
     let deadline = Instant::now() + Duration::from_secs(5);
-    for supervised in &mut children {
+    for supervised in children.iter_mut() {
         if let Some(child) = &mut supervised.child {
             while child.try_wait()?.is_none() {
                 if Instant::now() > deadline {
@@ -164,9 +202,6 @@ pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
             }
         }
     }
-    remove_skin_channels(&config)?;
-    let _ = std::fs::remove_file(&published);
-    println!("skin {}: stopped, channels removed", config.skin);
     Ok(())
 }
 

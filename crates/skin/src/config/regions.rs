@@ -1,5 +1,4 @@
-//! `[[region]]` tables: named sets of sensors, resolved against the skin when
-//! its geometry is built.
+//! `[[region]]` tables: named sets of sensors, by id, link or distance.
 
 use anyhow::{Result, bail};
 use serde::Deserialize;

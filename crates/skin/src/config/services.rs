@@ -1,9 +1,9 @@
-//! `[[service]]` tables: which services `skin run` starts and their settings.
+//! `[[service]]` tables: the contact and motion services and their settings.
 
 use anyhow::{Result, bail};
 use serde::Deserialize;
 
-use super::RestartConfig;
+use super::process::RestartConfig;
 
 /// The kinds of service.
 #[derive(Debug, Deserialize, Clone, Copy, PartialEq, Eq)]
@@ -78,6 +78,8 @@ impl ServiceConfig {
         }
     }
 
+    /// Checks this table's values and keys for its kind, and that a motion
+    /// service's input is a periodic contact service among `services`.
     pub(super) fn check(&self, services: &[ServiceConfig]) -> Result<()> {
         skinware::shm::validate_name("service", &self.name)?;
         self.restart.check()?;

@@ -29,6 +29,19 @@ pub const FLAG_RESPONSES: u8 = 1;
 /// Flag of a layer record: its newest frame carries the fault status.
 pub const FLAG_FAULT_FRAME: u8 = 2;
 
+// The type belongs to the sampler, which reads in it; its wire code is part
+// of this format.
+impl ReadMode {
+    /// The code in update headers.
+    pub fn code(self) -> u8 {
+        match self {
+            ReadMode::Periodic { .. } => 0,
+            ReadMode::Asap => 1,
+            ReadMode::Request => 2,
+        }
+    }
+}
+
 /// The code of a writer state in layer records.
 pub fn state_code(state: WriterState) -> u8 {
     match state {

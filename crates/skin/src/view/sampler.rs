@@ -11,6 +11,12 @@ use std::time::{Duration, Instant};
 
 use skinware::{Error, Reader, ReaderOptions, Stop, Ticker, WriterState};
 
+/// How long a blocking read waits before it looks at the writer's state again,
+/// so that a fault or a vanished writer shows within this time.
+const STATE_POLL: Duration = Duration::from_millis(100);
+/// Window over which rates are measured.
+const RATE_WINDOW: Duration = Duration::from_millis(500);
+
 /// How the server reads the layers for one browser.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ReadMode {
@@ -24,24 +30,6 @@ pub enum ReadMode {
     /// One frame per layer each time the browser asks.
     Request,
 }
-
-impl ReadMode {
-    /// The code in update headers.
-    pub fn code(self) -> u8 {
-        match self {
-            ReadMode::Periodic { .. } => 0,
-            ReadMode::Asap => 1,
-            ReadMode::Request => 2,
-        }
-    }
-}
-
-
-/// How long a blocking read waits before it looks at the writer's state again,
-/// so that a fault or a vanished writer shows within this time.
-const STATE_POLL: Duration = Duration::from_millis(100);
-/// Window over which rates are measured.
-const RATE_WINDOW: Duration = Duration::from_millis(500);
 
 /// The newest of one layer, as read.
 #[derive(Debug)]
@@ -160,15 +148,21 @@ impl Sampler {
         lock(&self.shared).requests += 1;
         self.shared.requested.notify_all();
     }
-}
 
-impl Drop for Sampler {
-    fn drop(&mut self) {
+    /// Stops the reader threads and waits for them; the board keeps what it
+    /// holds. Dropping the sampler does this too.
+    pub fn stop(&mut self) {
         self.stop.stop();
         self.shared.requested.notify_all();
         for thread in self.threads.drain(..) {
             let _ = thread.join();
         }
+    }
+}
+
+impl Drop for Sampler {
+    fn drop(&mut self) {
+        Sampler::stop(self);
     }
 }
 

@@ -12,7 +12,7 @@ use anyhow::{Context, Result, bail};
 use tungstenite::WebSocket;
 use tungstenite::protocol::Role;
 
-use super::session::Site;
+use super::session::{self, Site};
 
 const PAGE_HTML: &str = include_str!("page.html");
 const PAGE_JS: &str = include_str!("page.js");
@@ -178,7 +178,7 @@ fn handle_connection(mut stream: TcpStream, site: &Site) -> Result<()> {
             )?;
             stream.flush()?;
             let socket = WebSocket::from_partially_read(stream, leftover, Role::Server, None);
-            super::session::run(socket, site)
+            session::run(socket, site)
         }
         _ => respond(&mut stream, "404 Not Found", "text/plain", b"not found\n"),
     }

@@ -8,6 +8,8 @@ use std::time::{Duration, Instant};
 
 use skinware::{Reader, ReaderOptions, WriterState};
 
+use crate::util::one_skin_at_a_time;
+
 const RATE_HZ: f64 = 100.0;
 
 struct Skin {
@@ -99,20 +101,29 @@ fn failover_config() -> String {
 
 #[test]
 fn killed_driver_and_pulled_cable_leave_other_layers_alone() {
+    let _alone = one_skin_at_a_time();
     let mut skin = start("kill", &failover_config());
     let steady = [open(&skin, "steady-0"), open(&skin, "steady-1")];
     let mut victim = open(&skin, "victim-0");
     let first = victim.wait_newer(Duration::from_secs(10)).unwrap().seq();
     std::thread::sleep(Duration::from_millis(500));
 
-    // 1. SIGKILL the victim's driver process.
-    let before = steady_counts(&steady);
+    sigkill_the_victims_driver(&steady, &mut victim, first);
+    pull_and_plug_the_victims_cable(&skin, &steady, &mut victim);
+    top_reports_every_layer(&skin);
+    sigint_stops_everything(&mut skin);
+}
+
+/// Step 1: SIGKILL the victim's driver process: the supervisor starts a new one,
+/// which revives the channel for the same reader; the steady layers go on.
+fn sigkill_the_victims_driver(steady: &[Reader], victim: &mut Reader, first: u64) {
+    let before = steady_counts(steady);
     let began = Instant::now();
     let pid = victim.writer_pid();
     rustix::process::kill_process(rustix::process::Pid::from_raw(pid as i32).unwrap(), rustix::process::Signal::KILL)
         .unwrap();
-    let detected = wait_for_state(&victim, WriterState::Gone, Duration::from_secs(5));
-    let recovered = wait_for_state(&victim, WriterState::Running, Duration::from_secs(20));
+    let detected = wait_for_state(victim, WriterState::Gone, Duration::from_secs(5));
+    let recovered = wait_for_state(victim, WriterState::Running, Duration::from_secs(20));
     assert_ne!(victim.writer_pid(), pid, "the supervisor did not start a new driver process");
     assert_eq!(victim.writer_generation(), 2, "the channel was not revived");
     let fresh = victim.wait_newer(Duration::from_secs(5)).expect("the same reader gets fresh frames again");
@@ -125,14 +136,16 @@ fn killed_driver_and_pulled_cable_leave_other_layers_alone() {
         resumed.as_secs_f64() * 1e3
     );
     std::thread::sleep(Duration::from_secs(1));
-    assert_steady(&steady, &before, began.elapsed());
+    assert_steady(steady, &before, began.elapsed());
+}
 
-    // 2. Pull the victim's cable on command, then plug it back in.
-    let before = steady_counts(&steady);
+/// Step 2: Pull the victim's cable on command, then plug it back in.
+fn pull_and_plug_the_victims_cable(skin: &Skin, steady: &[Reader], victim: &mut Reader) {
+    let before = steady_counts(steady);
     let began = Instant::now();
     let pull = skin_command(&skin.dir).args(["pull", "victim-0", "--skin", "failover"]).output().unwrap();
     assert!(pull.status.success(), "{}", String::from_utf8_lossy(&pull.stderr));
-    let detected = wait_for_state(&victim, WriterState::Faulted, Duration::from_secs(5));
+    let detected = wait_for_state(victim, WriterState::Faulted, Duration::from_secs(5));
     let faults_before = victim.writer_stats().faults;
     std::thread::sleep(Duration::from_secs(1));
     assert!(victim.writer_stats().faults > faults_before, "acquisitions should keep failing while pulled");
@@ -140,7 +153,7 @@ fn killed_driver_and_pulled_cable_leave_other_layers_alone() {
     let plug = skin_command(&skin.dir).args(["pull", "victim-0", "--skin", "failover", "--restore"]).output().unwrap();
     assert!(plug.status.success());
     let plugged = Instant::now();
-    let recovered = wait_for_state(&victim, WriterState::Running, Duration::from_secs(5));
+    let recovered = wait_for_state(victim, WriterState::Running, Duration::from_secs(5));
     let fresh = victim.wait_newer(Duration::from_secs(5)).unwrap().seq();
     assert!(fresh > last_good);
     println!(
@@ -150,9 +163,11 @@ fn killed_driver_and_pulled_cable_leave_other_layers_alone() {
         plugged.elapsed().as_secs_f64() * 1e3
     );
     std::thread::sleep(Duration::from_millis(500));
-    assert_steady(&steady, &before, began.elapsed());
+    assert_steady(steady, &before, began.elapsed());
+}
 
-    // 3. `skin top --once --json` reports every layer with the fields scripts rely on.
+/// Step 3: `skin top --once --json` reports every layer with the fields scripts rely on.
+fn top_reports_every_layer(skin: &Skin) {
     let top = skin_command(&skin.dir)
         .args(["top", "--once", "--json", "--skin", "failover", "--interval", "0.3"])
         .output()
@@ -170,8 +185,10 @@ fn killed_driver_and_pulled_cable_leave_other_layers_alone() {
     let victim_json = layers.iter().find(|l| l["name"] == "victim-0").unwrap();
     assert_eq!(victim_json["restarts"], 1);
     assert_eq!(victim_json["sensors"], 708);
+}
 
-    // 4. SIGINT: everything stops and no channel is left behind.
+/// Step 4: SIGINT: everything stops and no channel is left behind.
+fn sigint_stops_everything(skin: &mut Skin) {
     rustix::process::kill_process(
         rustix::process::Pid::from_raw(skin.supervisor.id() as i32).unwrap(),
         rustix::process::Signal::INT,

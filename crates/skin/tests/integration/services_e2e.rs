@@ -11,6 +11,8 @@ use skinware::{FrameStatus, ReaderOptions};
 use skinware_services::framework::ServiceReader;
 use skinware_services::{MotionRecord, motion_flags};
 
+use crate::util::one_skin_at_a_time;
+
 const CONFIG: &str = r#"
 skin = "svc"
 
@@ -103,6 +105,7 @@ fn poll<T>(what: &str, within: Duration, mut check: impl FnMut() -> Option<T>) -
 
 #[test]
 fn services_run_supervised_and_report_through_the_cli() {
+    let _alone = one_skin_at_a_time();
     let dir = PathBuf::from("/dev/shm").join(format!("skin-svc-e2e-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let config = dir.join("config.toml");
@@ -110,9 +113,20 @@ fn services_run_supervised_and_report_through_the_cli() {
     let supervisor = skin_command(&dir).arg("run").arg(&config).spawn().expect("start skin run");
     let mut running = Skin { dir: dir.clone(), config, supervisor: Some(supervisor) };
 
-    // Three service channels, running, reading the two layers.
+    let services = services_are_listed(&dir);
+    regions_and_geometry_are_listed(&dir);
+    a_region_is_recorded(&dir, &running.config);
+    let mut motion_reader = motion_sees_the_forearm_slide(&dir);
+    let contact = services.iter().find(|s| s["name"] == "contact").unwrap();
+    killed_contact_service_is_reported_and_restarted(contact, &mut motion_reader);
+    ctrl_c_stops_everything(&dir, &mut running);
+    drop(running);
+}
+
+/// Three service channels, running, reading the two layers.
+fn services_are_listed(dir: &Path) -> Vec<serde_json::Value> {
     let services = poll("services running", Duration::from_secs(30), || {
-        let listed = json(&dir, &["services", "--skin", "svc", "--json"]);
+        let listed = json(dir, &["services", "--skin", "svc", "--json"]);
         let services = listed["services"].as_array()?.clone();
         (services.len() == 3 && services.iter().all(|s| s["state"] == "running" && s["frames"].as_u64() > Some(10)))
             .then_some(services)
@@ -123,24 +137,29 @@ fn services_run_supervised_and_report_through_the_cli() {
     assert_eq!(contact["inputs"], serde_json::json!(["body-0", "body-1"]));
     let motion = services.iter().find(|s| s["name"] == "motion").unwrap();
     assert_eq!(motion["inputs"], serde_json::json!(["contact"]));
+    services
+}
 
-    // Regions, sub-regions and the published geometry.
-    let regions = json(&dir, &["ls", "--regions", "--skin", "svc", "--json"]);
+/// Regions, sub-regions and the published geometry.
+fn regions_and_geometry_are_listed(dir: &Path) {
+    let regions = json(dir, &["ls", "--regions", "--skin", "svc", "--json"]);
     assert_eq!(regions["regions"].as_array().unwrap().len(), 2);
-    let geometry = json(&dir, &["geometry", "--skin", "svc", "--json"]);
+    let geometry = json(dir, &["geometry", "--skin", "svc", "--json"]);
     assert_eq!(geometry["sensors"], 6000);
     assert_eq!(geometry["source"], "published");
     assert!(geometry["map"]["mean_relative_error"].as_f64().unwrap() < 0.15);
+}
 
-    // Record a region while the scripted contacts press (from 4 s on).
+/// Record a region while the scripted contacts press (from 4 s on).
+fn a_region_is_recorded(dir: &Path, config: &Path) {
     let recorded = skin(
-        &dir,
+        dir,
         &[
             "region",
             "record",
             "touched",
             "--config",
-            running.config.to_str().unwrap(),
+            config.to_str().unwrap(),
             "--seconds",
             "5",
             "--baseline-seconds",
@@ -148,24 +167,33 @@ fn services_run_supervised_and_report_through_the_cli() {
         ],
     );
     assert!(String::from_utf8_lossy(&recorded.stdout).contains("region \"touched\""));
-    let text = std::fs::read_to_string(&running.config).unwrap();
+    let text = std::fs::read_to_string(config).unwrap();
     assert!(text.contains("name = \"touched\"") && text.contains("[[region.in_layer]]"), "{text}");
-    let rebuilt = json(&dir, &["geometry", running.config.to_str().unwrap(), "--json"]);
+    let rebuilt = json(dir, &["geometry", config.to_str().unwrap(), "--json"]);
     assert_eq!(rebuilt["regions"], 3);
+}
 
-    // The motion service sees the forearm contact slide around the arm.
-    let options = ReaderOptions { dir: Some(dir.clone()), allow_gone: true, ..ReaderOptions::default() };
+/// The motion service sees the forearm contact slide around the arm; returns
+/// the reader that saw it.
+fn motion_sees_the_forearm_slide(dir: &Path) -> ServiceReader<MotionRecord> {
+    let options = ReaderOptions { dir: Some(dir.to_owned()), allow_gone: true, ..ReaderOptions::default() };
     let mut motion_reader = ServiceReader::<MotionRecord>::open_with("svc", "motion", &options).unwrap();
     poll("forearm sliding", Duration::from_secs(10), || {
         let frame = motion_reader.wait_newer(Duration::from_secs(1)).ok()?;
         let forearm = frame.records[1];
         (forearm.flags & motion_flags::SLIDING != 0 && forearm.speed_3d > 0.02).then_some(())
     });
-    let echoed = skin(&dir, &["echo", "--skin", "svc", "--service", "motion", "--count", "1"]);
+    let echoed = skin(dir, &["echo", "--skin", "svc", "--service", "motion", "--count", "1"]);
     assert!(String::from_utf8_lossy(&echoed.stdout).contains("left_forearm: sliding"));
+    motion_reader
+}
 
-    // SIGKILL the contact service: motion reports its input down, then the
-    // supervisor's new contact process revives the channel and motion recovers.
+/// SIGKILL the contact service: motion reports its input down, then the
+/// supervisor's new contact process revives the channel and motion recovers.
+fn killed_contact_service_is_reported_and_restarted(
+    contact: &serde_json::Value,
+    motion_reader: &mut ServiceReader<MotionRecord>,
+) {
     let pid = contact["writer_pid"].as_u64().unwrap() as i32;
     rustix::process::kill_process(rustix::process::Pid::from_raw(pid).unwrap(), rustix::process::Signal::KILL).unwrap();
     let killed = Instant::now();
@@ -179,8 +207,10 @@ fn services_run_supervised_and_report_through_the_cli() {
         (!frame.status.contains(FrameStatus::INPUT_FAULTED)).then_some(())
     });
     eprintln!("contact service killed: reported by motion after {reported:?}, recovered after {:?}", killed.elapsed());
+}
 
-    // Ctrl-C: everything stops and nothing is left behind.
+/// Ctrl-C: everything stops and nothing is left behind.
+fn ctrl_c_stops_everything(dir: &Path, running: &mut Skin) {
     let mut supervisor = running.supervisor.take().unwrap();
     rustix::process::kill_process(
         rustix::process::Pid::from_raw(supervisor.id() as i32).unwrap(),
@@ -189,12 +219,11 @@ fn services_run_supervised_and_report_through_the_cli() {
     .unwrap();
     let status = poll("supervisor exits", Duration::from_secs(10), || supervisor.try_wait().unwrap());
     assert!(status.success());
-    let left: Vec<_> = std::fs::read_dir(&dir)
+    let left: Vec<_> = std::fs::read_dir(dir)
         .unwrap()
         .filter_map(|e| e.ok())
         .map(|e| e.file_name().to_string_lossy().into_owned())
         .filter(|name| name.starts_with("skinware"))
         .collect();
     assert!(left.is_empty(), "left behind: {left:?}");
-    drop(running);
 }

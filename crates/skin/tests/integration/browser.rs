@@ -21,6 +21,8 @@ use std::time::{Duration, Instant};
 use serde_json::{Value, json};
 use skinware::{Reader, ReaderOptions};
 
+use crate::util::one_skin_at_a_time;
+
 /// The skin of `examples/demo.toml`.
 const SKIN: &str = "default";
 /// The layer whose cable the test pulls.
@@ -346,11 +348,25 @@ fn demo_in_headless_chromium() {
         println!("SKIPPED: demo_in_headless_chromium: {reason}");
         return;
     };
+    let _alone = one_skin_at_a_time();
     let mut demo = Demo::start(free_port());
     let browser = Browser::start(&chromedriver, &chromium);
     browser.command("POST", "/url", Some(&json!({ "url": demo.url })));
 
-    // 1. The heatmap is drawn, is not uniform, and changes.
+    the_heatmap_is_drawn_and_changes(&browser);
+    hovering_names_a_taxel(&browser);
+    the_page_keeps_up(&browser, &demo);
+    a_pulled_cable_shows_as_faulted_then_recovered(&browser, &demo);
+    reader_modes_work(&browser);
+
+    // 6. Ctrl-C stops everything and leaves nothing behind.
+    drop(browser);
+    let left = demo.interrupt();
+    assert!(left.is_empty(), "left in the segment directory: {left:?}");
+}
+
+/// Step 1: The heatmap is drawn, is not uniform, and changes.
+fn the_heatmap_is_drawn_and_changes(browser: &Browser) {
     wait_for("the first updates to be drawn", Duration::from_secs(60), || {
         (browser.run(STATS_PROBE)["draws"].as_u64()? >= 5).then_some(())
     });
@@ -369,8 +385,10 @@ fn demo_in_headless_chromium() {
         let stats = browser.run(STATS_PROBE);
         (stats["updatesWithMarkers"].as_u64()? > 0 && stats["updatesWithArrows"].as_u64()? > 0).then_some(())
     });
+}
 
-    // 2. Hovering names a taxel.
+/// Step 2: Hovering names a taxel.
+fn hovering_names_a_taxel(browser: &Browser) {
     let tooltip = browser.run(
         "const c = document.getElementById('map'), r = c.getBoundingClientRect();
          const tip = document.getElementById('tooltip');
@@ -384,8 +402,10 @@ fn demo_in_headless_chromium() {
     for part in ["uid ", "module ", "patch ", "layer virtual-", "response "] {
         assert!(tooltip.contains(part), "tooltip {tooltip:?} lacks {part:?}");
     }
+}
 
-    // 3. The page keeps up: frame rate, bytes per update, and lag behind the writers.
+/// Step 3: The page keeps up: frame rate, bytes per update, and lag behind the writers.
+fn the_page_keeps_up(browser: &Browser, demo: &Demo) {
     let before = browser.run(STATS_PROBE);
     std::thread::sleep(Duration::from_secs(5));
     let after = browser.run(STATS_PROBE);
@@ -406,7 +426,7 @@ fn demo_in_headless_chromium() {
     let lags: Vec<u64> = (0..5)
         .map(|_| {
             std::thread::sleep(Duration::from_millis(200));
-            let shown = seqs(&browser)[0];
+            let shown = seqs(browser)[0];
             newest.latest().unwrap().seq().saturating_sub(shown)
         })
         .collect();
@@ -414,36 +434,40 @@ fn demo_in_headless_chromium() {
     assert!(lags.iter().min().unwrap() <= &4, "the page lags behind the writer by {lags:?} frames");
     assert!(lags.iter().max().unwrap() <= &25, "the page fell behind the writer by {lags:?} frames");
     browser.screenshot("view.png");
+}
 
-    // 4. A pulled cable shows as faulted while the other layers keep updating; then recovered.
+/// Step 4: A pulled cable shows as faulted while the other layers keep updating; then recovered.
+fn a_pulled_cable_shows_as_faulted_then_recovered(browser: &Browser, demo: &Demo) {
     demo.pull(false);
     let (state, badge) = wait_for("the pulled layer to show as faulted", Duration::from_secs(15), || {
-        Some(layer_state(&browser, PULLED)).filter(|(state, _)| state == "faulted")
+        Some(layer_state(browser, PULLED)).filter(|(state, _)| state == "faulted")
     });
     assert_eq!(badge, "faulted");
     println!("browser: {PULLED} shows {state}");
-    let frozen = seqs(&browser);
+    let frozen = seqs(browser);
     std::thread::sleep(Duration::from_secs(1));
-    let moved = seqs(&browser);
+    let moved = seqs(browser);
     let pulled_index = 2;
     for (index, (old, new)) in frozen.iter().zip(&moved).enumerate() {
         if index != pulled_index {
             assert!(new > old, "layer virtual-{index} stopped updating while {PULLED} was pulled");
-            assert_eq!(layer_state(&browser, &format!("virtual-{index}")).0, "running");
+            assert_eq!(layer_state(browser, &format!("virtual-{index}")).0, "running");
         }
     }
     browser.screenshot("view-faulted.png");
     demo.pull(true);
     wait_for("the pulled layer to show as running again", Duration::from_secs(15), || {
-        (layer_state(&browser, PULLED).0 == "running").then_some(())
+        (layer_state(browser, PULLED).0 == "running").then_some(())
     });
-    let recovered = seqs(&browser)[pulled_index];
+    let recovered = seqs(browser)[pulled_index];
     wait_for("fresh frames of the recovered layer", Duration::from_secs(10), || {
-        (seqs(&browser)[pulled_index] > recovered).then_some(())
+        (seqs(browser)[pulled_index] > recovered).then_some(())
     });
+}
 
-    // 5. Reader modes: periodic at the chosen rate, on request only when asked.
-    choose_mode(&browser, "periodic", 10.0);
+/// Step 5: Reader modes: periodic at the chosen rate, on request only when asked.
+fn reader_modes_work(browser: &Browser) {
+    choose_mode(browser, "periodic", 10.0);
     wait_for("virtual-0 to be read at about 10 Hz", Duration::from_secs(15), || {
         let rate: f64 = browser
             .run("return document.querySelector('tr[data-layer=\"virtual-0\"]').cells[4].textContent;")
@@ -452,19 +476,14 @@ fn demo_in_headless_chromium() {
             .ok()?;
         (7.0..=13.0).contains(&rate).then_some(())
     });
-    choose_mode(&browser, "request", 10.0);
+    choose_mode(browser, "request", 10.0);
     std::thread::sleep(Duration::from_millis(500));
-    let idle = seqs(&browser);
+    let idle = seqs(browser);
     std::thread::sleep(Duration::from_secs(1));
-    assert_eq!(seqs(&browser), idle, "frames arrived in on-request mode without a request");
+    assert_eq!(seqs(browser), idle, "frames arrived in on-request mode without a request");
     browser.run("document.getElementById('request').click();");
     wait_for("every layer to answer the request", Duration::from_secs(10), || {
-        seqs(&browser).iter().zip(&idle).all(|(new, old)| new > old).then_some(())
+        seqs(browser).iter().zip(&idle).all(|(new, old)| new > old).then_some(())
     });
-    choose_mode(&browser, "asap", 10.0);
-
-    // 6. Ctrl-C stops everything and leaves nothing behind.
-    drop(browser);
-    let left = demo.interrupt();
-    assert!(left.is_empty(), "left in the segment directory: {left:?}");
+    choose_mode(browser, "asap", 10.0);
 }

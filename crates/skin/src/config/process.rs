@@ -1,0 +1,52 @@
+//! How a driver's or a service's process runs: real-time settings of its
+//! writer threads and its restart policy.
+
+use anyhow::{Result, bail};
+use serde::Deserialize;
+
+/// Real-time settings of a driver's writer threads.
+#[derive(Debug, Deserialize, Default, Clone)]
+#[serde(deny_unknown_fields)]
+pub struct RtConfig {
+    pub fifo_priority: Option<u8>,
+    #[serde(default)]
+    pub lock_memory: bool,
+    #[serde(default)]
+    pub cpus: Vec<usize>,
+}
+
+impl RtConfig {
+    /// The library's form of these settings.
+    pub(super) fn options(&self) -> skinware::RtOptions {
+        skinware::RtOptions {
+            fifo_priority: self.fifo_priority,
+            lock_memory: self.lock_memory,
+            cpus: self.cpus.clone(),
+        }
+    }
+}
+
+/// Restart policy of a driver process.
+#[derive(Debug, Deserialize, Clone)]
+#[serde(deny_unknown_fields)]
+pub struct RestartConfig {
+    pub min_backoff_s: f64,
+    pub max_backoff_s: f64,
+}
+
+impl Default for RestartConfig {
+    fn default() -> Self {
+        RestartConfig { min_backoff_s: 0.2, max_backoff_s: 5.0 }
+    }
+}
+
+impl RestartConfig {
+    /// Refuses backoffs that are not positive, not ordered, or above an hour.
+    pub(super) fn check(&self) -> Result<()> {
+        let RestartConfig { min_backoff_s: min, max_backoff_s: max } = *self;
+        if !(min.is_finite() && max.is_finite() && min > 0.0 && min <= max && max <= 3600.0) {
+            bail!("restart backoff [{min}, {max}] s must satisfy 0 < min_backoff_s <= max_backoff_s <= 3600");
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,14 @@
+//! The integration tests of `skin`, in one test binary (as ripgrep does):
+//! one link instead of one per file, and one place for what they share.
+//!
+//! - [`e2e`]: `skin run` with a SIGKILLed driver and a pulled cable;
+//! - [`services_e2e`]: services, regions and geometry through the CLI;
+//! - [`browser`]: `skin demo` in headless Chromium (skipped without it,
+//!   except under `CI=true`).
+//!
+//! Run one file's tests with `cargo test -p skin --test integration e2e::`.
+
+mod browser;
+mod e2e;
+mod services_e2e;
+mod util;
