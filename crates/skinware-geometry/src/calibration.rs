@@ -57,11 +57,11 @@ impl Calibration {
     fn try_insert(&mut self, key: &str, uid: u32, mut sensor: SensorCalibration) -> Result<(), String> {
         let finite = sensor.position.iter().chain(&sensor.normal).all(|v| v.is_finite()) && sensor.radius.is_finite();
         if !finite {
-            return Err(format!("a coordinate is not a finite number"));
+            return Err("a coordinate is not a finite number".to_owned());
         }
         let norm = sensor.normal.iter().map(|n| n * n).sum::<f64>().sqrt();
         if norm < 1e-12 {
-            return Err(format!("the normal is zero; give the outward direction of the sensor"));
+            return Err("the normal is zero; give the outward direction of the sensor".to_owned());
         }
         if sensor.radius < 0.0 {
             return Err(format!("radius {} is negative", sensor.radius));
