@@ -185,9 +185,11 @@ pub fn run_motion_service(
                     tracker.update(frame.records, frame.acquired_ns as f64 * 1e-9, input_ok, records);
                 }
             }
-            Err(skinware::Error::NoFrameYet { .. } | skinware::Error::Timeout { .. }) => {
-                status = FrameStatus::INPUT_FAULTED
-            }
+            Err(
+                skinware::Error::NoFrameYet { .. }
+                | skinware::Error::Timeout { .. }
+                | skinware::Error::WriterGone { .. },
+            ) => status = FrameStatus::INPUT_FAULTED,
             Err(e) => return Err(e),
         }
         Ok(StepOutcome { status, acquired_ns: last_acquired })

@@ -120,12 +120,28 @@ pub(crate) fn writer_lock_held(fd: impl AsFd) -> io::Result<bool> {
     Ok(request.l_type != libc::F_UNLCK as libc::c_short)
 }
 
-/// Puts the calling thread in SCHED_FIFO at `priority` (1..=99).
+/// Puts the calling thread in SCHED_FIFO at `priority` (1..=99), with
+/// SCHED_RESET_ON_FORK: threads and processes it starts begin in the normal
+/// scheduler, so that nothing inherits a real-time priority it did not ask
+/// for (a runaway child at SCHED_FIFO could starve the writers).
 pub fn set_fifo_priority(priority: u8) -> io::Result<()> {
     let param = libc::sched_param { sched_priority: i32::from(priority) };
     // SAFETY: `param` is a valid `sched_param`; pid 0 names the calling thread.
-    let rc = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
+    let rc = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO | libc::SCHED_RESET_ON_FORK, &param) };
     if rc == 0 { Ok(()) } else { Err(io::Error::last_os_error()) }
+}
+
+/// Whether thread or process `pid` (0: the calling thread) is in a real-time
+/// scheduling class (SCHED_FIFO or SCHED_RR).
+pub fn is_realtime(pid: u32) -> io::Result<bool> {
+    let pid = libc::pid_t::try_from(pid).map_err(|_| io::Error::from(io::ErrorKind::InvalidInput))?;
+    // SAFETY: sched_getscheduler only reads the scheduling policy of `pid`.
+    let policy = unsafe { libc::sched_getscheduler(pid) };
+    if policy < 0 {
+        return Err(io::Error::last_os_error());
+    }
+    let policy = policy & !libc::SCHED_RESET_ON_FORK;
+    Ok(policy == libc::SCHED_FIFO || policy == libc::SCHED_RR)
 }
 
 /// Puts the calling thread back in the normal (SCHED_OTHER) scheduler, e.g. in
@@ -153,4 +169,36 @@ pub fn pin_to_cpus(cpus: &[usize]) -> io::Result<()> {
         set.set(cpu);
     }
     rustix::thread::sched_setaffinity(None, &set).map_err(Into::into)
+}
+
+#[cfg(all(test, not(miri)))]
+mod tests {
+    use super::*;
+
+    /// Threads and processes started by a SCHED_FIFO thread run in the normal
+    /// scheduler. Needs CAP_SYS_NICE (root here); skipped, saying so, without.
+    #[test]
+    fn real_time_priority_is_not_inherited() {
+        let outcome = std::thread::spawn(|| {
+            if let Err(e) = set_fifo_priority(1) {
+                return Err(format!("SCHED_FIFO refused ({e})"));
+            }
+            assert!(is_realtime(0).unwrap(), "the thread did not enter SCHED_FIFO");
+            let thread_rt = std::thread::spawn(|| is_realtime(0).unwrap()).join().unwrap();
+            let mut child = std::process::Command::new("sleep").arg("5").spawn().expect("start sleep(1)");
+            let child_rt = is_realtime(child.id());
+            let _ = child.kill();
+            let _ = child.wait();
+            Ok((thread_rt, child_rt.unwrap()))
+        })
+        .join()
+        .unwrap();
+        match outcome {
+            Ok((thread_rt, child_rt)) => {
+                assert!(!thread_rt, "a thread started by a SCHED_FIFO thread inherited its priority");
+                assert!(!child_rt, "a process started by a SCHED_FIFO thread inherited its priority");
+            }
+            Err(reason) => println!("SKIPPED: real_time_priority_is_not_inherited: {reason}"),
+        }
+    }
 }

@@ -291,32 +291,51 @@ impl Reader {
 
     /// As soon as available: waits (asleep on a futex, no spinning) for a frame
     /// newer than the last one this reader obtained, then returns it.
+    ///
+    /// A writer that is gone when the timeout passes gives
+    /// [`Error::WriterGone`] (a living, silent one [`Error::Timeout`]), never
+    /// later than the timeout. A channel re-created meanwhile is followed
+    /// within the same timeout.
     pub fn wait_newer(&mut self, timeout: Duration) -> Result<Frame<'_>> {
-        let after = self.last.seq;
-        if let Err(e) = self.wait_beyond(after, timeout) {
-            if matches!(e, Error::Timeout { .. }) && self.follow_recreated() {
-                return self.wait_newer(timeout);
+        let deadline = deadline_after(timeout);
+        loop {
+            match self.wait_beyond(self.last.seq, deadline, timeout) {
+                Ok(()) => return self.latest(),
+                Err(Error::Timeout { .. }) if self.follow_recreated() && os::monotonic_ns() < deadline => {}
+                Err(Error::Timeout { .. }) => return Err(self.timed_out(timeout)),
+                Err(e) => return Err(e),
             }
-            return Err(e);
         }
-        self.latest()
     }
 
     /// On request: asks for a frame newer than any published now and waits for
     /// it. A sporadic writer acquires one on the request; a periodic writer's
-    /// next frame answers it.
+    /// next frame answers it. Timeouts and a gone writer as in
+    /// [`wait_newer`](Self::wait_newer).
     pub fn request(&mut self, timeout: Duration) -> Result<Frame<'_>> {
-        let after = self.published_seq();
-        if self.writer_period().is_none() {
-            doorbell::request(&self.shared.doorbell().requests, &SharedFutex);
-        }
-        if let Err(e) = self.wait_beyond(after, timeout) {
-            if matches!(e, Error::Timeout { .. }) && self.follow_recreated() {
-                return self.request(timeout);
+        let deadline = deadline_after(timeout);
+        loop {
+            let after = self.published_seq();
+            if self.writer_period().is_none() {
+                doorbell::request(&self.shared.doorbell().requests, &SharedFutex);
             }
-            return Err(e);
+            match self.wait_beyond(after, deadline, timeout) {
+                Ok(()) => return self.latest(),
+                Err(Error::Timeout { .. }) if self.follow_recreated() && os::monotonic_ns() < deadline => {}
+                Err(Error::Timeout { .. }) => return Err(self.timed_out(timeout)),
+                Err(e) => return Err(e),
+            }
         }
-        self.latest()
+    }
+
+    /// The error for a wait that reached its timeout: the writer is gone, or
+    /// merely silent.
+    fn timed_out(&self, timeout: Duration) -> Error {
+        if self.writer_state() == WriterState::Gone {
+            Error::WriterGone { channel: self.shared.label.clone(), pid: self.writer_pid() }
+        } else {
+            Error::Timeout { channel: self.shared.label.clone(), timeout }
+        }
     }
 
     /// Periodic: waits for the next tick of `ticker` (absolute time), then
@@ -364,9 +383,9 @@ impl Reader {
         Ok(false)
     }
 
-    /// Sleeps until a frame with sequence number above `after` is published.
-    fn wait_beyond(&self, after: u64, timeout: Duration) -> Result<()> {
-        let deadline = os::monotonic_ns().saturating_add(timeout.as_nanos().min(u64::MAX as u128) as u64);
+    /// Sleeps until a frame with sequence number above `after` is published,
+    /// or the absolute `deadline` (CLOCK_MONOTONIC ns) of a wait of `timeout`.
+    fn wait_beyond(&self, after: u64, deadline: u64, timeout: Duration) -> Result<()> {
         if self.anticipate(after, deadline)? {
             return Ok(());
         }
@@ -381,4 +400,9 @@ impl Reader {
             Err(source) => Err(Error::Os { op: "futex wait", path: self.shared.path.clone(), source }),
         }
     }
+}
+
+/// The CLOCK_MONOTONIC deadline `timeout` from now.
+fn deadline_after(timeout: Duration) -> u64 {
+    os::monotonic_ns().saturating_add(timeout.as_nanos().min(u64::MAX as u128) as u64)
 }

@@ -177,7 +177,13 @@ impl Writer {
     fn start(shared: Shared, revived: bool, options: &WriterOptions) -> Result<Writer> {
         let identity = liveness::file_identity(&shared.file, &shared.path)?;
         liveness::introduce_writer(shared.header(), options.period.map_or(0, |p| p.as_nanos() as u64));
-        let served_requests = doorbell::requests_served(&shared.doorbell().requests);
+        // A new channel answers requests from now on; a revived one also those
+        // its readers made while it had no writer.
+        let served_requests = if revived {
+            shared.header().requests_served.load(Ordering::Relaxed)
+        } else {
+            doorbell::requests_served(&shared.doorbell().requests)
+        };
         let next_seq = shared.ring().next_seq();
         let shared = Arc::new(shared);
         let stop = Stop::new();
@@ -310,7 +316,10 @@ impl Writer {
             || stop.is_stopped(),
             &SharedFutex,
         ) {
-            Ok(WaitEnd::Ready) => Ok(true),
+            Ok(WaitEnd::Ready) => {
+                self.shared.header().requests_served.store(self.served_requests, Ordering::Relaxed);
+                Ok(true)
+            }
             Ok(WaitEnd::TimedOut) => Ok(false),
             Ok(WaitEnd::Stopped) => Err(Error::Stopped { channel: self.shared.label.clone() }),
             Err(source) => Err(Error::Os { op: "futex wait", path: self.shared.path.clone(), source }),

@@ -183,7 +183,7 @@ fn reader_main() -> i32 {
                 }
                 report.last_seq = report.last_seq.max(seq);
             }
-            Err(Error::Timeout { .. }) | Err(Error::NoFrameYet { .. }) => since_check = u32::MAX,
+            Err(Error::Timeout { .. } | Error::NoFrameYet { .. } | Error::WriterGone { .. }) => since_check = u32::MAX,
             Err(e) => {
                 eprintln!("reader: {e}");
                 report.write(&report_path);

@@ -8,8 +8,7 @@ use skinware::{DriverHandler, HandlerOptions};
 
 /// Runs one driver until SIGINT or SIGTERM (or the supervisor's death).
 pub fn run(config_path: &Path, name: &str) -> Result<()> {
-    // If the supervisor dies, however it dies, this process is told to stop.
-    let _ = rustix::process::set_parent_process_death_signal(Some(rustix::process::Signal::TERM));
+    super::run::watch_supervisor()?;
     let config = crate::config::Config::load(config_path)?;
     let driver_config = config.driver(name)?;
     let driver = driver_config.build(&config.skin)?;

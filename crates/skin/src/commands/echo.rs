@@ -103,7 +103,7 @@ pub fn run(args: &Args) -> Result<()> {
                 writeln!(out)?;
                 printed += 1;
             }
-            Err(Error::Timeout { .. }) | Err(Error::NoFrameYet { .. }) => {
+            Err(Error::Timeout { .. } | Error::NoFrameYet { .. } | Error::WriterGone { .. }) => {
                 writeln!(out, "no new frame; writer is {}", reader.writer_state())?;
             }
             Err(e) => return Err(e.into()),

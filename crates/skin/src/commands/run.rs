@@ -1,6 +1,9 @@
 //! `skin run CONFIG`: the supervisor. Each driver runs in its own process, so
 //! that a crash stays contained; a driver that exits is restarted with
-//! exponential backoff, and its layers are revived by the new process.
+//! exponential backoff, and its layers are revived by the new process. A
+//! driver or service that lives but has hung (no frame and no failed
+//! acquisition on any of its periodic channels for 20 periods, and at least
+//! 1 s) is killed and restarted the same way.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -11,6 +14,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use skinware_geometry::SkinGeometry;
+
+use skinware::{ChannelInfo, WriterState};
 
 use crate::config::{Config, RestartConfig};
 
@@ -25,10 +30,32 @@ struct Supervised {
     restart_at: Option<Instant>,
     backoff_s: f64,
     restarts: u32,
+    heartbeat: Heartbeat,
 }
+
+/// The periodic channels of one child and when each last showed progress: a
+/// frame published or a failed acquisition counted. A pulled cable keeps
+/// counting failures; a hung or stopped process counts nothing.
+#[derive(Default)]
+struct Heartbeat {
+    /// Channel names and their nominal periods.
+    channels: Vec<(String, Duration)>,
+    /// Per channel: frames + failures last seen, and since when.
+    progress: HashMap<String, (u64, Instant)>,
+}
+
+/// A child whose periodic channels have all been silent this long (in
+/// periods, and at least [`MIN_HANG`]) has hung.
+const HANG_PERIODS: u32 = 20;
+/// The shortest silence taken for a hang.
+const MIN_HANG: Duration = Duration::from_secs(1);
+
+/// Set in every child to the supervisor's pid; see [`watch_supervisor`].
+const SUPERVISOR_PID: &str = "SKIN_SUPERVISOR_PID";
 
 fn spawn_child(config_path: &Path, role: &str, name: &str) -> Result<Child> {
     Command::new(std::env::current_exe().context("cannot find the skin executable")?)
+        .env(SUPERVISOR_PID, std::process::id().to_string())
         .arg(role)
         .arg(config_path)
         .arg("--name")
@@ -41,6 +68,27 @@ fn spawn_child(config_path: &Path, role: &str, name: &str) -> Result<Child> {
 pub fn run(config_path: &Path) -> Result<()> {
     let shutdown = shutdown_on_signals()?;
     supervise(config_path, &shutdown)
+}
+
+/// In a driver or service process: asks the kernel for SIGTERM when the
+/// supervisor dies, however it dies. The request only covers a parent still
+/// alive when it is made, so a supervisor that died between starting this
+/// process and the request (this process is then someone else's child) is
+/// caught by comparing the parent with the supervisor `skin run` named.
+pub fn watch_supervisor() -> Result<()> {
+    rustix::process::set_parent_process_death_signal(Some(rustix::process::Signal::TERM))
+        .context("cannot ask to be told of the supervisor's death (prctl PR_SET_PDEATHSIG)")?;
+    let Some(expected) = std::env::var_os(SUPERVISOR_PID) else {
+        return Ok(()); // started by hand, not by `skin run`
+    };
+    let expected = expected.to_string_lossy().into_owned();
+    let parent = rustix::process::getppid().map_or(0, |pid| pid.as_raw_nonzero().get());
+    if parent.to_string() != expected {
+        anyhow::bail!(
+            "the supervisor (pid {expected}) is gone: this process's parent is now {parent}; exiting rather than running unsupervised"
+        );
+    }
+    Ok(())
 }
 
 /// A flag that SIGINT and SIGTERM set, instead of ending the process, so that
@@ -76,7 +124,15 @@ pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
         }
         if now >= next_state_poll {
             next_state_poll = now + Duration::from_millis(100);
-            log_layer_changes(&config.skin, &mut layer_states);
+            let channels: Vec<ChannelInfo> = skinware::list_channels(&skinware::shm::segment_dir())
+                .unwrap_or_default()
+                .into_iter()
+                .filter(|c| c.skin == config.skin)
+                .collect();
+            for supervised in &mut children {
+                supervised.kill_if_hung(&channels, now);
+            }
+            log_layer_changes(&channels, &mut layer_states);
             republish_if_removed(&geometry, &published);
         }
         std::thread::sleep(Duration::from_millis(20));
@@ -115,6 +171,7 @@ fn start_children(config: &Config, config_path: &Path) -> Result<Vec<Supervised>
         .chain(config.services.iter().map(|s| ("service", &s.name, &s.restart)));
     let mut children = Vec::new();
     for (role, name, restart) in roles {
+        let heartbeat = Heartbeat { channels: periodic_channels(config, role, name)?, progress: HashMap::new() };
         let child = spawn_child(config_path, role, name)?;
         tracing::info!(role, name = %name, pid = child.id(), "started");
         children.push(Supervised {
@@ -126,12 +183,74 @@ fn start_children(config: &Config, config_path: &Path) -> Result<Vec<Supervised>
             restart_at: None,
             backoff_s: restart.min_backoff_s,
             restarts: 0,
+            heartbeat,
         });
     }
     Ok(children)
 }
 
+/// The channels the driver or service `name` publishes periodically, with
+/// their periods (sporadic ones publish only when asked, so have no heartbeat).
+fn periodic_channels(config: &Config, role: &str, name: &str) -> Result<Vec<(String, Duration)>> {
+    let period = |hz: f64| Duration::from_secs_f64(1.0 / hz);
+    if role == "driver" {
+        let driver = config.driver(name)?.build(&config.skin)?;
+        return Ok(skinware::Driver::layers(&driver)
+            .into_iter()
+            .filter(|spec| spec.topology.rate_hz > 0.0)
+            .map(|spec| (spec.topology.name.clone(), period(spec.topology.rate_hz)))
+            .collect());
+    }
+    let service = config.service(name)?;
+    let Some(hz) = service.rate_hz else {
+        return Ok(Vec::new());
+    };
+    let mut channels = vec![(service.name.clone(), period(hz))];
+    if service.kind == crate::config::ServiceKind::Contact {
+        channels.push((skinware_services::taxel_channel(&service.name), period(hz)));
+    }
+    Ok(channels)
+}
+
 impl Supervised {
+    /// Kills the child if it lives but every one of its periodic channels
+    /// (owned by it) has shown no progress for [`HANG_PERIODS`] periods; its
+    /// exit is then handled like any other, with a restart after the backoff.
+    fn kill_if_hung(&mut self, channels: &[ChannelInfo], now: Instant) {
+        let Some(child) = &mut self.child else { return };
+        let pid = child.id();
+        let (mut watched, mut hung) = (0, 0);
+        let mut silent_for = Duration::ZERO;
+        for (name, period) in &self.heartbeat.channels {
+            let Some(info) = channels.iter().find(|c| &c.channel == name) else { continue };
+            if info.writer_pid != pid || info.state == WriterState::Gone {
+                continue;
+            }
+            let beat = info.stats.frames.wrapping_add(info.stats.faults);
+            let seen = self.heartbeat.progress.entry(name.clone()).or_insert((beat, now));
+            if seen.0 != beat {
+                *seen = (beat, now);
+            }
+            watched += 1;
+            let silence = now.duration_since(seen.1);
+            if silence > (*period * HANG_PERIODS).max(MIN_HANG) {
+                hung += 1;
+                silent_for = silent_for.max(silence);
+            }
+        }
+        if watched > 0 && hung == watched {
+            tracing::warn!(
+                role = self.role,
+                name = %self.name,
+                pid,
+                silent_ms = silent_for.as_millis() as u64,
+                "hung: no frame and no failed acquisition on any of its channels; killing it to restart it"
+            );
+            let _ = child.kill();
+            self.heartbeat.progress.clear();
+        }
+    }
+
     /// One look at this child at `now`: notices that it exited (and schedules
     /// its restart after the backoff), or restarts it when that time has come.
     fn check(&mut self, config_path: &Path, now: Instant) -> Result<()> {
@@ -205,11 +324,8 @@ fn stop_children(children: &mut [Supervised]) -> Result<()> {
     Ok(())
 }
 
-fn log_layer_changes(skin: &str, states: &mut HashMap<String, &'static str>) {
-    let Ok(channels) = skinware::list_channels(&skinware::shm::segment_dir()) else {
-        return;
-    };
-    for channel in channels.into_iter().filter(|c| c.skin == skin) {
+fn log_layer_changes(channels: &[ChannelInfo], states: &mut HashMap<String, &'static str>) {
+    for channel in channels {
         let state = channel.state.as_str();
         let previous = states.insert(channel.channel.clone(), state);
         if previous != Some(state) {

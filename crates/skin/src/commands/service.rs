@@ -12,7 +12,7 @@ use crate::config::ServiceKind;
 
 /// Runs one service until SIGINT or SIGTERM (or the supervisor's death).
 pub fn run(config_path: &Path, name: &str) -> Result<()> {
-    let _ = rustix::process::set_parent_process_death_signal(Some(rustix::process::Signal::TERM));
+    super::run::watch_supervisor()?;
     let config = crate::config::Config::load(config_path)?;
     let service = config.service(name)?;
     let stop = Stop::new();

@@ -240,7 +240,8 @@ impl LayerJob {
                     }
                 }
                 Err(Error::Stopped { .. }) => return,
-                Err(Error::Timeout { .. } | Error::NoFrameYet { .. }) => {}
+                // A gone writer may come back (revival): keep waiting for it.
+                Err(Error::Timeout { .. } | Error::NoFrameYet { .. } | Error::WriterGone { .. }) => {}
                 Err(e) => {
                     tracing::debug!(layer = %self.name, "read failed: {e}");
                     if !self.stop.sleep_until(skinware::os::monotonic_ns() + STATE_POLL.as_nanos() as u64) {

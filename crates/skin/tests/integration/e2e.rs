@@ -114,6 +114,71 @@ fn killed_driver_and_pulled_cable_leave_other_layers_alone() {
     sigint_stops_everything(&mut skin);
 }
 
+#[test]
+fn a_hung_driver_is_killed_and_restarted() {
+    let _alone = one_skin_at_a_time();
+    let skin = start("hang", &failover_config());
+    let steady = [open(&skin, "steady-0"), open(&skin, "steady-1")];
+    let mut victim = open(&skin, "victim-0");
+    let first = victim.wait_newer(Duration::from_secs(10)).unwrap().seq();
+    std::thread::sleep(Duration::from_millis(500));
+    let before = steady_counts(&steady);
+    let began = Instant::now();
+    // SIGSTOP: the process lives, holds its channel, and publishes nothing.
+    let pid = victim.writer_pid();
+    rustix::process::kill_process(rustix::process::Pid::from_raw(pid as i32).unwrap(), rustix::process::Signal::STOP)
+        .unwrap();
+    let killed = wait_for_state(&victim, WriterState::Gone, Duration::from_secs(10));
+    let recovered = wait_for_state(&victim, WriterState::Running, Duration::from_secs(20));
+    assert_ne!(victim.writer_pid(), pid, "the supervisor did not start a new driver process");
+    let fresh = victim.wait_newer(Duration::from_secs(5)).expect("the same reader gets fresh frames again");
+    assert!(fresh.seq() > first);
+    println!(
+        "e2e: hung driver (SIGSTOP): killed after {:.0} ms (the hang limit is 1 s at 100 Hz), running again after {:.0} ms, first fresh frame after {:.0} ms",
+        killed.as_secs_f64() * 1e3,
+        (killed + recovered).as_secs_f64() * 1e3,
+        began.elapsed().as_secs_f64() * 1e3
+    );
+    assert!(killed >= Duration::from_millis(900), "killed after {killed:?}, before the hang limit");
+    std::thread::sleep(Duration::from_secs(1));
+    assert_steady(&steady, &before, began.elapsed());
+}
+
+#[test]
+fn a_driver_whose_supervisor_died_before_it_could_watch_it_exits() {
+    // The driver's parent is this test, not pid 1 as SKIN_SUPERVISOR_PID says:
+    // exactly what a driver sees when its supervisor died before the driver
+    // asked to be signalled of that death.
+    let dir = PathBuf::from("/dev/shm").join(format!("skin-e2e-{}-orphan", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/failover.toml");
+    let mut driver = skin_command(&dir)
+        .env("SKIN_SUPERVISOR_PID", "1")
+        .args(["driver", config.to_str().unwrap(), "--name", "victim"])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let started = Instant::now();
+    let status = loop {
+        if let Some(status) = driver.try_wait().unwrap() {
+            break status;
+        }
+        if started.elapsed() > Duration::from_secs(20) {
+            let _ = driver.kill();
+            let _ = std::fs::remove_dir_all(&dir);
+            panic!("the orphaned driver kept running");
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    let mut stderr = String::new();
+    std::io::Read::read_to_string(&mut driver.stderr.take().unwrap(), &mut stderr).unwrap();
+    let left: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(!status.success(), "the orphaned driver exited with {status}");
+    assert!(stderr.contains("the supervisor (pid 1) is gone"), "{stderr}");
+    assert!(left.is_empty(), "the orphan created {left:?}");
+}
+
 /// Step 1: SIGKILL the victim's driver process: the supervisor starts a new one,
 /// which revives the channel for the same reader; the steady layers go on.
 fn sigkill_the_victims_driver(steady: &[Reader], victim: &mut Reader, first: u64) {

@@ -79,7 +79,10 @@ pub(crate) struct Header {
     pub schema_name: [AtomicU64; SCHEMA_NAME_BYTES / 8],
     /// Payload schema version.
     pub schema_version: AtomicU32,
-    _reserved: AtomicU32,
+    /// The request count (the doorbell's `requests`) that the writer last
+    /// answered, so that a writer reviving the channel answers the requests
+    /// made while it was gone.
+    pub requests_served: AtomicU32,
     /// CLOCK_MONOTONIC ns when the segment was created.
     pub created_ns: AtomicU64,
 

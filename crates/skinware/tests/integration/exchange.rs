@@ -377,6 +377,73 @@ fn a_reviving_writer_is_never_seen_running_before_it_owns_the_header() {
     }
 }
 
+/// Starts this test binary as a writer process (the child of the revival
+/// test) on `dir`, and waits until it has published its first frame.
+fn start_child_writer(dir: &SegmentDir) -> (std::process::Child, Reader) {
+    let child = std::process::Command::new(std::env::current_exe().unwrap())
+        .args(["--exact", "exchange::a_reviving_writer_is_never_seen_running_before_it_owns_the_header", "--nocapture"])
+        .env(REVIVAL_CHILD_DIR, &dir.path)
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let started = Instant::now();
+    loop {
+        if let Ok(mut reader) = Reader::open_with("skin", "layer", &dir.reader()) {
+            if reader.writer_pid() == child.id() && reader.latest().is_ok() {
+                return (child, reader);
+            }
+        }
+        assert!(started.elapsed() < Duration::from_secs(20), "the child writer never came up");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+#[test]
+fn a_reader_waiting_when_its_writer_is_killed_gets_writer_gone_within_its_timeout() {
+    let dir = SegmentDir::new("gone-in-time");
+    for mode in ["as soon as available", "on request"] {
+        let (mut child, mut reader) = start_child_writer(&dir);
+        let timeout = Duration::from_millis(400);
+        let waiter = std::thread::spawn(move || {
+            let started = Instant::now();
+            let result = match mode {
+                "on request" => reader.request(timeout).map(|f| f.seq()),
+                _ => reader.wait_newer(timeout).map(|f| f.seq()),
+            };
+            (result, started.elapsed())
+        });
+        std::thread::sleep(Duration::from_millis(100));
+        child.kill().unwrap();
+        child.wait().unwrap();
+        let (result, waited) = waiter.join().unwrap();
+        let err = result.expect_err("no frame can come from a killed writer");
+        assert!(matches!(err, Error::WriterGone { .. }), "{mode}: {err}");
+        // Once, not again: a generous bound, since this machine's scheduling is not real-time.
+        assert!(waited < timeout * 2 + Duration::from_secs(1), "{mode}: returned after {waited:?}");
+        std::fs::remove_file(dir.segment("skin", "layer")).unwrap();
+    }
+}
+
+#[test]
+fn a_request_made_while_the_writer_is_gone_is_answered_by_its_successor() {
+    let dir = SegmentDir::new("request-revival");
+    let options = WriterOptions { unlink_on_drop: false, ..dir.writer() };
+    let mut first = Writer::create("skin", "layer", 8, b"topology", &options).unwrap();
+    publish(&mut first, 1);
+    let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+    drop(first);
+    let asker = std::thread::spawn(move || reader.request(Duration::from_secs(10)).map(|f| f.seq()));
+    std::thread::sleep(Duration::from_millis(100)); // the request is made while no writer runs
+    let mut second = Writer::create("skin", "layer", 8, b"topology", &options).unwrap();
+    assert!(second.revived());
+    assert!(
+        second.wait_request(Duration::from_millis(100)).unwrap(),
+        "the new writer did not see the request made while the channel had none"
+    );
+    publish(&mut second, 2);
+    assert_eq!(asker.join().unwrap().unwrap(), 2);
+}
+
 #[test]
 fn readers_follow_a_re_created_channel() {
     let dir = SegmentDir::new("recreated");
