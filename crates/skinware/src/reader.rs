@@ -301,7 +301,9 @@ impl Reader {
         loop {
             match self.wait_beyond(self.last.seq, deadline, timeout) {
                 Ok(()) => return self.latest(),
-                Err(Error::Timeout { .. }) if self.follow_recreated() && os::monotonic_ns() < deadline => {}
+                // Followed: what the new channel already has counts, and
+                // the wait goes on to the same deadline.
+                Err(Error::Timeout { .. }) if self.follow_recreated() => {}
                 Err(Error::Timeout { .. }) => return Err(self.timed_out(timeout)),
                 Err(e) => return Err(e),
             }
@@ -321,7 +323,9 @@ impl Reader {
             }
             match self.wait_beyond(after, deadline, timeout) {
                 Ok(()) => return self.latest(),
-                Err(Error::Timeout { .. }) if self.follow_recreated() && os::monotonic_ns() < deadline => {}
+                // Followed: what the new channel already has counts, and
+                // the wait goes on to the same deadline.
+                Err(Error::Timeout { .. }) if self.follow_recreated() => {}
                 Err(Error::Timeout { .. }) => return Err(self.timed_out(timeout)),
                 Err(e) => return Err(e),
             }

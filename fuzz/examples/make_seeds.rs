@@ -1,5 +1,5 @@
 //! Writes a seed corpus of valid inputs for each fuzz target (run once:
-//! `cargo +nightly run --manifest-path fuzz/Cargo.toml --bin make_seeds`).
+//! `cargo +nightly run --manifest-path fuzz/Cargo.toml --example make_seeds`).
 
 use std::path::Path;
 
