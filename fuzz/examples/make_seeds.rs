@@ -37,11 +37,16 @@ fn main() {
         let (x, y) = (f64::from(column) * 0.005, f64::from(row) * 0.005);
         let link = if column < 3 { "palm" } else { "finger" };
         text.push_str(&format!("pressure {uid} {x} {y} 0 0 0 1 0.002 {link}\n"));
-        let sensor = SensorCalibration { position: [x, y, 0.0], normal: [0.0, 0.0, 1.0], radius: 0.002, link: link.into() };
+        let sensor =
+            SensorCalibration { position: [x, y, 0.0], normal: [0.0, 0.0, 1.0], radius: 0.002, link: link.into() };
         calibration.insert("pressure", uid, sensor).unwrap();
     }
     write("calibration", "native", text.as_bytes());
-    write("calibration", "skin-calib", b"2\npressure 1 5000000 0 0 0 0 1000000 2000000 palm\npressure 2 0 5000000 0 0 0 1000000 2000000 finger\n");
+    write(
+        "calibration",
+        "skin-calib",
+        b"2\npressure 1 5000000 0 0 0 0 1000000 2000000 palm\npressure 2 0 5000000 0 0 0 1000000 2000000 finger\n",
+    );
 
     let mut strip = TopologyBuilder::new("strip", "pressure", 50.0);
     strip.patch(1).module(10, 1..=6).module(11, 7..=12);

@@ -379,8 +379,10 @@ fn a_reviving_writer_is_never_seen_running_before_it_owns_the_header() {
 
 /// Starts this test binary as a writer process (the child of the revival
 /// test) on `dir`, and waits until it has published its first frame.
+// The caller kills and waits for the child it is given.
+#[allow(clippy::zombie_processes)]
 fn start_child_writer(dir: &SegmentDir) -> (std::process::Child, Reader) {
-    let child = std::process::Command::new(std::env::current_exe().unwrap())
+    let mut child = std::process::Command::new(std::env::current_exe().unwrap())
         .args(["--exact", "exchange::a_reviving_writer_is_never_seen_running_before_it_owns_the_header", "--nocapture"])
         .env(REVIVAL_CHILD_DIR, &dir.path)
         .stdout(std::process::Stdio::null())
@@ -393,7 +395,11 @@ fn start_child_writer(dir: &SegmentDir) -> (std::process::Child, Reader) {
                 return (child, reader);
             }
         }
-        assert!(started.elapsed() < Duration::from_secs(20), "the child writer never came up");
+        if started.elapsed() > Duration::from_secs(20) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("the child writer never came up");
+        }
         std::thread::sleep(Duration::from_millis(1));
     }
 }
