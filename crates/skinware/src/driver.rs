@@ -112,9 +112,10 @@ pub struct HandlerOptions {
     pub timeout_periods: u32,
     /// Segment directory; `None` for the default.
     pub dir: Option<PathBuf>,
-    /// Create channels with group access.
-    pub group_access: bool,
-    /// Remove the channels when the handler stops (a crash leaves them for revival).
+    /// Who may read the layers.
+    pub access: crate::Access,
+    /// Remove the channels when the handler stops (a crash leaves their names
+    /// for a successor, which their readers follow).
     pub unlink_on_stop: bool,
 }
 
@@ -124,7 +125,7 @@ impl Default for HandlerOptions {
             slots: crate::writer::DEFAULT_SLOTS,
             timeout_periods: 10,
             dir: None,
-            group_access: false,
+            access: crate::Access::Owner,
             unlink_on_stop: true,
         }
     }
@@ -244,7 +245,7 @@ fn create_layer_writer(
     let writer_options = WriterOptions {
         slots: options.slots,
         period: layer_period(driver, spec)?,
-        group_access: options.group_access,
+        access: options.access,
         // Until every layer has started, a failure must not remove a
         // channel that readers of a revived layer are attached to.
         unlink_on_drop: false,

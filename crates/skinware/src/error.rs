@@ -31,20 +31,20 @@ pub enum Error {
         reason: String,
     },
 
-    /// No segment with that name exists.
+    /// No channel with that name exists.
     #[error(
         "channel {channel} does not exist ({path}); start its writer first, or check the skin and channel names with `skin ls`"
     )]
     Missing {
         /// `skin/channel`.
         channel: String,
-        /// The segment path that was looked for.
+        /// The socket path that was looked for.
         path: PathBuf,
     },
 
     /// The file exists but was not written by skinware.
     #[error(
-        "{path} is not a skinware channel (bad magic {found:#018x}); it belongs to something else: remove it by hand if it is yours, or pick another name for channel {channel}"
+        "{path} does not serve a skinware channel (bad magic {found:#018x}); it belongs to something else: stop it, or pick another name for channel {channel}"
     )]
     NotOurs {
         /// `skin/channel`.
@@ -68,9 +68,9 @@ pub enum Error {
         expected: u32,
     },
 
-    /// The file is shorter than its header says, or than any header.
+    /// The channel's memory is shorter than its header says, or than any header.
     #[error(
-        "channel {channel} is truncated: {path} has {actual} bytes, at least {needed} are needed; the segment is damaged, remove it with `skin clean --force` and restart its writer"
+        "channel {channel} is truncated: the memory handed over at {path} has {actual} bytes, at least {needed} are needed; its writer is not skinware, or not this version"
     )]
     Truncated {
         /// `skin/channel`.
@@ -85,7 +85,7 @@ pub enum Error {
 
     /// The header has our magic and version but inconsistent contents.
     #[error(
-        "channel {channel} has a corrupt header: {reason}; remove it with `skin clean --force` and restart its writer"
+        "channel {channel} is corrupt: {reason}; restart its writer (a writer of another skinware version, or not skinware at all, answers there)"
     )]
     Corrupt {
         /// `skin/channel`.
@@ -94,18 +94,55 @@ pub enum Error {
         reason: String,
     },
 
-    /// The header was never finished: its creator died while setting it up.
+    /// A file under a channel's name that is not a channel's socket.
     #[error(
-        "channel {channel} was never finished by its creator (it died while creating it); remove it with `skin clean` and restart its writer"
+        "{path} is a {found}, not the socket of a skinware channel; it may be a channel file of an older skinware (remove it with `skin clean --all`) or belong to something else: remove it by hand if it is yours, or pick another name for channel {channel}"
     )]
-    Unfinished {
+    NotAChannel {
         /// `skin/channel`.
         channel: String,
+        /// The path.
+        path: PathBuf,
+        /// What it is.
+        found: &'static str,
+    },
+
+    /// The reader may not read the channel.
+    #[error(
+        "no permission to read channel {channel} ({path}); start its writer with `access = \"group\"` (and be in its group) or `access = \"everyone\"`, or read as the writer's user"
+    )]
+    AccessDenied {
+        /// `skin/channel`.
+        channel: String,
+        /// The channel's socket.
+        path: PathBuf,
+    },
+
+    /// The channel's writer accepted the connection but handed nothing over.
+    #[error(
+        "the writer of channel {channel} accepted the connection at {path} but handed nothing over within a second; it is stopped (SIGSTOP) or hung: check it with `skin ls`"
+    )]
+    NotAnswering {
+        /// `skin/channel`.
+        channel: String,
+        /// The channel's socket.
+        path: PathBuf,
+    },
+
+    /// Memory handed over that someone could shrink under the reader.
+    #[error(
+        "channel {channel}'s {what} memory is not sealed against shrinking, so its writer could kill readers with SIGBUS: refused; the writer is not skinware, or not this version"
+    )]
+    Unsealed {
+        /// `skin/channel`.
+        channel: String,
+        /// "frames" or "doorbell".
+        what: &'static str,
     },
 
     /// The channel exists but no process is writing it.
     #[error(
-        "the writer of channel {channel} is gone (process {pid} no longer holds it); restart the writer, or open with `allow_gone` to wait for its revival"
+        "the writer of channel {channel} is gone (last writer: process {pid}); restart it: readers already attached follow the new writer, others can attach again"
     )]
     WriterGone {
         /// `skin/channel`.
@@ -121,21 +158,6 @@ pub enum Error {
         channel: String,
         /// The live writer's process id.
         pid: u32,
-    },
-
-    /// A writer tried to revive a dead writer's channel with a different layout.
-    #[error(
-        "cannot take over channel {channel}: its layout differs ({field}: the channel has {existing}, the new writer wants {wanted}); remove the stale channel with `skin clean` or keep the old layout"
-    )]
-    LayoutMismatch {
-        /// `skin/channel`.
-        channel: String,
-        /// The differing field.
-        field: &'static str,
-        /// Value in the existing channel.
-        existing: String,
-        /// Value the new writer asked for.
-        wanted: String,
     },
 
     /// A reader expected a different payload schema.

@@ -72,24 +72,15 @@ fn ofd_lock_request(kind: libc::c_short, byte: libc::off_t) -> libc::flock {
     libc::flock { l_type: kind, l_whence: libc::SEEK_SET as libc::c_short, l_start: byte, l_len: 1, l_pid: 0 }
 }
 
-/// The byte whose lock says the writer is alive.
+/// The byte whose lock says the writer is alive (or owns a name).
 const LIVENESS_BYTE: libc::off_t = 0;
-/// The byte whose lock makes one would-be reviver the only one.
-const REVIVER_BYTE: libc::off_t = 1;
 
-/// Takes the writer's liveness lock: an exclusive open-file-description lock on
-/// byte 0. The kernel drops it when the last descriptor of that open file closes,
-/// in particular when the process dies, however it dies. Returns `false` if
+/// Takes the writer's lock: an exclusive open-file-description lock on byte 0.
+/// The kernel drops it when the last descriptor of that open file closes, in
+/// particular when the process dies, however it dies. Returns `false` if
 /// another open file description holds it.
 pub(crate) fn try_lock_writer(fd: impl AsFd) -> io::Result<bool> {
     try_lock_byte(fd, LIVENESS_BYTE)
-}
-
-/// Takes the reviver's lock (byte 1): whoever holds it may prepare a dead
-/// writer's segment for revival while readers still see it gone, and then take
-/// the liveness lock. Held for the writer's life, like the liveness lock.
-pub(crate) fn try_lock_reviver(fd: impl AsFd) -> io::Result<bool> {
-    try_lock_byte(fd, REVIVER_BYTE)
 }
 
 fn try_lock_byte(fd: impl AsFd, byte: libc::off_t) -> io::Result<bool> {

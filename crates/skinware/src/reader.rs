@@ -11,8 +11,9 @@ use crate::anticipate::Anticipation;
 use crate::channel::ChannelKind;
 use crate::channel::doorbell::{self, WaitEnd};
 use crate::channel::layout;
+use crate::channel::liveness::NameRecord;
 use crate::channel::ring::{Meta, ReadFailure};
-use crate::channel::segment::{self, Shared};
+use crate::channel::segment::{self, Opened, Shared};
 use crate::error::{Error, Result};
 use crate::frame::Frame;
 use crate::os::{self, SharedFutex};
@@ -24,8 +25,11 @@ use crate::sync::Ordering;
 /// How a reader attaches.
 #[derive(Clone, Debug, Default)]
 pub struct ReaderOptions {
-    /// Attach even if the channel's writer is gone (to wait for its revival,
-    /// or to inspect it). By default a gone writer is an error.
+    /// Attach even if the channel's writer has stopped (it is being dropped
+    /// but still answers). A channel whose writer is dead cannot be attached
+    /// to: its memory is reachable only through its writer. `open` then
+    /// returns [`Error::WriterGone`]; try again later. Readers attached before
+    /// the writer died keep the channel and follow its successor.
     pub allow_gone: bool,
     /// Require this payload schema (name, version).
     pub expect_schema: Option<(String, u32)>,
@@ -79,20 +83,24 @@ impl Reader {
     /// Attaches with options.
     pub fn open_with(skin: &str, channel: &str, options: &ReaderOptions) -> Result<Reader> {
         let dir = options.dir.clone().unwrap_or_else(shm::segment_dir);
-        let shared = segment::open_segment(&dir, skin, channel, false)?;
-        let header = shared.header();
-        if !options.allow_gone {
-            let alive = shared.writer_alive().map_err(|source| Error::Os {
-                op: "lock query",
-                path: shared.path.clone(),
-                source,
-            })?;
-            if !alive || header.state.load(Ordering::Acquire) == WriterState::STOPPED {
-                return Err(Error::WriterGone {
-                    channel: shared.label.clone(),
-                    pid: header.writer_pid.load(Ordering::Relaxed),
-                });
+        let shared = match segment::open_segment(&dir, skin, channel)? {
+            Opened::Live(shared) => shared,
+            Opened::NoWriter => {
+                let pid = NameRecord::load(&dir, skin, channel).unwrap_or_default().writer_pid;
+                return Err(Error::WriterGone { channel: crate::channel::label(skin, channel), pid });
             }
+        };
+        let header = shared.header();
+        let alive = shared.writer_alive().map_err(|source| Error::Os {
+            op: "lock query",
+            path: shared.path.clone(),
+            source,
+        })?;
+        if !alive || (!options.allow_gone && header.state.load(Ordering::Acquire) == WriterState::STOPPED) {
+            return Err(Error::WriterGone {
+                channel: shared.label.clone(),
+                pid: header.writer_pid.load(Ordering::Relaxed),
+            });
         }
         if let Some((expected, expected_version)) = &options.expect_schema {
             let found = layout::decode_schema(&header.schema_name);
@@ -126,26 +134,24 @@ impl Reader {
         })
     }
 
-    /// Follows the channel if its writer is gone and a new writer re-created
-    /// it (a new segment under the same name, rather than a revival of this
-    /// one) with the same frame size and kind. Returns whether it switched.
-    /// Sequence numbers start again from 1 in a re-created channel.
+    /// Follows the channel if its writer is gone and a new writer took its
+    /// name (new memory under the same name) with the same frame size and
+    /// kind. Returns whether it switched. Sequence numbers start again from 1
+    /// in the new channel; [`writer_generation`](Self::writer_generation) is
+    /// one higher.
     ///
-    /// The blocking reads call this on their own when they time out; call it
+    /// The blocking reads call this on their own while they wait; call it
     /// after [`latest`](Self::latest) keeps returning the same frame.
     pub fn follow_recreated(&mut self) -> bool {
-        use std::os::unix::fs::MetadataExt;
         if self.shared.writer_alive().unwrap_or(true) {
             return false;
         }
-        let ours = self.shared.file.metadata().ok().map(|m| (m.dev(), m.ino()));
-        let current = std::fs::metadata(&self.shared.path).ok().map(|m| (m.dev(), m.ino()));
-        if current.is_none() || current == ours {
-            return false;
-        }
-        let Ok(replacement) = segment::open_segment(&self.dir, &self.skin, &self.channel, false) else {
+        let Ok(Opened::Live(replacement)) = segment::open_segment(&self.dir, &self.skin, &self.channel) else {
             return false;
         };
+        if replacement.identity() == self.shared.identity() {
+            return false;
+        }
         let same_shape = replacement.layout.payload_bytes == self.shared.layout.payload_bytes
             && replacement.kind == self.shared.kind
             && replacement
@@ -175,7 +181,7 @@ impl Reader {
         &self.shared.label
     }
 
-    /// The segment file.
+    /// The channel's socket.
     pub fn path(&self) -> &Path {
         &self.shared.path
     }
@@ -266,6 +272,12 @@ impl Reader {
         let started = os::monotonic_ns();
         match self.shared.ring().read_latest(&mut self.buffer, MAX_READ_ATTEMPTS) {
             Ok((meta, retries)) => {
+                // Sequence numbers only go backwards if the channel's memory
+                // was written by someone other than its writer: start counting
+                // afresh from what the writer says now.
+                if meta.seq < self.last.seq {
+                    self.last = Meta::default();
+                }
                 let fresh = meta.seq != self.last.seq;
                 if let (true, Some(anticipation)) = (fresh, &mut self.anticipation) {
                     let period = self.shared.header().period_ns.load(Ordering::Relaxed);
@@ -299,12 +311,14 @@ impl Reader {
     pub fn wait_newer(&mut self, timeout: Duration) -> Result<Frame<'_>> {
         let deadline = deadline_after(timeout);
         loop {
-            match self.wait_beyond(self.last.seq, deadline, timeout) {
-                Ok(()) => return self.latest(),
+            // What was published is the reference, unless this reader saw a
+            // number the writer has not reached (forged, or a previous channel).
+            let after = self.last.seq.min(self.published_seq());
+            match self.wait_slices(after, deadline, timeout) {
+                Ok(Waited::Frame) => return self.latest(),
                 // Followed: what the new channel already has counts, and
                 // the wait goes on to the same deadline.
-                Err(Error::Timeout { .. }) if self.follow_recreated() => {}
-                Err(Error::Timeout { .. }) => return Err(self.timed_out(timeout)),
+                Ok(Waited::Followed) => {}
                 Err(e) => return Err(e),
             }
         }
@@ -313,7 +327,8 @@ impl Reader {
     /// On request: asks for a frame newer than any published now and waits for
     /// it. A sporadic writer acquires one on the request; a periodic writer's
     /// next frame answers it. Timeouts and a gone writer as in
-    /// [`wait_newer`](Self::wait_newer).
+    /// [`wait_newer`](Self::wait_newer); a request made while the writer is
+    /// gone is made again to its successor.
     pub fn request(&mut self, timeout: Duration) -> Result<Frame<'_>> {
         let deadline = deadline_after(timeout);
         loop {
@@ -321,12 +336,31 @@ impl Reader {
             if self.writer_period().is_none() {
                 doorbell::request(&self.shared.doorbell().requests, &SharedFutex);
             }
-            match self.wait_beyond(after, deadline, timeout) {
-                Ok(()) => return self.latest(),
-                // Followed: what the new channel already has counts, and
-                // the wait goes on to the same deadline.
-                Err(Error::Timeout { .. }) if self.follow_recreated() => {}
-                Err(Error::Timeout { .. }) => return Err(self.timed_out(timeout)),
+            match self.wait_slices(after, deadline, timeout) {
+                Ok(Waited::Frame) => return self.latest(),
+                Ok(Waited::Followed) => {}
+                Err(e) => return Err(e),
+            }
+        }
+    }
+
+    /// Waits for a frame above `after` until `deadline`, in slices of at most
+    /// [`RECHECK_NS`]: between them it checks that the writer lives and
+    /// follows a successor if it died, so that a reader notices a new writer
+    /// promptly even when nothing wakes it.
+    fn wait_slices(&mut self, after: u64, deadline: u64, timeout: Duration) -> Result<Waited> {
+        loop {
+            let slice_end = os::monotonic_ns().saturating_add(RECHECK_NS).min(deadline);
+            match self.wait_beyond(after, slice_end, timeout) {
+                Ok(()) => return Ok(Waited::Frame),
+                Err(Error::Timeout { .. }) => {
+                    if self.follow_recreated() {
+                        return Ok(Waited::Followed);
+                    }
+                    if os::monotonic_ns() >= deadline {
+                        return Err(self.timed_out(timeout));
+                    }
+                }
                 Err(e) => return Err(e),
             }
         }
@@ -404,6 +438,20 @@ impl Reader {
             Err(source) => Err(Error::Os { op: "futex wait", path: self.shared.path.clone(), source }),
         }
     }
+}
+
+/// Longest single sleep of a blocking read before it checks on its writer.
+/// A wake-up this often costs an idle reader nothing measurable, and it
+/// bounds how long a reader can sleep past a publish if a hostile process
+/// clears the doorbell's "someone waits" bit.
+const RECHECK_NS: u64 = 100_000_000;
+
+/// How a sliced wait ended well.
+enum Waited {
+    /// A frame above the one waited beyond was published.
+    Frame,
+    /// The writer was gone and the reader now follows its successor.
+    Followed,
 }
 
 /// The CLOCK_MONOTONIC deadline `timeout` from now.

@@ -1,9 +1,10 @@
-//! Named shared-memory segments: names, where they live, mapping them, and the
-//! registry that the directory itself is (listing and cleaning).
+//! Channel names, where they live, and mapping channel memory.
 //!
-//! A channel `pressure` of skin `default` is the file
-//! `/dev/shm/skinware.default.pressure` (the directory can be changed with the
-//! `SKINWARE_SHM_DIR` environment variable, which tests use to stay apart).
+//! A channel `pressure` of skin `default` is reached through the socket
+//! `/dev/shm/skinware.default.pressure`, and its name is owned through the
+//! lock file `/dev/shm/.skinware-lock.default.pressure` (the directory can be
+//! changed with the `SKINWARE_SHM_DIR` environment variable, which tests use
+//! to stay apart). The memory itself has no name ([`crate::channel`]).
 
 use std::fs::File;
 use std::os::fd::AsFd;
@@ -17,8 +18,10 @@ pub const MAX_NAME_LEN: usize = 64;
 
 /// Prefix of every segment file.
 pub(crate) const PREFIX: &str = "skinware.";
-/// Prefix of segments still being created (renamed into place when complete).
+/// Prefix of sockets still being bound (renamed into place when ready).
 pub(crate) const TEMP_PREFIX: &str = ".skinware-tmp.";
+/// Prefix of the channel names' lock files.
+pub(crate) const LOCK_PREFIX: &str = ".skinware-lock.";
 
 /// The directory holding the segments: `$SKINWARE_SHM_DIR`, or `/dev/shm`.
 pub fn segment_dir() -> PathBuf {
@@ -87,11 +90,6 @@ impl Mapping {
             source: std::io::ErrorKind::Other.into(),
         })?;
         Ok(Mapping { ptr, len })
-    }
-
-    /// Bytes mapped.
-    pub fn len(&self) -> usize {
-        self.len
     }
 
     /// A reference to a `T` at byte `offset`.

@@ -7,8 +7,9 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use crate::channel::doorbell::{self, WaitEnd};
+use crate::channel::handover::Server;
 use crate::channel::layout::{Layout, SCHEMA_NAME_BYTES};
-use crate::channel::liveness::{self, FileIdentity};
+use crate::channel::liveness::{self, NameLock, NameRecord};
 use crate::channel::ring::{self, Meta};
 use crate::channel::segment::{self, SegmentInit, Shared};
 use crate::channel::{self, ChannelKind};
@@ -35,10 +36,11 @@ pub struct WriterOptions {
     pub schema_name: String,
     /// Payload schema version.
     pub schema_version: u32,
-    /// Create the segment `0660` (owner and group) instead of `0600`.
-    pub group_access: bool,
-    /// Remove the segment when the writer is dropped. A writer that dies
-    /// without dropping leaves it for a successor to revive.
+    /// Who may read the channel (by default, only the writer's own user).
+    pub access: Access,
+    /// Remove the channel's name (its socket and name lock) when the writer
+    /// is dropped. A writer that dies without dropping leaves the name, and
+    /// readers attached wait there for a successor to follow.
     pub unlink_on_drop: bool,
     /// Directory of the segments; `None` for [`shm::segment_dir`].
     pub dir: Option<PathBuf>,
@@ -52,9 +54,45 @@ impl Default for WriterOptions {
             kind: ChannelKind::Layer,
             schema_name: String::new(),
             schema_version: 0,
-            group_access: false,
+            access: Access::Owner,
             unlink_on_drop: true,
             dir: None,
+        }
+    }
+}
+
+/// Who may read a channel. Readers need nothing more than this: they map the
+/// frames read-only and write only the doorbell. `docs/security.md` says what
+/// each can break at worst.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Access {
+    /// Only the writer's user (and root): socket `0600`.
+    #[default]
+    Owner,
+    /// Also the writer's group: socket `0660`.
+    Group,
+    /// Every local user: socket `0666`.
+    Everyone,
+}
+
+impl Access {
+    /// Permissions of the channel's socket: connecting needs write permission
+    /// on it, so "may read the channel" is the socket's write bit.
+    pub fn socket_mode(self) -> u32 {
+        match self {
+            Access::Owner => 0o600,
+            Access::Group => 0o660,
+            Access::Everyone => 0o666,
+        }
+    }
+
+    /// Permissions of the data memory file: read-only for everyone but the
+    /// writer's user (which the write seal stops as well).
+    pub fn data_mode(self) -> u32 {
+        match self {
+            Access::Owner => 0o600,
+            Access::Group => 0o640,
+            Access::Everyone => 0o644,
         }
     }
 }
@@ -76,7 +114,10 @@ pub struct Writer {
     stop: Stop,
     unlink_on_drop: bool,
     revived: bool,
-    identity: FileIdentity,
+    /// Answers readers' requests for the channel; stopped first on drop.
+    server: Option<Server>,
+    /// Ownership of the channel's name; released last on drop.
+    name: Option<NameLock>,
 }
 
 impl std::fmt::Debug for Writer {
@@ -87,9 +128,10 @@ impl std::fmt::Debug for Writer {
 
 impl Writer {
     /// Creates channel `skin`/`channel` with frames of `payload_bytes` and the
-    /// given description, or takes over ("revives") the channel of a dead
-    /// writer with the same layout, continuing its sequence numbers so that
-    /// its readers go on without re-opening.
+    /// given description. If a dead writer left the name, the new channel
+    /// takes its place (its generation one higher) and the readers still
+    /// attached to the old one follow it, its sequence numbers starting again
+    /// from 1.
     pub fn create(
         skin: &str,
         channel: &str,
@@ -110,95 +152,45 @@ impl Writer {
         }
         let dir = options.dir.clone().unwrap_or_else(shm::segment_dir);
         let path = shm::segment_path(&dir, skin, channel);
+        refuse_foreign_file(&path, &label)?;
+        let name = NameLock::acquire(&dir, skin, channel, &label)?;
+        let previous = name.record();
+        let generation = previous.generation.saturating_add(1);
+        name.write_record(NameRecord { generation, writer_pid: std::process::id() })?;
         let init = SegmentInit {
             kind: options.kind,
             description,
             schema_name: &options.schema_name,
             schema_version: options.schema_version,
-            mode: if options.group_access { 0o660 } else { 0o600 },
+            data_mode: options.access.data_mode(),
+            bell_mode: options.access.socket_mode(),
         };
-        // A bounded loop: each pass either creates, revives, or loses a race with
-        // another creator or a cleaner and tries again.
-        for _ in 0..16 {
-            if let Some(shared) = liveness::claim_dead_segment(&path, &label, &layout, &init)? {
-                // The header names this process before readers can see it alive.
-                let writer = Writer::start(shared, true, options)?;
-                if liveness::go_live(&writer.shared)? {
-                    return Ok(writer);
-                }
-                // Only a cleaner unlinking the dead segment takes the liveness
-                // lock without the reviver's: it is going; create a new one.
-                drop(writer);
-                continue;
-            }
-            if let Some(shared) = Writer::create_new(&dir, &path, skin, channel, &label, layout, &init)? {
-                return Writer::start(shared, false, options);
-            }
-        }
-        Err(Error::Os { op: "create", path, source: std::io::ErrorKind::ResourceBusy.into() })
-    }
-
-    /// Creates a complete segment under a temporary name and renames it into
-    /// place, unless another writer got there first (`Ok(None)`).
-    fn create_new(
-        dir: &Path,
-        path: &Path,
-        skin: &str,
-        channel: &str,
-        label: &str,
-        layout: Layout,
-        init: &SegmentInit<'_>,
-    ) -> Result<Option<Shared>> {
-        let temp =
-            dir.join(format!("{}{skin}.{channel}.{}.{}", shm::TEMP_PREFIX, std::process::id(), os::monotonic_ns()));
-        let mut shared = segment::create_segment(&temp, label.to_owned(), layout, init)?;
-        match rustix::fs::renameat_with(
-            rustix::fs::CWD,
-            &temp,
-            rustix::fs::CWD,
-            path,
-            rustix::fs::RenameFlags::NOREPLACE,
-        ) {
-            Ok(()) => {
-                shared.path = path.to_owned();
-                Ok(Some(shared))
-            }
-            Err(rustix::io::Errno::EXIST) => {
-                let _ = std::fs::remove_file(&temp);
-                Ok(None)
-            }
-            Err(e) => {
-                let _ = std::fs::remove_file(&temp);
-                Err(Error::Os { op: "rename", path: path.to_owned(), source: e.into() })
-            }
-        }
-    }
-
-    fn start(shared: Shared, revived: bool, options: &WriterOptions) -> Result<Writer> {
-        let identity = liveness::file_identity(&shared.file, &shared.path)?;
-        liveness::introduce_writer(shared.header(), options.period.map_or(0, |p| p.as_nanos() as u64));
-        // A new channel answers requests from now on; a revived one also those
-        // its readers made while it had no writer.
-        let served_requests = if revived {
-            shared.header().requests_served.load(Ordering::Relaxed)
-        } else {
-            doorbell::requests_served(&shared.doorbell().requests)
-        };
-        let next_seq = shared.ring().next_seq();
+        let shared = segment::create_segment(&path, label.clone(), layout, &init)?;
+        liveness::introduce_writer(shared.header(), options.period.map_or(0, |p| p.as_nanos() as u64), generation);
+        liveness::go_live(&shared)?;
+        let readers_data = segment::reopen_read_only(&shared)?;
+        let readers_bell =
+            shared.bell().try_clone().map_err(|source| Error::Os { op: "dup", path: path.clone(), source })?;
+        let server = Server::start(path, options.access.socket_mode(), label, readers_data, readers_bell.into())?;
+        let revived = generation > 1;
+        // A new doorbell: requests made to the dead writer are re-made by
+        // their readers when they follow this channel.
+        let served_requests = doorbell::requests_served(&shared.doorbell().requests);
         let shared = Arc::new(shared);
         let stop = Stop::new();
         stop.watch(&shared);
         if revived {
-            tracing::info!(channel = %shared.label, next_seq, "revived the channel of a dead writer");
+            tracing::info!(channel = %shared.label, generation, previous_pid = previous.writer_pid, "took over the channel name of a dead writer");
         }
         Ok(Writer {
             shared,
-            next_seq,
+            next_seq: 1,
             served_requests,
             stop,
             unlink_on_drop: options.unlink_on_drop,
             revived,
-            identity,
+            server: Some(server),
+            name: Some(name),
         })
     }
 
@@ -207,12 +199,12 @@ impl Writer {
         &self.shared.label
     }
 
-    /// The segment file.
+    /// The channel's socket, where readers ask for it.
     pub fn path(&self) -> &Path {
         &self.shared.path
     }
 
-    /// Whether this writer took over a dead writer's channel.
+    /// Whether this writer took over a channel name a dead (or dropped) writer left.
     pub fn revived(&self) -> bool {
         self.revived
     }
@@ -316,10 +308,7 @@ impl Writer {
             || stop.is_stopped(),
             &SharedFutex,
         ) {
-            Ok(WaitEnd::Ready) => {
-                self.shared.header().requests_served.store(self.served_requests, Ordering::Relaxed);
-                Ok(true)
-            }
+            Ok(WaitEnd::Ready) => Ok(true),
             Ok(WaitEnd::TimedOut) => Ok(false),
             Ok(WaitEnd::Stopped) => Err(Error::Stopped { channel: self.shared.label.clone() }),
             Err(source) => Err(Error::Os { op: "futex wait", path: self.shared.path.clone(), source }),
@@ -415,9 +404,27 @@ impl Drop for Writer {
         liveness::retire_writer(self.shared.header());
         // Readers asleep re-check, see no new frame, and `writer_state` tells them why.
         doorbell::nudge(&self.shared.doorbell().notify, &SharedFutex);
-        if self.unlink_on_drop && liveness::path_identity(&self.shared.path) == Some(self.identity) {
-            let _ = std::fs::remove_file(&self.shared.path);
+        // No new reader from here on; then the name goes, or stays for a successor.
+        drop(self.server.take());
+        if let Some(name) = self.name.take()
+            && self.unlink_on_drop
+        {
+            name.remove(&self.shared.path);
         }
+    }
+}
+
+/// A writer must not replace a file that is not a channel socket (a file of
+/// an older skinware, or somebody else's).
+fn refuse_foreign_file(path: &Path, label: &str) -> Result<()> {
+    use std::os::unix::fs::FileTypeExt;
+    match std::fs::symlink_metadata(path) {
+        Ok(meta) if !meta.file_type().is_socket() => Err(Error::NotAChannel {
+            channel: label.to_owned(),
+            path: path.to_owned(),
+            found: if meta.is_file() { "regular file" } else { "file that is not a socket" },
+        }),
+        _ => Ok(()),
     }
 }
 

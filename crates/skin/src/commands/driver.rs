@@ -12,8 +12,7 @@ pub fn run(config_path: &Path, name: &str) -> Result<()> {
     let config = crate::config::Config::load(config_path)?;
     let driver_config = config.driver(name)?;
     let driver = driver_config.build(&config.skin)?;
-    let options =
-        HandlerOptions { slots: driver_config.slots, group_access: config.group_access, ..HandlerOptions::default() };
+    let options = HandlerOptions { slots: driver_config.slots, access: config.access(), ..HandlerOptions::default() };
     let handler = DriverHandler::start(&config.skin, Box::new(driver), &options)
         .with_context(|| format!("driver {name} could not start"))?;
     tracing::info!(driver = name, layers = ?handler.layers(), pid = std::process::id(), "driver acquiring");

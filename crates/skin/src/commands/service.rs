@@ -26,7 +26,7 @@ pub fn run(config_path: &Path, name: &str) -> Result<()> {
             }
         });
     }
-    let options = WriterOptions { group_access: config.group_access, ..WriterOptions::default() };
+    let options = WriterOptions { access: config.access(), ..WriterOptions::default() };
     tracing::info!(service = name, kind = ?service.kind, pid = std::process::id(), "service starting");
     match service.kind {
         ServiceKind::Contact => {

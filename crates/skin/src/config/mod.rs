@@ -25,7 +25,10 @@ pub struct Config {
     /// Skin name: the prefix of every channel.
     #[serde(default = "default_skin")]
     pub skin: String,
-    /// Create channels readable by the group too.
+    /// Who may read the channels: `"owner"` (the default), `"group"` or `"everyone"`.
+    #[serde(default)]
+    pub access: AccessConfig,
+    /// The older spelling of `access = "group"`.
     #[serde(default)]
     pub group_access: bool,
     /// Drivers, each run in its own process.
@@ -42,6 +45,19 @@ pub struct Config {
     pub base_dir: PathBuf,
 }
 
+/// Who may read the channels (see `docs/security.md`).
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum AccessConfig {
+    /// Only the user that runs the skin.
+    #[default]
+    Owner,
+    /// Also its group.
+    Group,
+    /// Every local user.
+    Everyone,
+}
+
 fn default_skin() -> String {
     "default".into()
 }
@@ -56,6 +72,9 @@ impl Config {
             anyhow::anyhow!("{}:{line}:{column}: {}", path.display(), e.message())
         })?;
         skinware::shm::validate_name("skin", &config.skin).with_context(|| format!("{}: `skin`", path.display()))?;
+        if config.group_access && config.access == AccessConfig::Everyone {
+            bail!("{}: `group_access = true` and `access = \"everyone\"` disagree; keep only `access`", path.display());
+        }
         if config.drivers.is_empty() {
             bail!("{}: no [[driver]] table; add at least one driver (see examples/)", path.display());
         }
@@ -91,6 +110,15 @@ impl Config {
         }
         config.base_dir = path.parent().map(Path::to_owned).unwrap_or_default();
         Ok(config)
+    }
+
+    /// Who may read the channels, as the library takes it.
+    pub fn access(&self) -> skinware::Access {
+        match (self.access, self.group_access) {
+            (AccessConfig::Everyone, _) => skinware::Access::Everyone,
+            (AccessConfig::Group, _) | (_, true) => skinware::Access::Group,
+            (AccessConfig::Owner, false) => skinware::Access::Owner,
+        }
     }
 
     /// The service called `name`.

@@ -1,10 +1,15 @@
 //! The byte layout of a channel segment, shared by every process that maps it.
 //!
+//! A channel is two sealed memory files ([`super::segment`]):
+//!
 //! ```text
+//! data (readers map it read-only)
 //! offset 0             Header      (one page; written by the writer only)
-//! offset PAGE          Doorbell    (one page; the only memory readers write)
-//! offset 2 * PAGE      description (opaque bytes, immutable after creation)
+//! offset PAGE          description (opaque bytes, immutable after creation)
 //! ring_offset          K slots of slot_bytes: 8 metadata words + payload words
+//!
+//! doorbell (everybody maps it read-write)
+//! offset 0             Doorbell    (one page; the only memory readers write)
 //! ```
 //!
 //! Every field is an atomic, so that any process may read any field at any time
@@ -19,7 +24,7 @@ use crate::channel::ring::META_WORDS;
 pub(crate) const MAGIC: u64 = u64::from_le_bytes(*b"SKINWARE");
 
 /// Version of this layout. Bump it on any change of the structures below.
-pub const ABI_VERSION: u32 = 1;
+pub const ABI_VERSION: u32 = 2;
 
 /// Page size the layout is built on (mapping offsets must be page-aligned).
 pub(crate) const PAGE: u64 = 4096;
@@ -79,10 +84,8 @@ pub(crate) struct Header {
     pub schema_name: [AtomicU64; SCHEMA_NAME_BYTES / 8],
     /// Payload schema version.
     pub schema_version: AtomicU32,
-    /// The request count (the doorbell's `requests`) that the writer last
-    /// answered, so that a writer reviving the channel answers the requests
-    /// made while it was gone.
-    pub requests_served: AtomicU32,
+    /// Unused; keeps the fields after it 8-byte aligned.
+    pub _reserved: AtomicU32,
     /// CLOCK_MONOTONIC ns when the segment was created.
     pub created_ns: AtomicU64,
 
@@ -128,9 +131,11 @@ pub(crate) struct SharedStats {
     pub lateness_histogram: [AtomicU64; HISTOGRAM_BUCKETS],
 }
 
-/// The one page readers may write. Nothing here is on the data path: a reader
-/// killed at any point leaves at most a stale "someone waits" bit (costing the
-/// writer one spare wake, after which it is clear) or one spare request.
+/// The one page readers may write, in its own memory file. Nothing here is on
+/// the data path: a reader killed at any point leaves at most a stale "someone
+/// waits" bit (costing the writer one spare wake, after which it is clear) or
+/// one spare request, and a hostile one can at worst delay other readers'
+/// wake-ups to their re-check interval or ask a sporadic writer for frames.
 #[repr(C, align(64))]
 pub(crate) struct Doorbell {
     /// Futex word for as-soon-as-available readers: `(seq << 1) | waiters`.
@@ -182,7 +187,7 @@ impl Layout {
             ));
         }
         let slot_bytes = round_up(META_WORDS as u64 * 8 + round_up(payload_bytes, 8), 64);
-        let description_offset = 2 * PAGE;
+        let description_offset = PAGE;
         let ring_offset = round_up(description_offset + description_bytes, PAGE);
         let file_bytes = ring_offset + slot_count * slot_bytes;
         Ok(Layout {

@@ -1,22 +1,23 @@
-//! Liveness and revival: who owns a channel, how readers tell a dead writer,
-//! and how a new writer takes over a dead writer's channel without readers
-//! re-attaching.
+//! Liveness and succession: who owns a channel's name, how readers tell a
+//! dead writer, and how a new writer takes over a dead writer's name so that
+//! readers follow it.
 //!
-//! Two open-file-description locks on the segment file say everything
-//! ([`crate::os`] makes the calls):
+//! Two open-file-description locks say everything ([`crate::os`] makes the
+//! calls); the kernel drops both when the writer's process dies, however it
+//! dies, so "alive" is a question to the kernel (`F_OFD_GETLK`), never a
+//! heartbeat a crashed process could leave behind:
 //!
-//! * the **liveness lock** (byte 0) is held by the live writer for its whole
-//!   life. The kernel drops it when the writer's process dies, however it dies,
-//!   so "alive" is a question to the kernel (`F_OFD_GETLK`), never a heartbeat
-//!   a crashed process could leave behind;
-//! * the **reviver's lock** (byte 1) makes one would-be writer the only one
-//!   that may prepare a dead channel, and is also held for the writer's life.
+//! * the **liveness lock** on the channel's data memory file, held by the
+//!   writer for its whole life. Readers ask it through their own (read-only)
+//!   descriptor of the same file;
+//! * the **name lock** on `<dir>/.skinware-lock.<skin>.<channel>`, which makes
+//!   one writer at a time the owner of a channel name. The file also keeps the
+//!   name's record: how many writers it has had (the generation) and the last
+//!   one's process id. A cleaner takes the same lock before it removes a name.
 //!
-//! Revival takes them in that order: the reviver's lock, then (once the
-//! header names the new writer, its pid, period and state) the liveness lock.
-//! Until then readers see the channel gone, never "running" with the dead
-//! writer's pid. A cleaner takes the same two locks in the same order before
-//! it unlinks a segment, so a reviver is never left writing an unlinked file.
+//! A channel's memory dies with its last reader; it is never revived in
+//! place. A new writer creates new memory under the same name, and attached
+//! readers follow it ([`crate::Reader::follow_recreated`]).
 //!
 //! The writer's *state* (running, paused, faulted, stopped) is a word in the
 //! header that only the live writer stores; readers combine it with the
@@ -26,14 +27,15 @@
 
 use std::fs::File;
 use std::io;
-use std::os::unix::fs::MetadataExt;
-use std::path::Path;
+use std::os::unix::fs::{FileExt, MetadataExt, OpenOptionsExt};
+use std::path::{Path, PathBuf};
 
-use super::layout::{self, Header, Layout};
-use super::segment::{self, SegmentInit, Shared};
+use super::layout::Header;
+use super::segment::Shared;
 use crate::error::{Error, Result};
 use crate::os;
-use crate::stats::{self, WriterState};
+use crate::shm;
+use crate::stats::WriterState;
 use crate::sync::Ordering;
 
 /// The identity of a file: (device, inode).
@@ -47,14 +49,106 @@ pub(crate) fn file_identity(file: &File, path: &Path) -> Result<FileIdentity> {
 
 /// The identity of whatever file `path` names now, if any.
 pub(crate) fn path_identity(path: &Path) -> Option<FileIdentity> {
-    std::fs::metadata(path).ok().map(|meta| (meta.dev(), meta.ino()))
+    std::fs::symlink_metadata(path).ok().map(|meta| (meta.dev(), meta.ino()))
+}
+
+/// The name lock's file of `skin`/`channel`.
+pub(crate) fn name_lock_path(dir: &Path, skin: &str, channel: &str) -> PathBuf {
+    dir.join(format!("{}{skin}.{channel}", shm::LOCK_PREFIX))
+}
+
+/// What a channel name's lock file records.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) struct NameRecord {
+    /// How many writers the name has had.
+    pub generation: u64,
+    /// The current (or last) writer's process id.
+    pub writer_pid: u32,
+}
+
+impl NameRecord {
+    const BYTES: usize = 16;
+
+    fn read(file: &File) -> NameRecord {
+        let mut bytes = [0u8; NameRecord::BYTES];
+        match file.read_exact_at(&mut bytes, 0) {
+            Ok(()) => NameRecord {
+                generation: u64::from_le_bytes(bytes[..8].try_into().unwrap_or_default()),
+                writer_pid: u32::from_le_bytes(bytes[8..12].try_into().unwrap_or_default()),
+            },
+            Err(_) => NameRecord::default(),
+        }
+    }
+
+    /// The record of a channel name, if its lock file can be read.
+    pub fn load(dir: &Path, skin: &str, channel: &str) -> Option<NameRecord> {
+        File::open(name_lock_path(dir, skin, channel)).ok().map(|file| NameRecord::read(&file))
+    }
+}
+
+/// Ownership of a channel name, for a writer's life.
+pub(crate) struct NameLock {
+    file: File,
+    path: PathBuf,
+}
+
+impl NameLock {
+    /// Takes the name of `skin`/`channel`, or fails with [`Error::Busy`] if a
+    /// live writer holds it.
+    pub fn acquire(dir: &Path, skin: &str, channel: &str, label: &str) -> Result<NameLock> {
+        let path = name_lock_path(dir, skin, channel);
+        let os_error = |op, source| Error::Os { op, path: path.clone(), source };
+        // Each pass either takes the lock or loses a race with a cleaner that
+        // unlinked the file between our open and our lock.
+        for _ in 0..16 {
+            let file = File::options()
+                .read(true)
+                .write(true)
+                .create(true)
+                .truncate(false)
+                .mode(0o644)
+                .open(&path)
+                .map_err(|e| os_error("open the channel's name lock", e))?;
+            if !os::try_lock_writer(&file).map_err(|e| os_error("lock", e))? {
+                let pid = NameRecord::read(&file).writer_pid;
+                return Err(Error::Busy { channel: label.to_owned(), pid });
+            }
+            if path_identity(&path) == Some(file_identity(&file, &path)?) {
+                return Ok(NameLock { file, path });
+            }
+        }
+        Err(os_error("lock", io::ErrorKind::ResourceBusy.into()))
+    }
+
+    /// The name's record as the previous writer left it.
+    pub fn record(&self) -> NameRecord {
+        NameRecord::read(&self.file)
+    }
+
+    /// Records the new writer.
+    pub fn write_record(&self, record: NameRecord) -> Result<()> {
+        let mut bytes = [0u8; NameRecord::BYTES];
+        bytes[..8].copy_from_slice(&record.generation.to_le_bytes());
+        bytes[8..12].copy_from_slice(&record.writer_pid.to_le_bytes());
+        self.file.write_all_at(&bytes, 0).map_err(|source| Error::Os {
+            op: "write the channel's name record",
+            path: self.path.clone(),
+            source,
+        })
+    }
+
+    /// Removes the name (its socket and lock file) while still holding it.
+    pub fn remove(self, socket: &Path) {
+        let _ = std::fs::remove_file(socket);
+        let _ = std::fs::remove_file(&self.path);
+    }
 }
 
 impl Shared {
     /// Whether a live process holds this segment's liveness lock. It only
     /// asks, so probing can never get in a reviving writer's way.
     pub fn writer_alive(&self) -> io::Result<bool> {
-        os::writer_lock_held(&self.file)
+        os::writer_lock_held(&self.data)
     }
 
     /// The writer's state as readers see it: its last word, unless it is dead.
@@ -77,13 +171,12 @@ pub(crate) fn set_state(header: &Header, state: WriterState) {
     }
 }
 
-/// Writes the new writer's name into the header (pid, period, generation),
-/// then its running state. Called holding the reviver's lock but before the
-/// liveness lock, so readers never see the channel alive with stale details.
-pub(crate) fn introduce_writer(header: &Header, period_ns: u64) {
+/// Writes the new writer's details into the header (pid, period, generation),
+/// then its running state, before any reader can reach the channel.
+pub(crate) fn introduce_writer(header: &Header, period_ns: u64, generation: u64) {
     header.writer_pid.store(std::process::id(), Ordering::Relaxed);
     header.period_ns.store(period_ns, Ordering::Relaxed);
-    stats::bump(&header.generation, 1);
+    header.generation.store(generation, Ordering::Relaxed);
     header.state_changed_ns.store(os::monotonic_ns(), Ordering::Relaxed);
     header.state.store(WriterState::RUNNING, Ordering::Release);
 }
@@ -94,101 +187,26 @@ pub(crate) fn retire_writer(header: &Header) {
     header.state_changed_ns.store(os::monotonic_ns(), Ordering::Relaxed);
 }
 
-/// Takes the liveness lock of a segment prepared for revival. `Ok(false)` if
-/// someone else holds it: only a cleaner that is unlinking the dead segment
-/// can, and the caller must then create a new one.
-pub(crate) fn go_live(shared: &Shared) -> Result<bool> {
-    os::try_lock_writer(&shared.file).map_err(|source| Error::Os { op: "lock", path: shared.path.clone(), source })
+/// Takes the liveness lock on a new channel's data, before anyone can reach it.
+pub(crate) fn go_live(shared: &Shared) -> Result<()> {
+    match os::try_lock_writer(&shared.data) {
+        Ok(true) => Ok(()),
+        Ok(false) => Err(Error::Os { op: "lock", path: shared.path.clone(), source: io::ErrorKind::WouldBlock.into() }),
+        Err(source) => Err(Error::Os { op: "lock", path: shared.path.clone(), source }),
+    }
 }
 
-/// Takes over the segment at `path` if its writer is dead and its layout,
-/// kind, schema and description match what the new writer wants, holding the
-/// reviver's lock (not yet the liveness lock: see [`go_live`]). `Ok(None)` if
-/// there is no segment there (any more).
-pub(crate) fn claim_dead_segment(
-    path: &Path,
-    label: &str,
-    layout: &Layout,
-    init: &SegmentInit<'_>,
-) -> Result<Option<Shared>> {
-    let file = match File::options().read(true).write(true).open(path) {
-        Ok(file) => file,
-        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(None),
-        Err(source) => return Err(Error::Os { op: "open", path: path.to_owned(), source }),
-    };
-    let lock_error = |source| Error::Os { op: "lock", path: path.to_owned(), source };
-    let reviver = os::try_lock_reviver(&file).map_err(lock_error)?;
-    if !reviver || os::writer_lock_held(&file).map_err(lock_error)? {
-        let pid = segment::map_validated(label.to_owned(), path.to_owned(), file, false)
-            .map(|shared| shared.header().writer_pid.load(Ordering::Relaxed))
-            .unwrap_or(0);
-        return Err(Error::Busy { channel: label.to_owned(), pid });
+/// Removes a channel name (its socket and lock file) if no live writer holds
+/// it, race-free against a writer taking it at the same moment. `Ok(false)` if
+/// a writer holds it.
+pub(crate) fn remove_if_unowned(dir: &Path, skin: &str, channel: &str) -> Result<bool> {
+    let label = super::label(skin, channel);
+    match NameLock::acquire(dir, skin, channel, &label) {
+        Ok(lock) => {
+            lock.remove(&shm::segment_path(dir, skin, channel));
+            Ok(true)
+        }
+        Err(Error::Busy { .. }) => Ok(false),
+        Err(e) => Err(e),
     }
-    // A cleaner may have unlinked the file between our open and our lock.
-    if path_identity(path) != Some(file_identity(&file, path)?) {
-        return Ok(None);
-    }
-    let shared = segment::map_validated(label.to_owned(), path.to_owned(), file, true)?;
-    check_same_channel(&shared, label, layout, init)?;
-    Ok(Some(shared))
-}
-
-/// A revived channel must look exactly as it did to the readers still attached.
-fn check_same_channel(shared: &Shared, label: &str, layout: &Layout, init: &SegmentInit<'_>) -> Result<()> {
-    let mismatch = |field: &'static str, existing: String, wanted: String| Error::LayoutMismatch {
-        channel: label.to_owned(),
-        field,
-        existing,
-        wanted,
-    };
-    let existing = shared.layout;
-    if existing.payload_bytes != layout.payload_bytes {
-        return Err(mismatch("frame bytes", existing.payload_bytes.to_string(), layout.payload_bytes.to_string()));
-    }
-    if existing.slot_count != layout.slot_count {
-        return Err(mismatch("frame buffers", existing.slot_count.to_string(), layout.slot_count.to_string()));
-    }
-    if shared.kind != init.kind {
-        return Err(mismatch("kind", format!("{:?}", shared.kind), format!("{:?}", init.kind)));
-    }
-    let header = shared.header();
-    let schema = layout::decode_schema(&header.schema_name);
-    let schema_version = header.schema_version.load(Ordering::Relaxed);
-    if schema != init.schema_name || schema_version != init.schema_version {
-        return Err(mismatch(
-            "schema",
-            format!("{schema} v{schema_version}"),
-            format!("{} v{}", init.schema_name, init.schema_version),
-        ));
-    }
-    if shared.description() != init.description {
-        return Err(mismatch(
-            "description (topology)",
-            format!("{} bytes", existing.description_bytes),
-            format!("{} different bytes", init.description.len()),
-        ));
-    }
-    Ok(())
-}
-
-/// Removes one segment if no live writer holds it, race-free against a
-/// writer reviving it. `Ok(false)` if a writer holds it or it is already gone.
-pub(crate) fn remove_if_unowned(path: &Path) -> Result<bool> {
-    let file = match File::options().read(true).write(true).open(path) {
-        Ok(file) => file,
-        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(false),
-        Err(source) => return Err(Error::Os { op: "open", path: path.to_owned(), source }),
-    };
-    // The reviver's lock first, as a reviving writer takes it: a segment being
-    // revived (liveness lock not yet taken) is not stale.
-    let lock_error = |source| Error::Os { op: "lock", path: path.to_owned(), source };
-    if !os::try_lock_reviver(&file).map_err(lock_error)? || !os::try_lock_writer(&file).map_err(lock_error)? {
-        return Ok(false);
-    }
-    let ours = file.metadata().ok().map(|m| (m.dev(), m.ino()));
-    if ours.is_none() || ours != path_identity(path) {
-        return Ok(false);
-    }
-    std::fs::remove_file(path).map_err(|source| Error::Os { op: "remove", path: path.to_owned(), source })?;
-    Ok(true)
 }

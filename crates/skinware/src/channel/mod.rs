@@ -1,13 +1,14 @@
 //! The frame exchange, in the order a newcomer should read it.
 //!
-//! A *channel* is one named shared-memory segment per writer (a layer or a
-//! service), `/dev/shm/skinware.<skin>.<channel>`. The writer publishes frames
-//! into it without ever waiting for anyone; readers in any process copy the
-//! newest complete frame out of it.
+//! A *channel* is the shared memory of one writer (a layer or a service),
+//! reached by name through the socket `/dev/shm/skinware.<skin>.<channel>`.
+//! The writer publishes frames into it without ever waiting for anyone;
+//! readers in any process copy the newest complete frame out of it.
 //!
-//! 1. [`layout`]: the bytes of a segment: a header (magic, ABI version, sizes,
-//!    state, statistics), the doorbell page, the description (the topology),
-//!    and K frame slots. Every field is an atomic.
+//! 1. [`layout`]: the bytes of a channel: a header (magic, ABI version, sizes,
+//!    state, statistics), the description (the topology) and K frame slots,
+//!    all read-only for readers; and apart, the doorbell page. Every field is
+//!    an atomic.
 //! 2. [`ring`]: the seqlock. The writer fills slot `seq % K` between an odd and
 //!    an even stamp, then stores `published = seq`; a reader copies the slot
 //!    `published` names and keeps the copy only if the stamp did not move.
@@ -20,13 +21,17 @@
 //!    sleep until a publish (the writer makes a system call only when one is
 //!    asleep), sporadic writers sleep until a request, and a stop wakes both.
 //!    Model-checked with loom for lost wake-ups.
-//! 5. [`liveness`]: who owns a channel (open-file-description locks the
-//!    kernel drops when the writer dies), the writer's state, and revival: a
-//!    new writer takes over a dead writer's channel and readers carry on.
-//! 6. [`segment`]: opening and validating a segment (nothing in it is trusted
-//!    before it is checked) and creating one complete before it gets its name.
-//! 7. [`registry`]: the segment directory as the registry: listing channels
-//!    and removing dead writers' segments.
+//! 5. [`liveness`]: who owns a channel name and whether its writer lives
+//!    (open-file-description locks the kernel drops when the writer dies), the
+//!    writer's state, and succession: a new writer takes a dead writer's name
+//!    and readers follow it.
+//! 6. [`segment`]: the memory: two sealed memory files nobody can truncate,
+//!    grow or unlink, created complete; validating what a reader receives
+//!    (nothing in it is trusted before it is checked).
+//! 7. [`handover`]: the writer's socket that gives readers the memory, the
+//!    data read-only; its permissions are the channel's read permission.
+//! 8. [`registry`]: the directory as the registry: listing channels and
+//!    removing dead writers' names.
 //!
 //! [`crate::Writer`] and [`crate::Reader`] are thin public APIs over these
 //! parts; [`crate::shm`] and [`crate::os`] hold the only `unsafe` code (the
@@ -38,6 +43,8 @@ pub(crate) mod ring;
 
 // Under loom only the protocol above is compiled: what maps real memory or
 // makes system calls cannot run in the model.
+#[cfg(not(loom))]
+pub(crate) mod handover;
 #[cfg(not(loom))]
 pub(crate) mod layout;
 #[cfg(not(loom))]

@@ -3,12 +3,12 @@
 
 #![forbid(unsafe_code)]
 
-use std::fs::File;
+use std::os::unix::fs::FileTypeExt;
 use std::path::{Path, PathBuf};
 
-use super::liveness::remove_if_unowned;
-use super::segment;
-use super::{ChannelKind, label};
+use super::ChannelKind;
+use super::liveness::{NameRecord, remove_if_unowned};
+use super::segment::{self, Opened};
 use crate::error::{Error, Result};
 use crate::shm;
 use crate::stats::{WriterState, WriterStats};
@@ -21,7 +21,7 @@ pub struct ChannelInfo {
     pub skin: String,
     /// Channel name.
     pub channel: String,
-    /// The segment file.
+    /// The channel's socket.
     pub path: PathBuf,
     /// Running, paused, faulted or gone.
     pub state: WriterState,
@@ -33,7 +33,9 @@ pub struct ChannelInfo {
     pub payload_bytes: u64,
     /// Frame buffers.
     pub slots: u64,
-    /// Writer statistics (default if the segment is invalid).
+    /// How many writers the channel name has had.
+    pub generation: u64,
+    /// Writer statistics (default if the writer is gone or the channel invalid).
     pub stats: WriterStats,
     /// Why the segment cannot be used, if it cannot.
     pub problem: Option<String>,
@@ -56,40 +58,45 @@ pub fn list_channels(dir: &Path) -> Result<Vec<ChannelInfo>> {
 
 fn inspect(dir: &Path, skin: &str, channel: &str) -> ChannelInfo {
     let path = shm::segment_path(dir, skin, channel);
+    let record = NameRecord::load(dir, skin, channel).unwrap_or_default();
     let mut info = ChannelInfo {
         skin: skin.to_owned(),
         channel: channel.to_owned(),
         path: path.clone(),
         state: WriterState::Gone,
         kind: None,
-        writer_pid: 0,
+        writer_pid: record.writer_pid,
+        generation: record.generation,
         payload_bytes: 0,
         slots: 0,
         stats: WriterStats::default(),
         problem: None,
     };
-    match segment::open_segment(dir, skin, channel, false) {
-        Ok(shared) => {
+    match segment::open_segment(dir, skin, channel) {
+        Ok(Opened::Live(shared)) => {
             let header = shared.header();
             info.state = shared.writer_state();
             info.kind = Some(shared.kind);
             info.writer_pid = header.writer_pid.load(Ordering::Relaxed);
+            info.generation = header.generation.load(Ordering::Relaxed);
             info.payload_bytes = shared.layout.payload_bytes;
             info.slots = shared.layout.slot_count;
             info.stats = WriterStats::load(&header.stats);
         }
+        Ok(Opened::NoWriter) => {}
         Err(e) => info.problem = Some(e.to_string()),
     }
     info
 }
 
-/// Removes the segments in `dir` that no live writer holds: dead writers'
-/// channels, and segments whose creator died before finishing them. With
-/// `include_invalid`, also unusable files named like segments (foreign,
-/// corrupt, other ABI versions). Returns the removed paths.
+/// Removes the channels in `dir` that no live writer holds (their sockets and
+/// name locks), and sockets left half-bound by a writer that died binding.
+/// With `include_invalid`, also files named like channels that are not
+/// channels (files of older skinware versions, or foreign ones). Returns the
+/// removed paths.
 ///
-/// A segment is removed only while holding its writer lock, so a writer that
-/// revives it at the same moment is never left with an unlinked file.
+/// A channel is removed only while holding its name lock, so a writer taking
+/// the name at the same moment is never left serving an unlinked socket.
 pub fn remove_stale_channels(dir: &Path, include_invalid: bool) -> Result<Vec<PathBuf>> {
     let entries = std::fs::read_dir(dir).map_err(|source| Error::Os { op: "list", path: dir.to_owned(), source })?;
     let mut removed = Vec::new();
@@ -97,19 +104,18 @@ pub fn remove_stale_channels(dir: &Path, include_invalid: bool) -> Result<Vec<Pa
         let name = entry.file_name();
         let Some(name) = name.to_str() else { continue };
         let path = entry.path();
-        let candidate = if let Some((skin, channel)) = shm::parse_segment_name(name) {
-            let label = label(skin, channel);
-            match File::options().read(true).write(true).open(&path) {
-                Ok(file) => match segment::validate(&file, &path, &label) {
-                    Ok(_) => true,
-                    Err(_) => include_invalid,
-                },
-                Err(_) => false,
+        let is_socket = entry.file_type().is_ok_and(|t| t.is_socket());
+        if let Some((skin, channel)) = shm::parse_segment_name(name) {
+            if !is_socket {
+                if include_invalid && std::fs::remove_file(&path).is_ok() {
+                    removed.push(path);
+                }
+            } else if matches!(segment::open_segment(dir, skin, channel), Ok(Opened::NoWriter))
+                && remove_if_unowned(dir, skin, channel)?
+            {
+                removed.push(path);
             }
-        } else {
-            name.starts_with(shm::TEMP_PREFIX)
-        };
-        if candidate && remove_if_unowned(&path)? {
+        } else if name.starts_with(shm::TEMP_PREFIX) && temp_is_stale(name) && std::fs::remove_file(&path).is_ok() {
             removed.push(path);
         }
     }
@@ -117,8 +123,32 @@ pub fn remove_stale_channels(dir: &Path, include_invalid: bool) -> Result<Vec<Pa
     Ok(removed)
 }
 
-/// Removes one segment if no live writer holds it (race-free against a writer
-/// reviving it). `Ok(false)` if a writer holds it or it is already gone.
+/// A temporary socket is named `.skinware-tmp.<name>.<pid>.<ns>`; it is stale
+/// once that process is gone.
+fn temp_is_stale(name: &str) -> bool {
+    let mut parts = name.rsplit('.');
+    let _ns = parts.next();
+    match parts.next().and_then(|pid| pid.parse::<i32>().ok()) {
+        Some(pid) => !Path::new(&format!("/proc/{pid}")).exists(),
+        None => true,
+    }
+}
+
+/// Removes one channel (its socket and name lock) if no live writer holds it,
+/// race-free against a writer taking the name. `Ok(false)` if a writer holds
+/// it, `path` is not a channel's socket path, or it is already gone.
 pub fn remove_channel_if_stale(path: &Path) -> Result<bool> {
-    remove_if_unowned(path)
+    let (Some(dir), Some(name)) = (path.parent(), path.file_name().and_then(|n| n.to_str())) else {
+        return Ok(false);
+    };
+    let Some((skin, channel)) = shm::parse_segment_name(name) else {
+        return Ok(false);
+    };
+    if !path.exists() {
+        return Ok(false);
+    }
+    match segment::open_segment(dir, skin, channel) {
+        Ok(Opened::Live(shared)) if shared.writer_alive().unwrap_or(true) => Ok(false),
+        _ => remove_if_unowned(dir, skin, channel),
+    }
 }

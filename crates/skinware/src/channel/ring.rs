@@ -137,9 +137,12 @@ impl<'a> Ring<'a> {
             let slot = self.slot(seq);
             // Acquire: pairs with the Release stamp store in `publish`.
             let stamp = slot[STAMP].load(Ordering::Acquire);
-            if stamp == 2 * seq {
+            // A stamp, or a slot's own sequence word, that disagrees with
+            // `published` is a frame in the making, or memory written by
+            // someone other than the writer: never returned.
+            if stamp == seq.wrapping_mul(2) && slot[SEQ].load(Ordering::Relaxed) == seq {
                 let meta = Meta {
-                    seq: slot[SEQ].load(Ordering::Relaxed),
+                    seq,
                     acquired_ns: slot[ACQUIRED_NS].load(Ordering::Relaxed),
                     published_ns: slot[PUBLISHED_NS].load(Ordering::Relaxed),
                     status: slot[STATUS].load(Ordering::Relaxed),
@@ -162,11 +165,6 @@ impl<'a> Ring<'a> {
             #[cfg(loom)]
             loom::thread::yield_now();
         }
-    }
-
-    /// Revival: the sequence number a new writer continues from.
-    pub(crate) fn next_seq(&self) -> u64 {
-        self.published() + 1
     }
 }
 
@@ -263,19 +261,18 @@ mod tests {
     }
 
     #[test]
-    fn revival_continues_the_sequence() {
+    fn a_slot_whose_sequence_word_disagrees_is_never_returned() {
         let (published, slots) = ring_memory(3, 2);
         let ring = Ring::new(&published, &slots, 3);
         write_frame(&ring, 1);
         write_frame(&ring, 2);
-        // A writer that died in the middle of frame 3 leaves an odd stamp behind.
-        ring.begin(3);
-        let revived = Ring::new(&published, &slots, 3);
-        assert_eq!(revived.next_seq(), 3);
-        write_frame(&revived, 3);
+        // Someone other than the writer forges the slot's sequence word.
+        ring.slot(2)[SEQ].store(1_270_000_000_000_000_000, Ordering::Relaxed);
         let mut out = [0u64; 2];
-        assert_eq!(revived.read_latest(&mut out, 8).unwrap().0.seq, 3);
-        assert!(consistent(3, &out));
+        assert!(matches!(ring.read_latest(&mut out, 8), Err(ReadFailure::Lapped(8))));
+        // Once the writer publishes again, reading is sound again.
+        write_frame(&ring, 3);
+        assert_eq!(ring.read_latest(&mut out, 8).unwrap().0.seq, 3);
     }
 
     #[test]

@@ -1,38 +1,60 @@
-//! A channel's segment: opening and validating one (nothing in it is trusted
-//! before it has been checked), creating one complete under a temporary name,
-//! and the typed views of its parts ([`Shared`]).
+//! A channel's memory: creating it (two sealed memory files, complete before
+//! any reader can reach them), receiving and validating it (nothing in it is
+//! trusted before it has been checked), and the typed views of its parts
+//! ([`Shared`]).
+//!
+//! **Why sealed memory files.** A mapping of a file that someone truncates
+//! kills whoever touches the missing pages with SIGBUS. The data and the
+//! doorbell are therefore `memfd`s sealed with `F_SEAL_SHRINK | F_SEAL_GROW`
+//! (and `F_SEAL_SEAL`, so the seals stay): the kernel refuses every change of
+//! their size, to every process, the writer included. They have no name, so
+//! nobody can unlink or replace them either; readers receive them from the
+//! writer ([`super::handover`]). The data is also sealed `F_SEAL_FUTURE_WRITE`
+//! once the writer has mapped it: no process, whatever its descriptor, can
+//! write it or map it writable again, and readers get it opened read-only.
+//! A reader refuses memory that is not sealed against shrinking.
 
 use std::fs::File;
 use std::io;
+use std::os::fd::{AsFd, AsRawFd, OwnedFd};
 use std::path::{Path, PathBuf};
 
+use rustix::fs::{MemfdFlags, SealFlags};
+
 use super::ChannelKind;
+use super::handover::{self, Fetched};
 use super::layout::{ABI_VERSION, Doorbell, Header, Layout, MAGIC, PAGE};
 use super::ring::{self, Ring};
 use crate::error::{Error, Result};
 use crate::shm::{self, Mapping};
 use crate::sync::{AtomicU64, Ordering};
 
-/// A mapped, validated channel segment. Shared (through `Arc`) by a reader or
-/// writer and the stop handles that can wake it.
+/// The seals every channel memory file must carry before a reader maps it.
+const REQUIRED_SEALS: SealFlags = SealFlags::SHRINK;
+
+/// A mapped, validated channel. Shared (through `Arc`) by a reader or writer
+/// and the stop handles that can wake it.
 pub(crate) struct Shared {
     /// `skin/channel`, for messages.
     pub label: String,
-    /// The segment file.
+    /// The channel's socket, where readers ask for it.
     pub path: PathBuf,
-    /// The open segment; a writer's also carries its liveness lock.
-    pub file: File,
+    /// The data memory file: read-write for the writer (which holds its
+    /// liveness lock on it), read-only for readers.
+    pub data: File,
     pub layout: Layout,
     pub kind: ChannelKind,
-    /// The whole segment: read-only for readers, read-write for the writer.
+    /// The header, description and ring: read-only for readers.
     map: Mapping,
     /// The doorbell page, read-write for everybody.
     doorbell: Mapping,
+    /// Keeps the doorbell's memory file open (the writer hands it over).
+    bell: File,
 }
 
 impl Shared {
     pub fn header(&self) -> &Header {
-        // SAFETY: the mapping is at least 2 pages (checked when mapping) and
+        // SAFETY: the mapping is at least 1 page (checked when validating) and
         // offset 0 of a page-aligned mapping is aligned for Header, which is
         // SharedMemorySafe.
         unsafe { self.map.get(0) }
@@ -70,19 +92,15 @@ impl Shared {
         unsafe { self.map.words(self.layout.description_offset as usize, words) }
     }
 
-    /// Maps a validated layout of `file`.
-    fn map(
-        label: String,
-        path: PathBuf,
-        file: File,
-        layout: Layout,
-        kind: ChannelKind,
-        writable: bool,
-    ) -> Result<Shared> {
-        let map = Mapping::map(&file, &path, 0, layout.file_bytes as usize, writable)?;
-        let doorbell = Mapping::map(&file, &path, PAGE, PAGE as usize, true)?;
-        debug_assert!(map.len() as u64 >= 2 * PAGE);
-        Ok(Shared { label, path, file, layout, kind, map, doorbell })
+    /// The doorbell's memory file.
+    pub fn bell(&self) -> &File {
+        &self.bell
+    }
+
+    /// The identity of the data memory file: a new writer's channel has another.
+    pub fn identity(&self) -> Option<(u64, u64)> {
+        use std::os::unix::fs::MetadataExt;
+        self.data.metadata().ok().map(|meta| (meta.dev(), meta.ino()))
     }
 }
 
@@ -95,29 +113,44 @@ fn os_error<'p>(op: &'static str, path: &'p Path) -> impl FnOnce(io::Error) -> E
     move |source| Error::Os { op, path: path.to_owned(), source }
 }
 
-/// Opens and validates an existing segment. Nothing in it is trusted before it
-/// has been checked: magic, ABI version, self-consistent sizes, file length.
-pub(crate) fn open_segment(dir: &Path, skin: &str, channel: &str, writable: bool) -> Result<Shared> {
+/// What opening a channel found.
+pub(crate) enum Opened {
+    /// Its memory, validated and mapped.
+    Live(Shared),
+    /// Its socket, with nobody answering: the writer is dead or was dropped.
+    NoWriter,
+}
+
+/// Asks the writer of `skin`/`channel` for the channel's memory, then
+/// validates and maps it (the data read-only).
+pub(crate) fn open_segment(dir: &Path, skin: &str, channel: &str) -> Result<Opened> {
     shm::validate_name("skin", skin)?;
     shm::validate_name("channel", channel)?;
     let path = shm::segment_path(dir, skin, channel);
     let label = label(skin, channel);
-    let file = match File::options().read(true).write(true).open(&path) {
-        Ok(file) => file,
-        Err(e) if e.kind() == io::ErrorKind::NotFound => {
-            return Err(Error::Missing { channel: label, path });
-        }
-        Err(e) => {
-            return Err(Error::Os { op: "open", path, source: e });
-        }
-    };
-    map_validated(label, path, file, writable)
+    match handover::fetch(&path, &label)? {
+        Fetched::NoWriter => Ok(Opened::NoWriter),
+        Fetched::Memory { data, bell } => map_received(label, path, data, bell).map(Opened::Live),
+    }
 }
 
-/// Validates an open segment file and maps it.
-pub(crate) fn map_validated(label: String, path: PathBuf, file: File, writable: bool) -> Result<Shared> {
-    let (layout, kind) = validate(&file, &path, &label)?;
-    Shared::map(label, path, file, layout, kind, writable)
+/// Validates memory received from a writer (or anyone claiming to be one)
+/// and maps it: the data read-only, the doorbell read-write.
+pub(crate) fn map_received(label: String, path: PathBuf, data: OwnedFd, bell: OwnedFd) -> Result<Shared> {
+    for (what, fd) in [("frames", &data), ("doorbell", &bell)] {
+        let seals = rustix::fs::fcntl_get_seals(fd).unwrap_or(SealFlags::empty());
+        if !seals.contains(REQUIRED_SEALS) {
+            return Err(Error::Unsealed { channel: label, what });
+        }
+    }
+    let data = File::from(data);
+    let bell = File::from(bell);
+    let (layout, kind) = validate(&data, &path, &label)?;
+    let bell_bytes = bell.metadata().map_err(os_error("stat", &path))?.len();
+    if bell_bytes < PAGE {
+        return Err(Error::Truncated { channel: label, path, actual: bell_bytes, needed: PAGE });
+    }
+    Shared::map(label, path, data, bell, layout, kind, false)
 }
 
 /// Validates the header of an open segment file and returns its layout.
@@ -126,7 +159,7 @@ pub(crate) fn validate(file: &File, path: &Path, label: &str) -> Result<(Layout,
     let truncated =
         |needed| Error::Truncated { channel: label.to_owned(), path: path.to_owned(), actual: size, needed };
     if size < 8 {
-        return Err(truncated(2 * PAGE));
+        return Err(truncated(PAGE));
     }
     // One page is always safe to map once the file has a byte in it: the part
     // of the page past the end of the file reads as zeros.
@@ -137,15 +170,12 @@ pub(crate) fn validate(file: &File, path: &Path, label: &str) -> Result<(Layout,
     if magic != MAGIC {
         return Err(Error::NotOurs { channel: label.to_owned(), path: path.to_owned(), found: magic });
     }
-    if size < 2 * PAGE {
-        return Err(truncated(2 * PAGE));
+    if size < PAGE {
+        return Err(truncated(PAGE));
     }
     // Acquire: pairs with the creator's Release store of the version, which it
     // makes after every other header field.
     match header.abi_version.load(Ordering::Acquire) {
-        0 => {
-            return Err(Error::Unfinished { channel: label.to_owned() });
-        }
         ABI_VERSION => {}
         found => {
             return Err(Error::VersionMismatch { channel: label.to_owned(), found, expected: ABI_VERSION });
@@ -167,36 +197,82 @@ pub(crate) fn validate(file: &File, path: &Path, label: &str) -> Result<(Layout,
     Ok((layout, kind))
 }
 
-/// Creates a complete segment under a temporary name and returns it mapped
-/// read-write and locked by the caller (the new writer). The caller renames it
-/// into place.
-pub(crate) fn create_segment(
-    temp_path: &Path,
-    label: String,
-    layout: Layout,
-    init: &SegmentInit<'_>,
-) -> Result<Shared> {
-    use std::os::unix::fs::{OpenOptionsExt, PermissionsExt};
-    let file = File::options()
-        .read(true)
-        .write(true)
-        .create_new(true)
-        .mode(init.mode)
-        .open(temp_path)
-        .map_err(os_error("create", temp_path))?;
-    // The process umask may have removed group bits; the mode was asked for explicitly.
-    file.set_permissions(std::fs::Permissions::from_mode(init.mode)).map_err(os_error("chmod", temp_path))?;
-    if !crate::os::try_lock_writer(&file).map_err(os_error("lock", temp_path))? {
-        return Err(Error::Os { op: "lock", path: temp_path.to_owned(), source: io::ErrorKind::WouldBlock.into() });
+impl Shared {
+    /// Maps a validated layout of `data`, and the doorbell.
+    fn map(
+        label: String,
+        path: PathBuf,
+        data: File,
+        bell: File,
+        layout: Layout,
+        kind: ChannelKind,
+        writable: bool,
+    ) -> Result<Shared> {
+        let map = Mapping::map(&data, &path, 0, layout.file_bytes as usize, writable)?;
+        let doorbell = Mapping::map(&bell, &path, 0, PAGE as usize, true)?;
+        Ok(Shared { label, path, data, layout, kind, map, doorbell, bell })
     }
-    // Allocate every page now: on a tmpfs a sparse file would make the first
-    // write to a page beyond free space a SIGBUS instead of this error.
-    rustix::fs::fallocate(&file, rustix::fs::FallocateFlags::empty(), 0, layout.file_bytes).map_err(|e| Error::Os {
-        op: "allocate (is /dev/shm full?)",
-        path: temp_path.to_owned(),
+}
+
+/// A sealable memory file of `bytes`, every page allocated now (so that a
+/// full tmpfs is this error rather than a SIGBUS on a later write).
+fn memory_file(label: &str, path: &Path, what: &str, bytes: u64, mode: u32) -> Result<File> {
+    let name = format!("skinware:{label}:{what}");
+    let fd = rustix::fs::memfd_create(name.as_str(), MemfdFlags::CLOEXEC | MemfdFlags::ALLOW_SEALING)
+        .map_err(|e| Error::Os { op: "memfd_create", path: path.to_owned(), source: e.into() })?;
+    rustix::fs::fchmod(&fd, rustix::fs::Mode::from_raw_mode(mode)).map_err(|e| Error::Os {
+        op: "chmod",
+        path: path.to_owned(),
         source: e.into(),
     })?;
-    let shared = Shared::map(label, temp_path.to_owned(), file, layout, init.kind, true)?;
+    rustix::fs::ftruncate(&fd, bytes).map_err(|e| Error::Os {
+        op: "allocate (is shared memory full?)",
+        path: path.to_owned(),
+        source: e.into(),
+    })?;
+    rustix::fs::fallocate(&fd, rustix::fs::FallocateFlags::empty(), 0, bytes).map_err(|e| Error::Os {
+        op: "allocate (is shared memory full?)",
+        path: path.to_owned(),
+        source: e.into(),
+    })?;
+    Ok(File::from(fd))
+}
+
+fn seal(file: &File, path: &Path, seals: SealFlags) -> Result<()> {
+    rustix::fs::fcntl_add_seals(file, seals).map_err(|e| Error::Os {
+        op: "seal",
+        path: path.to_owned(),
+        source: e.into(),
+    })
+}
+
+/// A descriptor of the data opened anew, read-only: readers get this one, not
+/// the writer's (whose open file carries the liveness lock).
+pub(crate) fn reopen_read_only(shared: &Shared) -> Result<OwnedFd> {
+    let proc_path = format!("/proc/self/fd/{}", shared.data.as_fd().as_raw_fd());
+    rustix::fs::open(
+        proc_path.as_str(),
+        rustix::fs::OFlags::RDONLY | rustix::fs::OFlags::CLOEXEC,
+        rustix::fs::Mode::empty(),
+    )
+    .map_err(|e| Error::Os {
+        op: "reopen the frames read-only (is /proc mounted?)",
+        path: shared.path.clone(),
+        source: e.into(),
+    })
+}
+
+/// Creates a channel's memory, complete, sealed, and mapped read-write for the
+/// caller (the new writer). Readers can reach it only once the caller hands
+/// it over.
+pub(crate) fn create_segment(path: &Path, label: String, layout: Layout, init: &SegmentInit<'_>) -> Result<Shared> {
+    let data = memory_file(&label, path, "frames", layout.file_bytes, init.data_mode)?;
+    let bell = memory_file(&label, path, "doorbell", PAGE, init.bell_mode)?;
+    seal(&data, path, SealFlags::SHRINK | SealFlags::GROW)?;
+    seal(&bell, path, SealFlags::SHRINK | SealFlags::GROW | SealFlags::SEAL)?;
+    let shared = Shared::map(label, path.to_owned(), data, bell, layout, init.kind, true)?;
+    // The writer's own mapping stays writable; from now on no other can be made.
+    seal(&shared.data, path, SealFlags::FUTURE_WRITE | SealFlags::SEAL)?;
     let header = shared.header();
     header.magic.store(MAGIC, Ordering::Relaxed);
     header.kind.store(init.kind as u32, Ordering::Relaxed);
@@ -225,5 +301,8 @@ pub(crate) struct SegmentInit<'a> {
     pub description: &'a [u8],
     pub schema_name: &'a str,
     pub schema_version: u32,
-    pub mode: u32,
+    /// Permissions of the data memory file.
+    pub data_mode: u32,
+    /// Permissions of the doorbell memory file.
+    pub bell_mode: u32,
 }

@@ -292,7 +292,7 @@ fn liveness_paused_and_gone() {
 }
 
 #[test]
-fn revival_continues_the_sequence_for_existing_readers() {
+fn readers_follow_a_successor_with_a_new_sequence() {
     let dir = SegmentDir::new("revival");
     let keep = WriterOptions { unlink_on_drop: false, ..dir.writer() };
     let mut first = Writer::create("skin", "layer", 8, b"topology", &keep).unwrap();
@@ -306,12 +306,12 @@ fn revival_continues_the_sequence_for_existing_readers() {
 
     let mut second = Writer::create("skin", "layer", 8, b"topology", &dir.writer()).unwrap();
     assert!(second.revived());
-    assert_eq!(reader.writer_state(), WriterState::Running);
-    assert_eq!(reader.writer_generation(), 2);
     publish(&mut second, 50);
     let frame = reader.wait_newer(Duration::from_secs(5)).unwrap();
-    assert_eq!(frame.seq(), 5, "the revived writer must continue the sequence");
+    assert_eq!(frame.seq(), 1, "a successor's channel is new memory: its sequence starts at 1");
     assert_eq!(frame.responses(), &[50; 4]);
+    assert_eq!(reader.writer_state(), WriterState::Running);
+    assert_eq!(reader.writer_generation(), 2);
 }
 
 /// Set in the child process of the revival-order test: the directory its writer uses.
@@ -328,7 +328,7 @@ fn a_reviving_writer_is_never_seen_running_before_it_owns_the_header() {
         return;
     }
     let dir = SegmentDir::new("revival-order");
-    let reader_options = ReaderOptions { allow_gone: true, ..dir.reader() };
+    let reader_options = dir.reader();
     for round in 0..40 {
         let mut child = std::process::Command::new(std::env::current_exe().unwrap())
             .args([
@@ -341,7 +341,7 @@ fn a_reviving_writer_is_never_seen_running_before_it_owns_the_header() {
             .spawn()
             .unwrap();
         let started = Instant::now();
-        let reader = loop {
+        let mut reader = loop {
             match Reader::open_with("skin", "layer", &reader_options) {
                 Ok(reader) if reader.writer_state() == WriterState::Running && reader.writer_pid() == child.id() => {
                     break reader;
@@ -358,9 +358,10 @@ fn a_reviving_writer_is_never_seen_running_before_it_owns_the_header() {
         assert_eq!(reader.writer_state(), WriterState::Gone);
         let options = dir.writer();
         let reviver = std::thread::spawn(move || Writer::create("skin", "layer", 8, b"topology", &options).unwrap());
-        // Watch the revival as closely as a reader can: once the writer is seen
-        // alive, the header must already be the new writer's.
+        // Watch the succession as closely as a reader can: once the writer is
+        // seen alive, the header must already be the new writer's.
         loop {
+            reader.follow_recreated();
             if reader.writer_state() == WriterState::Running {
                 assert_eq!(
                     (reader.writer_pid(), reader.writer_generation()),
@@ -426,7 +427,7 @@ fn a_reader_waiting_when_its_writer_is_killed_gets_writer_gone_within_its_timeou
         assert!(matches!(err, Error::WriterGone { .. }), "{mode}: {err}");
         // Once, not again: a generous bound, since this machine's scheduling is not real-time.
         assert!(waited < timeout * 2 + Duration::from_secs(1), "{mode}: returned after {waited:?}");
-        std::fs::remove_file(dir.segment("skin", "layer")).unwrap();
+        assert_eq!(skinware::remove_stale_channels(&dir.path, false).unwrap().len(), 1);
     }
 }
 
@@ -438,16 +439,17 @@ fn a_request_made_while_the_writer_is_gone_is_answered_by_its_successor() {
     publish(&mut first, 1);
     let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
     drop(first);
-    let asker = std::thread::spawn(move || reader.request(Duration::from_secs(10)).map(|f| f.seq()));
+    let asker = std::thread::spawn(move || reader.request(Duration::from_secs(10)).map(|f| f.responses()[0]));
     std::thread::sleep(Duration::from_millis(100)); // the request is made while no writer runs
     let mut second = Writer::create("skin", "layer", 8, b"topology", &options).unwrap();
     assert!(second.revived());
+    // The waiting reader follows the new channel and asks it again.
     assert!(
-        second.wait_request(Duration::from_millis(100)).unwrap(),
-        "the new writer did not see the request made while the channel had none"
+        second.wait_request(Duration::from_secs(2)).unwrap(),
+        "the new writer did not get the request made while the channel had none"
     );
     publish(&mut second, 2);
-    assert_eq!(asker.join().unwrap().unwrap(), 2);
+    assert_eq!(asker.join().unwrap().unwrap(), 2, "the answer is the successor's frame");
 }
 
 #[test]
@@ -472,28 +474,54 @@ fn readers_follow_a_re_created_channel() {
     assert_eq!(reader.writer_state(), WriterState::Running);
 }
 
+/// The open files of this process whose target contains `name`, with their
+/// access mode (`O_ACCMODE` of the fdinfo flags: 0 read-only, 2 read-write).
+fn open_modes(name: &str) -> Vec<u32> {
+    let mut modes = Vec::new();
+    for entry in std::fs::read_dir("/proc/self/fd").unwrap().flatten() {
+        let Ok(target) = std::fs::read_link(entry.path()) else { continue };
+        if !target.to_string_lossy().contains(name) {
+            continue;
+        }
+        let info = std::fs::read_to_string(format!("/proc/self/fdinfo/{}", entry.file_name().to_string_lossy()));
+        let flags = info.ok().and_then(|info| {
+            info.lines().find_map(|l| l.strip_prefix("flags:").and_then(|f| u32::from_str_radix(f.trim(), 8).ok()))
+        });
+        if let Some(flags) = flags {
+            modes.push(flags & 0o3);
+        }
+    }
+    modes.sort();
+    modes
+}
+
 #[test]
 fn readers_map_frames_read_only() {
     let dir = SegmentDir::new("readonly");
-    let _writer = Writer::create("skin", "layer", 30_848 * 2, b"", &dir.writer()).unwrap();
-    let reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+    let writer = Writer::create("skin", "rolayer", 30_848 * 2, b"", &dir.writer()).unwrap();
+    let reader = Reader::open_with("skin", "rolayer", &dir.reader()).unwrap();
     let maps = std::fs::read_to_string("/proc/self/maps").unwrap();
-    let path = reader.path().to_string_lossy().into_owned();
-    let ours: Vec<&str> = maps.lines().filter(|line| line.ends_with(path.as_str())).collect();
-    // The writer's read-write mapping, its doorbell, the reader's read-only
-    // mapping of everything and the reader's doorbell.
-    let read_only: Vec<&&str> = ours.iter().filter(|l| l.split_whitespace().nth(1) == Some("r--s")).collect();
-    assert_eq!(read_only.len(), 1, "{ours:#?}");
+    let frames: Vec<&str> = maps.lines().filter(|line| line.contains("skinware:skin/rolayer:frames")).collect();
+    let doorbells: Vec<&str> = maps.lines().filter(|line| line.contains("skinware:skin/rolayer:doorbell")).collect();
+    let perms = |line: &&str| line.split_whitespace().nth(1).unwrap().to_owned();
     let size = |line: &str| {
         let (start, end) = line.split_whitespace().next().unwrap().split_once('-').unwrap();
         u64::from_str_radix(end, 16).unwrap() - u64::from_str_radix(start, 16).unwrap()
     };
-    assert!(size(read_only[0]) > 60_000, "the read-only mapping must cover the frames");
-    for line in ours.iter().filter(|l| l.split_whitespace().nth(1) == Some("rw-s")) {
-        let is_doorbell = size(line) == 4096;
-        let is_writer = size(line) == size(read_only[0]);
-        assert!(is_doorbell || is_writer, "unexpected writable mapping {line}");
-    }
+    // The writer's read-write mapping of the frames and the reader's
+    // read-only one; both doorbells read-write, one page each.
+    let mut frame_perms: Vec<String> = frames.iter().map(perms).collect();
+    frame_perms.sort();
+    assert_eq!(frame_perms, ["r--s", "rw-s"], "{frames:#?}");
+    assert!(frames.iter().all(|line| size(line) > 60_000), "the mappings must cover the frames");
+    assert_eq!(doorbells.len(), 2, "{doorbells:#?}");
+    assert!(doorbells.iter().all(|line| perms(line) == "rw-s" && size(line) == 4096), "{doorbells:#?}");
+    // Open files: the writer's read-write descriptor (it holds the liveness
+    // lock) and the reader's read-only one (the writer keeps a read-only one
+    // to hand over).
+    assert_eq!(open_modes("skinware:skin/rolayer:frames"), [0, 0, 2]);
+    drop(reader);
+    drop(writer);
 }
 
 #[test]
@@ -518,10 +546,14 @@ fn stale_channels_are_listed_and_removed() {
 
     let removed = skinware::remove_stale_channels(&dir.path, false).unwrap();
     assert_eq!(removed, [dir.segment("dead", "layer")]);
-    assert_eq!(dir.files(), ["skinware.junk.layer", "skinware.live.layer"]);
+    assert_eq!(dir.files(), [".skinware-lock.live.layer", "skinware.junk.layer", "skinware.live.layer"]);
     let removed = skinware::remove_stale_channels(&dir.path, true).unwrap();
     assert_eq!(removed, [dir.segment("junk", "layer")]);
-    assert_eq!(dir.files(), ["skinware.live.layer"], "a live writer's channel was removed");
+    assert_eq!(
+        dir.files(),
+        [".skinware-lock.live.layer", "skinware.live.layer"],
+        "a live writer's channel was removed"
+    );
 }
 
 #[test]
