@@ -120,7 +120,7 @@ pub enum Error {
 
     /// The channel's writer accepted the connection but handed nothing over.
     #[error(
-        "the writer of channel {channel} accepted the connection at {path} but handed nothing over within a second; it is stopped (SIGSTOP) or hung: check it with `skin ls`"
+        "the writer of channel {channel} accepted the connection at {path} but handed nothing over in time; it is stopped (SIGSTOP) or hung: check it with `skin ls`"
     )]
     NotAnswering {
         /// `skin/channel`.

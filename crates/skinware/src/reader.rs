@@ -10,6 +10,7 @@ use std::time::Duration;
 use crate::anticipate::Anticipation;
 use crate::channel::ChannelKind;
 use crate::channel::doorbell::{self, WaitEnd};
+use crate::channel::handover::ANSWER_TIMEOUT;
 use crate::channel::layout;
 use crate::channel::liveness::NameRecord;
 use crate::channel::ring::{Meta, ReadFailure};
@@ -83,7 +84,7 @@ impl Reader {
     /// Attaches with options.
     pub fn open_with(skin: &str, channel: &str, options: &ReaderOptions) -> Result<Reader> {
         let dir = options.dir.clone().unwrap_or_else(shm::segment_dir);
-        let shared = match segment::open_segment(&dir, skin, channel)? {
+        let shared = match segment::open_segment(&dir, skin, channel, ANSWER_TIMEOUT)? {
             Opened::Live(shared) => shared,
             Opened::NoWriter => {
                 let pid = NameRecord::load(&dir, skin, channel).unwrap_or_default().writer_pid;
@@ -146,7 +147,8 @@ impl Reader {
         if self.shared.writer_alive().unwrap_or(true) {
             return false;
         }
-        let Ok(Opened::Live(replacement)) = segment::open_segment(&self.dir, &self.skin, &self.channel) else {
+        let Ok(Opened::Live(replacement)) = segment::open_segment(&self.dir, &self.skin, &self.channel, ANSWER_TIMEOUT)
+        else {
             return false;
         };
         if replacement.identity() == self.shared.identity() {

@@ -42,6 +42,11 @@ struct Heartbeat {
     channels: Vec<(String, Duration)>,
     /// Per channel: frames + failures last seen, and since when.
     progress: HashMap<String, (u64, Instant)>,
+    /// Per channel, a reader kept open: its writer's statistics are read from
+    /// memory, with no hand-over to wait for (a stopped process answers none).
+    readers: HashMap<String, skinware::Reader>,
+    /// The skin the channels belong to.
+    skin: String,
 }
 
 /// A child whose periodic channels have all been silent this long (in
@@ -130,7 +135,7 @@ pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
                 .filter(|c| c.skin == config.skin)
                 .collect();
             for supervised in &mut children {
-                supervised.kill_if_hung(&channels, now);
+                supervised.kill_if_hung(now);
             }
             log_layer_changes(&channels, &mut layer_states);
             republish_if_removed(&geometry, &published);
@@ -171,7 +176,12 @@ fn start_children(config: &Config, config_path: &Path) -> Result<Vec<Supervised>
         .chain(config.services.iter().map(|s| ("service", &s.name, &s.restart)));
     let mut children = Vec::new();
     for (role, name, restart) in roles {
-        let heartbeat = Heartbeat { channels: periodic_channels(config, role, name)?, progress: HashMap::new() };
+        let heartbeat = Heartbeat {
+            channels: periodic_channels(config, role, name)?,
+            progress: HashMap::new(),
+            readers: HashMap::new(),
+            skin: config.skin.clone(),
+        };
         let child = spawn_child(config_path, role, name)?;
         tracing::info!(role, name = %name, pid = child.id(), "started");
         children.push(Supervised {
@@ -216,18 +226,27 @@ impl Supervised {
     /// Kills the child if it lives but every one of its periodic channels
     /// (owned by it) has shown no progress for [`HANG_PERIODS`] periods; its
     /// exit is then handled like any other, with a restart after the backoff.
-    fn kill_if_hung(&mut self, channels: &[ChannelInfo], now: Instant) {
+    fn kill_if_hung(&mut self, now: Instant) {
         let Some(child) = &mut self.child else { return };
         let pid = child.id();
         let (mut watched, mut hung) = (0, 0);
         let mut silent_for = Duration::ZERO;
-        for (name, period) in &self.heartbeat.channels {
-            let Some(info) = channels.iter().find(|c| &c.channel == name) else { continue };
-            if info.writer_pid != pid || info.state == WriterState::Gone {
+        let Heartbeat { channels, progress, readers, skin } = &mut self.heartbeat;
+        for (name, period) in channels.iter() {
+            if !readers.contains_key(name) {
+                match skinware::Reader::open(skin, name) {
+                    Ok(reader) => readers.insert(name.clone(), reader),
+                    Err(_) => continue,
+                };
+            }
+            let Some(reader) = readers.get_mut(name) else { continue };
+            reader.follow_recreated();
+            if reader.writer_pid() != pid || reader.writer_state() == WriterState::Gone {
                 continue;
             }
-            let beat = info.stats.frames.wrapping_add(info.stats.faults);
-            let seen = self.heartbeat.progress.entry(name.clone()).or_insert((beat, now));
+            let stats = reader.writer_stats();
+            let beat = stats.frames.wrapping_add(stats.faults);
+            let seen = progress.entry(name.clone()).or_insert((beat, now));
             if seen.0 != beat {
                 *seen = (beat, now);
             }

@@ -40,7 +40,9 @@ const GREETING: &[u8; 8] = b"SKINHND1";
 
 /// How long a reader waits for the writer's hand-over once connected. The
 /// writer's thread answers at once; only a stopped or hung writer takes this long.
-const ANSWER_TIMEOUT: Duration = Duration::from_secs(1);
+pub(crate) const ANSWER_TIMEOUT: Duration = Duration::from_secs(1);
+/// The same for a look at every channel (`skin ls`, the supervisor's log).
+pub(crate) const LISTING_ANSWER_TIMEOUT: Duration = Duration::from_millis(200);
 
 /// How often the writer's thread checks that its socket is still in place.
 const RECHECK: Duration = Duration::from_millis(250);
@@ -170,7 +172,7 @@ pub(crate) enum Fetched {
 
 /// The reader's side: connects to the channel's socket at `path` and receives
 /// the writer's two descriptors.
-pub(crate) fn fetch(path: &Path, label: &str) -> Result<Fetched> {
+pub(crate) fn fetch(path: &Path, label: &str, answer_timeout: Duration) -> Result<Fetched> {
     let os_error = |op, source| Error::Os { op, path: path.to_owned(), source };
     match std::fs::metadata(path) {
         Ok(meta) if meta.file_type().is_socket() => {}
@@ -194,7 +196,7 @@ pub(crate) fn fetch(path: &Path, label: &str) -> Result<Fetched> {
         }
         Err(e) => return Err(os_error("connect", e)),
     };
-    stream.set_read_timeout(Some(ANSWER_TIMEOUT)).map_err(|e| os_error("setsockopt", e))?;
+    stream.set_read_timeout(Some(answer_timeout)).map_err(|e| os_error("setsockopt", e))?;
     let mut greeting = [0u8; 16];
     let mut space = [MaybeUninit::uninit(); rustix::cmsg_space!(ScmRights(2))];
     let mut control = RecvAncillaryBuffer::new(&mut space);

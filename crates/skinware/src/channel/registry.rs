@@ -7,6 +7,7 @@ use std::os::unix::fs::FileTypeExt;
 use std::path::{Path, PathBuf};
 
 use super::ChannelKind;
+use super::handover::LISTING_ANSWER_TIMEOUT;
 use super::liveness::{NameRecord, remove_if_unowned};
 use super::segment::{self, Opened};
 use crate::error::{Error, Result};
@@ -72,7 +73,7 @@ fn inspect(dir: &Path, skin: &str, channel: &str) -> ChannelInfo {
         stats: WriterStats::default(),
         problem: None,
     };
-    match segment::open_segment(dir, skin, channel) {
+    match segment::open_segment(dir, skin, channel, LISTING_ANSWER_TIMEOUT) {
         Ok(Opened::Live(shared)) => {
             let header = shared.header();
             info.state = shared.writer_state();
@@ -110,7 +111,7 @@ pub fn remove_stale_channels(dir: &Path, include_invalid: bool) -> Result<Vec<Pa
                 if include_invalid && std::fs::remove_file(&path).is_ok() {
                     removed.push(path);
                 }
-            } else if matches!(segment::open_segment(dir, skin, channel), Ok(Opened::NoWriter))
+            } else if matches!(segment::open_segment(dir, skin, channel, LISTING_ANSWER_TIMEOUT), Ok(Opened::NoWriter))
                 && remove_if_unowned(dir, skin, channel)?
             {
                 removed.push(path);
@@ -147,7 +148,7 @@ pub fn remove_channel_if_stale(path: &Path) -> Result<bool> {
     if !path.exists() {
         return Ok(false);
     }
-    match segment::open_segment(dir, skin, channel) {
+    match segment::open_segment(dir, skin, channel, LISTING_ANSWER_TIMEOUT) {
         Ok(Opened::Live(shared)) if shared.writer_alive().unwrap_or(true) => Ok(false),
         _ => remove_if_unowned(dir, skin, channel),
     }

@@ -18,6 +18,7 @@ use std::fs::File;
 use std::io;
 use std::os::fd::{AsFd, AsRawFd, OwnedFd};
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use rustix::fs::{MemfdFlags, SealFlags};
 
@@ -123,12 +124,12 @@ pub(crate) enum Opened {
 
 /// Asks the writer of `skin`/`channel` for the channel's memory, then
 /// validates and maps it (the data read-only).
-pub(crate) fn open_segment(dir: &Path, skin: &str, channel: &str) -> Result<Opened> {
+pub(crate) fn open_segment(dir: &Path, skin: &str, channel: &str, answer_timeout: Duration) -> Result<Opened> {
     shm::validate_name("skin", skin)?;
     shm::validate_name("channel", channel)?;
     let path = shm::segment_path(dir, skin, channel);
     let label = label(skin, channel);
-    match handover::fetch(&path, &label)? {
+    match handover::fetch(&path, &label, answer_timeout)? {
         Fetched::NoWriter => Ok(Opened::NoWriter),
         Fetched::Memory { data, bell } => map_received(label, path, data, bell).map(Opened::Live),
     }
