@@ -114,10 +114,9 @@ pub struct Writer {
     stop: Stop,
     unlink_on_drop: bool,
     revived: bool,
-    /// Answers readers' requests for the channel; stopped first on drop.
+    /// Answers readers' requests for the channel and keeps its name lock;
+    /// stopped on drop, and the name released last.
     server: Option<Server>,
-    /// Ownership of the channel's name; released last on drop.
-    name: Option<NameLock>,
 }
 
 impl std::fmt::Debug for Writer {
@@ -153,7 +152,7 @@ impl Writer {
         let dir = options.dir.clone().unwrap_or_else(shm::segment_dir);
         let path = shm::segment_path(&dir, skin, channel);
         refuse_foreign_file(&path, &label)?;
-        let name = NameLock::acquire(&dir, skin, channel, &label)?;
+        let mut name = NameLock::acquire(&dir, skin, channel, &label)?;
         let previous = name.record();
         let generation = previous.generation.saturating_add(1);
         name.write_record(NameRecord { generation, writer_pid: std::process::id() })?;
@@ -171,7 +170,7 @@ impl Writer {
         let readers_data = segment::reopen_read_only(&shared)?;
         let readers_bell =
             shared.bell().try_clone().map_err(|source| Error::Os { op: "dup", path: path.clone(), source })?;
-        let server = Server::start(path, options.access.socket_mode(), label, readers_data, readers_bell.into())?;
+        let server = Server::start(path, options.access.socket_mode(), label, name, readers_data, readers_bell.into())?;
         let revived = generation > 1;
         // A new doorbell: requests made to the dead writer are re-made by
         // their readers when they follow this channel.
@@ -190,7 +189,6 @@ impl Writer {
             unlink_on_drop: options.unlink_on_drop,
             revived,
             server: Some(server),
-            name: Some(name),
         })
     }
 
@@ -405,8 +403,8 @@ impl Drop for Writer {
         // Readers asleep re-check, see no new frame, and `writer_state` tells them why.
         doorbell::nudge(&self.shared.doorbell().notify, &SharedFutex);
         // No new reader from here on; then the name goes, or stays for a successor.
-        drop(self.server.take());
-        if let Some(name) = self.name.take()
+        let name = self.server.take().and_then(Server::stop);
+        if let Some(name) = name
             && self.unlink_on_drop
         {
             name.remove(&self.shared.path);

@@ -30,7 +30,7 @@ use rustix::net::{
     RecvAncillaryBuffer, RecvAncillaryMessage, RecvFlags, SendAncillaryBuffer, SendAncillaryMessage, SendFlags,
 };
 
-use super::liveness::{FileIdentity, path_identity};
+use super::liveness::{FileIdentity, NameLock, path_identity};
 use crate::error::{Error, Result};
 use crate::shm;
 
@@ -47,23 +47,32 @@ pub(crate) const LISTING_ANSWER_TIMEOUT: Duration = Duration::from_millis(200);
 /// How often the writer's thread checks that its socket is still in place.
 const RECHECK: Duration = Duration::from_millis(250);
 
-/// The writer's side: a thread answering the channel's socket until dropped.
+/// The writer's side: a thread answering the channel's socket until stopped.
+/// It also keeps the channel's name lock in place, and gives it back when
+/// stopped.
 pub(crate) struct Server {
     wake: OwnedFd,
-    thread: Option<JoinHandle<()>>,
+    thread: Option<JoinHandle<NameLock>>,
 }
 
 impl Server {
     /// Binds the channel's socket at `path` with permissions `mode` and starts
     /// handing `data` (read-only) and `bell` to whoever connects.
-    pub fn start(path: PathBuf, mode: u32, label: String, data: OwnedFd, bell: OwnedFd) -> Result<Server> {
+    pub fn start(
+        path: PathBuf,
+        mode: u32,
+        label: String,
+        name: NameLock,
+        data: OwnedFd,
+        bell: OwnedFd,
+    ) -> Result<Server> {
         let os_error = |op, source: io::Error| Error::Os { op, path: path.clone(), source };
         let bound = bind(&path, mode)?;
         let wake = rustix::event::eventfd(0, EventfdFlags::CLOEXEC | EventfdFlags::NONBLOCK)
             .map_err(|e| os_error("eventfd", e.into()))?;
         let stop = wake.try_clone().map_err(|e| os_error("dup", e))?;
         let spawn_error = |e| Error::Os { op: "spawn the hand-over thread", path: path.clone(), source: e };
-        let served = Served { path: path.clone(), mode, label, data, bell };
+        let served = Served { path: path.clone(), mode, label, name, data, bell };
         let thread = std::thread::Builder::new()
             .name("skinware-handover".into())
             .spawn(move || served.serve(bound, &stop))
@@ -72,11 +81,24 @@ impl Server {
     }
 }
 
-impl Drop for Server {
-    fn drop(&mut self) {
+impl Server {
+    /// Stops answering and returns the name lock (`None` only if the thread
+    /// panicked, which drops it).
+    pub fn stop(mut self) -> Option<NameLock> {
+        self.wake_thread();
+        self.thread.take().and_then(|thread| thread.join().ok())
+    }
+
+    fn wake_thread(&self) {
         // The eventfd wakes the thread's poll; it closes the listener when it
         // returns, after which connecting readers are refused: the writer is gone.
         let _ = rustix::io::write(&self.wake, &1u64.to_ne_bytes());
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        self.wake_thread();
         if let Some(thread) = self.thread.take() {
             let _ = thread.join();
         }
@@ -88,12 +110,13 @@ struct Served {
     path: PathBuf,
     mode: u32,
     label: String,
+    name: NameLock,
     data: OwnedFd,
     bell: OwnedFd,
 }
 
 impl Served {
-    fn serve(self, mut bound: (UnixListener, FileIdentity), stop: &OwnedFd) {
+    fn serve(mut self, mut bound: (UnixListener, FileIdentity), stop: &OwnedFd) -> NameLock {
         let timeout = rustix::time::Timespec { tv_sec: 0, tv_nsec: RECHECK.as_nanos() as i64 };
         loop {
             let mut fds = [PollFd::new(&bound.0, PollFlags::IN), PollFd::new(stop, PollFlags::IN)];
@@ -101,13 +124,16 @@ impl Served {
                 && e != rustix::io::Errno::INTR
             {
                 tracing::error!(channel = %self.label, error = %e, "the hand-over thread cannot poll; readers can no longer attach");
-                return;
+                return self.name;
             }
             if !fds[1].revents().is_empty() {
-                return;
+                return self.name;
             }
             while let Ok((stream, _)) = bound.0.accept() {
                 hand_over(&stream, &self.data, &self.bell);
+            }
+            if !self.name.keep_in_place() {
+                tracing::error!(channel = %self.label, "the channel's name lock was removed and another writer took the name; this writer's readers stay with it, new readers go to the other");
             }
             if path_identity(&self.path) != Some(bound.1) {
                 match bind(&self.path, self.mode) {

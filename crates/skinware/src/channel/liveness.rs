@@ -90,6 +90,8 @@ impl NameRecord {
 pub(crate) struct NameLock {
     file: File,
     path: PathBuf,
+    /// What this writer recorded, to record again if the file is replaced.
+    written: NameRecord,
 }
 
 impl NameLock {
@@ -114,7 +116,7 @@ impl NameLock {
                 return Err(Error::Busy { channel: label.to_owned(), pid });
             }
             if path_identity(&path) == Some(file_identity(&file, &path)?) {
-                return Ok(NameLock { file, path });
+                return Ok(NameLock { file, path, written: NameRecord::default() });
             }
         }
         Err(os_error("lock", io::ErrorKind::ResourceBusy.into()))
@@ -126,7 +128,8 @@ impl NameLock {
     }
 
     /// Records the new writer.
-    pub fn write_record(&self, record: NameRecord) -> Result<()> {
+    pub fn write_record(&mut self, record: NameRecord) -> Result<()> {
+        self.written = record;
         let mut bytes = [0u8; NameRecord::BYTES];
         bytes[..8].copy_from_slice(&record.generation.to_le_bytes());
         bytes[8..12].copy_from_slice(&record.writer_pid.to_le_bytes());
@@ -135,6 +138,32 @@ impl NameLock {
             path: self.path.clone(),
             source,
         })
+    }
+
+    /// Puts the lock file back if someone removed or replaced it (the lock
+    /// on an unlinked file keeps nobody out), and takes it again. Returns
+    /// whether this writer still owns the name.
+    pub fn keep_in_place(&mut self) -> bool {
+        let in_place = match file_identity(&self.file, &self.path) {
+            Ok(ours) => path_identity(&self.path) == Some(ours),
+            Err(_) => false,
+        };
+        if in_place {
+            return true;
+        }
+        let Some(dir) = self.path.parent() else { return false };
+        let Some(name) = self.path.file_name().and_then(|n| n.to_str()) else { return false };
+        let Some((skin, channel)) = name.strip_prefix(shm::LOCK_PREFIX).and_then(|rest| rest.split_once('.')) else {
+            return false;
+        };
+        match NameLock::acquire(dir, skin, channel, &super::label(skin, channel)) {
+            Ok(mut again) => {
+                let _ = again.write_record(self.written);
+                *self = again;
+                true
+            }
+            Err(_) => false,
+        }
     }
 
     /// Removes the name (its socket and lock file) while still holding it.

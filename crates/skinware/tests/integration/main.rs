@@ -7,8 +7,10 @@
 #![allow(clippy::disallowed_types)]
 
 mod alloc_bound;
+mod attacks;
 mod bad_input;
 mod driver;
 mod exchange;
+mod permissions;
 mod util;
 mod wire;
