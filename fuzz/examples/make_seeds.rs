@@ -58,10 +58,36 @@ fn main() {
 
     let dir = std::env::temp_dir().join(format!("skinware-seeds-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let options = WriterOptions { dir: Some(dir.clone()), unlink_on_drop: false, ..WriterOptions::default() };
+    let options = WriterOptions { dir: Some(dir.clone()), ..WriterOptions::default() };
     let mut writer = Writer::create("fuzz", "layer", topology.frame_bytes(), &topology.encode(), &options).unwrap();
     writer.publish_bytes(&vec![7; topology.frame_bytes()], skinware::FrameStatus::OK).unwrap();
+    // The target's input: a byte choosing sealed memory (even), then the frames memory.
+    let mut seed = vec![0u8];
+    seed.extend(frames_memory(&dir.join("skinware.fuzz.layer")));
+    write("channel_header", "layer", &seed);
     drop(writer);
-    write("channel_header", "layer", &std::fs::read(dir.join("skinware.fuzz.layer")).unwrap());
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The frames memory a live writer hands over on its socket, as a reader gets it.
+fn frames_memory(socket: &std::path::Path) -> Vec<u8> {
+    use rustix::net::{RecvAncillaryBuffer, RecvAncillaryMessage, RecvFlags};
+    use std::os::unix::fs::FileExt;
+    let stream = std::os::unix::net::UnixStream::connect(socket).unwrap();
+    let mut greeting = [0u8; 16];
+    let mut space = [std::mem::MaybeUninit::uninit(); rustix::cmsg_space!(ScmRights(2))];
+    let mut control = RecvAncillaryBuffer::new(&mut space);
+    rustix::net::recvmsg(&stream, &mut [std::io::IoSliceMut::new(&mut greeting)], &mut control, RecvFlags::empty())
+        .unwrap();
+    let data = control
+        .drain()
+        .find_map(|message| match message {
+            RecvAncillaryMessage::ScmRights(mut rights) => rights.next(),
+            _ => None,
+        })
+        .expect("the writer handed over its memory");
+    let file = std::fs::File::from(data);
+    let mut bytes = vec![0u8; file.metadata().unwrap().len() as usize];
+    file.read_exact_at(&mut bytes, 0).unwrap();
+    bytes
 }

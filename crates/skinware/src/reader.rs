@@ -103,6 +103,24 @@ impl Reader {
                 pid: header.writer_pid.load(Ordering::Relaxed),
             });
         }
+        Reader::attach(shared, skin, channel, dir, options)
+    }
+
+    /// A reader of memory handed over by whoever the caller got it from:
+    /// what the fuzz target opens arbitrary bytes with, without a socket
+    /// round trip per input. Only in fuzzing builds.
+    #[cfg(fuzzing)]
+    #[doc(hidden)]
+    pub fn from_memory(data: std::os::fd::OwnedFd, bell: std::os::fd::OwnedFd) -> Result<Reader> {
+        let dir = std::env::temp_dir();
+        let shared = segment::map_received("fuzz/layer".into(), dir.join("fuzz"), data, bell)?;
+        let options = ReaderOptions { allow_gone: true, ..ReaderOptions::default() };
+        Reader::attach(shared, "fuzz", "layer", dir, &options)
+    }
+
+    /// Checks what a reader was handed and starts reading it.
+    fn attach(shared: Shared, skin: &str, channel: &str, dir: PathBuf, options: &ReaderOptions) -> Result<Reader> {
+        let header = shared.header();
         if let Some((expected, expected_version)) = &options.expect_schema {
             let found = layout::decode_schema(&header.schema_name);
             let found_version = header.schema_version.load(Ordering::Relaxed);
