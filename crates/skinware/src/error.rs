@@ -96,7 +96,7 @@ pub enum Error {
 
     /// A file under a channel's name that is not a channel's socket.
     #[error(
-        "{path} is a {found}, not the socket of a skinware channel; it may be a channel file of an older skinware (remove it with `skin clean --all`) or belong to something else: remove it by hand if it is yours, or pick another name for channel {channel}"
+        "{path} is a {found}, not the socket of a skinware channel; it may be a channel file of an older skinware (remove it with `skin clean --force`) or belong to something else: remove it by hand if it is yours, or pick another name for channel {channel}"
     )]
     NotAChannel {
         /// `skin/channel`.

@@ -5,7 +5,7 @@ use anyhow::Result;
 /// Arguments of `skin clean`.
 #[derive(clap::Args)]
 pub struct Args {
-    /// Also remove unusable files named like channels (corrupt, foreign, other ABI versions).
+    /// Also remove files named like channels that are not channel sockets (files of older skinware versions, foreign files).
     #[arg(long)]
     force: bool,
 }

@@ -39,7 +39,7 @@ fn a_regular_file_under_a_channel_name() {
     std::fs::write(dir.segment("skin", "old"), vec![0x42; 20_000]).unwrap();
     let err = open(&dir, "skin", "old").unwrap_err();
     assert!(matches!(err, Error::NotAChannel { found: "regular file", .. }), "{err}");
-    assert!(err.to_string().contains("skin clean --all"), "{err}");
+    assert!(err.to_string().contains("skin clean --force"), "{err}");
     // A writer does not replace it either.
     let err = Writer::create("skin", "old", 8, b"", &dir.writer()).unwrap_err();
     assert!(matches!(err, Error::NotAChannel { .. }), "{err}");
