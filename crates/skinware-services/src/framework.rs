@@ -184,7 +184,7 @@ pub struct StepOutcome {
 }
 
 impl<T: ServicePayload> ServiceWriter<T> {
-    /// Creates (or revives) the service channel `skin`/`spec.name`.
+    /// Creates the service channel (taking over the name of a dead writer's) `skin`/`spec.name`.
     /// `options`' kind, schema and period are set from the spec and `T`.
     pub fn create(skin: &str, spec: &ServiceSpec, options: &WriterOptions) -> Result<ServiceWriter<T>> {
         if let Some(label) = spec.labels.iter().find(|l| l.is_empty() || l.chars().any(char::is_whitespace)) {

@@ -58,7 +58,7 @@ pub trait LayerSource: Send {
 /// Errors of the driver handler.
 #[derive(Debug, thiserror::Error)]
 pub enum HandlerError {
-    /// A layer's channel could not be created or revived.
+    /// A layer's channel could not be created.
     #[error("driver {driver}: layer {layer}: {source}")]
     Channel {
         /// Driver name.
@@ -148,7 +148,7 @@ struct LayerWatch {
 }
 
 impl DriverHandler {
-    /// Creates (or revives) every layer's channel under `skin` and starts acquiring.
+    /// Creates every layer's channel (taking over dead writers' names) under `skin` and starts acquiring.
     pub fn start(
         skin: &str,
         mut driver: Box<dyn Driver>,
@@ -234,7 +234,7 @@ fn layer_period(driver: &str, spec: &LayerSpec) -> Result<Option<Duration>, Hand
         .ok_or_else(|| HandlerError::Rate { driver: driver.to_owned(), layer: spec.topology.name.clone(), rate_hz })
 }
 
-/// Creates (or revives) one layer's channel, publishing its topology.
+/// Creates one layer's channel, publishing its topology.
 fn create_layer_writer(
     skin: &str,
     driver: &str,
@@ -247,7 +247,7 @@ fn create_layer_writer(
         period: layer_period(driver, spec)?,
         access: options.access,
         // Until every layer has started, a failure must not remove a
-        // channel that readers of a revived layer are attached to.
+        // channel name that readers of a restarted layer wait on.
         unlink_on_drop: false,
         dir: options.dir.clone(),
         ..WriterOptions::default()

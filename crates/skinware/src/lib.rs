@@ -9,13 +9,15 @@
 //! as it is published ([`Reader::wait_newer`]) or on request
 //! ([`Reader::latest`], [`Reader::request`]).
 //!
-//! * The writer is wait-free and reads nothing readers write: its cost per frame
-//!   does not depend on how many readers exist or what they do.
+//! * The writer is wait-free and nothing readers write decides what it does:
+//!   its cost per frame does not depend on how many readers exist or what they
+//!   do. Readers get the frames read-only, in sealed memory nobody can truncate
+//!   (`docs/security.md`).
 //! * Readers are lock-free, never see a torn frame, and keep no state in shared
 //!   memory on the data path: a reader killed or stopped mid-read harms no one.
 //! * A writer holds an open-file-description lock that the kernel drops when
-//!   its process dies, so readers can tell a gone writer; a new writer with the
-//!   same layout revives the channel and readers continue on it.
+//!   its process dies, so readers can tell a gone writer; a new writer takes
+//!   the channel's name and readers follow it.
 //!
 //! ```
 //! use std::time::Duration;

@@ -256,7 +256,7 @@ impl Reader {
         self.shared.header().writer_pid.load(Ordering::Relaxed)
     }
 
-    /// How many writers have owned the channel (revivals add one each).
+    /// How many writers have owned the channel (each successor under the name adds one).
     pub fn writer_generation(&self) -> u64 {
         self.shared.header().generation.load(Ordering::Relaxed)
     }

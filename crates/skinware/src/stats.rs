@@ -68,7 +68,7 @@ impl std::fmt::Display for WriterState {
 /// A snapshot of a writer's statistics, read from shared memory.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct WriterStats {
-    /// Frames published since the channel was created (across revivals).
+    /// Frames published since the channel was created.
     pub frames: u64,
     /// Periods whose work did not finish before the next deadline.
     pub overruns: u64,

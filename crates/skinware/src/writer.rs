@@ -1,4 +1,5 @@
-//! The writer: creates (or revives) a channel and publishes frames into it.
+//! The writer: creates a channel (taking over a dead writer's name) and
+//! publishes frames into it.
 
 #![forbid(unsafe_code)]
 

@@ -1,6 +1,7 @@
 //! `skin run CONFIG`: the supervisor. Each driver runs in its own process, so
 //! that a crash stays contained; a driver that exits is restarted with
-//! exponential backoff, and its layers are revived by the new process. A
+//! exponential backoff; the new process takes over its layers' names and
+//! their readers follow it. A
 //! driver or service that lives but has hung (no frame and no failed
 //! acquisition on any of its periodic channels for 20 periods, and at least
 //! 1 s) is killed and restarted the same way.

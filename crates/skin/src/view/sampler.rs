@@ -240,7 +240,7 @@ impl LayerJob {
                     }
                 }
                 Err(Error::Stopped { .. }) => return,
-                // A gone writer may come back (revival): keep waiting for it.
+                // A gone writer may have a successor under the same name, which the reader follows: keep waiting.
                 Err(Error::Timeout { .. } | Error::NoFrameYet { .. } | Error::WriterGone { .. }) => {}
                 Err(e) => {
                     tracing::debug!(layer = %self.name, "read failed: {e}");

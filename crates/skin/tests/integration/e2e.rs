@@ -187,7 +187,7 @@ fn a_driver_whose_supervisor_died_before_it_could_watch_it_exits() {
 }
 
 /// Step 1: SIGKILL the victim's driver process: the supervisor starts a new one,
-/// which revives the channel for the same reader; the steady layers go on.
+/// whose new channel the same reader follows; the steady layers go on.
 fn sigkill_the_victims_driver(steady: &[Reader], victim: &mut Reader, first: u64) {
     let before = steady_counts(steady);
     let began = Instant::now();

@@ -189,7 +189,7 @@ fn motion_sees_the_forearm_slide(dir: &Path) -> ServiceReader<MotionRecord> {
 }
 
 /// SIGKILL the contact service: motion reports its input down, then the
-/// supervisor's new contact process revives the channel and motion recovers.
+/// supervisor's new contact process takes the channel's name, motion follows it and recovers.
 fn killed_contact_service_is_reported_and_restarted(
     contact: &serde_json::Value,
     motion_reader: &mut ServiceReader<MotionRecord>,

@@ -96,7 +96,7 @@ pub(crate) struct Header {
     pub state: AtomicU32,
     /// Nominal period of the writer in ns; 0 for a sporadic writer.
     pub period_ns: AtomicU64,
-    /// How many writers have owned the channel; revival increments it.
+    /// How many writers have owned the channel's name, this one included.
     pub generation: AtomicU64,
     /// CLOCK_MONOTONIC ns of the last state change.
     pub state_changed_ns: AtomicU64,
