@@ -5,10 +5,12 @@
 //!   L layers, with pressure blobs that press, slide and release, noise, slow
 //!   baseline drift, and cable pulls on a schedule or on command.
 //!
-//! No cargo features yet; UDP, serial and SocketCAN drivers come later.
+//! * [`can`]: CAN frames and the codecs of the transports real skins use
+//!   (SLCAN, cannelloni, `candump` logs).
 
 #![forbid(unsafe_code)]
 
+pub mod can;
 pub mod virtual_skin;
 
 pub use virtual_skin::{CablePull, InvalidConfig, Rate, ScriptedContact, VirtualBody, VirtualSkin, VirtualSkinConfig};

@@ -1,0 +1,19 @@
+//! Real skins on a CAN bus: the frame vocabulary and the codecs of the
+//! transports labs plug in.
+//!
+//! * [`CanFrame`]: one classic frame, an `embedded_can::Frame`;
+//! * [`slcan`]: the Lawicel ASCII protocol of USB-serial adapters;
+//! * [`cannelloni`]: CAN frames in UDP datagrams;
+//! * [`candump`]: the `candump -l` log format, to record real traffic once
+//!   and replay it.
+//!
+//! Every decoder here takes bytes from a device, a network or a file, so each
+//! is total: any input gives frames or a typed error (property-tested), and
+//! nothing it allocates is sized by a number in the input.
+
+pub mod candump;
+pub mod cannelloni;
+mod frame;
+pub mod slcan;
+
+pub use frame::CanFrame;
