@@ -5,7 +5,10 @@
 //! * [`slcan`]: the Lawicel ASCII protocol of USB-serial adapters;
 //! * [`cannelloni`]: CAN frames in UDP datagrams;
 //! * [`candump`]: the `candump -l` log format, to record real traffic once
-//!   and replay it.
+//!   and replay it;
+//! * the skins' own protocols, each a pure decoder from frames to taxel
+//!   values plus what the host must send: [`icub_mtb`] (iCub's MTB boards),
+//!   [`cyskin`] (CySkin CPM patches) and [`xela`] (XELA uSkin, 3 axes).
 //!
 //! Every decoder here takes bytes from a device, a network or a file, so each
 //! is total: any input gives frames or a typed error (property-tested), and
@@ -13,7 +16,10 @@
 
 pub mod candump;
 pub mod cannelloni;
+pub mod cyskin;
 mod frame;
+pub mod icub_mtb;
 pub mod slcan;
+pub mod xela;
 
 pub use frame::CanFrame;
