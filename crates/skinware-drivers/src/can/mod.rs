@@ -2,6 +2,8 @@
 //! transports labs plug in.
 //!
 //! * [`CanFrame`]: one classic frame, an `embedded_can::Frame`;
+//! * [`CanBus`]: a source and sink of frames, opened from a URL by [`open`]
+//!   (SocketCAN, SLCAN, cannelloni, `candump` replay);
 //! * [`slcan`]: the Lawicel ASCII protocol of USB-serial adapters;
 //! * [`cannelloni`]: CAN frames in UDP datagrams;
 //! * [`candump`]: the `candump -l` log format, to record real traffic once
@@ -14,12 +16,22 @@
 //! is total: any input gives frames or a typed error (property-tested), and
 //! nothing it allocates is sized by a number in the input.
 
+mod bus;
 pub mod candump;
 pub mod cannelloni;
 pub mod cyskin;
 mod frame;
 pub mod icub_mtb;
+mod kernel;
+mod replay;
+mod serial;
 pub mod slcan;
+mod udp;
 pub mod xela;
 
+pub use bus::{BusError, CanBus, open};
 pub use frame::CanFrame;
+pub use kernel::SocketCanBus;
+pub use replay::CandumpReplay;
+pub use serial::SlcanBus;
+pub use udp::CannelloniBus;
