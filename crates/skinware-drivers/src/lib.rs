@@ -13,4 +13,6 @@
 pub mod can;
 pub mod virtual_skin;
 
-pub use virtual_skin::{CablePull, InvalidConfig, Rate, ScriptedContact, VirtualBody, VirtualSkin, VirtualSkinConfig};
+pub use virtual_skin::{
+    CablePull, InvalidConfig, PressureField, Rate, ScriptedContact, VirtualBody, VirtualSkin, VirtualSkinConfig,
+};

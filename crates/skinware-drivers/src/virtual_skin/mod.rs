@@ -288,6 +288,55 @@ struct VirtualLayer {
     responses: Vec<u16>,
 }
 
+/// The responses of the sensors at `places` at `t` seconds, before noise: a
+/// baseline of about 1000 with a slow drift, plus the contacts' pressure.
+fn pressures(t: f64, places: &[SensorPlace], contacts: &Contacts, responses: &mut [u16]) {
+    for (response, place) in responses.iter_mut().zip(places) {
+        // Baseline with a slow drift, different per sensor.
+        let drift = 40.0 * (0.05 * t + place.angle + place.height * 7.0).sin();
+        *response = (1000.0 + drift) as u16;
+    }
+    contacts.press(t, places, responses);
+}
+
+/// The virtual body's moving contacts as a field of pressures, for software
+/// skin boards (`skin emulate`) whose taxels should feel what the virtual
+/// skin's do.
+#[derive(Debug)]
+pub struct PressureField {
+    body: VirtualBody,
+    contacts: Contacts,
+}
+
+/// The baseline response of an untouched virtual taxel.
+pub const BASELINE: u16 = 1000;
+
+impl PressureField {
+    /// A body of `sensors` taxels, with random contacts drawn from `seed`
+    /// for the next `horizon_s` seconds.
+    pub fn new(sensors: usize, seed: u64, horizon_s: f64) -> PressureField {
+        PressureField { body: VirtualBody::new(sensors), contacts: Contacts::new(seed, horizon_s, &[], true) }
+    }
+
+    /// Taxels on the body.
+    pub fn len(&self) -> usize {
+        self.body.places.len()
+    }
+
+    /// Whether the body has no taxel.
+    pub fn is_empty(&self) -> bool {
+        self.body.places.is_empty()
+    }
+
+    /// Responses of taxels `first..first + out.len()` at `t` seconds: about
+    /// [`BASELINE`] untouched, up to 65,535 under a hard press.
+    pub fn responses(&self, t: f64, first: usize, out: &mut [u16]) {
+        let end = (first + out.len()).min(self.body.places.len());
+        let places = self.body.places.get(first..end).unwrap_or(&[]);
+        pressures(t, places, &self.contacts, &mut out[..places.len()]);
+    }
+}
+
 impl LayerSource for VirtualLayer {
     fn acquire(&mut self, frame: &mut FrameWriter<'_>) -> Result<(), DriverError> {
         let t = self.started.elapsed().as_secs_f64();
@@ -295,12 +344,7 @@ impl LayerSource for VirtualLayer {
             return Err(format!("cable pulled: layer {} does not answer", self.name).into());
         }
         let places = &self.body.places[self.sensors.clone()];
-        for (response, place) in self.responses.iter_mut().zip(places) {
-            // Baseline with a slow drift, different per sensor.
-            let drift = 40.0 * (0.05 * t + place.angle + place.height * 7.0).sin();
-            *response = (1000.0 + drift) as u16;
-        }
-        self.contacts.press(t, places, &mut self.responses);
+        pressures(t, places, &self.contacts, &mut self.responses);
         for response in self.responses.iter_mut() {
             let noise = (self.noise.next() % 17) as i32 - 8;
             *response = (i32::from(*response) + noise).clamp(0, i32::from(u16::MAX)) as u16;
