@@ -15,7 +15,7 @@
 mod mtb;
 mod slcan_device;
 
-pub use mtb::{MtbBoards, MtbFaults, run_mtb};
+pub use mtb::{MtbBoards, MtbFaults, Touch, contacts, raw_value, run_mtb};
 pub use slcan_device::SlcanDevice;
 
 use skinware_drivers::can::CanFrame;

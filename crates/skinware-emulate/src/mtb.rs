@@ -133,14 +133,22 @@ pub fn raw_value(response: u16, no_load: u8) -> u8 {
     no_load.saturating_sub(pressed.min(255) as u8)
 }
 
+/// What the emulated taxels feel: fills the bus's responses (virtual
+/// responses, [`BASELINE`] untouched) for a time in seconds since the start.
+pub type Touch<'a> = &'a (dyn Fn(f64, &mut [u16]) + Sync);
+
+/// The virtual body's moving contacts as a [`Touch`].
+pub fn contacts(field: &PressureField) -> impl Fn(f64, &mut [u16]) + Sync + '_ {
+    move |t, responses| field.responses(t, 0, responses)
+}
+
 /// Runs `boards` on `link` until `stop` returns true: obeys the host, and
-/// each period sends the frames of the taxels `field` says are pressed
-/// (taxel `i` of the bus is taxel `i` of the field). If `log` is given,
-/// every frame sent is written to it as a `candump -l` line.
+/// each period sends the frames of what `touch` says the taxels feel. If
+/// `log` is given, every frame sent is written to it as a `candump -l` line.
 pub fn run_mtb(
     boards: &mut MtbBoards,
     link: &mut dyn DeviceLink,
-    field: &PressureField,
+    touch: Touch<'_>,
     mut log: Option<&mut dyn Write>,
     stop: &dyn Fn() -> bool,
 ) -> std::io::Result<u64> {
@@ -164,7 +172,7 @@ pub fn run_mtb(
         if next < Instant::now() {
             next = Instant::now() + period;
         }
-        field.responses(started.elapsed().as_secs_f64(), 0, &mut responses);
+        touch(started.elapsed().as_secs_f64(), &mut responses);
         let wall_us = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map(|d| d.as_micros() as u64)

@@ -55,10 +55,9 @@ impl DeviceLink for SlcanDevice {
         let deadline = Instant::now() + timeout;
         let mut frames = Vec::new();
         loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                return Ok(frames);
-            }
+            // At least one read, however short the wait: a caller polling
+            // with no time to spare must still hear the host.
+            let left = deadline.saturating_duration_since(Instant::now()).max(Duration::from_millis(1));
             let _ = self.master.set_timeout(left);
             let read = match self.master.read(&mut self.buffer) {
                 Ok(n) => n,
@@ -90,6 +89,9 @@ impl DeviceLink for SlcanDevice {
                     }
                     Event::Ok | Event::Refused | Event::Transmitted | Event::Garbled { .. } => {}
                 }
+            }
+            if Instant::now() >= deadline {
+                return Ok(frames);
             }
         }
     }

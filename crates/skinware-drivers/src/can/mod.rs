@@ -20,6 +20,7 @@ mod bus;
 pub mod candump;
 pub mod cannelloni;
 pub mod cyskin;
+pub mod driver;
 mod frame;
 pub mod icub_mtb;
 mod kernel;

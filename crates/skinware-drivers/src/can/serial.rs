@@ -113,11 +113,11 @@ impl CanBus for SlcanBus {
             if let Some(frame) = self.received.pop_front() {
                 return Ok(Some(frame));
             }
-            let now = Instant::now();
-            if now >= deadline {
+            // At least one read, even with no time to wait.
+            self.fill(deadline.saturating_duration_since(Instant::now()))?;
+            if self.received.is_empty() && Instant::now() >= deadline {
                 return Ok(None);
             }
-            self.fill(deadline - now)?;
         }
     }
 

@@ -79,19 +79,31 @@ impl CanBus for CannelloniBus {
             if let Some(frame) = self.received.pop_front() {
                 return Ok(Some(frame));
             }
-            let now = Instant::now();
-            if now >= deadline {
-                return Ok(None);
-            }
-            let _ = self.socket.set_read_timeout(Some((deadline - now).max(Duration::from_micros(100))));
+            // At least one read, even with no time to wait.
+            let left = deadline.saturating_duration_since(Instant::now()).max(Duration::from_micros(100));
+            let _ = self.socket.set_read_timeout(Some(left));
+            let waited_out = || Instant::now() >= deadline;
             let (len, from) = match self.socket.recv_from(&mut self.buffer) {
                 Ok(received) => received,
-                Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => continue,
+                Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {
+                    if waited_out() {
+                        return Ok(None);
+                    }
+                    continue;
+                }
                 // The peer's port was closed (ICMP unreachable after a send): it is not there yet.
-                Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => continue,
+                Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => {
+                    if waited_out() {
+                        return Ok(None);
+                    }
+                    continue;
+                }
                 Err(source) => return Err(BusError::Lost { url: self.url.clone(), source }),
             };
             if from.ip() != self.peer.ip() {
+                if waited_out() && self.received.is_empty() {
+                    return Ok(None);
+                }
                 continue;
             }
             match cannelloni::decode(&self.buffer[..len]) {
@@ -106,6 +118,9 @@ impl CanBus for CannelloniBus {
                     self.rejected_datagrams += 1;
                     tracing::debug!(url = %self.url, error = %e, "datagram refused");
                 }
+            }
+            if waited_out() && self.received.is_empty() {
+                return Ok(None);
             }
         }
     }

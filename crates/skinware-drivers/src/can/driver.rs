@@ -1,0 +1,470 @@
+//! The CAN skin driver: one layer fed by one bus, in one of the skins'
+//! protocols. A bus thread receives frames, decodes them and keeps the newest
+//! value of every taxel with the time its module was last complete; each
+//! acquisition copies that image, or fails (faulting the layer) when the link
+//! is lost or a module has not been complete for 1.5 periods. The bus thread
+//! reopens a lost link on its own, with backoff, and sends the protocol's
+//! start-up commands again.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use skinware::driver::{Driver, DriverError, LayerSource, LayerSpec};
+use skinware::{FrameWriter, LayerTopology, RtOptions, TopologyBuilder};
+
+use super::icub_mtb::{self, Board, BoardSettings, Message};
+use super::{BusError, CanBus, CanFrame, cyskin, xela};
+
+/// Which protocol the bus speaks, with its settings.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Protocol {
+    /// iCub MTB boards.
+    IcubMtb {
+        /// The boards and their triangles, in layer order.
+        boards: Vec<Board>,
+        /// What the host configures them with.
+        settings: BoardSettings,
+    },
+    /// CySkin CPM patches, by the identifier of each one's first frame.
+    CySkin {
+        /// One base identifier per patch, in layer order.
+        base_ids: Vec<u16>,
+    },
+    /// A XELA uSkin board, polled once per acquisition.
+    Xela {
+        /// Its address.
+        board: u8,
+        /// Its taxels (16 on a 4×4 board).
+        taxels: usize,
+    },
+}
+
+/// A CAN skin driver's settings.
+#[derive(Clone, Debug)]
+pub struct CanDriverConfig {
+    /// Driver name, for logs.
+    pub name: String,
+    /// The layer (channel) it publishes.
+    pub layer: String,
+    /// The bus URL (`slcan:///dev/ttyACM0?bitrate=1000000`, …).
+    pub interface: String,
+    /// The protocol.
+    pub protocol: Protocol,
+    /// Acquisitions per second.
+    pub rate_hz: f64,
+    /// Real-time settings of the layer's writer thread.
+    pub rt: RtOptions,
+}
+
+/// A module is stale once it has not been complete for this many periods.
+const STALE_PERIODS: f64 = 1.5;
+const RECEIVE_SLICE: Duration = Duration::from_millis(5);
+const MAX_BACKOFF: Duration = Duration::from_secs(2);
+/// A bus without a frame this long has its devices configured again.
+const RESTART_AFTER_QUIET: Duration = Duration::from_millis(500);
+
+impl CanDriverConfig {
+    /// The layer's topology: MTB boards are patches and triangles modules;
+    /// CySkin patches are patches of one 16-taxel module; a XELA board is a
+    /// patch whose taxels are modules of three sensors (X, Y, Z).
+    pub fn topology(&self) -> Result<LayerTopology, String> {
+        let mut builder = TopologyBuilder::new(&self.layer, "pressure", self.rate_hz);
+        match &self.protocol {
+            Protocol::IcubMtb { boards, .. } => {
+                if boards.is_empty() {
+                    return Err("no boards: list at least one `[[driver.board]]` with its address and triangles".into());
+                }
+                for board in boards {
+                    if !(1..=15).contains(&board.address) {
+                        return Err(format!("board address {} is not 1 to 15", board.address));
+                    }
+                    builder.patch(u32::from(board.address));
+                    for &triangle in &board.triangles {
+                        if triangle > 15 {
+                            return Err(format!("board {}: triangle {triangle} is not 0 to 15", board.address));
+                        }
+                        let base = u32::from(board.address) << 8 | u32::from(triangle) << 4;
+                        builder.module(u32::from(board.address) << 4 | u32::from(triangle), (0..12).map(|k| base | k));
+                    }
+                }
+            }
+            Protocol::CySkin { base_ids } => {
+                for (i, &base) in base_ids.iter().enumerate() {
+                    if base > 0x7F9 {
+                        return Err(format!(
+                            "CySkin base identifier {base:#x} leaves no room for its 4 frames below 0x800"
+                        ));
+                    }
+                    builder.patch(i as u32 + 1);
+                    builder.module(u32::from(base), (0..cyskin::TAXELS as u32).map(|t| u32::from(base) << 4 | t));
+                }
+            }
+            Protocol::Xela { board, taxels } => {
+                if *taxels == 0 || *taxels > xela::MAX_TAXELS {
+                    return Err(format!("a XELA board has 1 to {} taxels, not {taxels}", xela::MAX_TAXELS));
+                }
+                builder.patch(u32::from(*board));
+                for taxel in 0..*taxels as u32 {
+                    builder.module(taxel, (0..xela::AXES as u32).map(|axis| taxel << 2 | axis));
+                }
+            }
+        }
+        builder.build().map_err(|e| e.to_string())
+    }
+}
+
+/// The newest image of the layer, written by the bus thread.
+struct Image {
+    values: Vec<u16>,
+    /// When each module was last complete (`None`: never).
+    complete_at: Vec<Option<Instant>>,
+    /// A module's own error report (an MTB tail's error nibble), if any.
+    module_error: Vec<u8>,
+    /// Why the link is down, while it is.
+    link_down: Option<String>,
+}
+
+/// The CAN skin driver.
+pub struct CanDriver {
+    config: CanDriverConfig,
+    topology: LayerTopology,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl CanDriver {
+    /// Checks the settings and builds the topology; nothing is opened yet.
+    pub fn new(config: CanDriverConfig) -> Result<CanDriver, String> {
+        if !(config.rate_hz.is_finite() && config.rate_hz > 0.0) {
+            return Err(format!("rate {} Hz: give a positive rate", config.rate_hz));
+        }
+        super::bus::BusUrl::parse(&config.interface).map_err(|e| e.to_string())?;
+        let topology = config.topology()?;
+        Ok(CanDriver { config, topology, stop: Arc::new(AtomicBool::new(false)), thread: None })
+    }
+}
+
+impl Driver for CanDriver {
+    fn name(&self) -> &str {
+        &self.config.name
+    }
+
+    fn layers(&self) -> Vec<LayerSpec> {
+        vec![LayerSpec { topology: self.topology.clone(), rt: self.config.rt.clone() }]
+    }
+
+    fn start(&mut self) -> Result<Vec<Box<dyn LayerSource>>, DriverError> {
+        let bus = super::open(&self.config.interface)?;
+        let modules = self.topology.modules.len();
+        let image = Arc::new(Mutex::new(Image {
+            values: vec![0; self.topology.sensors.len()],
+            complete_at: vec![None; modules],
+            module_error: vec![0; modules],
+            link_down: None,
+        }));
+        self.stop.store(false, Ordering::Relaxed);
+        let mut link = Link {
+            bus: Some(bus),
+            config: self.config.clone(),
+            image: image.clone(),
+            stop: self.stop.clone(),
+            decoder: Decoder::new(&self.config.protocol, &self.topology),
+        };
+        link.start_devices();
+        self.thread = Some(
+            std::thread::Builder::new()
+                .name(format!("can-{}", self.config.layer))
+                .spawn(move || link.run())
+                .map_err(|e| format!("cannot start the bus thread: {e}"))?,
+        );
+        let period = Duration::from_secs_f64(1.0 / self.config.rate_hz);
+        Ok(vec![Box::new(CanLayer {
+            image,
+            topology: self.topology.clone(),
+            stale_after: period.mul_f64(STALE_PERIODS),
+        })])
+    }
+
+    fn stop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
+/// Turns frames into taxel values for the image.
+struct Decoder {
+    protocol: Protocol,
+    /// MTB: (board, triangle) → module index; pending heads per module.
+    mtb_modules: std::collections::HashMap<(u8, u8), usize>,
+    pending_heads: Vec<Option<[u8; 7]>>,
+    /// CySkin: quarters seen of the current sample, per patch.
+    cyskin_samples: Vec<([u16; cyskin::TAXELS], u8)>,
+}
+
+impl Decoder {
+    fn new(protocol: &Protocol, topology: &LayerTopology) -> Decoder {
+        let mut mtb_modules = std::collections::HashMap::new();
+        if let Protocol::IcubMtb { .. } = protocol {
+            for (index, module) in topology.modules.iter().enumerate() {
+                mtb_modules.insert(((module.id >> 4) as u8, (module.id & 0xF) as u8), index);
+            }
+        }
+        let cyskin_patches = if let Protocol::CySkin { base_ids } = protocol { base_ids.len() } else { 0 };
+        Decoder {
+            protocol: protocol.clone(),
+            mtb_modules,
+            pending_heads: vec![None; topology.modules.len()],
+            cyskin_samples: vec![([0; cyskin::TAXELS], 0); cyskin_patches],
+        }
+    }
+
+    /// Applies one frame to the image.
+    fn apply(&mut self, frame: &CanFrame, image: &mut Image, topology_modules: &[std::ops::Range<usize>]) {
+        let now = Instant::now();
+        match &self.protocol {
+            Protocol::IcubMtb { settings: _, .. } => match icub_mtb::parse(frame) {
+                Message::Head { board, triangle, raw } => {
+                    if let Some(&module) = self.mtb_modules.get(&(board, triangle)) {
+                        self.pending_heads[module] = Some(raw);
+                    }
+                }
+                Message::Tail { board, triangle, raw, error, .. } => {
+                    let Some(&module) = self.mtb_modules.get(&(board, triangle)) else { return };
+                    // A tail without its head completes nothing.
+                    let Some(head) = self.pending_heads[module].take() else { return };
+                    let range = topology_modules[module].clone();
+                    for (value, raw) in image.values[range].iter_mut().zip(head.iter().chain(raw.iter())) {
+                        *value = icub_mtb::response(*raw);
+                    }
+                    image.module_error[module] = error;
+                    image.complete_at[module] = Some(now);
+                }
+                Message::Command { .. } | Message::Other => {}
+            },
+            Protocol::CySkin { base_ids } => {
+                for (patch, &base) in base_ids.iter().enumerate() {
+                    let Some(quarter) = cyskin::parse(frame, base) else { continue };
+                    let (taxels, seen) = &mut self.cyskin_samples[patch];
+                    cyskin::place(&quarter, taxels);
+                    *seen |= 1 << quarter.index;
+                    if quarter.index == cyskin::FRAMES - 1 {
+                        if *seen == 0b1111 {
+                            image.values[topology_modules[patch].clone()].copy_from_slice(taxels);
+                            image.complete_at[patch] = Some(now);
+                        }
+                        *seen = 0;
+                    }
+                }
+            }
+            Protocol::Xela { .. } => {
+                if let Some(reading) = xela::parse(frame)
+                    && let Some(range) = topology_modules.get(reading.taxel)
+                {
+                    match reading.axes {
+                        Some(axes) => {
+                            image.values[range.clone()].copy_from_slice(&axes);
+                            image.module_error[reading.taxel] = 0;
+                        }
+                        None => image.module_error[reading.taxel] = 1,
+                    }
+                    image.complete_at[reading.taxel] = Some(now);
+                }
+            }
+        }
+    }
+}
+
+/// The bus thread's state.
+struct Link {
+    bus: Option<Box<dyn CanBus>>,
+    config: CanDriverConfig,
+    image: Arc<Mutex<Image>>,
+    stop: Arc<AtomicBool>,
+    decoder: Decoder,
+}
+
+impl Link {
+    /// Sends what the devices need to start streaming.
+    fn start_devices(&mut self) {
+        let Some(bus) = &mut self.bus else { return };
+        if let Protocol::IcubMtb { boards, settings } = &self.config.protocol {
+            for frame in icub_mtb::start_commands(boards, settings) {
+                if let Err(e) = bus.send(&frame) {
+                    tracing::warn!(url = %bus.url(), error = %e, "cannot send a start-up command");
+                }
+            }
+        }
+    }
+
+    fn run(mut self) {
+        let topology_modules: Vec<std::ops::Range<usize>> = match self.config.topology() {
+            Ok(topology) => topology.modules.iter().map(|m| m.sensors.clone()).collect(),
+            Err(_) => return,
+        };
+        let period = Duration::from_secs_f64(1.0 / self.config.rate_hz);
+        let mut next_poll = Instant::now();
+        let mut backoff = Duration::from_millis(100);
+        // A bus that has gone quiet may have devices that restarted (power
+        // cycled, or an emulator restarted) and wait to be configured again.
+        let mut last_frame = Instant::now();
+        let mut last_restart = Instant::now();
+        while !self.stop.load(Ordering::Relaxed) {
+            let Some(bus) = &mut self.bus else {
+                std::thread::sleep(backoff);
+                match super::open(&self.config.interface) {
+                    Ok(bus) => {
+                        tracing::info!(url = %self.config.interface, "bus reopened");
+                        self.bus = Some(bus);
+                        backoff = Duration::from_millis(100);
+                        self.start_devices();
+                    }
+                    Err(e) => {
+                        self.set_link_down(e.to_string());
+                        backoff = (backoff * 2).min(MAX_BACKOFF);
+                    }
+                }
+                continue;
+            };
+            if let Protocol::Xela { board, .. } = self.config.protocol
+                && Instant::now() >= next_poll
+            {
+                next_poll += period;
+                if let Err(e) = bus.send(&xela::request(board)) {
+                    self.lose(e);
+                    continue;
+                }
+            }
+            let quiet = last_frame.elapsed();
+            if quiet > RESTART_AFTER_QUIET && last_restart.elapsed() > RESTART_AFTER_QUIET {
+                tracing::info!(url = %self.config.interface, quiet_ms = quiet.as_millis() as u64, "bus quiet; configuring the devices again");
+                last_restart = Instant::now();
+                self.start_devices();
+                continue;
+            }
+            match bus.receive(RECEIVE_SLICE) {
+                Ok(Some(frame)) => {
+                    last_frame = Instant::now();
+                    let mut image = self.image.lock().unwrap_or_else(|p| p.into_inner());
+                    image.link_down = None;
+                    self.decoder.apply(&frame, &mut image, &topology_modules);
+                }
+                Ok(None) => {}
+                Err(e) => self.lose(e),
+            }
+        }
+        if let (Some(bus), Protocol::IcubMtb { boards, .. }) = (&mut self.bus, &self.config.protocol) {
+            for frame in icub_mtb::stop_commands(boards) {
+                let _ = bus.send(&frame);
+            }
+        }
+    }
+
+    fn lose(&mut self, error: BusError) {
+        tracing::warn!(url = %self.config.interface, error = %error, "bus lost; reopening");
+        self.set_link_down(error.to_string());
+        self.bus = None;
+    }
+
+    fn set_link_down(&self, why: String) {
+        self.image.lock().unwrap_or_else(|p| p.into_inner()).link_down = Some(why);
+    }
+}
+
+/// The layer's acquisition: a copy of the newest complete image.
+struct CanLayer {
+    image: Arc<Mutex<Image>>,
+    topology: LayerTopology,
+    stale_after: Duration,
+}
+
+impl LayerSource for CanLayer {
+    fn acquire(&mut self, frame: &mut FrameWriter<'_>) -> Result<(), DriverError> {
+        let image = self.image.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(why) = &image.link_down {
+            return Err(why.clone().into());
+        }
+        let now = Instant::now();
+        for (index, module) in self.topology.modules.iter().enumerate() {
+            let patch = self.topology.patches[module.patch].id;
+            match image.complete_at[index] {
+                None => return Err(format!("patch {patch}, module {:#x}: no complete frame yet", module.id).into()),
+                Some(at) if now - at > self.stale_after => {
+                    return Err(format!(
+                        "patch {patch}, module {:#x}: no complete frame for {} ms (silent, or a frame of it lost)",
+                        module.id,
+                        (now - at).as_millis()
+                    )
+                    .into());
+                }
+                Some(_) => {}
+            }
+            if image.module_error[index] != 0 {
+                return Err(format!(
+                    "patch {patch}, module {:#x}: the device reports error {}",
+                    module.id, image.module_error[index]
+                )
+                .into());
+            }
+        }
+        frame.write_responses(0, &image.values)?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mtb(boards: Vec<Board>) -> CanDriverConfig {
+        CanDriverConfig {
+            name: "can".into(),
+            layer: "skin".into(),
+            interface: "slcan:///dev/null".into(),
+            protocol: Protocol::IcubMtb { boards, settings: BoardSettings::default() },
+            rate_hz: 50.0,
+            rt: RtOptions::default(),
+        }
+    }
+
+    #[test]
+    fn mtb_topology_is_boards_and_triangles() {
+        let config = mtb(vec![Board { address: 1, triangles: vec![0, 1] }, Board { address: 3, triangles: vec![7] }]);
+        let topology = config.topology().unwrap();
+        assert_eq!(topology.patches.iter().map(|p| p.id).collect::<Vec<_>>(), [1, 3]);
+        assert_eq!(topology.modules.iter().map(|m| m.id).collect::<Vec<_>>(), [0x10, 0x11, 0x37]);
+        assert_eq!(topology.sensors.len(), 3 * icub_mtb::TAXELS_PER_TRIANGLE);
+        assert_eq!(topology.sensors[35].uid, 0x37B);
+    }
+
+    #[test]
+    fn bad_settings_are_explained() {
+        assert!(mtb(vec![]).topology().unwrap_err().contains("no boards"));
+        assert!(mtb(vec![Board { address: 16, triangles: vec![0] }]).topology().unwrap_err().contains("1 to 15"));
+        assert!(mtb(vec![Board { address: 1, triangles: vec![16] }]).topology().unwrap_err().contains("0 to 15"));
+        let bad_url =
+            CanDriverConfig { interface: "ttyACM0".into(), ..mtb(vec![Board { address: 1, triangles: vec![0] }]) };
+        assert!(CanDriver::new(bad_url).err().unwrap().contains("scheme"));
+    }
+
+    #[test]
+    fn a_triangle_is_complete_only_with_head_and_tail() {
+        let config = mtb(vec![Board { address: 2, triangles: vec![5] }]);
+        let topology = config.topology().unwrap();
+        let modules: Vec<_> = topology.modules.iter().map(|m| m.sensors.clone()).collect();
+        let mut decoder = Decoder::new(&config.protocol, &topology);
+        let mut image = Image { values: vec![0; 12], complete_at: vec![None], module_error: vec![0], link_down: None };
+        let raw: [u8; 12] = std::array::from_fn(|k| 240 - k as u8);
+        let [head, tail] = icub_mtb::triangle_frames(2, 5, &raw, 0, 0);
+        decoder.apply(&tail, &mut image, &modules);
+        assert!(image.complete_at[0].is_none(), "a tail alone");
+        decoder.apply(&head, &mut image, &modules);
+        assert!(image.complete_at[0].is_none(), "a head alone");
+        decoder.apply(&tail, &mut image, &modules);
+        assert!(image.complete_at[0].is_some());
+        assert_eq!(image.values, (0..12).map(|k| 15 + k).collect::<Vec<u16>>());
+    }
+}
