@@ -153,20 +153,19 @@ fn select(selector: &Selector, facts: &[SensorFacts<'_>], chosen: &mut [bool]) -
     if let Selector::Uids { layer: Some(l), .. }
     | Selector::Modules { layer: Some(l), .. }
     | Selector::Patches { layer: Some(l), .. } = selector
+        && !facts.iter().any(|f| f.layer == l)
     {
-        if !facts.iter().any(|f| f.layer == l) {
-            return Err(format!("layer {l:?} does not exist; `skin ls` lists the layers"));
-        }
+        return Err(format!("layer {l:?} does not exist; `skin ls` lists the layers"));
     }
     let mut pick = |what: &str, ids: &[u32], key: &dyn Fn(&SensorFacts<'_>) -> Option<u32>| {
         let wanted: HashMap<u32, bool> = ids.iter().map(|&i| (i, false)).collect();
         let mut wanted = wanted;
         for (k, f) in facts.iter().enumerate() {
-            if let Some(id) = key(f) {
-                if let Some(found) = wanted.get_mut(&id) {
-                    *found = true;
-                    chosen[k] = true;
-                }
+            if let Some(id) = key(f)
+                && let Some(found) = wanted.get_mut(&id)
+            {
+                *found = true;
+                chosen[k] = true;
             }
         }
         let mut missing: Vec<u32> = wanted.into_iter().filter(|(_, f)| !f).map(|(i, _)| i).collect();

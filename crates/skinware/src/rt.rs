@@ -169,23 +169,22 @@ impl RtOptions {
     /// message, so the caller can warn once and carry on.
     pub fn apply(&self) -> Vec<String> {
         let mut refused = Vec::new();
-        if let Some(priority) = self.fifo_priority {
-            if let Err(e) = os::set_fifo_priority(priority) {
-                refused.push(format!(
+        if let Some(priority) = self.fifo_priority
+            && let Err(e) = os::set_fifo_priority(priority)
+        {
+            refused.push(format!(
                     "SCHED_FIFO priority {priority} refused ({e}); running in the normal scheduler (run as root or grant CAP_SYS_NICE / an rtprio limit)"
                 ));
-            }
         }
-        if self.lock_memory {
-            if let Err(e) = os::lock_memory() {
-                refused
-                    .push(format!("mlockall refused ({e}); memory may be paged (raise RLIMIT_MEMLOCK or run as root)"));
-            }
+        if self.lock_memory
+            && let Err(e) = os::lock_memory()
+        {
+            refused.push(format!("mlockall refused ({e}); memory may be paged (raise RLIMIT_MEMLOCK or run as root)"));
         }
-        if !self.cpus.is_empty() {
-            if let Err(e) = os::pin_to_cpus(&self.cpus) {
-                refused.push(format!("pinning to CPUs {:?} refused ({e}); the thread may run on any CPU", self.cpus));
-            }
+        if !self.cpus.is_empty()
+            && let Err(e) = os::pin_to_cpus(&self.cpus)
+        {
+            refused.push(format!("pinning to CPUs {:?} refused ({e}); the thread may run on any CPU", self.cpus));
         }
         refused
     }

@@ -216,7 +216,7 @@ fn control_reader_main(reader: &Reader, report_path: &Path) -> i32 {
         std::hint::black_box(&mut copy);
         std::thread::sleep(Duration::from_millis(1));
         iterations += 1;
-        if iterations % 200 == 0 {
+        if iterations.is_multiple_of(200) {
             Report { done: false, ..Report::default() }.write(report_path);
             if reader.writer_state() == WriterState::Gone {
                 Report { done: true, ..Report::default() }.write(report_path);

@@ -26,10 +26,11 @@ pub fn run(args: &Args) -> Result<()> {
         .collect();
     for entry in std::fs::read_dir(&dir)?.flatten() {
         let name = entry.file_name().to_string_lossy().into_owned();
-        if let Some(skin) = name.strip_prefix("skinware-geometry.") {
-            if !live.contains(skin) && std::fs::remove_file(entry.path()).is_ok() {
-                println!("removed {} (the geometry of skin {skin}, which has no live writer)", entry.path().display());
-            }
+        if let Some(skin) = name.strip_prefix("skinware-geometry.")
+            && !live.contains(skin)
+            && std::fs::remove_file(entry.path()).is_ok()
+        {
+            println!("removed {} (the geometry of skin {skin}, which has no live writer)", entry.path().display());
         }
     }
     Ok(())

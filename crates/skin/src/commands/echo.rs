@@ -132,13 +132,13 @@ impl ServiceDecoder {
             s if s == TaxelState::SCHEMA => Some((TaxelState::VERSION, std::mem::size_of::<TaxelState>())),
             _ => None,
         };
-        if let Some((expected_version, record_bytes)) = expected {
-            if version != expected_version || info.as_ref().is_none_or(|i| i.record_bytes != record_bytes) {
-                anyhow::bail!(
-                    "{} publishes {schema} version {version}; this skin command reads version {expected_version}: rebuild it against the same skinware",
-                    reader.label()
-                );
-            }
+        if let Some((expected_version, record_bytes)) = expected
+            && (version != expected_version || info.as_ref().is_none_or(|i| i.record_bytes != record_bytes))
+        {
+            anyhow::bail!(
+                "{} publishes {schema} version {version}; this skin command reads version {expected_version}: rebuild it against the same skinware",
+                reader.label()
+            );
         }
         Ok(ServiceDecoder { schema, labels: info.map(|i| i.labels).unwrap_or_default() })
     }

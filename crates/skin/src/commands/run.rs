@@ -321,10 +321,10 @@ fn republish_if_removed(geometry: &SkinGeometry, published: &Path) {
 /// exit, SIGKILLing those that do not.
 fn stop_children(children: &mut [Supervised]) -> Result<()> {
     for supervised in children.iter() {
-        if let Some(child) = &supervised.child {
-            if let Some(pid) = rustix::process::Pid::from_raw(child.id() as i32) {
-                let _ = rustix::process::kill_process(pid, rustix::process::Signal::TERM);
-            }
+        if let Some(child) = &supervised.child
+            && let Some(pid) = rustix::process::Pid::from_raw(child.id() as i32)
+        {
+            let _ = rustix::process::kill_process(pid, rustix::process::Signal::TERM);
         }
     }
     let deadline = Instant::now() + Duration::from_secs(5);

@@ -83,10 +83,10 @@ impl ServiceConfig {
     pub(super) fn check(&self, services: &[ServiceConfig]) -> Result<()> {
         skinware::shm::validate_name("service", &self.name)?;
         self.restart.check()?;
-        if let Some(hz) = self.rate_hz {
-            if !(hz.is_finite() && (0.001..=10_000.0).contains(&hz)) {
-                bail!("rate_hz {hz} must be from 0.001 to 10000 (or absent for a sporadic service)");
-            }
+        if let Some(hz) = self.rate_hz
+            && !(hz.is_finite() && (0.001..=10_000.0).contains(&hz))
+        {
+            bail!("rate_hz {hz} must be from 0.001 to 10000 (or absent for a sporadic service)");
         }
         let positive = |what: &str, v: Option<f64>| -> Result<()> {
             match v {

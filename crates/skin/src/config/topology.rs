@@ -50,10 +50,10 @@ impl LayerConfig {
     /// patch, and the declared sensor count.
     pub(super) fn topology(&self, default_rate: f64) -> Result<skinware::LayerTopology> {
         skinware::shm::validate_name("layer", &self.name)?;
-        if let Some(rate) = self.rate_hz {
-            if !(rate.is_finite() && rate > 0.0 && rate <= 100_000.0) {
-                bail!("layer {}: rate_hz {rate} must be above 0 and at most 100000", self.name);
-            }
+        if let Some(rate) = self.rate_hz
+            && !(rate.is_finite() && rate > 0.0 && rate <= 100_000.0)
+        {
+            bail!("layer {}: rate_hz {rate} must be above 0 and at most 100000", self.name);
         }
         let mut builder =
             skinware::TopologyBuilder::new(&self.name, &self.sensor_type, self.rate_hz.unwrap_or(default_rate));
@@ -72,14 +72,14 @@ impl LayerConfig {
             }
         }
         let topology = builder.build()?;
-        if let Some(declared) = self.sensors {
-            if declared != topology.sensors.len() {
-                bail!(
-                    "layer {}: declares {declared} sensors but its modules hold {}; the sensor counts do not add up",
-                    self.name,
-                    topology.sensors.len()
-                );
-            }
+        if let Some(declared) = self.sensors
+            && declared != topology.sensors.len()
+        {
+            bail!(
+                "layer {}: declares {declared} sensors but its modules hold {}; the sensor counts do not add up",
+                self.name,
+                topology.sensors.len()
+            );
         }
         Ok(topology)
     }

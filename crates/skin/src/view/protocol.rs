@@ -104,7 +104,7 @@ pub fn decode_client_message(text: &str) -> Result<ClientMessage, String> {
 }
 
 fn pad_to_4(out: &mut Vec<u8>) {
-    while out.len() % 4 != 0 {
+    while !out.len().is_multiple_of(4) {
         out.push(0);
     }
 }

@@ -45,10 +45,10 @@ pub(super) fn run_cyclictest(loops: u32) -> Cyclictest {
             continue;
         }
         let mut fields = line.split_whitespace();
-        if let (Some(Ok(us)), Some(Ok(count))) = (fields.next().map(str::parse), fields.next().map(str::parse)) {
-            if count > 0 {
-                histogram.push((us, count));
-            }
+        if let (Some(Ok(us)), Some(Ok(count))) = (fields.next().map(str::parse), fields.next().map(str::parse))
+            && count > 0
+        {
+            histogram.push((us, count));
         }
     }
     let total: u64 = histogram.iter().map(|&(_, c)| c).sum();

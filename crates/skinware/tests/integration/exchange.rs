@@ -391,10 +391,11 @@ fn start_child_writer(dir: &SegmentDir) -> (std::process::Child, Reader) {
         .unwrap();
     let started = Instant::now();
     loop {
-        if let Ok(mut reader) = Reader::open_with("skin", "layer", &dir.reader()) {
-            if reader.writer_pid() == child.id() && reader.latest().is_ok() {
-                return (child, reader);
-            }
+        if let Ok(mut reader) = Reader::open_with("skin", "layer", &dir.reader())
+            && reader.writer_pid() == child.id()
+            && reader.latest().is_ok()
+        {
+            return (child, reader);
         }
         if started.elapsed() > Duration::from_secs(20) {
             let _ = child.kill();
