@@ -8,12 +8,16 @@
 //! * [`MtbBoards`]: iCub MTB boards, with fault switches (drop tails, an
 //!   error nibble, silence after a while);
 //! * [`run_mtb`]: boards on a link until stopped, optionally logging what
-//!   they sent in `candump -l` format.
+//!   they sent in `candump -l` format;
+//! * [`MtbEmulation`]: all of it as `skin emulate` runs it.
 
 #![forbid(unsafe_code)]
 
+mod emulation;
 mod mtb;
 mod slcan_device;
+
+pub use emulation::{MtbEmulation, Transport};
 
 pub use mtb::{MtbBoards, MtbFaults, Touch, contacts, raw_value, run_mtb};
 pub use slcan_device::SlcanDevice;

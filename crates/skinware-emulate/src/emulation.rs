@@ -1,0 +1,93 @@
+//! A whole emulated bus, as `skin emulate` runs it: boards, a link, what the
+//! taxels feel, an optional log, until stopped.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use skinware_drivers::PressureField;
+
+use crate::{DeviceLink, MtbBoards, MtbFaults, SlcanDevice, run_mtb};
+
+/// How the emulated boards reach the host.
+#[derive(Clone, Debug)]
+pub enum Transport {
+    /// An SLCAN adapter on a pseudo-terminal; `link`, if given, becomes a
+    /// symbolic link to it (a stable name for configurations).
+    Slcan {
+        /// Where to put the symbolic link.
+        link: Option<PathBuf>,
+    },
+    /// cannelloni datagrams from `local` to the host at `peer`.
+    Cannelloni {
+        /// The emulator's address.
+        local: String,
+        /// The host's address.
+        peer: String,
+    },
+}
+
+/// An emulated bus of MTB boards.
+#[derive(Clone, Debug)]
+pub struct MtbEmulation {
+    /// Boards, addresses 1..=boards.
+    pub boards: u8,
+    /// Triangles per board.
+    pub triangles: u8,
+    /// Streaming rate until the host configures another period.
+    pub rate_hz: f64,
+    /// The link.
+    pub transport: Transport,
+    /// A `candump -l` log of every frame sent.
+    pub candump: Option<PathBuf>,
+    /// Fault switches.
+    pub faults: MtbFaults,
+    /// Seed of the virtual body's contacts.
+    pub seed: u64,
+}
+
+impl MtbEmulation {
+    /// Opens the link and calls `ready` with the URL a host opens it with,
+    /// then runs until `stop` returns true. Returns the frames sent.
+    pub fn run(&self, ready: impl FnOnce(&str), stop: &dyn Fn() -> bool) -> std::io::Result<u64> {
+        if !(self.rate_hz.is_finite() && self.rate_hz > 0.0) {
+            return Err(std::io::Error::other(format!("rate {} Hz: give a positive rate", self.rate_hz)));
+        }
+        let mut boards = MtbBoards::new(
+            self.boards,
+            self.triangles,
+            Duration::from_secs_f64(1.0 / self.rate_hz),
+            self.faults.clone(),
+        );
+        let field = PressureField::new(boards.taxels(), self.seed, 24.0 * 3600.0);
+        let touch = crate::contacts(&field);
+        let mut log = match &self.candump {
+            Some(path) => Some(std::io::BufWriter::new(std::fs::File::create(path)?)),
+            None => None,
+        };
+        let mut link: Box<dyn DeviceLink> = match &self.transport {
+            Transport::Slcan { link } => {
+                let device = SlcanDevice::new()?;
+                if let Some(link) = link {
+                    let _ = std::fs::remove_file(link);
+                    std::os::unix::fs::symlink(device.path(), link)?;
+                    ready(&format!("slcan://{}?bitrate=1000000", link.display()));
+                } else {
+                    ready(&device.url());
+                }
+                Box::new(device)
+            }
+            Transport::Cannelloni { local, peer } => {
+                let url = format!("cannelloni://{local}?peer={peer}");
+                let bus = skinware_drivers::can::open(&url).map_err(|e| std::io::Error::other(e.to_string()))?;
+                ready(&format!("cannelloni://{peer}?peer={local}"));
+                Box::new(bus)
+            }
+        };
+        let sent =
+            run_mtb(&mut boards, link.as_mut(), &touch, log.as_mut().map(|w| w as &mut dyn std::io::Write), stop);
+        if let Transport::Slcan { link: Some(link) } = &self.transport {
+            let _ = std::fs::remove_file(link);
+        }
+        sent
+    }
+}
