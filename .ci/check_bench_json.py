@@ -53,10 +53,12 @@ for record in peers.get("busy_readers", []):
     for key in ("p50", "p99", "max"):
         need(is_count(record.get("publish_ns", {}).get(key)), f"peers.json: busy {record.get('system')}/{record.get('readers')} publish_ns.{key} missing")
 
-table1 = json.loads((out / "table1.json").read_text())
-need([row.get("name") for row in table1] == ["writer_EC", "writer_CAN", "reader_EC", "reader_CAN"], "table1.json: rows")
-for row in table1:
-    need(row.get("samples", 0) > 0 and row.get("worst_ns", 0) >= row.get("avg_ns", 0) > 0, f"table1.json: {row.get('name')} incomplete")
+for name, transport in (("table1.json", "memory"), ("table1-slcan/table1.json", "slcan")):
+    table1 = json.loads((out / name).read_text())
+    need([row.get("name") for row in table1] == ["writer_EC", "writer_CAN", "reader_EC", "reader_CAN"], f"{name}: rows")
+    for row in table1:
+        need(row.get("samples", 0) > 0 and row.get("worst_ns", 0) >= row.get("avg_ns", 0) > 0, f"{name}: {row.get('name')} incomplete")
+    need([row.get("transport") for row in table1[:2]] == ["memory", transport], f"{name}: the writers' transport is not recorded")
 
 if problems:
     print("benchmark JSON problems:\n  " + "\n  ".join(problems))

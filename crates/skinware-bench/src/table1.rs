@@ -21,6 +21,31 @@ pub struct Table1Options {
     pub seconds: Option<f64>,
     /// This executable, re-run for the application process.
     pub exe: PathBuf,
+    /// How the CAN writer gets its data.
+    pub transport: Transport,
+}
+
+/// How the CAN writer of Table I gets its data.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Transport {
+    /// Generated in memory, as in the paper's own measurement of the exchange.
+    #[default]
+    Memory,
+    /// The real driver path: emulated MTB boards (one board, 15 triangles) on
+    /// an SLCAN pseudo-terminal, the SLCAN codec and the `icub-mtb` decoder.
+    /// Each write is the driver's acquisition (a copy of the newest decoded
+    /// image) and the publish; the decoding runs in the driver's bus thread.
+    Slcan,
+}
+
+impl Transport {
+    /// Its name in `table1.json`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Transport::Memory => "memory",
+            Transport::Slcan => "slcan",
+        }
+    }
 }
 
 /// One row of Table I.
@@ -38,6 +63,9 @@ pub struct Table1Row {
     pub samples: usize,
     /// The paper's (average, worst case, std), ns (Core 2 Duo, RTAI).
     pub paper: [f64; 3],
+    /// For a writer, where its data came from: `memory` or `slcan`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub transport: Option<&'static str>,
 }
 
 const PAPER: [(&str, [f64; 3]); 4] = [
@@ -75,7 +103,17 @@ pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
     let topologies = vec![ethercat.build()?, can.build()?];
     debug_assert_eq!((topologies[0].sensors.len(), topologies[1].sensors.len()), (708, 180));
     let stop = Stop::new();
-    let writers = measure::run_writers(&skin, &topologies, &stop, None)?;
+    let mut emulator = None;
+    let writers = match options.transport {
+        Transport::Memory => measure::run_writers(&skin, &topologies, &stop, None)?,
+        Transport::Slcan => {
+            let mut writers = measure::run_writers(&skin, &topologies[..1], &stop, None)?;
+            let (device, thread) = slcan::start_emulator()?;
+            emulator = Some(thread);
+            writers.push(slcan::run_can_writer(&skin, &device, &stop)?);
+            writers
+        }
+    };
     let out = options.out.join("table1-app.json");
     let names: Vec<String> = topologies.iter().map(|t| t.name.clone()).collect();
     let mut app = measure::spawn_app(&options.exe, &skin, &names, "asap", seconds, 1, &out)?;
@@ -85,6 +123,10 @@ pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
     let mut writer_samples = Vec::new();
     for writer in writers {
         writer_samples.push(writer.join().map_err(|_| anyhow::anyhow!("writer thread panicked"))?);
+    }
+    if let Some((stop_emulator, thread)) = emulator {
+        stop_emulator.store(true, std::sync::atomic::Ordering::Relaxed);
+        let _ = thread.join();
     }
     if !status.success() {
         bail!("the application process failed ({status})");
@@ -103,11 +145,17 @@ pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
         .zip(all.iter_mut())
         .map(|(&(name, paper), samples)| {
             let p = Percentiles::of(samples);
-            Table1Row { name, avg_ns: p.avg, worst_ns: p.max, std_ns: p.std, samples: p.samples, paper }
+            let transport = match name {
+                "writer_CAN" => Some(options.transport.name()),
+                "writer_EC" => Some(Transport::Memory.name()),
+                _ => None,
+            };
+            Table1Row { name, avg_ns: p.avg, worst_ns: p.max, std_ns: p.std, samples: p.samples, paper, transport }
         })
         .collect();
     println!(
-        "skin bench table1: EtherCAT layer 708 sensors, CAN layer 180 sensors, writers at 50 Hz, aperiodic readers"
+        "skin bench table1: EtherCAT layer 708 sensors, CAN layer 180 sensors ({} transport), writers at 50 Hz, aperiodic readers",
+        options.transport.name()
     );
     println!("{seconds} s of measurement; ours on this machine, the paper's on a Core 2 Duo E8200 with RTAI\n");
     println!(
@@ -124,4 +172,90 @@ pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
     std::fs::write(&json, serde_json::to_vec_pretty(&rows)?)?;
     println!("\nwrote {}", json.display());
     Ok(rows)
+}
+
+/// The CAN writer on the real driver path: emulated boards → SLCAN → decoder.
+mod slcan {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::time::Duration;
+
+    use anyhow::{Context, Result};
+    use skinware::driver::Driver;
+    use skinware::{RtOptions, Stop, Ticker, Writer, WriterOptions};
+    use skinware_drivers::can::driver::{CanDriver, CanDriverConfig, Protocol};
+    use skinware_drivers::can::icub_mtb::{Board, BoardSettings};
+    use skinware_emulate::{MtbBoards, MtbFaults, SlcanDevice, run_mtb};
+
+    use crate::measure::WriterSample;
+
+    /// Emulated boards that feel a slowly moving press.
+    fn touch(t: f64, responses: &mut [u16]) {
+        for (i, response) in responses.iter_mut().enumerate() {
+            let phase = (t * 2.0 + i as f64 * 0.1).sin().max(0.0);
+            *response = skinware_drivers::virtual_skin::BASELINE + (phase * 20_000.0) as u16;
+        }
+    }
+
+    /// One MTB board of 15 triangles (the paper's 180 sensors) on an SLCAN
+    /// pseudo-terminal; returns its URL and the thread with its stop flag.
+    pub(super) fn start_emulator() -> Result<(String, (Arc<AtomicBool>, std::thread::JoinHandle<()>))> {
+        let mut device = SlcanDevice::new().context("cannot open a pseudo-terminal for the emulated boards")?;
+        let url = device.url();
+        let stop = Arc::new(AtomicBool::new(false));
+        let stopped = stop.clone();
+        let thread = std::thread::spawn(move || {
+            let mut boards = MtbBoards::new(1, 15, Duration::from_millis(20), MtbFaults::default());
+            let _ = run_mtb(&mut boards, &mut device, &touch, None, &|| stopped.load(Ordering::Relaxed));
+        });
+        Ok((url, (stop, thread)))
+    }
+
+    /// The CAN layer's writer: at 50 Hz, the driver's acquisition and the publish.
+    pub(super) fn run_can_writer(
+        skin: &str,
+        url: &str,
+        stop: &Stop,
+    ) -> Result<std::thread::JoinHandle<Vec<WriterSample>>> {
+        let mut driver = CanDriver::new(CanDriverConfig {
+            name: "table1-can".into(),
+            layer: "can".into(),
+            interface: url.into(),
+            protocol: Protocol::IcubMtb {
+                boards: vec![Board { address: 1, triangles: (0..15).collect() }],
+                settings: BoardSettings { period_ms: 20, ..BoardSettings::default() },
+            },
+            rate_hz: 50.0,
+            rt: RtOptions::default(),
+        })
+        .map_err(anyhow::Error::msg)?;
+        let topology = driver.layers().remove(0).topology;
+        let mut sources = driver.start().map_err(|e| anyhow::anyhow!("the CAN driver did not start: {e}"))?;
+        let mut source = sources.remove(0);
+        let period = Duration::from_millis(20);
+        let options = WriterOptions { period: Some(period), ..WriterOptions::default() };
+        let mut writer = Writer::create(skin, "can", topology.frame_bytes(), &topology.encode(), &options)
+            .context("creating layer can")?;
+        writer.set_stop(stop);
+        // The boards need a moment to be configured and stream.
+        std::thread::sleep(Duration::from_millis(200));
+        Ok(std::thread::spawn(move || {
+            let _ = RtOptions { fifo_priority: Some(80), ..RtOptions::default() }.apply();
+            let mut samples = Vec::with_capacity(4096);
+            let mut ticker = Ticker::new(period);
+            let stop = writer.stop_signal().clone();
+            while ticker.wait(&stop).is_some() {
+                let started = skinware::os::monotonic_ns();
+                let mut frame = writer.begin();
+                if source.acquire(&mut frame).is_ok() {
+                    frame.publish();
+                } else {
+                    frame.discard();
+                }
+                samples.push(WriterSample { started_ns: started, took_ns: skinware::os::monotonic_ns() - started });
+            }
+            driver.stop();
+            samples
+        }))
+    }
 }

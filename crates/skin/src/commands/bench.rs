@@ -10,7 +10,7 @@ pub enum Which {
     /// The paper's performance test (Fig. 6): 1..5 layers x 1..15 apps.
     Paper(PaperArgs),
     /// The paper's Table I: a 180-sensor CAN layer and a 708-sensor EtherCAT layer.
-    Table1(Common),
+    Table1(Table1Args),
     /// The whole-skin frame to 1, 4 and 15 waiting readers: skinware, iceoryx2 (feature), a lock-based baseline, memcpy, cyclictest.
     Peers(Common),
 }
@@ -38,6 +38,18 @@ pub struct PaperArgs {
     /// samples (default 1 with --quick, 3 for the full run).
     #[arg(long)]
     rounds: Option<u32>,
+}
+
+/// Options of `skin bench table1`.
+#[derive(clap::Args)]
+pub struct Table1Args {
+    #[command(flatten)]
+    common: Common,
+    /// Where the CAN writer's data comes from: `memory`, or `slcan` (emulated
+    /// MTB boards on a pseudo-terminal, through the SLCAN codec and the
+    /// icub-mtb decoder).
+    #[arg(long, default_value = "memory", value_parser = ["memory", "slcan"])]
+    transport: String,
 }
 
 /// Arguments of the hidden `bench-app` role.
@@ -71,12 +83,17 @@ pub fn run(which: &Which) -> Result<()> {
             };
             skinware_bench::paper::run(&options).map(|_| ())
         }
-        Which::Table1(common) => {
+        Which::Table1(Table1Args { common, transport }) => {
+            let transport = match transport.as_str() {
+                "slcan" => skinware_bench::table1::Transport::Slcan,
+                _ => skinware_bench::table1::Transport::Memory,
+            };
             let options = skinware_bench::table1::Table1Options {
                 quick: common.quick,
                 out: common.out.clone(),
                 seconds: common.seconds,
                 exe,
+                transport,
             };
             skinware_bench::table1::run(&options).map(|_| ())
         }
