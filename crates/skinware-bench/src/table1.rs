@@ -197,9 +197,12 @@ mod slcan {
         }
     }
 
+    /// A running emulator: its stop flag and its thread.
+    pub(super) type Running = (Arc<AtomicBool>, std::thread::JoinHandle<()>);
+
     /// One MTB board of 15 triangles (the paper's 180 sensors) on an SLCAN
-    /// pseudo-terminal; returns its URL and the thread with its stop flag.
-    pub(super) fn start_emulator() -> Result<(String, (Arc<AtomicBool>, std::thread::JoinHandle<()>))> {
+    /// pseudo-terminal; returns its URL and the running emulator.
+    pub(super) fn start_emulator() -> Result<(String, Running)> {
         let mut device = SlcanDevice::new().context("cannot open a pseudo-terminal for the emulated boards")?;
         let url = device.url();
         let stop = Arc::new(AtomicBool::new(false));
