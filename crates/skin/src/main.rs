@@ -50,6 +50,11 @@ enum Command {
         #[command(subcommand)]
         which: commands::region::Which,
     },
+    /// Software skin boards that speak a real protocol (for trying skinware without the hardware).
+    Emulate {
+        #[command(subcommand)]
+        which: commands::emulate::Which,
+    },
     /// Benchmarks: the paper's experiment, its Table I, and peers side by side.
     Bench {
         #[command(subcommand)]
@@ -96,6 +101,7 @@ fn main() -> std::process::ExitCode {
         Command::Pull(args) => commands::pull::run(&args),
         Command::Driver { config, name } => commands::driver::run(&config, &name),
         Command::Bench { which } => commands::bench::run(&which),
+        Command::Emulate { which } => commands::emulate::run(&which),
         Command::Services(args) => commands::services::run(&args),
         Command::Service { config, name } => commands::service::run(&config, &name),
         Command::Geometry(args) => commands::geometry::run(&args),

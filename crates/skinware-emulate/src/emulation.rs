@@ -64,9 +64,11 @@ impl MtbEmulation {
             Some(path) => Some(std::io::BufWriter::new(std::fs::File::create(path)?)),
             None => None,
         };
+        let mut device_path = None;
         let mut link: Box<dyn DeviceLink> = match &self.transport {
             Transport::Slcan { link } => {
                 let device = SlcanDevice::new()?;
+                device_path = Some(PathBuf::from(device.path()));
                 if let Some(link) = link {
                     let _ = std::fs::remove_file(link);
                     std::os::unix::fs::symlink(device.path(), link)?;
@@ -85,7 +87,10 @@ impl MtbEmulation {
         };
         let sent =
             run_mtb(&mut boards, link.as_mut(), &touch, log.as_mut().map(|w| w as &mut dyn std::io::Write), stop);
-        if let Transport::Slcan { link: Some(link) } = &self.transport {
+        // The link goes with the emulator, unless a newer one has taken it.
+        if let (Transport::Slcan { link: Some(link) }, Some(device)) = (&self.transport, &device_path)
+            && std::fs::read_link(link).is_ok_and(|target| &target == device)
+        {
             let _ = std::fs::remove_file(link);
         }
         sent

@@ -99,3 +99,46 @@ fn python_can_frames_arrive_value_by_value() {
     stop.store(true, Ordering::Relaxed);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The other direction: python-can is the host of emulated boards (our
+/// SLCAN device end and MTB model) and checks what they stream.
+#[test]
+fn python_can_reads_the_emulated_boards() {
+    let Some(python) = python() else {
+        let reason = "no Python with python-can and pyserial (set SKINWARE_PYTHON, or pip install python-can pyserial)";
+        assert!(std::env::var("CI").as_deref() != Ok("true"), "{reason}: CI must run this oracle");
+        println!("SKIPPED: {reason}");
+        return;
+    };
+    let mut device = skinware_emulate::SlcanDevice::new().unwrap();
+    let path = device.path().to_owned();
+    let stop = Arc::new(AtomicBool::new(false));
+    let stopped = stop.clone();
+    let emulator = std::thread::spawn(move || {
+        let mut boards = skinware_emulate::MtbBoards::new(2, 3, Duration::from_millis(40), Default::default());
+        let touch = |_t: f64, responses: &mut [u16]| {
+            for (i, response) in responses.iter_mut().enumerate() {
+                *response = skinware_drivers::virtual_skin::BASELINE + 100 * i as u16;
+            }
+        };
+        skinware_emulate::run_mtb(&mut boards, &mut device, &touch, None, &|| stopped.load(Ordering::Relaxed)).unwrap()
+    });
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/python/receive_icub_frames.py");
+    let output = Command::new(&python).args([script, &path, "1"]).output().unwrap();
+    stop.store(true, Ordering::Relaxed);
+    emulator.join().unwrap();
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let seen: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    // Only board 1 was started: its 3 triangles, about 50 pairs each in 1 s at 20 ms.
+    let keys: Vec<&String> = seen.as_object().unwrap().keys().collect();
+    assert_eq!(keys, ["1.0", "1.1", "1.2"], "{seen}");
+    for triangle in 0..3u64 {
+        let entry = &seen[format!("1.{triangle}")];
+        let (heads, tails) = (entry["heads"].as_u64().unwrap(), entry["tails"].as_u64().unwrap());
+        assert!(heads >= 30 && heads.abs_diff(tails) <= 1, "triangle {triangle}: {heads} heads, {tails} tails");
+        // Taxel i of the bus feels 100 * i: one count below no-load (240) per 100.
+        let raw: Vec<u64> = entry["raw"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap()).collect();
+        let expected: Vec<u64> = (0..12).map(|k| 240 - (12 * triangle + k)).collect();
+        assert_eq!(raw, expected, "triangle {triangle}");
+    }
+}

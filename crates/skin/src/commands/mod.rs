@@ -5,6 +5,7 @@ pub mod clean;
 pub mod demo;
 pub mod driver;
 pub mod echo;
+pub mod emulate;
 pub mod geometry;
 pub mod ls;
 pub mod pull;

@@ -1,0 +1,106 @@
+//! `skin emulate`: software skin boards that speak the real protocol on the
+//! device side, for users without the hardware and for tests.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use anyhow::{Context, Result, bail};
+use skinware_emulate::{MtbEmulation, MtbFaults, Transport};
+
+/// Which boards.
+#[derive(clap::Subcommand)]
+pub enum Which {
+    /// iCub MTB skin boards: B boards of T triangles (12 taxels each).
+    IcubMtb(MtbArgs),
+}
+
+/// Options of `skin emulate icub-mtb`.
+#[derive(clap::Args)]
+pub struct MtbArgs {
+    /// Boards on the bus (addresses 1..=B, at most 15).
+    #[arg(long, default_value_t = 4)]
+    boards: u8,
+    /// Triangles per board (at most 16).
+    #[arg(long, default_value_t = 16)]
+    triangles: u8,
+    /// Frames per second per triangle until the host configures a period.
+    #[arg(long, default_value_t = 50.0)]
+    rate: f64,
+    /// Be an SLCAN adapter on a pseudo-terminal (the default).
+    #[arg(long, conflicts_with = "cannelloni")]
+    slcan: bool,
+    /// With SLCAN: also make this path a symbolic link to the pseudo-terminal.
+    #[arg(long, conflicts_with = "cannelloni")]
+    link: Option<PathBuf>,
+    /// Speak cannelloni from this address (e.g. 127.0.0.1:20000) ...
+    #[arg(long, requires = "peer")]
+    cannelloni: Option<String>,
+    /// ... to the host at this address.
+    #[arg(long)]
+    peer: Option<String>,
+    /// Also write every frame sent to this file, in `candump -l` format.
+    #[arg(long)]
+    candump: Option<PathBuf>,
+    /// Fault: never send a triangle's tail frame.
+    #[arg(long)]
+    drop_tails: bool,
+    /// Fault: report this error code (1 I2C no-ack, 2 not connected) in every tail.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(0..16))]
+    error_nibble: Option<u8>,
+    /// Fault: fall silent this many seconds after streaming starts.
+    #[arg(long)]
+    silence_after: Option<f64>,
+    /// Seed of the virtual body's moving contacts.
+    #[arg(long, default_value_t = 7)]
+    seed: u64,
+}
+
+/// Runs `skin emulate`: prints the URL a host opens on the first line of
+/// stdout, then streams until SIGINT or SIGTERM.
+pub fn run(which: &Which) -> Result<()> {
+    let Which::IcubMtb(args) = which;
+    if args.boards == 0 || args.boards > 15 || args.triangles == 0 || args.triangles > 16 {
+        bail!("--boards must be 1 to 15 and --triangles 1 to 16 (an MTB bus addresses 15 boards of 16 triangles)");
+    }
+    if let Some(seconds) = args.silence_after
+        && !(seconds.is_finite() && seconds >= 0.0)
+    {
+        bail!("--silence-after must be a number of seconds, 0 or more");
+    }
+    let transport = match (&args.cannelloni, &args.peer) {
+        (Some(local), Some(peer)) => Transport::Cannelloni { local: local.clone(), peer: peer.clone() },
+        _ => Transport::Slcan { link: args.link.clone() },
+    };
+    let emulation = MtbEmulation {
+        boards: args.boards,
+        triangles: args.triangles,
+        rate_hz: args.rate,
+        transport,
+        candump: args.candump.clone(),
+        faults: MtbFaults {
+            drop_tails: args.drop_tails,
+            error_nibble: args.error_nibble,
+            silence_after: args.silence_after.map(Duration::from_secs_f64),
+        },
+        seed: args.seed,
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, stop.clone()).context("cannot install signal handlers")?;
+    }
+    let sent = emulation
+        .run(
+            |url| {
+                println!("{url}");
+                use std::io::Write;
+                let _ = std::io::stdout().flush();
+                tracing::info!(%url, boards = args.boards, triangles = args.triangles, "emulated MTB boards ready; they stream once a host starts them");
+            },
+            &|| stop.load(Ordering::Relaxed),
+        )
+        .context("the emulated boards failed")?;
+    tracing::info!(frames = sent, "emulated boards stopped");
+    Ok(())
+}
