@@ -11,14 +11,14 @@ use crate::config::Config;
 pub fn inputs(config: &Config) -> Result<(Vec<LayerTopology>, Calibration, Vec<RegionSpec>)> {
     let mut layers = Vec::new();
     let mut calibration = Calibration::new();
-    for driver in &config.drivers {
+    for (index, driver) in config.drivers.iter().enumerate() {
         let built = driver.build(&config.skin)?;
         let own = match &driver.calibration {
             Some(path) => Calibration::load(&config.base_dir.join(path))
                 .with_context(|| format!("driver {:?}: `calibration`", driver.name))?,
-            None => built.calibration(),
+            None => built.calibration(index),
         };
-        for spec in skinware::Driver::layers(&built) {
+        for spec in built.layers() {
             let topology = spec.topology;
             for sensor in &topology.sensors {
                 let entry = own.get(&topology.name, &topology.sensor_type, sensor.uid).ok_or_else(|| {

@@ -75,6 +75,15 @@ enum Command {
         #[arg(long)]
         name: String,
     },
+    /// Run one emulator of CONFIG in this process (what `skin run` starts).
+    #[command(hide = true)]
+    Emulator {
+        /// The TOML configuration.
+        config: PathBuf,
+        /// The emulator's name in it.
+        #[arg(long)]
+        name: String,
+    },
     /// Run one driver of CONFIG in this process (what `skin run` starts).
     #[command(hide = true)]
     Driver {
@@ -102,6 +111,7 @@ fn main() -> std::process::ExitCode {
         Command::Driver { config, name } => commands::driver::run(&config, &name),
         Command::Bench { which } => commands::bench::run(&which),
         Command::Emulate { which } => commands::emulate::run(&which),
+        Command::Emulator { config, name } => commands::emulate::run_configured(&config, &name),
         Command::Services(args) => commands::services::run(&args),
         Command::Service { config, name } => commands::service::run(&config, &name),
         Command::Geometry(args) => commands::geometry::run(&args),

@@ -13,7 +13,7 @@ pub fn run(config_path: &Path, name: &str) -> Result<()> {
     let driver_config = config.driver(name)?;
     let driver = driver_config.build(&config.skin)?;
     let options = HandlerOptions { slots: driver_config.slots, access: config.access(), ..HandlerOptions::default() };
-    let handler = DriverHandler::start(&config.skin, Box::new(driver), &options)
+    let handler = DriverHandler::start(&config.skin, driver.into_driver(), &options)
         .with_context(|| format!("driver {name} could not start"))?;
     tracing::info!(driver = name, layers = ?handler.layers(), pid = std::process::id(), "driver acquiring");
     let stop = handler.stop_signal().clone();

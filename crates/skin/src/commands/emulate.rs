@@ -104,3 +104,19 @@ pub fn run(which: &Which) -> Result<()> {
     tracing::info!(frames = sent, "emulated boards stopped");
     Ok(())
 }
+
+/// Runs the `[[emulator]]` table `name` of a configuration (what `skin run`
+/// starts for it), until SIGINT, SIGTERM or the supervisor's death.
+pub fn run_configured(config_path: &std::path::Path, name: &str) -> Result<()> {
+    super::run::watch_supervisor()?;
+    let config = crate::config::Config::load(config_path)?;
+    let emulation = config.emulator(name)?.emulation();
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, stop.clone()).context("cannot install signal handlers")?;
+    }
+    emulation
+        .run(|url| tracing::info!(emulator = name, %url, "emulated boards ready"), &|| stop.load(Ordering::Relaxed))
+        .with_context(|| format!("emulator {name} failed"))?;
+    Ok(())
+}

@@ -101,7 +101,7 @@ fn check_new_region_name(config: &Config, args: &RecordArgs) -> Result<()> {
 fn watch_layers(config: &Config, args: &RecordArgs) -> Result<Vec<LayerWatch>> {
     let mut layers = Vec::new();
     for driver in &config.drivers {
-        for spec in skinware::Driver::layers(&driver.build(&config.skin)?) {
+        for spec in driver.build(&config.skin)?.layers() {
             let name = spec.topology.name.clone();
             let reader = Reader::open(&config.skin, &name)
                 .with_context(|| format!("layer {name}: is `skin run {}` running?", args.config.display()))?;

@@ -115,8 +115,13 @@ pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
     let config_path = std::fs::canonicalize(config_path)?;
     let (geometry, published) = publish_geometry(&config)?;
     let mut children = start_children(&config, &config_path)?;
+    let emulated = if config.emulators.is_empty() {
+        String::new()
+    } else {
+        format!(" ({} emulated bus(es))", config.emulators.len())
+    };
     println!(
-        "skin {}: {} driver(s) and {} service(s) running; Ctrl-C to stop",
+        "skin {}: {} driver(s){emulated} and {} service(s) running; Ctrl-C to stop",
         config.skin,
         config.drivers.len(),
         config.services.len()
@@ -171,12 +176,18 @@ fn publish_geometry(config: &Config) -> Result<(SkinGeometry, PathBuf)> {
 /// Starts every driver, then every service, of `config`, each in its own process.
 fn start_children(config: &Config, config_path: &Path) -> Result<Vec<Supervised>> {
     let roles = config
-        .drivers
+        .emulators
         .iter()
-        .map(|d| ("driver", &d.name, &d.restart))
+        .map(|e| ("emulator", &e.name, &e.restart))
+        .chain(config.drivers.iter().map(|d| ("driver", &d.name, &d.restart)))
         .chain(config.services.iter().map(|s| ("service", &s.name, &s.restart)));
     let mut children = Vec::new();
+    let mut emulators_ready = config.emulators.is_empty();
     for (role, name, restart) in roles {
+        if role != "emulator" && !emulators_ready {
+            wait_for_emulator_links(config);
+            emulators_ready = true;
+        }
         let heartbeat = Heartbeat {
             channels: periodic_channels(config, role, name)?,
             progress: HashMap::new(),
@@ -200,13 +211,27 @@ fn start_children(config: &Config, config_path: &Path) -> Result<Vec<Supervised>
     Ok(children)
 }
 
+/// Waits (at most 2 s) until every SLCAN emulator's link exists, so that the
+/// drivers find their buses at their first try.
+fn wait_for_emulator_links(config: &Config) {
+    let deadline = Instant::now() + Duration::from_secs(2);
+    let links: Vec<&Path> = config.emulators.iter().filter_map(|e| e.link.as_deref()).collect();
+    while Instant::now() < deadline && !links.iter().all(|link| link.exists()) {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
 /// The channels the driver or service `name` publishes periodically, with
 /// their periods (sporadic ones publish only when asked, so have no heartbeat).
 fn periodic_channels(config: &Config, role: &str, name: &str) -> Result<Vec<(String, Duration)>> {
     let period = |hz: f64| Duration::from_secs_f64(1.0 / hz);
+    if role == "emulator" {
+        return Ok(Vec::new());
+    }
     if role == "driver" {
         let driver = config.driver(name)?.build(&config.skin)?;
-        return Ok(skinware::Driver::layers(&driver)
+        return Ok(driver
+            .layers()
             .into_iter()
             .filter(|spec| spec.topology.rate_hz > 0.0)
             .map(|spec| (spec.topology.name.clone(), period(spec.topology.rate_hz)))
@@ -365,7 +390,7 @@ fn remove_skin_channels(config: &Config) -> Result<()> {
     }
     for driver in &config.drivers {
         if let Ok(built) = driver.build(&config.skin) {
-            for spec in skinware::Driver::layers(&built) {
+            for spec in built.layers() {
                 let _ = std::fs::remove_file(crate::config::pull_file(&config.skin, &spec.topology.name));
             }
         }

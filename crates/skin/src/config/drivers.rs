@@ -1,10 +1,15 @@
-//! `[[driver]]` tables: the virtual skin's parameters, and the driver they build.
+//! `[[driver]]` tables: the virtual skin's and the CAN driver's parameters,
+//! and the driver they build.
 
 use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use serde::Deserialize;
+use skinware::driver::{Driver, LayerSpec};
+use skinware_drivers::can::driver::{CanDriver, CanDriverConfig, Protocol};
+use skinware_drivers::can::icub_mtb::{Board, BoardSettings};
 use skinware_drivers::{CablePull, Rate, ScriptedContact, VirtualSkin, VirtualSkinConfig};
+use skinware_geometry::{Calibration, SensorCalibration};
 
 use super::process::{RestartConfig, RtConfig};
 use super::topology::LayerConfig;
@@ -15,6 +20,36 @@ use super::topology::LayerConfig;
 pub enum DriverKind {
     /// The virtual skin.
     Virtual,
+    /// A real skin on a CAN bus.
+    Can,
+}
+
+/// The protocols of `kind = "can"`.
+#[derive(Debug, Deserialize, Clone, Copy, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum CanProtocol {
+    /// iCub MTB boards.
+    IcubMtb,
+    /// CySkin CPM patches.
+    Cyskin,
+    /// A XELA uSkin board.
+    Xela,
+}
+
+/// An MTB board's triangles: a count (0..n) or a list.
+#[derive(Debug, Deserialize, Clone)]
+#[serde(untagged)]
+pub enum Triangles {
+    Count(u8),
+    List(Vec<u8>),
+}
+
+/// One `[[driver.board]]` table (MTB).
+#[derive(Debug, Deserialize, Clone)]
+#[serde(deny_unknown_fields)]
+pub struct BoardConfig {
+    pub address: u8,
+    pub triangles: Triangles,
 }
 
 /// One `[[driver]]` table.
@@ -56,6 +91,85 @@ pub struct DriverConfig {
     /// Layers with an explicit topology (instead of generated ones).
     #[serde(default, rename = "layer")]
     pub explicit_layers: Vec<LayerConfig>,
+    // CAN driver parameters.
+    /// The bus URL.
+    pub interface: Option<String>,
+    pub protocol: Option<CanProtocol>,
+    /// The layer's name (default: the driver's).
+    pub layer_name: Option<String>,
+    /// MTB: the boards' streaming period.
+    pub period_ms: Option<u8>,
+    /// MTB: the raw value of an untouched taxel.
+    pub no_load: Option<u8>,
+    /// MTB: sensitivity shift.
+    pub shift: Option<u8>,
+    /// MTB boards (`[[driver.board]]`).
+    #[serde(default, rename = "board")]
+    pub boards: Vec<BoardConfig>,
+    /// CySkin: each patch's first frame identifier.
+    #[serde(default)]
+    pub base_ids: Vec<u16>,
+    /// XELA: the board's address.
+    pub address: Option<u8>,
+    /// XELA: its taxels.
+    pub taxels: Option<usize>,
+}
+
+/// A driver built from its table.
+pub enum BuiltDriver {
+    /// The virtual skin.
+    Virtual(VirtualSkin),
+    /// A CAN skin.
+    Can(CanDriver),
+}
+
+impl BuiltDriver {
+    /// Its layers.
+    pub fn layers(&self) -> Vec<LayerSpec> {
+        match self {
+            BuiltDriver::Virtual(driver) => driver.layers(),
+            BuiltDriver::Can(driver) => driver.layers(),
+        }
+    }
+
+    /// Its own calibration: the virtual skin's body; for a CAN skin without a
+    /// calibration file, a flat layout (modules in rows of 16, taxels on a
+    /// 4 mm grid), the driver's `index`-th 0.5 m apart, so that the viewer
+    /// shows every taxel.
+    pub fn calibration(&self, index: usize) -> Calibration {
+        match self {
+            BuiltDriver::Virtual(driver) => driver.calibration(),
+            BuiltDriver::Can(driver) => {
+                let mut calibration = Calibration::new();
+                for spec in driver.layers() {
+                    let topology = spec.topology;
+                    for (m, module) in topology.modules.iter().enumerate() {
+                        let (column, row) = ((m % 16) as f64, (m / 16) as f64);
+                        for (k, sensor) in module.sensors.clone().enumerate() {
+                            let x = column * 0.02 + (k % 4) as f64 * 0.004;
+                            let y = index as f64 * 0.5 + row * 0.016 + (k / 4) as f64 * 0.004;
+                            let entry = SensorCalibration {
+                                position: [x, y, 0.0],
+                                normal: [0.0, 0.0, 1.0],
+                                radius: 0.0015,
+                                link: topology.name.clone(),
+                            };
+                            let _ = calibration.insert(&topology.name, topology.sensors[sensor].uid, entry);
+                        }
+                    }
+                }
+                calibration
+            }
+        }
+    }
+
+    /// The driver, to run.
+    pub fn into_driver(self) -> Box<dyn Driver> {
+        match self {
+            BuiltDriver::Virtual(driver) => Box::new(driver),
+            BuiltDriver::Can(driver) => Box::new(driver),
+        }
+    }
 }
 
 fn default_slots() -> usize {
@@ -69,10 +183,20 @@ pub fn pull_file(skin: &str, layer: &str) -> PathBuf {
 
 impl DriverConfig {
     /// Builds the driver this table describes.
-    pub fn build(&self, skin: &str) -> Result<VirtualSkin> {
+    pub fn build(&self, skin: &str) -> Result<BuiltDriver> {
         skinware::shm::validate_name("driver", &self.name)?;
         match self.kind {
+            DriverKind::Can => self.build_can().map(BuiltDriver::Can),
             DriverKind::Virtual => {
+                let can_keys = [
+                    ("interface", self.interface.is_some()),
+                    ("protocol", self.protocol.is_some()),
+                    ("board", !self.boards.is_empty()),
+                    ("base_ids", !self.base_ids.is_empty()),
+                ];
+                if let Some((key, _)) = can_keys.iter().find(|(_, given)| *given) {
+                    bail!("`{key}` is a setting of kind = \"can\", not of the virtual skin");
+                }
                 let defaults = VirtualSkinConfig::default();
                 let layers = self.layers.unwrap_or(defaults.layers);
                 let mut config = VirtualSkinConfig {
@@ -111,8 +235,80 @@ impl DriverConfig {
                     config.explicit_layers = Some(layers);
                 }
                 config.pull_files = Some(config.layer_names().iter().map(|layer| pull_file(skin, layer)).collect());
-                VirtualSkin::new(config).map_err(|e| anyhow::anyhow!(e))
+                VirtualSkin::new(config).map(BuiltDriver::Virtual).map_err(|e| anyhow::anyhow!(e))
             }
         }
+    }
+
+    /// The CAN driver of a `kind = "can"` table.
+    fn build_can(&self) -> Result<CanDriver> {
+        let virtual_keys = [
+            ("sensors", self.sensors.is_some()),
+            ("layers", self.layers.is_some()),
+            ("[[driver.layer]]", !self.explicit_layers.is_empty()),
+            ("[[driver.contact]]", !self.contacts.is_empty()),
+        ];
+        if let Some((key, _)) = virtual_keys.iter().find(|(_, given)| *given) {
+            bail!("`{key}` is a setting of the virtual skin, not of kind = \"can\"");
+        }
+        let Some(interface) = self.interface.clone() else {
+            bail!(
+                "kind = \"can\" needs `interface`, e.g. \"slcan:///dev/ttyACM0?bitrate=1000000\" or \"socketcan://can0\""
+            );
+        };
+        let Some(protocol) = self.protocol else {
+            bail!("kind = \"can\" needs `protocol`: \"icub-mtb\", \"cyskin\" or \"xela\"");
+        };
+        let period_ms = self.period_ms.unwrap_or(20);
+        let rate_hz = match &self.rate_hz {
+            None => 1000.0 / f64::from(period_ms.max(1)),
+            Some(Rate::Fixed(hz)) => *hz,
+            Some(Rate::Random { .. }) => bail!("a CAN layer's `rate_hz` is one number"),
+        };
+        let protocol = match protocol {
+            CanProtocol::IcubMtb => {
+                if self.boards.is_empty() {
+                    bail!("protocol \"icub-mtb\" needs `[[driver.board]]` tables, each with `address` and `triangles`");
+                }
+                let boards = self
+                    .boards
+                    .iter()
+                    .map(|board| Board {
+                        address: board.address,
+                        triangles: match &board.triangles {
+                            Triangles::Count(count) => (0..*count).collect(),
+                            Triangles::List(list) => list.clone(),
+                        },
+                    })
+                    .collect();
+                let defaults = BoardSettings::default();
+                let settings = BoardSettings {
+                    period_ms,
+                    no_load: self.no_load.unwrap_or(defaults.no_load),
+                    shift: self.shift.unwrap_or(defaults.shift),
+                    ..defaults
+                };
+                Protocol::IcubMtb { boards, settings }
+            }
+            CanProtocol::Cyskin => Protocol::CySkin {
+                base_ids: if self.base_ids.is_empty() {
+                    vec![skinware_drivers::can::cyskin::DEFAULT_BASE_ID]
+                } else {
+                    self.base_ids.clone()
+                },
+            },
+            CanProtocol::Xela => Protocol::Xela { board: self.address.unwrap_or(1), taxels: self.taxels.unwrap_or(16) },
+        };
+        let layer = self.layer_name.clone().unwrap_or_else(|| self.name.clone());
+        skinware::shm::validate_name("layer", &layer)?;
+        CanDriver::new(CanDriverConfig {
+            name: self.name.clone(),
+            layer,
+            interface,
+            protocol,
+            rate_hz,
+            rt: self.rt.options(),
+        })
+        .map_err(anyhow::Error::msg)
     }
 }

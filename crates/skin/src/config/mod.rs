@@ -6,6 +6,7 @@ use anyhow::{Context, Result, bail};
 use serde::Deserialize;
 
 mod drivers;
+mod emulators;
 mod process;
 mod regions;
 mod services;
@@ -14,6 +15,7 @@ mod topology;
 // What the rest of the crate names; the types nested deeper in a section
 // (RtConfig, LayerConfig, InLayer, ...) are reached through their tables.
 pub use drivers::{DriverConfig, pull_file};
+pub use emulators::EmulatorConfig;
 pub use process::RestartConfig;
 pub use regions::RegionConfig;
 pub use services::{ServiceConfig, ServiceKind};
@@ -34,6 +36,9 @@ pub struct Config {
     /// Drivers, each run in its own process.
     #[serde(rename = "driver", default)]
     pub drivers: Vec<DriverConfig>,
+    /// Emulated skin boards, started before the drivers.
+    #[serde(rename = "emulator", default)]
+    pub emulators: Vec<EmulatorConfig>,
     /// Named regions of the skin.
     #[serde(rename = "region", default)]
     pub regions: Vec<RegionConfig>,
@@ -86,9 +91,20 @@ impl Config {
             driver.restart.check().with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
             driver.build(&config.skin).with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
         }
+        let mut emulators = std::collections::HashSet::new();
+        for emulator in &config.emulators {
+            if !emulators.insert(&emulator.name) {
+                bail!(
+                    "{}: emulator name {:?} is used twice; emulator names must be unique",
+                    path.display(),
+                    emulator.name
+                );
+            }
+            emulator.check().with_context(|| format!("{}: emulator {:?}", path.display(), emulator.name))?;
+        }
         let mut channels: std::collections::HashSet<String> = std::collections::HashSet::new();
         for driver in &config.drivers {
-            for spec in skinware::Driver::layers(&driver.build(&config.skin)?) {
+            for spec in driver.build(&config.skin)?.layers() {
                 channels.insert(spec.topology.name);
             }
         }
@@ -124,6 +140,11 @@ impl Config {
     /// The service called `name`.
     pub fn service(&self, name: &str) -> Result<&ServiceConfig> {
         self.services.iter().find(|s| s.name == name).with_context(|| format!("no service {name:?} in the config"))
+    }
+
+    /// The emulator called `name`.
+    pub fn emulator(&self, name: &str) -> Result<&EmulatorConfig> {
+        self.emulators.iter().find(|e| e.name == name).with_context(|| format!("no emulator {name:?} in the config"))
     }
 
     /// The driver called `name`.

@@ -44,7 +44,7 @@ fn explicit(sensors: &str, uids: &str) -> Result<Config> {
 fn explicit_topology_is_checked() {
     let config = explicit("15", "13, 14, 15").unwrap();
     let driver = config.drivers[0].build("s").unwrap();
-    let layers = skinware::Driver::layers(&driver);
+    let layers = driver.layers();
     assert_eq!(layers[0].topology.sensors.len(), 15);
     assert_eq!(layers[0].topology.rate_hz, 50.0);
 
