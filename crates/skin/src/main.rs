@@ -101,6 +101,13 @@ fn main() -> std::process::ExitCode {
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();
+    // A reader of our stdout that goes away (`skin ls | head`) is not an
+    // error of these commands; for the others a broken pipe is a real failure
+    // (an SLCAN adapter unplugged gives one too).
+    let prints_to_stdout = matches!(
+        cli.command,
+        Command::Ls(_) | Command::Top(_) | Command::Echo(_) | Command::Services(_) | Command::Geometry(_)
+    );
     let result = match cli.command {
         Command::Run { config } => commands::run::run(&config),
         Command::Ls(args) => commands::ls::run(&args),
@@ -123,7 +130,7 @@ fn main() -> std::process::ExitCode {
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
-        Err(e) if is_broken_pipe(&e) => std::process::ExitCode::SUCCESS,
+        Err(e) if prints_to_stdout && is_broken_pipe(&e) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("skin: error: {e:#}");
             std::process::ExitCode::FAILURE

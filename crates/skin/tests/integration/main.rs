@@ -9,6 +9,7 @@
 //! Run one file's tests with `cargo test -p skin --test integration e2e::`.
 
 mod browser;
+mod can_e2e;
 mod e2e;
 mod services_e2e;
 mod util;

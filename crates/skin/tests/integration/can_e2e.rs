@@ -1,0 +1,259 @@
+//! End to end through `skin run` on the real CAN driver path: emulated MTB
+//! boards (their own process) → SLCAN on a pseudo-terminal → the CAN driver
+//! (its own process) → the exchange → a reader in this process. Every taxel
+//! value is checked against what the boards sent (their `candump -l` log);
+//! then the fault switches, and the boards killed (a cable pull) and
+//! restarted by the supervisor.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command};
+use std::time::{Duration, Instant};
+
+use skinware::{Reader, ReaderOptions, WriterState};
+use skinware_drivers::can::candump;
+use skinware_drivers::can::icub_mtb::{self, Message};
+
+use crate::util::one_skin_at_a_time;
+
+struct Skin {
+    dir: PathBuf,
+    supervisor: Option<Child>,
+}
+
+impl Skin {
+    fn start(test: &str, emulator_extra: &str) -> Skin {
+        let dir = PathBuf::from("/dev/shm").join(format!("skin-can-e2e-{}-{test}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let config = format!(
+            r#"skin = "can"
+
+[[emulator]]
+name = "bus"
+kind = "icub-mtb"
+boards = 2
+triangles = 8
+rate_hz = 50
+link = "{link}"
+candump = "{log}"
+{emulator_extra}
+
+[emulator.restart]
+min_backoff_s = 0.1
+max_backoff_s = 0.5
+
+[[driver]]
+name = "skin"
+kind = "can"
+interface = "slcan://{link}?bitrate=1000000"
+protocol = "icub-mtb"
+period_ms = 20
+no_load = 240
+
+[[driver.board]]
+address = 1
+triangles = 8
+
+[[driver.board]]
+address = 2
+triangles = 8
+"#,
+            link = dir.join("bus").display(),
+            log = dir.join("bus.log").display(),
+        );
+        let config_path = dir.join("config.toml");
+        std::fs::write(&config_path, config).unwrap();
+        let supervisor = Command::new(env!("CARGO_BIN_EXE_skin"))
+            .env("SKINWARE_SHM_DIR", &dir)
+            .env("RUST_LOG", "warn")
+            .arg("run")
+            .arg(&config_path)
+            .spawn()
+            .expect("start skin run");
+        Skin { dir, supervisor: Some(supervisor) }
+    }
+
+    /// A reader of the CAN layer, once it has published frames.
+    fn reader(&self) -> Reader {
+        let options = ReaderOptions { dir: Some(self.dir.clone()), ..ReaderOptions::default() };
+        let started = Instant::now();
+        loop {
+            match Reader::open_with("can", "skin", &options) {
+                Ok(reader) => return reader,
+                Err(e) if started.elapsed() > Duration::from_secs(20) => panic!("the CAN layer never came up: {e}"),
+                Err(_) => std::thread::sleep(Duration::from_millis(20)),
+            }
+        }
+    }
+
+    /// Stops the skin with SIGINT, as a user would (the boards flush their log).
+    fn stop(&mut self) {
+        if let Some(mut supervisor) = self.supervisor.take() {
+            let pid = rustix::process::Pid::from_raw(supervisor.id() as i32).unwrap();
+            let _ = rustix::process::kill_process(pid, rustix::process::Signal::INT);
+            let _ = supervisor.wait();
+        }
+    }
+
+    /// The process id of `skin emulator CONFIG --name bus`.
+    fn emulator_pid(&self) -> Option<i32> {
+        let config = self.dir.join("config.toml").display().to_string();
+        std::fs::read_dir("/proc").ok()?.flatten().find_map(|entry| {
+            let pid: i32 = entry.file_name().to_str()?.parse().ok()?;
+            let cmdline = std::fs::read(entry.path().join("cmdline")).ok()?;
+            let args: Vec<String> =
+                cmdline.split(|&b| b == 0).map(|a| String::from_utf8_lossy(a).into_owned()).collect();
+            (args.get(1).map(String::as_str) == Some("emulator") && args.get(2) == Some(&config)).then_some(pid)
+        })
+    }
+}
+
+impl Drop for Skin {
+    fn drop(&mut self) {
+        if let Some(mut supervisor) = self.supervisor.take() {
+            let _ = supervisor.kill();
+            let _ = supervisor.wait();
+        }
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+fn wait_for(reader: &mut Reader, state: WriterState, within: Duration) -> Duration {
+    let started = Instant::now();
+    loop {
+        if state != WriterState::Gone {
+            reader.follow_recreated();
+        }
+        if reader.writer_state() == state {
+            return started.elapsed();
+        }
+        assert!(started.elapsed() < within, "{} never became {state} (is {})", reader.label(), reader.writer_state());
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+/// Every (board, triangle) pair of raw values the log holds, as published
+/// responses (255 - raw), keyed by (board, triangle).
+fn logged_triangles(log: &Path) -> std::collections::HashMap<(u8, u8), Vec<[u16; 12]>> {
+    let text = std::fs::read_to_string(log).unwrap();
+    let mut heads = std::collections::HashMap::new();
+    let mut pairs: std::collections::HashMap<(u8, u8), Vec<[u16; 12]>> = std::collections::HashMap::new();
+    for line in text.lines() {
+        let Some(record) = candump::parse_line(line).unwrap() else { continue };
+        match icub_mtb::parse(&record.frame) {
+            Message::Head { board, triangle, raw } => {
+                heads.insert((board, triangle), raw);
+            }
+            Message::Tail { board, triangle, raw, .. } => {
+                if let Some(head) = heads.remove(&(board, triangle)) {
+                    let values: Vec<u16> = head.iter().chain(raw.iter()).map(|&r| icub_mtb::response(r)).collect();
+                    pairs.entry((board, triangle)).or_default().push(values.try_into().unwrap());
+                }
+            }
+            _ => {}
+        }
+    }
+    pairs
+}
+
+#[test]
+fn every_taxel_sent_by_emulated_boards_reaches_a_reader_in_another_process() {
+    let _alone = one_skin_at_a_time();
+    let mut skin = Skin::start("values", "");
+    let mut reader = skin.reader();
+    wait_for(&mut reader, WriterState::Running, Duration::from_secs(10));
+    reader.wait_newer(Duration::from_secs(5)).unwrap();
+    let mut frames = Vec::new();
+    for _ in 0..5 {
+        frames.push(reader.wait_newer(Duration::from_secs(2)).unwrap().responses().to_vec());
+    }
+    let (rate, false_faults) = {
+        let before = reader.writer_stats();
+        std::thread::sleep(Duration::from_secs(1));
+        let after = reader.writer_stats();
+        (after.frames - before.frames, after.faults - before.faults)
+    };
+    skin.stop();
+    let logged = logged_triangles(&skin.dir.join("bus.log"));
+    let topology = reader.topology().unwrap();
+    for (f, frame) in frames.iter().enumerate() {
+        for module in &topology.modules {
+            let key = ((module.id >> 4) as u8, (module.id & 0xF) as u8);
+            let values: [u16; 12] = frame[module.sensors.clone()].try_into().unwrap();
+            let sent =
+                logged.get(&key).unwrap_or_else(|| panic!("no frame of board {} triangle {} in the log", key.0, key.1));
+            assert!(sent.contains(&values), "frame {f}, board {} triangle {}: {values:?} was never sent", key.0, key.1);
+        }
+    }
+    println!(
+        "can e2e: {} taxels checked in {} frames against the boards' log; {rate} frames/s, {false_faults} failed acquisitions in that second",
+        frame_len(&frames),
+        frames.len()
+    );
+    assert!((45..=55).contains(&rate), "{rate} frames/s at 50 Hz");
+}
+
+fn frame_len(frames: &[Vec<u16>]) -> usize {
+    frames.first().map_or(0, Vec::len)
+}
+
+#[test]
+fn boards_killed_are_a_cable_pull_and_their_restart_recovers() {
+    let _alone = one_skin_at_a_time();
+    let skin = Skin::start("kill", "");
+    let mut reader = skin.reader();
+    wait_for(&mut reader, WriterState::Running, Duration::from_secs(10));
+    // Frames flow (a fresh channel says running before its first acquisition).
+    reader.wait_newer(Duration::from_secs(5)).unwrap();
+    let pid = skin.emulator_pid().expect("the emulator process");
+    rustix::process::kill_process(rustix::process::Pid::from_raw(pid).unwrap(), rustix::process::Signal::KILL).unwrap();
+    let killed = skinware::os::monotonic_ns();
+    // Faulted, with no frame since the kill: the pull is seen.
+    let started = Instant::now();
+    loop {
+        reader.follow_recreated();
+        let last = reader.latest().map(|f| f.published_ns()).unwrap_or(0);
+        if reader.writer_state() == WriterState::Faulted && last <= killed {
+            break;
+        }
+        assert!(started.elapsed() < Duration::from_secs(5), "the pulled bus was never seen: {}", reader.writer_state());
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let seen = skinware::os::monotonic_ns();
+    let last_good = reader.latest().unwrap().published_ns();
+    // Back: the supervisor restarts the boards, the driver reopens the link.
+    let fresh =
+        reader.wait_newer(Duration::from_secs(10)).expect("fresh frames after the boards' restart").published_ns();
+    println!(
+        "can e2e: boards killed: faulted {:.1} ms after the last good frame ({:.1} ms after the kill); fresh frames again {:.0} ms after the kill",
+        (seen - last_good) as f64 / 1e6,
+        (seen - killed) as f64 / 1e6,
+        (fresh - killed) as f64 / 1e6
+    );
+    assert_eq!(reader.writer_state(), WriterState::Running);
+}
+
+#[test]
+fn each_fault_switch_faults_the_layer() {
+    let _alone = one_skin_at_a_time();
+    for (name, extra) in [
+        ("silence", "silence_after_s = 1.0"),
+        ("drop-tails", "drop_tails = true"),
+        ("error-nibble", "error_nibble = 2"),
+    ] {
+        let skin = Skin::start(name, extra);
+        let mut reader = skin.reader();
+        if name == "silence" {
+            wait_for(&mut reader, WriterState::Running, Duration::from_secs(10));
+            reader.wait_newer(Duration::from_secs(5)).unwrap();
+            let faulted = wait_for(&mut reader, WriterState::Faulted, Duration::from_secs(5));
+            let last_good = reader.latest().unwrap().published_ns();
+            let detected = (skinware::os::monotonic_ns() - last_good) as f64 / 1e6;
+            println!("can e2e: {name}: faulted {detected:.1} ms after the last good frame ({faulted:?} after running)");
+            assert!(detected < 200.0);
+        } else {
+            std::thread::sleep(Duration::from_millis(800));
+            assert_eq!(reader.writer_state(), WriterState::Faulted, "{name}");
+            println!("can e2e: {name}: the layer is faulted ({} failed acquisitions)", reader.writer_stats().faults);
+        }
+    }
+}
