@@ -18,6 +18,7 @@
 #![deny(unsafe_code)]
 
 pub mod app;
+pub mod can;
 #[cfg(feature = "iceoryx2")]
 mod iceoryx2_peer;
 pub mod measure;

@@ -11,6 +11,8 @@ pub enum Which {
     Paper(PaperArgs),
     /// The paper's Table I: a 180-sensor CAN layer and a 708-sensor EtherCAT layer.
     Table1(Table1Args),
+    /// A CAN skin on the real driver path: emulated MTB boards over SLCAN, frames/s and latency to a reader.
+    Can(Common),
     /// The whole-skin frame to 1, 4 and 15 waiting readers: skinware, iceoryx2 (feature), a lock-based baseline, memcpy, cyclictest.
     Peers(Common),
 }
@@ -96,6 +98,14 @@ pub fn run(which: &Which) -> Result<()> {
                 transport,
             };
             skinware_bench::table1::run(&options).map(|_| ())
+        }
+        Which::Can(common) => {
+            let options = skinware_bench::can::CanOptions {
+                quick: common.quick,
+                out: common.out.clone(),
+                seconds: common.seconds,
+            };
+            skinware_bench::can::run(&options).map(|_| ())
         }
         Which::Peers(common) => {
             let options = skinware_bench::peers::PeersOptions {

@@ -118,8 +118,8 @@ impl CanDriverConfig {
 /// The newest image of the layer, written by the bus thread.
 struct Image {
     values: Vec<u16>,
-    /// When each module was last complete (`None`: never).
-    complete_at: Vec<Option<Instant>>,
+    /// When each module was last complete, CLOCK_MONOTONIC ns (`None`: never).
+    complete_at: Vec<Option<u64>>,
     /// A module's own error report (an MTB tail's error nibble), if any.
     module_error: Vec<u8>,
     /// Why the link is down, while it is.
@@ -224,7 +224,7 @@ impl Decoder {
 
     /// Applies one frame to the image.
     fn apply(&mut self, frame: &CanFrame, image: &mut Image, topology_modules: &[std::ops::Range<usize>]) {
-        let now = Instant::now();
+        let now = skinware::os::monotonic_ns();
         match &self.protocol {
             Protocol::IcubMtb { settings: _, .. } => match icub_mtb::parse(frame) {
                 Message::Head { board, triangle, raw } => {
@@ -387,20 +387,22 @@ impl LayerSource for CanLayer {
         if let Some(why) = &image.link_down {
             return Err(why.clone().into());
         }
-        let now = Instant::now();
+        let now = skinware::os::monotonic_ns();
+        let stale_after = self.stale_after.as_nanos() as u64;
+        let mut oldest = now;
         for (index, module) in self.topology.modules.iter().enumerate() {
             let patch = self.topology.patches[module.patch].id;
             match image.complete_at[index] {
                 None => return Err(format!("patch {patch}, module {:#x}: no complete frame yet", module.id).into()),
-                Some(at) if now - at > self.stale_after => {
+                Some(at) if now.saturating_sub(at) > stale_after => {
                     return Err(format!(
                         "patch {patch}, module {:#x}: no complete frame for {} ms (silent, or a frame of it lost)",
                         module.id,
-                        (now - at).as_millis()
+                        now.saturating_sub(at) / 1_000_000
                     )
                     .into());
                 }
-                Some(_) => {}
+                Some(at) => oldest = oldest.min(at),
             }
             if image.module_error[index] != 0 {
                 return Err(format!(
@@ -411,6 +413,8 @@ impl LayerSource for CanLayer {
             }
         }
         frame.write_responses(0, &image.values)?;
+        // The frame's acquisition time is when its oldest data arrived.
+        frame.set_acquired_ns(oldest);
         Ok(())
     }
 }
