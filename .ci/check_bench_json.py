@@ -60,6 +60,10 @@ for name, transport in (("table1.json", "memory"), ("table1-slcan/table1.json", 
         need(row.get("samples", 0) > 0 and row.get("worst_ns", 0) >= row.get("avg_ns", 0) > 0, f"{name}: {row.get('name')} incomplete")
     need([row.get("transport") for row in table1[:2]] == ["memory", transport], f"{name}: the writers' transport is not recorded")
 
+can = json.loads((out / "can.json").read_text())
+need(can.get("taxels") == 768 and can.get("layer_frames_per_s", 0) > 0 and can.get("bus_frames_per_s", 0) > 0, "can.json: rates missing")
+need(can.get("latency_us", {}).get("samples", 0) > 0, "can.json: no latency samples")
+
 if problems:
     print("benchmark JSON problems:\n  " + "\n  ".join(problems))
     sys.exit(1)

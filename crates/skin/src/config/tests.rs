@@ -134,3 +134,41 @@ fn example_configs_load() {
     }
     assert!(loaded >= 2);
 }
+
+const CAN: &str = "[[driver]]\nname = \"bus\"\nkind = \"can\"\ninterface = \"slcan:///dev/ttyACM0?bitrate=1000000\"\nprotocol = \"icub-mtb\"\n[[driver.board]]\naddress = 1\ntriangles = 16\n";
+
+#[test]
+fn can_drivers_are_checked() {
+    let config = load(CAN).unwrap();
+    let layers = config.drivers[0].build("s").unwrap().layers();
+    assert_eq!((layers[0].topology.name.as_str(), layers[0].topology.sensors.len()), ("bus", 192));
+    for (from, to, problem) in [
+        ("interface = \"slcan:///dev/ttyACM0?bitrate=1000000\"\n", "", "needs `interface`"),
+        ("slcan:///dev/ttyACM0?bitrate=1000000", "ttyACM0", "no scheme"),
+        ("protocol = \"icub-mtb\"", "protocol = \"mtb\"", "unknown variant `mtb`"),
+        ("address = 1", "address = 16", "1 to 15"),
+        ("triangles = 16", "triangles = [0, 17]", "0 to 15"),
+        ("[[driver.board]]\naddress = 1\ntriangles = 16\n", "", "[[driver.board]]"),
+        ("kind = \"can\"", "kind = \"can\"\nsensors = 12", "setting of the virtual skin"),
+    ] {
+        let err = load(&CAN.replace(from, to)).unwrap_err();
+        assert!(format!("{err:#}").contains(problem), "{from} -> {to}: {err:#}");
+    }
+    let err = load("[[driver]]\nname = \"v\"\nkind = \"virtual\"\nprotocol = \"xela\"\n").unwrap_err();
+    assert!(format!("{err:#}").contains("setting of kind = \"can\""), "{err:#}");
+}
+
+#[test]
+fn emulators_are_checked() {
+    let emulator = "[[emulator]]\nname = \"bus0\"\nkind = \"icub-mtb\"\nlink = \"/tmp/x\"\n";
+    assert!(load(&format!("{emulator}{CAN}")).is_ok());
+    for (from, to, problem) in [
+        ("link = \"/tmp/x\"\n", "", "either `link`"),
+        ("link = \"/tmp/x\"\n", "link = \"/tmp/x\"\ncannelloni = \"127.0.0.1:1\"\npeer = \"127.0.0.1:2\"\n", "either `link`"),
+        ("kind = \"icub-mtb\"", "kind = \"icub-mtb\"\nboards = 16", "1 to 15"),
+        ("kind = \"icub-mtb\"", "kind = \"icub-mtb\"\nrate_hz = 0", "rate_hz"),
+    ] {
+        let err = load(&format!("{}{CAN}", emulator.replace(from, to))).unwrap_err();
+        assert!(format!("{err:#}").contains(problem), "{from} -> {to}: {err:#}");
+    }
+}
