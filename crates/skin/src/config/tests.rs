@@ -164,7 +164,11 @@ fn emulators_are_checked() {
     assert!(load(&format!("{emulator}{CAN}")).is_ok());
     for (from, to, problem) in [
         ("link = \"/tmp/x\"\n", "", "either `link`"),
-        ("link = \"/tmp/x\"\n", "link = \"/tmp/x\"\ncannelloni = \"127.0.0.1:1\"\npeer = \"127.0.0.1:2\"\n", "either `link`"),
+        (
+            "link = \"/tmp/x\"\n",
+            "link = \"/tmp/x\"\ncannelloni = \"127.0.0.1:1\"\npeer = \"127.0.0.1:2\"\n",
+            "either `link`",
+        ),
         ("kind = \"icub-mtb\"", "kind = \"icub-mtb\"\nboards = 16", "1 to 15"),
         ("kind = \"icub-mtb\"", "kind = \"icub-mtb\"\nrate_hz = 0", "rate_hz"),
     ] {
