@@ -248,8 +248,17 @@ fn each_fault_switch_faults_the_layer() {
             let faulted = wait_for(&mut reader, WriterState::Faulted, Duration::from_secs(5));
             let last_good = reader.latest().unwrap().published_ns();
             let detected = (skinware::os::monotonic_ns() - last_good) as f64 / 1e6;
-            println!("can e2e: {name}: faulted {detected:.1} ms after the last good frame ({faulted:?} after running)");
             assert!(detected < 200.0);
+            // The silent boards are restarted (killed; the supervisor starts them again).
+            let pid = skin.emulator_pid().expect("the emulator process");
+            rustix::process::kill_process(rustix::process::Pid::from_raw(pid).unwrap(), rustix::process::Signal::KILL)
+                .unwrap();
+            let killed = Instant::now();
+            reader.wait_newer(Duration::from_secs(10)).expect("frames again once the boards are back");
+            println!(
+                "can e2e: {name}: faulted {detected:.1} ms after the last good frame ({faulted:?} after running); boards restarted: frames again {:.0} ms after the kill",
+                killed.elapsed().as_secs_f64() * 1e3
+            );
         } else {
             std::thread::sleep(Duration::from_millis(800));
             assert_eq!(reader.writer_state(), WriterState::Faulted, "{name}");
