@@ -43,6 +43,9 @@ pub struct MtbEmulation {
     pub faults: MtbFaults,
     /// Seed of the virtual body's contacts.
     pub seed: u64,
+    /// SCHED_FIFO priority of the boards' thread: emulated hardware should
+    /// be as punctual as real boards (refused without the privilege: warned).
+    pub fifo_priority: Option<u8>,
 }
 
 impl MtbEmulation {
@@ -58,8 +61,19 @@ impl MtbEmulation {
             Duration::from_secs_f64(1.0 / self.rate_hz),
             self.faults.clone(),
         );
-        let field = PressureField::new(boards.taxels(), self.seed, 24.0 * 3600.0);
-        let touch = crate::contacts(&field);
+        // Five minutes of contacts, repeated: drawing a day's worth would cost
+        // the start-up (and every period's look through them) far more.
+        const CONTACTS_S: f64 = 300.0;
+        let field = PressureField::new(boards.taxels(), self.seed, CONTACTS_S);
+        let touch = |t: f64, responses: &mut [u16]| field.responses(t % CONTACTS_S, 0, responses);
+        // Real time only once the set-up is done, so that it starves nobody.
+        if let Some(priority) = self.fifo_priority
+            && let Err(e) = skinware::os::set_fifo_priority(priority)
+        {
+            tracing::warn!(
+                "SCHED_FIFO priority {priority} refused ({e}); the emulated boards run in the normal scheduler"
+            );
+        }
         let mut log = match &self.candump {
             Some(path) => Some(std::io::BufWriter::new(std::fs::File::create(path)?)),
             None => None,

@@ -55,6 +55,9 @@ pub struct MtbArgs {
     /// Seed of the virtual body's moving contacts.
     #[arg(long, default_value_t = 7)]
     seed: u64,
+    /// SCHED_FIFO priority of the boards' thread (real boards are punctual).
+    #[arg(long, default_value = "70")]
+    fifo_priority: Option<u8>,
 }
 
 /// Runs `skin emulate`: prints the URL a host opens on the first line of
@@ -85,6 +88,7 @@ pub fn run(which: &Which) -> Result<()> {
             silence_after: args.silence_after.map(Duration::from_secs_f64),
         },
         seed: args.seed,
+        fifo_priority: args.fifo_priority,
     };
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {

@@ -45,6 +45,9 @@ pub struct EmulatorConfig {
     pub silence_after_s: Option<f64>,
     #[serde(default = "default_seed")]
     pub seed: u64,
+    /// SCHED_FIFO priority of the boards' thread (0: the normal scheduler).
+    #[serde(default = "default_priority")]
+    pub fifo_priority: u8,
     #[serde(default)]
     pub restart: RestartConfig,
 }
@@ -65,6 +68,10 @@ fn default_seed() -> u64 {
     7
 }
 
+fn default_priority() -> u8 {
+    70
+}
+
 impl EmulatorConfig {
     /// Refuses values no MTB bus has, and a table without exactly one link.
     pub(super) fn check(&self) -> Result<()> {
@@ -74,6 +81,9 @@ impl EmulatorConfig {
         }
         if !(self.rate_hz.is_finite() && self.rate_hz > 0.0 && self.rate_hz <= 1000.0) {
             bail!("`rate_hz` {} must be above 0 and at most 1000", self.rate_hz);
+        }
+        if self.fifo_priority > 99 {
+            bail!("`fifo_priority` is 0 (normal scheduler) or 1 to 99");
         }
         if self.error_nibble.is_some_and(|e| e > 15) {
             bail!("`error_nibble` is 0 to 15");
@@ -109,6 +119,7 @@ impl EmulatorConfig {
                 silence_after: self.silence_after_s.map(Duration::from_secs_f64),
             },
             seed: self.seed,
+            fifo_priority: (self.fifo_priority > 0).then_some(self.fifo_priority),
         }
     }
 }

@@ -301,6 +301,12 @@ impl Link {
     }
 
     fn run(mut self) {
+        // The bus thread is part of the acquisition: it runs with the
+        // layer's real-time settings, so that frames are taken off the bus
+        // as punctually as they are published.
+        for refused in self.config.rt.apply() {
+            tracing::warn!(url = %self.config.interface, "bus thread: {refused}");
+        }
         let topology_modules: Vec<std::ops::Range<usize>> = match self.config.topology() {
             Ok(topology) => topology.modules.iter().map(|m| m.sensors.clone()).collect(),
             Err(_) => return,
