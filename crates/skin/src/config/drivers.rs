@@ -21,22 +21,32 @@ pub enum DriverKind {
 #[derive(Debug, Deserialize, Clone)]
 #[serde(deny_unknown_fields)]
 pub struct DriverConfig {
+    /// Unique among the drivers; generated layers are `NAME-0`, `NAME-1`, ...
     pub name: String,
+    /// Which driver.
     pub kind: DriverKind,
+    /// Real-time settings of its writer threads (`[driver.rt]`).
     #[serde(default)]
     pub rt: RtConfig,
+    /// How its process is restarted (`[driver.restart]`).
     #[serde(default)]
     pub restart: RestartConfig,
     /// Frame buffers per layer channel.
     #[serde(default = "default_slots")]
     pub slots: usize,
-    // Virtual skin parameters.
+    /// Generated skin: total sensors, split equally over `layers`.
     pub sensors: Option<usize>,
+    /// Generated skin: number of layers.
     pub layers: Option<usize>,
+    /// Generated skin: sensors per module (a layer's last module may have fewer).
     pub sensors_per_module: Option<usize>,
+    /// Generated skin: `[min, max]` modules per patch, drawn per patch.
     pub modules_per_patch: Option<[usize; 2]>,
+    /// Acquisition rate of each layer, drawn once per layer.
     pub rate_hz: Option<Rate>,
+    /// Seed of every random choice (rates, patch sizes, contacts, noise).
     pub seed: Option<u64>,
+    /// Scheduled disconnections (`[[driver.cable_pull]]`).
     #[serde(default, rename = "cable_pull")]
     pub cable_pulls: Vec<CablePull>,
     /// Scripted contacts (`[[driver.contact]]`).
@@ -68,6 +78,11 @@ pub fn pull_file(skin: &str, layer: &str) -> PathBuf {
 }
 
 impl DriverConfig {
+    /// Checks what building the driver does not: its restart policy.
+    pub(super) fn check(&self) -> Result<()> {
+        self.restart.check()
+    }
+
     /// Builds the driver this table describes.
     pub fn build(&self, skin: &str) -> Result<VirtualSkin> {
         skinware::shm::validate_name("driver", &self.name)?;

@@ -51,8 +51,15 @@ impl Config {
     /// file:line:column, and every driver is built once to check its topology.
     pub fn load(path: &Path) -> Result<Config> {
         let text = std::fs::read_to_string(path).with_context(|| format!("cannot read config {}", path.display()))?;
-        let mut config: Config = toml::from_str(&text).map_err(|e| {
-            let (line, column) = e.span().map(|span| line_column(&text, span.start)).unwrap_or((1, 1));
+        Config::parse(&text, path)
+    }
+
+    /// Parses and checks the text of a configuration file, as [`Config::load`]
+    /// does after reading it. `path` names the file in messages, and relative
+    /// paths in the config start at its directory; nothing is read from it.
+    pub fn parse(text: &str, path: &Path) -> Result<Config> {
+        let mut config: Config = toml::from_str(text).map_err(|e| {
+            let (line, column) = e.span().map(|span| line_column(text, span.start)).unwrap_or((1, 1));
             anyhow::anyhow!("{}:{line}:{column}: {}", path.display(), e.message())
         })?;
         skinware::shm::validate_name("skin", &config.skin).with_context(|| format!("{}: `skin`", path.display()))?;
@@ -60,16 +67,15 @@ impl Config {
             bail!("{}: no [[driver]] table; add at least one driver (see examples/)", path.display());
         }
         let mut names = std::collections::HashSet::new();
+        let mut channels: std::collections::HashSet<String> = std::collections::HashSet::new();
         for driver in &config.drivers {
             if !names.insert(&driver.name) {
                 bail!("{}: driver name {:?} is used twice; driver names must be unique", path.display(), driver.name);
             }
-            driver.restart.check().with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
-            driver.build(&config.skin).with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
-        }
-        let mut channels: std::collections::HashSet<String> = std::collections::HashSet::new();
-        for driver in &config.drivers {
-            for spec in skinware::Driver::layers(&driver.build(&config.skin)?) {
+            driver.check().with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
+            let built =
+                driver.build(&config.skin).with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
+            for spec in skinware::Driver::layers(&built) {
                 channels.insert(spec.topology.name);
             }
         }

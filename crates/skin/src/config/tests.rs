@@ -1,13 +1,10 @@
-//! The config's checks, through `Config::load` of small configs.
+//! The config's checks, through `Config::parse` of small configs (the
+//! geometry they lead to is tested with the binary's `geometry` module).
 
 use super::*;
 
 fn load(text: &str) -> Result<Config> {
-    let path = std::env::temp_dir().join(format!("skin-config-test-{}-{}.toml", std::process::id(), text.len()));
-    std::fs::write(&path, text).unwrap();
-    let result = Config::load(&path);
-    let _ = std::fs::remove_file(&path);
-    result
+    Config::parse(text, Path::new("test.toml"))
 }
 
 #[test]
@@ -94,31 +91,6 @@ fn regions_are_checked() {
     assert!(err.contains("uid_range [9, 3] is backwards"), "{err}");
     let err = format!("{:#}", with("[[region]]\nname = \"r\"\nlink = \"torso\"\n").unwrap_err());
     assert!(err.contains("unknown field `link`"), "{err}");
-    // Resolving against the skin happens when the geometry is built.
-    let config = with("[[region]]\nname = \"r\"\nlinks = [\"tail\"]\n").unwrap();
-    let err = format!("{:#}", crate::geometry::load_or_build_in(&config, &std::env::temp_dir()).unwrap_err());
-    assert!(err.contains("region \"r\": no sensor is on link \"tail\""), "{err}");
-}
-
-#[test]
-fn a_skin_calib_calibration_is_imported() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/calibrated-hand.toml");
-    let config = Config::load(&path).unwrap();
-    let cache = std::env::temp_dir().join(format!("skin-calib-test-{}", std::process::id()));
-    let (geometry, _) = crate::geometry::load_or_build_in(&config, &cache).unwrap();
-    let _ = std::fs::remove_dir_all(&cache);
-    assert_eq!(geometry.sensor_count(), 24);
-    // uid 8: row 1, column 1 of the 5 mm grid.
-    assert!((geometry.positions[7][0] - 0.005).abs() < 1e-6 && (geometry.positions[7][1] - 0.005).abs() < 1e-6);
-    assert!((geometry.radii[0] - 0.002).abs() < 1e-7);
-    assert_eq!(geometry.region("palm").unwrap().len(), 12);
-    assert_eq!(geometry.links, ["palm", "fingers"]);
-    // A missing calibration file is named.
-    let broken = config.drivers[0].clone();
-    let mut config = config;
-    config.drivers = vec![crate::config::DriverConfig { calibration: Some("missing.calib".into()), ..broken }];
-    let err = format!("{:#}", crate::geometry::load_or_build_in(&config, &std::env::temp_dir()).unwrap_err());
-    assert!(err.contains("missing.calib") && err.contains("cannot read it"), "{err}");
 }
 
 #[test]

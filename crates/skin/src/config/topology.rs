@@ -10,7 +10,9 @@ use super::process::RtConfig;
 #[derive(Debug, Deserialize, Clone)]
 #[serde(deny_unknown_fields)]
 pub struct LayerConfig {
+    /// The layer's channel name.
     pub name: String,
+    /// The kind of its sensors.
     #[serde(default = "default_sensor_type")]
     pub sensor_type: String,
     /// Rate of this layer; the driver's `rate_hz` if absent.
@@ -19,6 +21,7 @@ pub struct LayerConfig {
     pub sensors: Option<usize>,
     /// Real-time settings of this layer's writer thread; the driver's if absent.
     pub rt: Option<RtConfig>,
+    /// Its patches (`[[driver.layer.patch]]`).
     #[serde(rename = "patch")]
     pub patches: Vec<PatchConfig>,
 }
@@ -31,7 +34,9 @@ fn default_sensor_type() -> String {
 #[derive(Debug, Deserialize, Clone)]
 #[serde(deny_unknown_fields)]
 pub struct PatchConfig {
+    /// Unique in the layer.
     pub id: u32,
+    /// Its modules (`[[driver.layer.patch.module]]`).
     #[serde(rename = "module", default)]
     pub modules: Vec<ModuleConfig>,
 }
@@ -40,8 +45,11 @@ pub struct PatchConfig {
 #[derive(Debug, Deserialize, Clone)]
 #[serde(deny_unknown_fields)]
 pub struct ModuleConfig {
+    /// Unique in the layer.
     pub id: u32,
+    /// Its sensors' uids, in frame order.
     pub uids: Option<Vec<u32>>,
+    /// Its sensors' uids as an inclusive range.
     pub uid_range: Option<[u32; 2]>,
 }
 
