@@ -11,4 +11,7 @@
 
 pub mod virtual_skin;
 
-pub use virtual_skin::{CablePull, InvalidConfig, Rate, ScriptedContact, VirtualBody, VirtualSkin, VirtualSkinConfig};
+pub use virtual_skin::{
+    CablePull, InvalidConfig, MAX_LAYERS, MAX_SENSORS, Rate, ScriptedContact, VirtualBody, VirtualSkin,
+    VirtualSkinConfig,
+};

@@ -78,9 +78,13 @@ pub fn pull_file(skin: &str, layer: &str) -> PathBuf {
 }
 
 impl DriverConfig {
-    /// Checks what building the driver does not: its restart policy.
+    /// Checks what building the driver does not: its restart policy and slots.
     pub(super) fn check(&self) -> Result<()> {
-        self.restart.check()
+        self.restart.check()?;
+        if !(skinware::MIN_SLOTS..=skinware::MAX_SLOTS).contains(&self.slots) {
+            bail!("slots = {} must be from {} to {}", self.slots, skinware::MIN_SLOTS, skinware::MAX_SLOTS);
+        }
+        Ok(())
     }
 
     /// Builds the driver this table describes.
@@ -119,12 +123,15 @@ impl DriverConfig {
                         Rate::Random { random: [lo, _] } => *lo,
                     };
                     let mut layers = Vec::new();
+                    let mut budget = skinware_drivers::MAX_SENSORS;
                     for layer in &self.explicit_layers {
                         let rt = layer.rt.as_ref().unwrap_or(&self.rt).options();
-                        layers.push(skinware::LayerSpec { topology: layer.topology(default_rate)?, rt });
+                        layers.push(skinware::LayerSpec { topology: layer.topology(default_rate, &mut budget)?, rt });
                     }
                     config.explicit_layers = Some(layers);
                 }
+                // Before the layers are named: their number is checked there.
+                config.validate()?;
                 config.pull_files = Some(config.layer_names().iter().map(|layer| pull_file(skin, layer)).collect());
                 VirtualSkin::new(config).map_err(|e| anyhow::anyhow!(e))
             }

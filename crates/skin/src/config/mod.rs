@@ -68,6 +68,7 @@ impl Config {
         }
         let mut names = std::collections::HashSet::new();
         let mut channels: std::collections::HashSet<String> = std::collections::HashSet::new();
+        let mut sensors = 0;
         for driver in &config.drivers {
             if !names.insert(&driver.name) {
                 bail!("{}: driver name {:?} is used twice; driver names must be unique", path.display(), driver.name);
@@ -76,6 +77,7 @@ impl Config {
             let built =
                 driver.build(&config.skin).with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
             for spec in skinware::Driver::layers(&built) {
+                sensors += spec.topology.sensors.len();
                 channels.insert(spec.topology.name);
             }
         }
@@ -93,7 +95,7 @@ impl Config {
             }
         }
         for region in &config.regions {
-            region.spec().with_context(|| format!("{}", path.display()))?;
+            region.check(sensors).with_context(|| format!("{}", path.display()))?;
         }
         config.base_dir = path.parent().map(Path::to_owned).unwrap_or_default();
         Ok(config)
@@ -111,7 +113,13 @@ impl Config {
 }
 
 fn line_column(text: &str, offset: usize) -> (usize, usize) {
-    let before = &text[..offset.min(text.len())];
+    // An offset inside a character (which the parser should not give) counts
+    // from that character's start.
+    let mut end = offset.min(text.len());
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    let before = &text[..end];
     let line = before.matches('\n').count() + 1;
     let column = before.rfind('\n').map_or(before.len(), |nl| before.len() - nl - 1) + 1;
     (line, column)

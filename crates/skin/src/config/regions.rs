@@ -99,6 +99,24 @@ impl IdSelection<'_> {
 }
 
 impl RegionConfig {
+    /// Checks that no `uid_range` spans more uids than the skin's `sensors`
+    /// (every uid of a range must exist, and the range is expanded into a
+    /// list of them), then that the region has a spec.
+    pub(super) fn check(&self, sensors: usize) -> Result<()> {
+        let ranges = std::iter::once(self.uid_range).chain(self.in_layers.iter().map(|l| l.uid_range));
+        for [first, last] in ranges.flatten() {
+            let span = u64::from(last.saturating_sub(first)) + 1;
+            if first <= last && span > sensors as u64 {
+                bail!(
+                    "region {}: uid_range [{first}, {last}] spans {span} uids, more than the skin's {sensors} sensors",
+                    self.name
+                );
+            }
+        }
+        self.spec()?;
+        Ok(())
+    }
+
     /// The library's form of this region.
     pub fn spec(&self) -> Result<RegionSpec> {
         let mut selectors = Vec::new();

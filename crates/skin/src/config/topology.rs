@@ -1,7 +1,7 @@
 //! `[[driver.layer]]` tables: layers with an explicit topology (patches,
 //! modules and the uids of their sensors).
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use serde::Deserialize;
 
 use super::process::RtConfig;
@@ -55,8 +55,9 @@ pub struct ModuleConfig {
 
 impl LayerConfig {
     /// Builds and checks the topology: unique uids and ids, no empty module or
-    /// patch, and the declared sensor count.
-    pub(super) fn topology(&self, default_rate: f64) -> Result<skinware::LayerTopology> {
+    /// patch, and the declared sensor count. `budget` is how many more sensors
+    /// the driver may have; it is checked before a `uid_range` is expanded.
+    pub(super) fn topology(&self, default_rate: f64, budget: &mut usize) -> Result<skinware::LayerTopology> {
         skinware::shm::validate_name("layer", &self.name)?;
         if let Some(rate) = self.rate_hz {
             if !(rate.is_finite() && rate > 0.0 && rate <= 100_000.0) {
@@ -68,6 +69,19 @@ impl LayerConfig {
         for patch in &self.patches {
             builder.patch(patch.id);
             for module in &patch.modules {
+                let count = match (&module.uids, module.uid_range) {
+                    (Some(uids), None) => uids.len(),
+                    (None, Some([first, last])) => (last as usize).saturating_sub(first as usize) + 1,
+                    _ => 0,
+                };
+                *budget = budget.checked_sub(count).with_context(|| {
+                    format!(
+                        "layer {}: module {}: the driver's layers hold more than {} sensors",
+                        self.name,
+                        module.id,
+                        skinware_drivers::MAX_SENSORS
+                    )
+                })?;
                 let uids: Vec<u32> = match (&module.uids, module.uid_range) {
                     (Some(uids), None) => uids.clone(),
                     (None, Some([first, last])) if first <= last => (first..=last).collect(),
