@@ -67,6 +67,17 @@ fn main() {
     write("channel_header", "layer", &seed);
     drop(writer);
     let _ = std::fs::remove_dir_all(&dir);
+
+    config_seeds();
+    for (name, message) in [
+        ("ack", r#"{"ack":2}"#),
+        ("asap", r#"{"mode":"asap"}"#),
+        ("periodic", r#"{"mode":"periodic","rate_hz":12.5}"#),
+        ("request-mode", r#"{"mode":"request"}"#),
+        ("request", r#"{"request":true}"#),
+    ] {
+        write("viewer_message", name, message.as_bytes());
+    }
 }
 
 /// The frames memory a live writer hands over on its socket, as a reader gets it.
@@ -91,3 +102,104 @@ fn frames_memory(socket: &std::path::Path) -> Vec<u8> {
     file.read_exact_at(&mut bytes, 0).unwrap();
     bytes
 }
+
+/// The example configs, and a small one with every key.
+fn config_seeds() {
+    let examples = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples");
+    for entry in std::fs::read_dir(&examples).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let name = path.file_stem().unwrap().to_str().unwrap().to_owned();
+            write("config", &name, &std::fs::read(&path).unwrap());
+        }
+    }
+    write("config", "every-key", EVERY_KEY.as_bytes());
+}
+
+/// Every key of the format (examples/README.md), on a small skin.
+const EVERY_KEY: &str = r#"skin = "s"
+group_access = true
+
+[[driver]]
+name = "g"
+kind = "virtual"
+sensors = 96
+layers = 2
+sensors_per_module = 4
+modules_per_patch = [1, 3]
+rate_hz = { random = [30, 50] }
+seed = 7
+slots = 4
+random_contacts = false
+dead_taxels = [1, 2]
+stuck_taxels = [3]
+rt = { fifo_priority = 10, lock_memory = false, cpus = [0, 1] }
+restart = { min_backoff_s = 0.1, max_backoff_s = 2 }
+[[driver.cable_pull]]
+layer = "g-1"
+at_s = 1
+duration_s = 0.5
+every_s = 3
+[[driver.contact]]
+part = "left_forearm"
+at_s = 0.5
+angle_deg = 90
+height = 0.1
+velocity = [0.05, 0]
+press_s = 0.2
+slide_s = 1
+release_s = 0.2
+peak = 20000
+sigma = 0.01
+
+[[driver]]
+name = "x"
+kind = "virtual"
+rate_hz = 100
+calibration = "hand.calib"
+[[driver.layer]]
+name = "palm"
+sensor_type = "pressure"
+rate_hz = 200
+sensors = 8
+rt = { cpus = [0] }
+[[driver.layer.patch]]
+id = 1
+[[driver.layer.patch.module]]
+id = 1
+uid_range = [1, 4]
+[[driver.layer.patch.module]]
+id = 2
+uids = [5, 6, 7, 8]
+
+[[region]]
+name = "r"
+uids = [1]
+uid_range = [2, 3]
+modules = [1]
+patches = [1]
+links = ["torso"]
+near = { point = [0, 0, 1], radius = 0.1 }
+[[region.in_layer]]
+layer = "palm"
+uids = [5]
+uid_range = [6, 7]
+modules = [2]
+patches = [1]
+
+[[service]]
+name = "contact"
+kind = "contact"
+rate_hz = 50
+threshold_sigma = 4
+min_threshold = 20
+baseline_tau_s = 10
+restart = { min_backoff_s = 0.2, max_backoff_s = 5 }
+
+[[service]]
+name = "motion"
+kind = "motion"
+input = "contact"
+min_speed = 0.01
+window_s = 0.2
+"#;

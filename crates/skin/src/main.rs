@@ -3,7 +3,6 @@
 #![forbid(unsafe_code)]
 
 mod commands;
-mod config;
 mod geometry;
 mod layers;
 mod view;

@@ -14,5 +14,6 @@ pub mod can;
 pub mod virtual_skin;
 
 pub use virtual_skin::{
-    CablePull, InvalidConfig, PressureField, Rate, ScriptedContact, VirtualBody, VirtualSkin, VirtualSkinConfig,
+    CablePull, InvalidConfig, MAX_LAYERS, MAX_SENSORS, PressureField, Rate, ScriptedContact, VirtualBody, VirtualSkin,
+    VirtualSkinConfig,
 };

@@ -11,8 +11,8 @@ use anyhow::{Context, Result, bail};
 use skinware::WriterState;
 use skinware_geometry::SkinGeometry;
 
-use crate::config::Config;
 use crate::view::{self, Site};
+use skin::config::Config;
 
 /// The demo's skin: drivers (and, later, services) in one place.
 const DEMO_CONFIG: &str = include_str!("../../../../examples/demo.toml");

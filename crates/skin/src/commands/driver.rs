@@ -9,7 +9,7 @@ use skinware::{DriverHandler, HandlerOptions};
 /// Runs one driver until SIGINT or SIGTERM (or the supervisor's death).
 pub fn run(config_path: &Path, name: &str) -> Result<()> {
     super::run::watch_supervisor()?;
-    let config = crate::config::Config::load(config_path)?;
+    let config = skin::config::Config::load(config_path)?;
     let driver_config = config.driver(name)?;
     let driver = driver_config.build(&config.skin)?;
     let options = HandlerOptions { slots: driver_config.slots, access: config.access(), ..HandlerOptions::default() };

@@ -113,7 +113,7 @@ pub fn run(which: &Which) -> Result<()> {
 /// starts for it), until SIGINT, SIGTERM or the supervisor's death.
 pub fn run_configured(config_path: &std::path::Path, name: &str) -> Result<()> {
     super::run::watch_supervisor()?;
-    let config = crate::config::Config::load(config_path)?;
+    let config = skin::config::Config::load(config_path)?;
     let emulation = config.emulator(name)?.emulation();
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {

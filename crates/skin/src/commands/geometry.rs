@@ -24,7 +24,7 @@ pub struct Args {
 pub fn run(args: &Args) -> Result<()> {
     let (geometry, source) = match &args.config {
         Some(path) => {
-            let config = crate::config::Config::load(path)?;
+            let config = skin::config::Config::load(path)?;
             let (geometry, cached) = crate::geometry::load_or_build(&config)?;
             (geometry, if cached { "cache" } else { "computed now" })
         }

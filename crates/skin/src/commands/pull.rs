@@ -19,7 +19,7 @@ pub struct Args {
 pub fn run(args: &Args) -> Result<()> {
     skinware::shm::validate_name("skin", &args.skin)?;
     skinware::shm::validate_name("layer", &args.layer)?;
-    let file = crate::config::pull_file(&args.skin, &args.layer);
+    let file = skin::config::pull_file(&args.skin, &args.layer);
     if args.restore {
         match std::fs::remove_file(&file) {
             Ok(()) => {}

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use skinware::Reader;
 
-use crate::config::Config;
+use skin::config::Config;
 
 /// `skin region` subcommands.
 #[derive(clap::Subcommand)]

@@ -18,7 +18,7 @@ use skinware_geometry::SkinGeometry;
 
 use skinware::{ChannelInfo, WriterState};
 
-use crate::config::{Config, RestartConfig};
+use skin::config::{Config, RestartConfig};
 
 /// A supervised child process: a driver or a service.
 struct Supervised {
@@ -242,7 +242,7 @@ fn periodic_channels(config: &Config, role: &str, name: &str) -> Result<Vec<(Str
         return Ok(Vec::new());
     };
     let mut channels = vec![(service.name.clone(), period(hz))];
-    if service.kind == crate::config::ServiceKind::Contact {
+    if service.kind == skin::config::ServiceKind::Contact {
         channels.push((skinware_services::taxel_channel(&service.name), period(hz)));
     }
     Ok(channels)
@@ -391,7 +391,7 @@ fn remove_skin_channels(config: &Config) -> Result<()> {
     for driver in &config.drivers {
         if let Ok(built) = driver.build(&config.skin) {
             for spec in built.layers() {
-                let _ = std::fs::remove_file(crate::config::pull_file(&config.skin, &spec.topology.name));
+                let _ = std::fs::remove_file(skin::config::pull_file(&config.skin, &spec.topology.name));
             }
         }
     }

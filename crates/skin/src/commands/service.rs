@@ -8,12 +8,12 @@ use anyhow::{Context, Result};
 use skinware::{Stop, WriterOptions};
 use skinware_geometry::{GeometryError, SkinGeometry};
 
-use crate::config::ServiceKind;
+use skin::config::ServiceKind;
 
 /// Runs one service until SIGINT or SIGTERM (or the supervisor's death).
 pub fn run(config_path: &Path, name: &str) -> Result<()> {
     super::run::watch_supervisor()?;
-    let config = crate::config::Config::load(config_path)?;
+    let config = skin::config::Config::load(config_path)?;
     let service = config.service(name)?;
     let stop = Stop::new();
     let mut signals = signal_hook::iterator::Signals::new([signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM])

@@ -56,22 +56,32 @@ pub struct BoardConfig {
 #[derive(Debug, Deserialize, Clone)]
 #[serde(deny_unknown_fields)]
 pub struct DriverConfig {
+    /// Unique among the drivers; generated layers are `NAME-0`, `NAME-1`, ...
     pub name: String,
+    /// Which driver.
     pub kind: DriverKind,
+    /// Real-time settings of its writer threads (`[driver.rt]`).
     #[serde(default)]
     pub rt: RtConfig,
+    /// How its process is restarted (`[driver.restart]`).
     #[serde(default)]
     pub restart: RestartConfig,
     /// Frame buffers per layer channel.
     #[serde(default = "default_slots")]
     pub slots: usize,
-    // Virtual skin parameters.
+    /// Generated skin: total sensors, split equally over `layers`.
     pub sensors: Option<usize>,
+    /// Generated skin: number of layers.
     pub layers: Option<usize>,
+    /// Generated skin: sensors per module (a layer's last module may have fewer).
     pub sensors_per_module: Option<usize>,
+    /// Generated skin: `[min, max]` modules per patch, drawn per patch.
     pub modules_per_patch: Option<[usize; 2]>,
+    /// Acquisition rate of each layer, drawn once per layer.
     pub rate_hz: Option<Rate>,
+    /// Seed of every random choice (rates, patch sizes, contacts, noise).
     pub seed: Option<u64>,
+    /// Scheduled disconnections (`[[driver.cable_pull]]`).
     #[serde(default, rename = "cable_pull")]
     pub cable_pulls: Vec<CablePull>,
     /// Scripted contacts (`[[driver.contact]]`).
@@ -94,6 +104,7 @@ pub struct DriverConfig {
     // CAN driver parameters.
     /// The bus URL.
     pub interface: Option<String>,
+    /// The skin's wire format.
     pub protocol: Option<CanProtocol>,
     /// The layer's name (default: the driver's).
     pub layer_name: Option<String>,
@@ -182,6 +193,15 @@ pub fn pull_file(skin: &str, layer: &str) -> PathBuf {
 }
 
 impl DriverConfig {
+    /// Checks what building the driver does not: its restart policy and slots.
+    pub(super) fn check(&self) -> Result<()> {
+        self.restart.check()?;
+        if !(skinware::MIN_SLOTS..=skinware::MAX_SLOTS).contains(&self.slots) {
+            bail!("slots = {} must be from {} to {}", self.slots, skinware::MIN_SLOTS, skinware::MAX_SLOTS);
+        }
+        Ok(())
+    }
+
     /// Builds the driver this table describes.
     pub fn build(&self, skin: &str) -> Result<BuiltDriver> {
         skinware::shm::validate_name("driver", &self.name)?;
@@ -228,12 +248,15 @@ impl DriverConfig {
                         Rate::Random { random: [lo, _] } => *lo,
                     };
                     let mut layers = Vec::new();
+                    let mut budget = skinware_drivers::MAX_SENSORS;
                     for layer in &self.explicit_layers {
                         let rt = layer.rt.as_ref().unwrap_or(&self.rt).options();
-                        layers.push(skinware::LayerSpec { topology: layer.topology(default_rate)?, rt });
+                        layers.push(skinware::LayerSpec { topology: layer.topology(default_rate, &mut budget)?, rt });
                     }
                     config.explicit_layers = Some(layers);
                 }
+                // Before the layers are named: their number is checked there.
+                config.validate()?;
                 config.pull_files = Some(config.layer_names().iter().map(|layer| pull_file(skin, layer)).collect());
                 VirtualSkin::new(config).map(BuiltDriver::Virtual).map_err(|e| anyhow::anyhow!(e))
             }

@@ -23,12 +23,17 @@ pub enum EmulatorKind {
 #[derive(Debug, Deserialize, Clone)]
 #[serde(deny_unknown_fields)]
 pub struct EmulatorConfig {
+    /// Unique among the emulators.
     pub name: String,
+    /// Which boards.
     pub kind: EmulatorKind,
+    /// Boards on the bus, addresses 1..=boards.
     #[serde(default = "default_boards")]
     pub boards: u8,
+    /// Triangles per board.
     #[serde(default = "default_triangles")]
     pub triangles: u8,
+    /// Streaming rate until the host configures a period.
     #[serde(default = "default_rate")]
     pub rate_hz: f64,
     /// SLCAN: the symbolic link to its pseudo-terminal that drivers open.
@@ -39,15 +44,20 @@ pub struct EmulatorConfig {
     pub peer: Option<String>,
     /// A `candump -l` log of every frame sent.
     pub candump: Option<PathBuf>,
+    /// Fault: never send a triangle's tail frame.
     #[serde(default)]
     pub drop_tails: bool,
+    /// Fault: this error code in every tail.
     pub error_nibble: Option<u8>,
+    /// Fault: fall silent this many seconds after streaming starts.
     pub silence_after_s: Option<f64>,
+    /// Seed of the virtual body's contacts.
     #[serde(default = "default_seed")]
     pub seed: u64,
     /// SCHED_FIFO priority of the boards' thread (0: the normal scheduler).
     #[serde(default = "default_priority")]
     pub fifo_priority: u8,
+    /// Restart policy of its process.
     #[serde(default)]
     pub restart: RestartConfig,
 }

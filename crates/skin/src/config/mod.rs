@@ -72,8 +72,15 @@ impl Config {
     /// file:line:column, and every driver is built once to check its topology.
     pub fn load(path: &Path) -> Result<Config> {
         let text = std::fs::read_to_string(path).with_context(|| format!("cannot read config {}", path.display()))?;
-        let mut config: Config = toml::from_str(&text).map_err(|e| {
-            let (line, column) = e.span().map(|span| line_column(&text, span.start)).unwrap_or((1, 1));
+        Config::parse(&text, path)
+    }
+
+    /// Parses and checks the text of a configuration file, as [`Config::load`]
+    /// does after reading it. `path` names the file in messages, and relative
+    /// paths in the config start at its directory; nothing is read from it.
+    pub fn parse(text: &str, path: &Path) -> Result<Config> {
+        let mut config: Config = toml::from_str(text).map_err(|e| {
+            let (line, column) = e.span().map(|span| line_column(text, span.start)).unwrap_or((1, 1));
             anyhow::anyhow!("{}:{line}:{column}: {}", path.display(), e.message())
         })?;
         skinware::shm::validate_name("skin", &config.skin).with_context(|| format!("{}: `skin`", path.display()))?;
@@ -84,12 +91,19 @@ impl Config {
             bail!("{}: no [[driver]] table; add at least one driver (see examples/)", path.display());
         }
         let mut names = std::collections::HashSet::new();
+        let mut channels: std::collections::HashSet<String> = std::collections::HashSet::new();
+        let mut sensors = 0;
         for driver in &config.drivers {
             if !names.insert(&driver.name) {
                 bail!("{}: driver name {:?} is used twice; driver names must be unique", path.display(), driver.name);
             }
-            driver.restart.check().with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
-            driver.build(&config.skin).with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
+            driver.check().with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
+            let built =
+                driver.build(&config.skin).with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
+            for spec in built.layers() {
+                sensors += spec.topology.sensors.len();
+                channels.insert(spec.topology.name);
+            }
         }
         let mut emulators = std::collections::HashSet::new();
         for emulator in &config.emulators {
@@ -101,12 +115,6 @@ impl Config {
                 );
             }
             emulator.check().with_context(|| format!("{}: emulator {:?}", path.display(), emulator.name))?;
-        }
-        let mut channels: std::collections::HashSet<String> = std::collections::HashSet::new();
-        for driver in &config.drivers {
-            for spec in driver.build(&config.skin)?.layers() {
-                channels.insert(spec.topology.name);
-            }
         }
         for service in &config.services {
             service
@@ -122,7 +130,7 @@ impl Config {
             }
         }
         for region in &config.regions {
-            region.spec().with_context(|| format!("{}", path.display()))?;
+            region.check(sensors).with_context(|| format!("{}", path.display()))?;
         }
         config.base_dir = path.parent().map(Path::to_owned).unwrap_or_default();
         Ok(config)
@@ -154,7 +162,13 @@ impl Config {
 }
 
 fn line_column(text: &str, offset: usize) -> (usize, usize) {
-    let before = &text[..offset.min(text.len())];
+    // An offset inside a character (which the parser should not give) counts
+    // from that character's start.
+    let mut end = offset.min(text.len());
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    let before = &text[..end];
     let line = before.matches('\n').count() + 1;
     let column = before.rfind('\n').map_or(before.len(), |nl| before.len() - nl - 1) + 1;
     (line, column)

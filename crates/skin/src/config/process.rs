@@ -8,9 +8,12 @@ use serde::Deserialize;
 #[derive(Debug, Deserialize, Default, Clone)]
 #[serde(deny_unknown_fields)]
 pub struct RtConfig {
+    /// SCHED_FIFO priority (1-99); the default scheduler if absent.
     pub fifo_priority: Option<u8>,
+    /// Lock the process's memory (mlockall).
     #[serde(default)]
     pub lock_memory: bool,
+    /// CPUs the threads may run on; any if empty.
     #[serde(default)]
     pub cpus: Vec<usize>,
 }
@@ -30,7 +33,9 @@ impl RtConfig {
 #[derive(Debug, Deserialize, Clone)]
 #[serde(deny_unknown_fields)]
 pub struct RestartConfig {
+    /// Wait before the first restart, seconds; it doubles with each quick death.
     pub min_backoff_s: f64,
+    /// Longest wait before a restart, seconds.
     pub max_backoff_s: f64,
 }
 

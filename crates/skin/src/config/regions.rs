@@ -18,12 +18,17 @@ struct IdSelection<'a> {
 #[derive(Debug, Deserialize, Clone, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct InLayer {
+    /// The layer's name.
     pub layer: String,
+    /// Sensors of the layer by uid.
     #[serde(default)]
     pub uids: Vec<u32>,
+    /// Sensors of the layer by an inclusive range of uids.
     pub uid_range: Option<[u32; 2]>,
+    /// Every sensor of these modules of the layer.
     #[serde(default)]
     pub modules: Vec<u32>,
+    /// Every sensor of these patches of the layer.
     #[serde(default)]
     pub patches: Vec<u32>,
 }
@@ -32,7 +37,9 @@ pub struct InLayer {
 #[derive(Debug, Deserialize, Clone, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Near {
+    /// Centre, metres.
     pub point: [f64; 3],
+    /// Distance from the centre, metres.
     pub radius: f64,
 }
 
@@ -40,17 +47,25 @@ pub struct Near {
 #[derive(Debug, Deserialize, Clone, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct RegionConfig {
+    /// The region's name.
     pub name: String,
+    /// Sensors by uid, in every layer.
     #[serde(default)]
     pub uids: Vec<u32>,
+    /// Sensors by an inclusive range of uids, in every layer.
     pub uid_range: Option<[u32; 2]>,
+    /// Every sensor of these modules, in every layer.
     #[serde(default)]
     pub modules: Vec<u32>,
+    /// Every sensor of these patches, in every layer.
     #[serde(default)]
     pub patches: Vec<u32>,
+    /// Every sensor on these robot links.
     #[serde(default)]
     pub links: Vec<String>,
+    /// Every sensor near a point.
     pub near: Option<Near>,
+    /// Sensors by id in one layer (`[[region.in_layer]]`).
     #[serde(default, rename = "in_layer")]
     pub in_layers: Vec<InLayer>,
 }
@@ -84,6 +99,24 @@ impl IdSelection<'_> {
 }
 
 impl RegionConfig {
+    /// Checks that no `uid_range` spans more uids than the skin's `sensors`
+    /// (every uid of a range must exist, and the range is expanded into a
+    /// list of them), then that the region has a spec.
+    pub(super) fn check(&self, sensors: usize) -> Result<()> {
+        let ranges = std::iter::once(self.uid_range).chain(self.in_layers.iter().map(|l| l.uid_range));
+        for [first, last] in ranges.flatten() {
+            let span = u64::from(last.saturating_sub(first)) + 1;
+            if first <= last && span > sensors as u64 {
+                bail!(
+                    "region {}: uid_range [{first}, {last}] spans {span} uids, more than the skin's {sensors} sensors",
+                    self.name
+                );
+            }
+        }
+        self.spec()?;
+        Ok(())
+    }
+
     /// The library's form of this region.
     pub fn spec(&self) -> Result<RegionSpec> {
         let mut selectors = Vec::new();

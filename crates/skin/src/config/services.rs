@@ -19,7 +19,9 @@ pub enum ServiceKind {
 #[derive(Debug, Deserialize, Clone)]
 #[serde(deny_unknown_fields)]
 pub struct ServiceConfig {
+    /// Its channel's name (its taxels' channel is `NAME-taxels`).
     pub name: String,
+    /// Which service.
     pub kind: ServiceKind,
     /// Publishing rate; absent for a sporadic service (one frame per request).
     pub rate_hz: Option<f64>,
@@ -35,6 +37,7 @@ pub struct ServiceConfig {
     pub min_speed: Option<f64>,
     /// Motion: velocity fitting window, seconds.
     pub window_s: Option<f64>,
+    /// How its process is restarted (`[service.restart]`).
     #[serde(default)]
     pub restart: RestartConfig,
 }

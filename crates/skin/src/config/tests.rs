@@ -1,13 +1,10 @@
-//! The config's checks, through `Config::load` of small configs.
+//! The config's checks, through `Config::parse` of small configs (the
+//! geometry they lead to is tested with the binary's `geometry` module).
 
 use super::*;
 
 fn load(text: &str) -> Result<Config> {
-    let path = std::env::temp_dir().join(format!("skin-config-test-{}-{}.toml", std::process::id(), text.len()));
-    std::fs::write(&path, text).unwrap();
-    let result = Config::load(&path);
-    let _ = std::fs::remove_file(&path);
-    result
+    Config::parse(text, Path::new("test.toml"))
 }
 
 #[test]
@@ -94,31 +91,63 @@ fn regions_are_checked() {
     assert!(err.contains("uid_range [9, 3] is backwards"), "{err}");
     let err = format!("{:#}", with("[[region]]\nname = \"r\"\nlink = \"torso\"\n").unwrap_err());
     assert!(err.contains("unknown field `link`"), "{err}");
-    // Resolving against the skin happens when the geometry is built.
-    let config = with("[[region]]\nname = \"r\"\nlinks = [\"tail\"]\n").unwrap();
-    let err = format!("{:#}", crate::geometry::load_or_build_in(&config, &std::env::temp_dir()).unwrap_err());
-    assert!(err.contains("region \"r\": no sensor is on link \"tail\""), "{err}");
+}
+
+/// Sizes that a few bytes of config asked for: terabytes of virtual body
+/// (`sensors`), 16 GiB of uids (a module's `uid_range`), 20 s of generating
+/// layers (`layers`). Each is refused before anything is allocated.
+#[test]
+fn sizes_the_text_does_not_justify_are_refused() {
+    let err = format!("{:#}", with_driver("sensors = 99999999999\n").unwrap_err());
+    assert!(err.contains("99999999999 sensors are more than a virtual skin may have (1000000)"), "{err}");
+    let err = format!("{:#}", with_driver("sensors = 300000\nlayers = 300000\n").unwrap_err());
+    assert!(err.contains("300000 layers are more than a virtual skin may have (1024)"), "{err}");
+    let whole_u32 = EXPLICIT
+        .replace("SENSORS", "15")
+        .replace("UIDS", "13")
+        .replace("uid_range = [1, 12]", "uid_range = [0, 4294967295]");
+    let err = format!("{:#}", load(&whole_u32).unwrap_err());
+    assert!(err.contains("module 1: the driver's layers hold more than 1000000 sensors"), "{err}");
+    // The budget is over all the driver's modules, not per module.
+    let two_halves = EXPLICIT
+        .replace("sensors = SENSORS\n", "")
+        .replace("uid_range = [1, 12]", "uid_range = [1, 600000]")
+        .replace("uids = [UIDS]", "uid_range = [600001, 1200000]");
+    let err = format!("{:#}", load(&two_halves).unwrap_err());
+    assert!(err.contains("module 2: the driver's layers hold more than 1000000 sensors"), "{err}");
+}
+
+/// A region's `uid_range` is expanded into a list of uids that must all
+/// exist: one wider than the skin is refused before it is expanded.
+#[test]
+fn region_ranges_wider_than_the_skin_are_refused() {
+    assert!(with("[[region]]\nname = \"r\"\nuid_range = [1, 600]\n").is_ok());
+    let err = format!("{:#}", with("[[region]]\nname = \"r\"\nuid_range = [1, 601]\n").unwrap_err());
+    assert!(err.contains("uid_range [1, 601] spans 601 uids, more than the skin's 600 sensors"), "{err}");
+    let in_layer = "[[region]]\nname = \"r\"\n[[region.in_layer]]\nlayer = \"v-0\"\nuid_range = [0, 999999]\n";
+    let err = format!("{:#}", with(in_layer).unwrap_err());
+    assert!(err.contains("spans 1000000 uids"), "{err}");
 }
 
 #[test]
-fn a_skin_calib_calibration_is_imported() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/calibrated-hand.toml");
-    let config = Config::load(&path).unwrap();
-    let cache = std::env::temp_dir().join(format!("skin-calib-test-{}", std::process::id()));
-    let (geometry, _) = crate::geometry::load_or_build_in(&config, &cache).unwrap();
-    let _ = std::fs::remove_dir_all(&cache);
-    assert_eq!(geometry.sensor_count(), 24);
-    // uid 8: row 1, column 1 of the 5 mm grid.
-    assert!((geometry.positions[7][0] - 0.005).abs() < 1e-6 && (geometry.positions[7][1] - 0.005).abs() < 1e-6);
-    assert!((geometry.radii[0] - 0.002).abs() < 1e-7);
-    assert_eq!(geometry.region("palm").unwrap().len(), 12);
-    assert_eq!(geometry.links, ["palm", "fingers"]);
-    // A missing calibration file is named.
-    let broken = config.drivers[0].clone();
-    let mut config = config;
-    config.drivers = vec![crate::config::DriverConfig { calibration: Some("missing.calib".into()), ..broken }];
-    let err = format!("{:#}", crate::geometry::load_or_build_in(&config, &std::env::temp_dir()).unwrap_err());
-    assert!(err.contains("missing.calib") && err.contains("cannot read it"), "{err}");
+fn slots_outside_the_channels_range_are_refused() {
+    assert!(with_driver("slots = 64\n").is_ok());
+    for slots in ["1", "65", "18446744073709551615"] {
+        let err = format!("{:#}", with_driver(&format!("slots = {slots}\n")).unwrap_err());
+        assert!(err.contains(&format!("slots = {slots} must be from 2 to 64")), "{err}");
+    }
+}
+
+#[test]
+fn error_positions_inside_a_character_do_not_panic() {
+    let text = "a = \"é\"\nb";
+    assert_eq!(line_column(text, 6), (1, 6));
+    assert_eq!(line_column(text, 9), (2, 1));
+    assert_eq!(line_column(text, 99), (2, 2));
+}
+
+fn with_driver(keys: &str) -> Result<Config> {
+    load(&format!("[[driver]]\nname = \"v\"\nkind = \"virtual\"\n{keys}"))
 }
 
 #[test]

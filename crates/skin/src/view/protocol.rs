@@ -1,16 +1,17 @@
 //! The viewer's wire format: binary WebSocket messages from the server, small
-//! JSON text messages from the browser. `docs/viewer.md` documents it byte by
-//! byte; `page.js` decodes it. Everything is little-endian, and every array
+//! JSON text messages from the browser (decoded by [`skin::viewer_message`]).
+//! `docs/viewer.md` documents it byte by byte; `page.js` decodes it. Everything is little-endian, and every array
 //! starts at an offset aligned to its element size, so that the browser can
 //! view it in place with a typed array.
 
 #![forbid(unsafe_code)]
 
+use skin::viewer_message::ReadMode;
 use skinware::WriterState;
 use skinware_geometry::{SensorRef, SkinGeometry};
 
 use super::overlays::Overlays;
-use super::sampler::{LayerSlot, ReadMode};
+use super::sampler::LayerSlot;
 
 /// Bumped on any change of the layout below; the page refuses other versions.
 pub const PROTOCOL_VERSION: u8 = 1;
@@ -29,16 +30,12 @@ pub const FLAG_RESPONSES: u8 = 1;
 /// Flag of a layer record: its newest frame carries the fault status.
 pub const FLAG_FAULT_FRAME: u8 = 2;
 
-// The type belongs to the sampler, which reads in it; its wire code is part
-// of this format.
-impl ReadMode {
-    /// The code in update headers.
-    pub fn code(self) -> u8 {
-        match self {
-            ReadMode::Periodic { .. } => 0,
-            ReadMode::Asap => 1,
-            ReadMode::Request => 2,
-        }
+/// The code of a reader mode in update headers.
+pub fn mode_code(mode: ReadMode) -> u8 {
+    match mode {
+        ReadMode::Periodic { .. } => 0,
+        ReadMode::Asap => 1,
+        ReadMode::Request => 2,
     }
 }
 
@@ -65,41 +62,6 @@ pub struct LayerUpdate<'a> {
 impl<'a> LayerUpdate<'a> {
     fn responses(&self) -> Option<&'a [u16]> {
         self.with_responses.then_some(self.slot.responses.as_slice())
-    }
-}
-
-/// A browser's request, decoded from its JSON text message.
-#[derive(Clone, Debug, PartialEq)]
-pub enum ClientMessage {
-    /// The browser drew `n` updates: it may receive `n` more.
-    Ack(u32),
-    /// Read the layers in this mode from now on.
-    Mode(ReadMode),
-    /// Request mode: read one frame of every layer now.
-    Request,
-}
-
-/// Decodes a text message of the browser: `{"ack":N}`, `{"mode":"asap"}`,
-/// `{"mode":"periodic","rate_hz":R}`, `{"mode":"request"}` or `{"request":true}`.
-pub fn decode_client_message(text: &str) -> Result<ClientMessage, String> {
-    let value: serde_json::Value = serde_json::from_str(text).map_err(|e| format!("not JSON ({e}): {text:?}"))?;
-    if let Some(n) = value.get("ack").and_then(serde_json::Value::as_u64) {
-        return Ok(ClientMessage::Ack(n.min(u64::from(u32::MAX)) as u32));
-    }
-    if value.get("request").and_then(serde_json::Value::as_bool) == Some(true) {
-        return Ok(ClientMessage::Request);
-    }
-    match value.get("mode").and_then(serde_json::Value::as_str) {
-        Some("asap") => Ok(ClientMessage::Mode(ReadMode::Asap)),
-        Some("request") => Ok(ClientMessage::Mode(ReadMode::Request)),
-        Some("periodic") => {
-            let rate_hz = value.get("rate_hz").and_then(serde_json::Value::as_f64).unwrap_or(30.0);
-            if !(rate_hz.is_finite() && (0.1..=1000.0).contains(&rate_hz)) {
-                return Err(format!("periodic rate {rate_hz} Hz is outside 0.1-1000 Hz"));
-            }
-            Ok(ClientMessage::Mode(ReadMode::Periodic { rate_hz }))
-        }
-        _ => Err(format!("unknown message {text:?}")),
     }
 }
 
@@ -168,7 +130,7 @@ pub fn encode_update(out: &mut Vec<u8>, number: u32, mode: ReadMode, layers: &[L
             + 2 * responses,
     );
     out.push(KIND_UPDATE);
-    out.push(mode.code());
+    out.push(mode_code(mode));
     out.extend_from_slice(&(layers.len().min(usize::from(u16::MAX)) as u16).to_le_bytes());
     out.extend_from_slice(&number.to_le_bytes());
     out.extend_from_slice(&(arrows as u16).to_le_bytes());
@@ -279,7 +241,7 @@ mod tests {
             "skin = \"small\"\n[[driver]]\nname = \"v\"\nkind = \"virtual\"\nsensors = 240\nlayers = 2\n",
         )
         .unwrap();
-        let config = crate::config::Config::load(&path);
+        let config = skin::config::Config::load(&path);
         let _ = std::fs::remove_file(&path);
         let (layers, calibration, regions) = crate::geometry::inputs(&config.unwrap()).unwrap();
         SkinGeometry::build("small", &layers, &calibration, &regions).unwrap()
@@ -312,19 +274,5 @@ mod tests {
             [u32_at(ids_at + 4 * sensor), u32_at(ids_at + 960 + 4 * sensor), u32_at(ids_at + 1920 + 4 * sensor)],
             [expected.uid, expected.module_id, expected.patch_id]
         );
-    }
-
-    #[test]
-    fn client_messages_decode_and_bad_ones_are_refused() {
-        assert_eq!(decode_client_message(r#"{"ack":2}"#), Ok(ClientMessage::Ack(2)));
-        assert_eq!(decode_client_message(r#"{"request":true}"#), Ok(ClientMessage::Request));
-        assert_eq!(decode_client_message(r#"{"mode":"asap"}"#), Ok(ClientMessage::Mode(ReadMode::Asap)));
-        assert_eq!(
-            decode_client_message(r#"{"mode":"periodic","rate_hz":12.5}"#),
-            Ok(ClientMessage::Mode(ReadMode::Periodic { rate_hz: 12.5 }))
-        );
-        assert!(decode_client_message(r#"{"mode":"periodic","rate_hz":0}"#).is_err());
-        assert!(decode_client_message(r#"{"mode":"sometimes"}"#).is_err());
-        assert!(decode_client_message("ack").is_err());
     }
 }

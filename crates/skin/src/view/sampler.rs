@@ -9,6 +9,7 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use skin::viewer_message::ReadMode;
 use skinware::{Error, Reader, ReaderOptions, Stop, Ticker, WriterState};
 
 /// How long a blocking read waits before it looks at the writer's state again,
@@ -16,20 +17,6 @@ use skinware::{Error, Reader, ReaderOptions, Stop, Ticker, WriterState};
 const STATE_POLL: Duration = Duration::from_millis(100);
 /// Window over which rates are measured.
 const RATE_WINDOW: Duration = Duration::from_millis(500);
-
-/// How the server reads the layers for one browser.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum ReadMode {
-    /// On absolute time at this rate, whether or not the layers published.
-    Periodic {
-        /// Reads per second.
-        rate_hz: f64,
-    },
-    /// Every frame, as soon as its layer publishes it.
-    Asap,
-    /// One frame per layer each time the browser asks.
-    Request,
-}
 
 /// The newest of one layer, as read.
 #[derive(Debug)]

@@ -10,7 +10,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use tungstenite::WebSocket;
-use tungstenite::protocol::Role;
+use tungstenite::protocol::{Role, WebSocketConfig};
 
 use super::session::{self, Site};
 
@@ -20,6 +20,10 @@ const PAGE_CSS: &str = include_str!("page.css");
 
 /// A request head larger than this is refused: the page's requests are tiny.
 const MAX_HEAD_BYTES: usize = 16 * 1024;
+/// A WebSocket message or frame from the browser larger than this ends the
+/// connection before it is buffered (tungstenite's default is 64 MiB): the
+/// page's messages are under [`skin::viewer_message::MAX_MESSAGE_BYTES`].
+const MAX_INCOMING_BYTES: usize = 64 * 1024;
 
 /// Binds the viewer's address, with an error that says what to do when it fails.
 pub fn bind(listen: &str) -> Result<TcpListener> {
@@ -177,7 +181,10 @@ fn handle_connection(mut stream: TcpStream, site: &Site) -> Result<()> {
                  Sec-WebSocket-Accept: {accept}\r\n\r\n"
             )?;
             stream.flush()?;
-            let socket = WebSocket::from_partially_read(stream, leftover, Role::Server, None);
+            let config = WebSocketConfig::default()
+                .max_message_size(Some(MAX_INCOMING_BYTES))
+                .max_frame_size(Some(MAX_INCOMING_BYTES));
+            let socket = WebSocket::from_partially_read(stream, leftover, Role::Server, Some(config));
             session::run(socket, site)
         }
         _ => respond(&mut stream, "404 Not Found", "text/plain", b"not found\n"),

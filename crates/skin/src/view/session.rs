@@ -14,12 +14,13 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use anyhow::{Context, Result};
+use skin::viewer_message::{self, ClientMessage, ReadMode};
 use skinware_geometry::SkinGeometry;
 use tungstenite::{Message, WebSocket};
 
 use super::overlays::OverlaySource;
-use super::protocol::{self, ClientMessage, LayerUpdate};
-use super::sampler::{LayerToRead, ReadMode, Sampler};
+use super::protocol::{self, LayerUpdate};
+use super::sampler::{LayerToRead, Sampler};
 
 /// Updates the server may send ahead of the browser's acknowledgements.
 const MAX_CREDIT: u32 = 4;
@@ -153,7 +154,7 @@ impl<'a> Session<'a> {
             }
             wanted = BUSY_POLL;
             match self.socket.read() {
-                Ok(Message::Text(text)) => match protocol::decode_client_message(text.as_str()) {
+                Ok(Message::Text(text)) => match viewer_message::decode(text.as_str()) {
                     Ok(message) => self.obey(message)?,
                     Err(e) => tracing::warn!("browser message ignored: {e}"),
                 },

@@ -20,6 +20,13 @@ use body::generate_layers;
 use contacts::Contacts;
 use faults::LayerFaults;
 
+/// Most sensors a virtual skin may have: 32 times the paper's skin. Its body
+/// takes about 100 bytes per sensor, so a config of a few bytes cannot ask
+/// for more memory than the machine has.
+pub const MAX_SENSORS: usize = 1_000_000;
+/// Most layers a virtual skin may have: each one is a channel and a writer thread.
+pub const MAX_LAYERS: usize = 1024;
+
 /// A layer's acquisition rate.
 #[derive(Clone, Debug, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(untagged, deny_unknown_fields)]
@@ -110,15 +117,23 @@ impl VirtualSkinConfig {
     }
 
     fn check(&self) -> Result<(), String> {
-        if let Some(layers) = &self.explicit_layers {
-            if layers.is_empty() {
-                return Err("no layers given".into());
-            }
-        } else if self.layers == 0 || self.sensors < self.layers {
+        let (layers, sensors) = match &self.explicit_layers {
+            Some(layers) => (layers.len(), layers.iter().map(|l| l.topology.sensors.len()).sum()),
+            None => (self.layers, self.sensors),
+        };
+        if layers == 0 && self.explicit_layers.is_some() {
+            return Err("no layers given".into());
+        }
+        if layers == 0 || sensors < layers {
             return Err(format!(
-                "{} sensors cannot be split over {} layers; give at least one sensor per layer",
-                self.sensors, self.layers
+                "{sensors} sensors cannot be split over {layers} layers; give at least one sensor per layer"
             ));
+        }
+        if sensors > MAX_SENSORS {
+            return Err(format!("{sensors} sensors are more than a virtual skin may have ({MAX_SENSORS})"));
+        }
+        if layers > MAX_LAYERS {
+            return Err(format!("{layers} layers are more than a virtual skin may have ({MAX_LAYERS})"));
         }
         if self.sensors_per_module == 0 {
             return Err("sensors_per_module must be at least 1".into());
@@ -137,13 +152,10 @@ impl VirtualSkinConfig {
         for contact in &self.contacts {
             contact.blob()?;
         }
+        let layer_names = self.layer_names();
         for pull in &self.cable_pulls {
-            if !self.layer_names().contains(&pull.layer) {
-                return Err(format!(
-                    "cable pull names layer {:?}, which is not one of {:?}",
-                    pull.layer,
-                    self.layer_names()
-                ));
+            if !layer_names.contains(&pull.layer) {
+                return Err(format!("cable pull names layer {:?}, which is not one of {layer_names:?}", pull.layer));
             }
         }
         Ok(())
@@ -386,5 +398,18 @@ mod tests {
             ..VirtualSkinConfig::default()
         };
         assert!(bad_pull.validate().unwrap_err().reason.contains("nope"));
+    }
+
+    /// Found while writing the `config` fuzz target: `sensors = 99999999999`
+    /// asked for terabytes of body (an allocation failure under the fuzz
+    /// target), and 300,000 layers took 20 s to generate.
+    #[test]
+    fn sizes_beyond_the_limits_are_refused_before_anything_is_built() {
+        let huge = VirtualSkinConfig { sensors: 99_999_999_999, ..VirtualSkinConfig::default() };
+        assert!(VirtualSkin::new(huge).err().unwrap().reason.contains("more than a virtual skin may have"));
+        let many = VirtualSkinConfig { sensors: 300_000, layers: 300_000, ..VirtualSkinConfig::default() };
+        assert!(VirtualSkin::new(many).err().unwrap().reason.contains("300000 layers"));
+        let largest = VirtualSkinConfig { sensors: MAX_SENSORS, layers: MAX_LAYERS, ..VirtualSkinConfig::default() };
+        assert!(largest.validate().is_ok());
     }
 }

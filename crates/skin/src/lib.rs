@@ -1,0 +1,30 @@
+//! The decoders of the `skin` command line, as a library so that they can be
+//! tested and fuzzed on their own (`fuzz/`): everything else of `skin` lives
+//! in its binary.
+//!
+//! - [`config`]: the TOML configuration of `skin run` ([`config::Config`]),
+//!   parsed and checked from text by [`config::Config::parse`];
+//! - [`viewer_message`]: the JSON text messages that the web viewer's page
+//!   sends to `skin view`, decoded by [`viewer_message::decode`].
+//!
+//! ```
+//! use std::path::Path;
+//!
+//! let text = "skin = \"hand\"\n[[driver]]\nname = \"v\"\nkind = \"virtual\"\nsensors = 240\nlayers = 2\n";
+//! let config = skin::config::Config::parse(text, Path::new("hand.toml"))?;
+//! assert_eq!(config.drivers[0].name, "v");
+//!
+//! let message = skin::viewer_message::decode(r#"{"ack":2}"#)?;
+//! assert_eq!(message, skin::viewer_message::ClientMessage::Ack(2));
+//! # Ok::<(), anyhow::Error>(())
+//! ```
+//!
+//! Cargo features: `cli` (default) builds the `skin` binary and its
+//! dependencies (the web server, plots, the CLI parser); the library needs
+//! none of them, and the fuzz targets build it without (`default-features =
+//! false`). `iceoryx2` adds iceoryx2 to `skin bench peers`.
+
+#![forbid(unsafe_code)]
+
+pub mod config;
+pub mod viewer_message;
