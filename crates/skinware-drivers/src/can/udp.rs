@@ -85,7 +85,13 @@ impl CanBus for CannelloniBus {
             let waited_out = || Instant::now() >= deadline;
             let (len, from) = match self.socket.recv_from(&mut self.buffer) {
                 Ok(received) => received,
-                Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {
+                // A signal (EINTR) is no loss of the link either.
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut | std::io::ErrorKind::Interrupted
+                    ) =>
+                {
                     if waited_out() {
                         return Ok(None);
                     }
