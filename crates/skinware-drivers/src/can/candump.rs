@@ -152,6 +152,7 @@ pub fn format_line(record: &LogRecord) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::can::frame::any_frame;
     use proptest::prelude::*;
 
     #[test]
@@ -186,19 +187,6 @@ mod tests {
             assert!(err.problem.contains(problem), "{line}: {err}");
             assert!(err.to_string().contains("candump -l"), "{err}");
         }
-    }
-
-    fn any_frame() -> impl Strategy<Value = CanFrame> {
-        (any::<bool>(), any::<u32>(), any::<bool>(), proptest::collection::vec(any::<u8>(), 0..=8)).prop_map(
-            |(extended, id, remote, data)| {
-                let id = if extended {
-                    Id::Extended(ExtendedId::new(id & 0x1FFF_FFFF).unwrap())
-                } else {
-                    Id::Standard(StandardId::new((id & 0x7FF) as u16).unwrap())
-                };
-                if remote { CanFrame::remote(id, data.len()).unwrap() } else { CanFrame::data(id, &data).unwrap() }
-            },
-        )
     }
 
     proptest! {

@@ -127,6 +127,7 @@ pub fn decode(bytes: &[u8]) -> Result<Packet, CannelloniError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::can::frame::any_frame;
     use proptest::prelude::*;
 
     #[test]
@@ -165,19 +166,6 @@ mod tests {
             assert!(err.problem.contains(problem), "{bytes:?}: {err}");
         }
         assert_eq!(decode(&[2, 1, 9, 0, 0]).unwrap().frames, []);
-    }
-
-    fn any_frame() -> impl Strategy<Value = CanFrame> {
-        (any::<bool>(), any::<u32>(), any::<bool>(), proptest::collection::vec(any::<u8>(), 0..=8)).prop_map(
-            |(extended, id, remote, data)| {
-                let id = if extended {
-                    Id::Extended(ExtendedId::new(id & 0x1FFF_FFFF).unwrap())
-                } else {
-                    Id::Standard(StandardId::new((id & 0x7FF) as u16).unwrap())
-                };
-                if remote { CanFrame::remote(id, data.len()).unwrap() } else { CanFrame::data(id, &data).unwrap() }
-            },
-        )
     }
 
     proptest! {

@@ -110,6 +110,23 @@ impl embedded_can::Frame for CanFrame {
     }
 }
 
+/// Any classic frame: standard or extended, data or remote, 0 to 8 bytes
+/// (for the codecs' property tests).
+#[cfg(test)]
+pub(crate) fn any_frame() -> impl proptest::strategy::Strategy<Value = CanFrame> {
+    use proptest::prelude::*;
+    (any::<bool>(), any::<u32>(), any::<bool>(), proptest::collection::vec(any::<u8>(), 0..=8)).prop_map(
+        |(extended, id, remote, data)| {
+            let id = if extended {
+                Id::Extended(ExtendedId::new(id & 0x1FFF_FFFF).unwrap())
+            } else {
+                Id::Standard(StandardId::new((id & 0x7FF) as u16).unwrap())
+            };
+            if remote { CanFrame::remote(id, data.len()).unwrap() } else { CanFrame::data(id, &data).unwrap() }
+        },
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -21,7 +21,7 @@ pub mod candump;
 pub mod cannelloni;
 pub mod cyskin;
 pub mod driver;
-mod frame;
+pub(crate) mod frame;
 pub mod icub_mtb;
 mod kernel;
 mod replay;

@@ -197,6 +197,7 @@ pub fn parse_line(line: &[u8]) -> Event {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::can::frame::any_frame;
     use proptest::prelude::*;
 
     fn events(bytes: &[u8]) -> Vec<Event> {
@@ -247,19 +248,6 @@ mod tests {
         let found = events(&bytes);
         assert!(matches!(found[0], Event::Garbled { .. }));
         assert_eq!(found[1], Event::Frame(CanFrame::standard(1, &[0xFF]).unwrap(), None));
-    }
-
-    fn any_frame() -> impl Strategy<Value = CanFrame> {
-        (any::<bool>(), any::<u32>(), any::<bool>(), proptest::collection::vec(any::<u8>(), 0..=8)).prop_map(
-            |(extended, id, remote, data)| {
-                let id = if extended {
-                    Id::Extended(ExtendedId::new(id & 0x1FFF_FFFF).unwrap())
-                } else {
-                    Id::Standard(StandardId::new((id & 0x7FF) as u16).unwrap())
-                };
-                if remote { CanFrame::remote(id, data.len()).unwrap() } else { CanFrame::data(id, &data).unwrap() }
-            },
-        )
     }
 
     proptest! {
