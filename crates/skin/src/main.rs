@@ -44,6 +44,12 @@ enum Command {
     View(commands::view::Args),
     /// Start the paper's virtual skin and the web viewer, and print the URL.
     Demo(commands::demo::Args),
+    /// Record a running skin's layers and services into an MCAP file (Foxglove, ROS 2 tools, Python `mcap` read it).
+    Record(commands::record::Args),
+    /// Replay a recording into live channels, at its recorded times.
+    Replay(commands::replay::Args),
+    /// What a recording holds: channels, duration, frames, gaps; whether it was finished.
+    Info(commands::info::Args),
     /// Regions: record one by touching the skin.
     Region {
         #[command(subcommand)]
@@ -105,7 +111,12 @@ fn main() -> std::process::ExitCode {
     // (an SLCAN adapter unplugged gives one too).
     let prints_to_stdout = matches!(
         cli.command,
-        Command::Ls(_) | Command::Top(_) | Command::Echo(_) | Command::Services(_) | Command::Geometry(_)
+        Command::Ls(_)
+            | Command::Top(_)
+            | Command::Echo(_)
+            | Command::Services(_)
+            | Command::Geometry(_)
+            | Command::Info(_)
     );
     let result = match cli.command {
         Command::Run { config } => commands::run::run(&config),
@@ -123,6 +134,9 @@ fn main() -> std::process::ExitCode {
         Command::Geometry(args) => commands::geometry::run(&args),
         Command::View(args) => commands::view::run(&args),
         Command::Demo(args) => commands::demo::run(&args),
+        Command::Record(args) => commands::record::run(&args),
+        Command::Replay(args) => commands::replay::run(&args),
+        Command::Info(args) => commands::info::run(&args),
         Command::Region { which } => commands::region::run(&which),
         Command::BenchApp(args) => commands::bench::app(&args),
         Command::BenchPeerReader(args) => commands::bench::peer_reader(&args),

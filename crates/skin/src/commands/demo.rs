@@ -29,6 +29,29 @@ pub struct Args {
     /// Print only the URL, without the suggestions of what to try.
     #[arg(long)]
     no_browser_hint: bool,
+    /// Show this recording (`skin record`), looping, instead of the virtual skin.
+    #[arg(long, value_name = "FILE.mcap")]
+    replay: Option<PathBuf>,
+}
+
+/// The demo's configuration: the paper's virtual skin, or a recording
+/// replayed in a loop with the demo's services running live on it.
+fn demo_config(replay: Option<&Path>) -> Result<String> {
+    let Some(file) = replay else {
+        return Ok(DEMO_CONFIG.to_owned());
+    };
+    let file = std::fs::canonicalize(file).with_context(|| format!("cannot find the recording {}", file.display()))?;
+    let header = skinware_record::file::RecordStream::open(&file)
+        .and_then(|mut stream| skinware_record::file::read_header(&mut stream))
+        .with_context(|| format!("cannot replay {}", file.display()))?
+        .0;
+    // The demo's services, not its regions (they name the virtual body's links).
+    let services = DEMO_CONFIG.find("[[service]]").map_or("", |at| &DEMO_CONFIG[at..]);
+    Ok(format!(
+        "skin = {:?}\n\n[[driver]]\nname = \"replay\"\nkind = \"replay\"\nfile = {:?}\nloop = true\n\n{services}",
+        header.skin,
+        file.display().to_string()
+    ))
 }
 
 /// Removes the demo's configuration file when the demo ends, however it ends.
@@ -47,7 +70,7 @@ pub fn run(args: &Args) -> Result<()> {
     let url = format!("http://{}/", listener.local_addr()?);
     // The drivers are processes that read the configuration from a file.
     let config_file = TemporaryFile(std::env::temp_dir().join(format!("skin-demo-{}.toml", std::process::id())));
-    std::fs::write(&config_file.0, DEMO_CONFIG)
+    std::fs::write(&config_file.0, demo_config(args.replay.as_deref())?)
         .with_context(|| format!("cannot write the demo configuration to {}", config_file.0.display()))?;
     let config = Config::load(&config_file.0)?;
     refuse_if_running(&config.skin)?;

@@ -4,6 +4,7 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
+use skin::config::drivers::BuiltDriver;
 use skinware::{DriverHandler, HandlerOptions};
 
 /// Runs one driver until SIGINT or SIGTERM (or the supervisor's death).
@@ -11,20 +12,48 @@ pub fn run(config_path: &Path, name: &str) -> Result<()> {
     super::run::watch_supervisor()?;
     let config = skin::config::Config::load(config_path)?;
     let driver_config = config.driver(name)?;
-    let driver = driver_config.build(&config.skin)?;
+    let driver = match driver_config.build(&config.skin)? {
+        BuiltDriver::Replay(replay) => return run_replay(&config, name, *replay),
+        driver => driver.into_driver().context("this driver runs under a driver handler")?,
+    };
     let options = HandlerOptions { slots: driver_config.slots, access: config.access(), ..HandlerOptions::default() };
-    let handler = DriverHandler::start(&config.skin, driver.into_driver(), &options)
+    let handler = DriverHandler::start(&config.skin, driver, &options)
         .with_context(|| format!("driver {name} could not start"))?;
     tracing::info!(driver = name, layers = ?handler.layers(), pid = std::process::id(), "driver acquiring");
     let stop = handler.stop_signal().clone();
+    stop_on_signals(move || stop.stop())?;
+    handler.run_until_stopped();
+    tracing::info!(driver = name, "driver stopped");
+    Ok(())
+}
+
+/// A `kind = "replay"` driver: the recording's layers (and, if asked, its
+/// services) under this config's skin name; the supervisor publishes the
+/// geometry, built from the recording's calibration and this config's regions.
+fn run_replay(config: &skin::config::Config, name: &str, replay: skin::config::drivers::ReplayDriver) -> Result<()> {
+    let options = skinware_record::ReplayOptions {
+        skin: Some(config.skin.clone()),
+        publish_geometry: false,
+        access: config.access(),
+        ..replay.options
+    };
+    let mut player = skinware_record::Replay::open(&replay.file, options)
+        .with_context(|| format!("driver {name} could not replay {}", replay.file.display()))?;
+    tracing::info!(driver = name, channels = ?player.channels(), file = %replay.file.display(), "replaying");
+    let stop = player.stop_signal().clone();
+    stop_on_signals(move || stop.stop())?;
+    let report = player.run()?;
+    tracing::info!(driver = name, frames = report.frames, passes = report.passes, "replay stopped");
+    Ok(())
+}
+
+fn stop_on_signals(stop: impl FnOnce() + Send + 'static) -> Result<()> {
     let mut signals = signal_hook::iterator::Signals::new([signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM])
         .context("cannot install signal handlers")?;
     std::thread::spawn(move || {
         if signals.forever().next().is_some() {
-            stop.stop();
+            stop();
         }
     });
-    handler.run_until_stopped();
-    tracing::info!(driver = name, "driver stopped");
     Ok(())
 }

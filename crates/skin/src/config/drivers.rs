@@ -22,6 +22,8 @@ pub enum DriverKind {
     Virtual,
     /// A real skin on a CAN bus.
     Can,
+    /// A recording (`skin record`), replayed at its recorded times.
+    Replay,
 }
 
 /// The protocols of `kind = "can"`.
@@ -40,7 +42,9 @@ pub enum CanProtocol {
 #[derive(Debug, Deserialize, Clone)]
 #[serde(untagged)]
 pub enum Triangles {
+    /// Triangles 0 to n-1.
     Count(u8),
+    /// These triangles.
     List(Vec<u8>),
 }
 
@@ -48,7 +52,9 @@ pub enum Triangles {
 #[derive(Debug, Deserialize, Clone)]
 #[serde(deny_unknown_fields)]
 pub struct BoardConfig {
+    /// The board's CAN address.
     pub address: u8,
+    /// Its triangles.
     pub triangles: Triangles,
 }
 
@@ -124,6 +130,31 @@ pub struct DriverConfig {
     pub address: Option<u8>,
     /// XELA: its taxels.
     pub taxels: Option<usize>,
+    // Replay parameters.
+    /// The recording (relative to the config's directory).
+    pub file: Option<PathBuf>,
+    /// Playback speed (default 1).
+    pub speed: Option<f64>,
+    /// Start again at the end (default true; else the layers stay, paused, with their last frames).
+    #[serde(rename = "loop")]
+    pub loop_: Option<bool>,
+    /// Start this many seconds into the recording.
+    pub from_s: Option<f64>,
+    /// Stop this many seconds into the recording.
+    pub to_s: Option<f64>,
+    /// Replay the recorded services too (default false: the config's services
+    /// run live on the replayed layers).
+    pub services: Option<bool>,
+}
+
+/// A `kind = "replay"` driver: the recording and how to play it.
+pub struct ReplayDriver {
+    /// The recording.
+    pub file: PathBuf,
+    /// What its header says (channels, geometry).
+    pub header: skinware_record::file::RecordingHeader,
+    /// How to play it (the skin and segment directory are set when it starts).
+    pub options: skinware_record::ReplayOptions,
 }
 
 /// A driver built from its table.
@@ -132,6 +163,8 @@ pub enum BuiltDriver {
     Virtual(VirtualSkin),
     /// A CAN skin.
     Can(CanDriver),
+    /// A replayed recording.
+    Replay(Box<ReplayDriver>),
 }
 
 impl BuiltDriver {
@@ -140,6 +173,14 @@ impl BuiltDriver {
         match self {
             BuiltDriver::Virtual(driver) => driver.layers(),
             BuiltDriver::Can(driver) => driver.layers(),
+            BuiltDriver::Replay(replay) => replay
+                .header
+                .channels
+                .values()
+                .filter(|c| c.kind == skinware::ChannelKind::Layer)
+                .filter_map(|c| skinware::LayerTopology::decode(&c.description, &c.channel).ok())
+                .map(|topology| LayerSpec { topology, rt: replay.options.rt.clone() })
+                .collect(),
         }
     }
 
@@ -150,6 +191,7 @@ impl BuiltDriver {
     pub fn calibration(&self, index: usize) -> Calibration {
         match self {
             BuiltDriver::Virtual(driver) => driver.calibration(),
+            BuiltDriver::Replay(replay) => replay_calibration(replay),
             BuiltDriver::Can(driver) => {
                 let mut calibration = Calibration::new();
                 for spec in driver.layers() {
@@ -174,13 +216,39 @@ impl BuiltDriver {
         }
     }
 
-    /// The driver, to run.
-    pub fn into_driver(self) -> Box<dyn Driver> {
+    /// The driver, to run under a driver handler; a replay runs on its own
+    /// (it publishes at recorded times, not on a period) and gives `None`.
+    pub fn into_driver(self) -> Option<Box<dyn Driver>> {
         match self {
-            BuiltDriver::Virtual(driver) => Box::new(driver),
-            BuiltDriver::Can(driver) => Box::new(driver),
+            BuiltDriver::Virtual(driver) => Some(Box::new(driver)),
+            BuiltDriver::Can(driver) => Some(Box::new(driver)),
+            BuiltDriver::Replay(_) => None,
         }
     }
+}
+
+/// The recorded skin's calibration, from the geometry in the recording
+/// (without one, none: the config must give a `calibration` file).
+fn replay_calibration(replay: &ReplayDriver) -> Calibration {
+    let mut calibration = Calibration::new();
+    let Some(geometry) =
+        replay.header.geometry.as_deref().and_then(|bytes| skinware_geometry::SkinGeometry::decode(bytes).ok())
+    else {
+        return calibration;
+    };
+    for (l, layer) in geometry.layers.iter().enumerate() {
+        for (k, sensor) in layer.sensors.iter().enumerate() {
+            let g = geometry.layer_starts[l] + k;
+            let entry = SensorCalibration {
+                position: geometry.positions[g].map(f64::from),
+                normal: geometry.normals[g].map(f64::from),
+                radius: f64::from(geometry.radii[g]),
+                link: geometry.links.get(geometry.link_of[g] as usize).cloned().unwrap_or_default(),
+            };
+            let _ = calibration.insert(&layer.name, sensor.uid, entry);
+        }
+    }
+    calibration
 }
 
 fn default_slots() -> usize {
@@ -207,12 +275,14 @@ impl DriverConfig {
         skinware::shm::validate_name("driver", &self.name)?;
         match self.kind {
             DriverKind::Can => self.build_can().map(BuiltDriver::Can),
+            DriverKind::Replay => self.build_replay().map(|r| BuiltDriver::Replay(Box::new(r))),
             DriverKind::Virtual => {
                 let can_keys = [
                     ("interface", self.interface.is_some()),
                     ("protocol", self.protocol.is_some()),
                     ("board", !self.boards.is_empty()),
                     ("base_ids", !self.base_ids.is_empty()),
+                    ("file", self.file.is_some()),
                 ];
                 if let Some((key, _)) = can_keys.iter().find(|(_, given)| *given) {
                     bail!("`{key}` is a setting of kind = \"can\", not of the virtual skin");
@@ -261,6 +331,59 @@ impl DriverConfig {
                 VirtualSkin::new(config).map(BuiltDriver::Virtual).map_err(|e| anyhow::anyhow!(e))
             }
         }
+    }
+
+    /// Checks a `kind = "replay"` table without reading its file.
+    pub(super) fn check_replay(&self) -> Result<()> {
+        let others = [
+            ("sensors", self.sensors.is_some()),
+            ("layers", self.layers.is_some()),
+            ("interface", self.interface.is_some()),
+            ("protocol", self.protocol.is_some()),
+            ("[[driver.layer]]", !self.explicit_layers.is_empty()),
+        ];
+        if let Some((key, _)) = others.iter().find(|(_, given)| *given) {
+            bail!("`{key}` is not a setting of kind = \"replay\" (it replays the skin it recorded)");
+        }
+        if self.file.is_none() {
+            bail!("kind = \"replay\" needs `file`, a recording made with `skin record`");
+        }
+        if let Some(speed) = self.speed
+            && !(speed.is_finite() && speed > 0.0)
+        {
+            bail!("speed = {speed} must be a positive number (1 is the recorded speed)");
+        }
+        if let (Some(from), Some(to)) = (self.from_s, self.to_s)
+            && to <= from
+        {
+            bail!("to_s = {to} must be after from_s = {from}");
+        }
+        Ok(())
+    }
+
+    /// The replay of a `kind = "replay"` table: reads the recording's header.
+    fn build_replay(&self) -> Result<ReplayDriver> {
+        self.check_replay()?;
+        let file = self.file.clone().unwrap_or_default();
+        if !file.is_file() {
+            bail!("`file` {} is not a file; give the path of a recording (`skin record OUT.mcap`)", file.display());
+        }
+        let mut stream = skinware_record::file::RecordStream::open(&file)?;
+        let (header, _) = skinware_record::file::read_header(&mut stream)?;
+        let options = skinware_record::ReplayOptions {
+            speed: self.speed.unwrap_or(1.0),
+            at_end: if self.loop_.unwrap_or(true) {
+                skinware_record::AtEnd::Loop
+            } else {
+                skinware_record::AtEnd::Hold
+            },
+            from_s: self.from_s,
+            to_s: self.to_s,
+            services: self.services.unwrap_or(false),
+            rt: self.rt.options(),
+            ..skinware_record::ReplayOptions::default()
+        };
+        Ok(ReplayDriver { file, header, options })
     }
 
     /// The CAN driver of a `kind = "can"` table.

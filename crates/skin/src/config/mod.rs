@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use serde::Deserialize;
 
-mod drivers;
+pub mod drivers;
 mod emulators;
 mod process;
 mod regions;
@@ -98,6 +98,11 @@ impl Config {
                 bail!("{}: driver name {:?} is used twice; driver names must be unique", path.display(), driver.name);
             }
             driver.check().with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
+            if driver.kind == drivers::DriverKind::Replay {
+                // Its layers are in the recording, read when the skin starts: parsing reads no file.
+                driver.check_replay().with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
+                continue;
+            }
             let built =
                 driver.build(&config.skin).with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
             for spec in built.layers() {
@@ -129,10 +134,19 @@ impl Config {
                 }
             }
         }
+        if config.drivers.iter().any(|d| d.kind == drivers::DriverKind::Replay) {
+            // A replayed skin's size is known only once its recording is read.
+            sensors = usize::MAX;
+        }
         for region in &config.regions {
             region.check(sensors).with_context(|| format!("{}", path.display()))?;
         }
         config.base_dir = path.parent().map(Path::to_owned).unwrap_or_default();
+        for driver in &mut config.drivers {
+            if let Some(file) = &driver.file {
+                driver.file = Some(config.base_dir.join(file));
+            }
+        }
         Ok(config)
     }
 

@@ -1,0 +1,265 @@
+//! `skin record OUT.mcap`: every frame of a running skin into an MCAP file;
+//! `skin record --recover FILE`: a finished copy of a file whose recorder was
+//! killed.
+
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use skinware_record::{Compression, RecordOptions, Recorder, ServiceChoice};
+
+/// Arguments of `skin record`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// The file to write (never overwritten). With --recover, where the
+    /// finished copy goes (default: FILE with `.recovered.mcap`).
+    out: Option<PathBuf>,
+    /// The skin.
+    #[arg(long, default_value = "default")]
+    skin: String,
+    /// Only these layers (comma-separated); all by default.
+    #[arg(long, value_delimiter = ',')]
+    layers: Option<Vec<String>>,
+    /// Record services too: all of them, or those named (comma-separated).
+    #[arg(long, num_args = 0..=1, default_missing_value = "*", value_delimiter = ',')]
+    services: Option<Vec<String>>,
+    /// Stop after this many seconds (else at Ctrl-C).
+    #[arg(long)]
+    seconds: Option<f64>,
+    /// Map images per second (0: none).
+    #[arg(long, default_value_t = 5.0)]
+    map_hz: f64,
+    /// Width of the map image, pixels.
+    #[arg(long, default_value_t = 640)]
+    map_width: usize,
+    /// Chunk compression.
+    #[arg(long, value_enum, default_value = "zstd")]
+    compression: CompressionArg,
+    /// Wait up to this many seconds for the skin to come up before recording.
+    #[arg(long)]
+    wait: Option<f64>,
+    /// Stop when every recorded channel's writer is gone (the skin stopped).
+    #[arg(long)]
+    until_gone: bool,
+    /// Print the summary as JSON.
+    #[arg(long)]
+    json: bool,
+    /// Read FILE up to its last complete chunk and write a finished copy.
+    #[arg(long, value_name = "FILE")]
+    recover: Option<PathBuf>,
+}
+
+/// `--compression`.
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum CompressionArg {
+    Zstd,
+    Lz4,
+    None,
+}
+
+impl CompressionArg {
+    fn library(self) -> Compression {
+        match self {
+            CompressionArg::Zstd => Compression::Zstd,
+            CompressionArg::Lz4 => Compression::Lz4,
+            CompressionArg::None => Compression::None,
+        }
+    }
+}
+
+/// Runs `skin record`.
+pub fn run(args: &Args) -> Result<()> {
+    if let Some(input) = &args.recover {
+        return recover(input, args);
+    }
+    let Some(out) = &args.out else {
+        bail!(
+            "name the file to write: `skin record OUT.mcap` (or `skin record --recover FILE` to finish a broken one)"
+        );
+    };
+    if let Some(seconds) = args.seconds
+        && !(seconds.is_finite() && seconds > 0.0)
+    {
+        bail!("--seconds {seconds} must be a positive number");
+    }
+    if !(args.map_hz.is_finite() && args.map_hz >= 0.0) {
+        bail!("--map-hz {} must be 0 (no map) or more", args.map_hz);
+    }
+    let services = match &args.services {
+        None => ServiceChoice::None,
+        Some(names) if names.iter().any(|n| n == "*") => ServiceChoice::All,
+        Some(names) => ServiceChoice::Named(names.clone()),
+    };
+    let options = RecordOptions {
+        skin: args.skin.clone(),
+        layers: args.layers.clone(),
+        services,
+        map_hz: args.map_hz,
+        map_width: args.map_width,
+        compression: args.compression.library(),
+        command: std::env::args().collect::<Vec<_>>().join(" "),
+        ..RecordOptions::default()
+    };
+    let shutdown = super::run::shutdown_on_signals()?;
+    if let Some(wait) = args.wait {
+        wait_for_skin(&args.skin, Duration::from_secs_f64(wait.max(0.0)), &shutdown)?;
+    }
+    let recorder = Recorder::start(out, options).with_context(|| format!("cannot record skin {}", args.skin))?;
+    let channels = recorder.channels();
+    eprintln!(
+        "recording {} channel(s) of skin {} into {}: {}",
+        channels.len(),
+        args.skin,
+        out.display(),
+        channels.join(", ")
+    );
+    let started = Instant::now();
+    let live = std::io::stderr().is_terminal();
+    let mut next_line = Instant::now() + Duration::from_secs(10);
+    loop {
+        std::thread::sleep(Duration::from_millis(200));
+        if shutdown.load(Ordering::Relaxed) || recorder.has_failed() {
+            break;
+        }
+        if args.seconds.is_some_and(|s| started.elapsed().as_secs_f64() >= s) {
+            break;
+        }
+        if args.until_gone && recorder.all_gone() {
+            eprintln!("every recorded channel's writer is gone: stopping");
+            break;
+        }
+        let p = recorder.progress();
+        let line = format!(
+            "{:7.1} s  {:>9} frames  {:8.1} MB ({:.1} MB on disk)  lost {}",
+            p.seconds,
+            p.frames,
+            p.message_bytes as f64 / 1e6,
+            p.file_bytes as f64 / 1e6,
+            p.lost
+        );
+        if live {
+            eprint!("\r{line}  ");
+        } else if Instant::now() >= next_line {
+            eprintln!("{line}");
+            next_line += Duration::from_secs(10);
+        }
+    }
+    if live {
+        eprintln!();
+    }
+    let summary = recorder.finish().with_context(|| format!("recording {} stopped", out.display()))?;
+    let mut stdout = std::io::stdout().lock();
+    if args.json {
+        serde_json::to_writer_pretty(&mut stdout, &summary)?;
+        writeln!(stdout)?;
+        return Ok(());
+    }
+    writeln!(
+        stdout,
+        "{}: {:.1} s, {} frames ({:.0}/s), {:.1} MB of messages ({:.2} MB/s), {:.1} MB on disk ({}), {} map images, lost {}",
+        summary.path.display(),
+        summary.seconds,
+        summary.frames,
+        summary.frames_per_s,
+        summary.message_bytes as f64 / 1e6,
+        summary.mb_per_s,
+        summary.file_bytes as f64 / 1e6,
+        summary.compression,
+        summary.images,
+        summary.lost
+    )?;
+    for (name, channel) in &summary.channels {
+        writeln!(
+            stdout,
+            "  {name} ({}): {} frames, lost {} in {} gaps, {} faulted",
+            channel.kind, channel.frames, channel.lost, channel.gaps, channel.faulted
+        )?;
+    }
+    Ok(())
+}
+
+/// Waits until the skin's geometry and at least one of its channels are up.
+fn wait_for_skin(skin: &str, limit: Duration, shutdown: &std::sync::atomic::AtomicBool) -> Result<()> {
+    let dir = skinware::shm::segment_dir();
+    let started = Instant::now();
+    loop {
+        let channels = skinware::list_channels(&dir).unwrap_or_default();
+        let running = channels.iter().any(|c| c.skin == skin && c.state != skinware::WriterState::Gone);
+        if running && skinware_geometry::SkinGeometry::open_in(&dir, skin).is_ok() {
+            return Ok(());
+        }
+        if running && started.elapsed() > limit / 2 {
+            // A skin without published geometry (a bare writer) is recorded without the map.
+            return Ok(());
+        }
+        if started.elapsed() > limit || shutdown.load(Ordering::Relaxed) {
+            bail!(
+                "skin {skin} did not come up within {:.1} s (no running channel in {})",
+                limit.as_secs_f64(),
+                dir.display()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn recover(input: &Path, args: &Args) -> Result<()> {
+    let out = args.out.clone().unwrap_or_else(|| {
+        let stem = input.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        input.with_file_name(format!("{stem}.recovered.mcap"))
+    });
+    let recovered = skinware_record::file::recover(input, &out, args.compression.library().mcap())?;
+    let mut stdout = std::io::stdout().lock();
+    if args.json {
+        serde_json::to_writer_pretty(&mut stdout, &recovered)?;
+        writeln!(stdout)?;
+        return Ok(());
+    }
+    let ending = match recovered.input_ending {
+        skinware_record::file::Ending::Finished => "it was finished: nothing was missing".to_owned(),
+        skinware_record::file::Ending::Truncated => {
+            "it was cut short (the recorder was killed, or the disk filled): every complete chunk was kept".to_owned()
+        }
+        skinware_record::file::Ending::Damaged => {
+            format!("it is damaged: kept what came before ({})", recovered.stopped_by.as_deref().unwrap_or("?"))
+        }
+    };
+    writeln!(stdout, "{} -> {}: {ending}", input.display(), out.display())?;
+    writeln!(
+        stdout,
+        "  {} messages, {} attachments, {} metadata records; frames up to {}",
+        recovered.messages,
+        recovered.attachments,
+        recovered.metadata,
+        format_wall(recovered.last_log_time_ns)
+    )?;
+    for (channel, frames) in &recovered.frames {
+        writeln!(stdout, "  {channel}: {frames} frames")?;
+    }
+    Ok(())
+}
+
+/// A wall-clock time in ns as UTC `YYYY-MM-DD HH:MM:SS.mmm`.
+pub fn format_wall(ns: u64) -> String {
+    let secs = ns / 1_000_000_000;
+    let (days, rest) = (secs / 86_400, secs % 86_400);
+    // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
+    let z = days as i64 + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}-{month:02}-{day:02} {:02}:{:02}:{:02}.{:03} UTC",
+        rest / 3600,
+        rest % 3600 / 60,
+        rest % 60,
+        ns % 1_000_000_000 / 1_000_000
+    )
+}

@@ -1,0 +1,114 @@
+//! `skin replay FILE.mcap`: a recording back into live channels.
+
+use std::io::Write;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use skinware_record::{AtEnd, Replay, ReplayOptions};
+
+/// Arguments of `skin replay`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// The recording.
+    file: PathBuf,
+    /// Publish under this skin name (default: the recorded one).
+    #[arg(long)]
+    skin: Option<String>,
+    /// Playback speed: 2 plays twice as fast.
+    #[arg(long, default_value_t = 1.0)]
+    speed: f64,
+    /// Start again at the end, until Ctrl-C.
+    #[arg(long = "loop")]
+    loop_: bool,
+    /// At the end, keep the channels (paused, with their last frames) until Ctrl-C.
+    #[arg(long, conflicts_with = "loop_")]
+    hold: bool,
+    /// Start this many seconds into the recording.
+    #[arg(long)]
+    from: Option<f64>,
+    /// Stop this many seconds into the recording.
+    #[arg(long)]
+    to: Option<f64>,
+    /// Replay only the layers (for live services to run on them).
+    #[arg(long)]
+    no_services: bool,
+    /// Create the channels, then wait this many seconds before the first frame.
+    #[arg(long, default_value_t = 0.0)]
+    start_delay: f64,
+    /// Who may read the channels: owner, group or everyone.
+    #[arg(long, default_value = "owner")]
+    access: String,
+    /// SCHED_FIFO priority of the publishing thread (needs root or CAP_SYS_NICE).
+    #[arg(long)]
+    fifo_priority: Option<u8>,
+    /// Print the report as JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Runs `skin replay`.
+pub fn run(args: &Args) -> Result<()> {
+    let access = match args.access.as_str() {
+        "owner" => skinware::Access::Owner,
+        "group" => skinware::Access::Group,
+        "everyone" => skinware::Access::Everyone,
+        other => anyhow::bail!("--access {other:?}: use owner, group or everyone"),
+    };
+    let options = ReplayOptions {
+        skin: args.skin.clone(),
+        speed: args.speed,
+        at_end: if args.loop_ {
+            AtEnd::Loop
+        } else if args.hold {
+            AtEnd::Hold
+        } else {
+            AtEnd::Exit
+        },
+        from_s: args.from,
+        to_s: args.to,
+        services: !args.no_services,
+        start_delay: Duration::from_secs_f64(args.start_delay.max(0.0)),
+        access,
+        rt: skinware::RtOptions { fifo_priority: args.fifo_priority, ..Default::default() },
+        ..ReplayOptions::default()
+    };
+    let mut replay =
+        Replay::open(&args.file, options).with_context(|| format!("cannot replay {}", args.file.display()))?;
+    eprintln!(
+        "replaying {} as skin {} (recorded as {}): {}; Ctrl-C stops",
+        args.file.display(),
+        replay.skin(),
+        replay.recorded_skin(),
+        replay.channels().join(", ")
+    );
+    let stop = replay.stop_signal().clone();
+    let mut signals = signal_hook::iterator::Signals::new([signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM])
+        .context("cannot install signal handlers")?;
+    std::thread::spawn(move || {
+        if signals.forever().next().is_some() {
+            stop.stop();
+        }
+    });
+    let report = replay.run()?;
+    let mut out = std::io::stdout().lock();
+    if args.json {
+        serde_json::to_writer_pretty(&mut out, &report)?;
+        writeln!(out)?;
+        return Ok(());
+    }
+    writeln!(
+        out,
+        "replayed {} frames in {:.1} s ({} pass(es)); published after their scheduled time by p50 {:.3} ms, p99 {:.3} ms, max {:.3} ms",
+        report.frames,
+        report.seconds,
+        report.passes,
+        report.late_p50_ns as f64 / 1e6,
+        report.late_p99_ns as f64 / 1e6,
+        report.late_max_ns as f64 / 1e6
+    )?;
+    for (channel, frames) in &report.channels {
+        writeln!(out, "  {channel}: {frames} frames")?;
+    }
+    Ok(())
+}

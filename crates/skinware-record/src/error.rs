@@ -1,0 +1,128 @@
+//! What recording and replaying can fail with.
+
+use std::path::PathBuf;
+
+/// Errors of recording, reading and replaying.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    /// The output file exists.
+    #[error("{path} exists; choose another name, or remove it first (a recording is never overwritten)")]
+    Exists {
+        /// The file.
+        path: PathBuf,
+    },
+    /// A file could not be created, written, read or synced.
+    #[error("cannot {op} {path}: {source}{hint}")]
+    Io {
+        /// What was being done.
+        op: &'static str,
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+        /// What to do about it.
+        hint: String,
+    },
+    /// The file is not an MCAP file at all.
+    #[error("{path} is not an MCAP file (it starts with {start:02x?}, not the MCAP magic 89 4d 43 41 50 30 0d 0a)")]
+    NotMcap {
+        /// The file.
+        path: PathBuf,
+        /// Its first bytes.
+        start: Vec<u8>,
+    },
+    /// The file is MCAP but damaged where it is not merely truncated.
+    #[error("{path} is damaged at byte {offset}: {reason}")]
+    Damaged {
+        /// The file.
+        path: PathBuf,
+        /// Where.
+        offset: u64,
+        /// The MCAP reader's complaint.
+        reason: String,
+    },
+    /// The file is MCAP but holds no skinware recording.
+    #[error("{path} holds no skinware recording ({reason}); record one with `skin record`")]
+    NotARecording {
+        /// The file.
+        path: PathBuf,
+        /// What is missing.
+        reason: String,
+    },
+    /// The file was written by a newer skinware.
+    #[error(
+        "{path} is recording format {found}, newer than this skinware's {supported}; read it with a newer skinware"
+    )]
+    FutureVersion {
+        /// The file.
+        path: PathBuf,
+        /// Its version.
+        found: u32,
+        /// Ours.
+        supported: u32,
+    },
+    /// A skinware topic whose schema this version does not know.
+    #[error("topic {topic} has schema {schema:?} ({encoding}), which skinware cannot replay; expected {expected}")]
+    UnknownSchema {
+        /// The topic.
+        topic: String,
+        /// Its schema's name.
+        schema: String,
+        /// Its schema's encoding.
+        encoding: String,
+        /// What skinware writes.
+        expected: String,
+    },
+    /// A message that does not decode.
+    #[error("a {what} message does not decode: {reason}")]
+    BadMessage {
+        /// Its type.
+        what: String,
+        /// Why.
+        reason: String,
+    },
+    /// A message that does not fit its channel.
+    #[error("{context}")]
+    Mismatch {
+        /// What does not fit what.
+        context: String,
+    },
+    /// A message could not be encoded.
+    #[error("cannot encode a message: {0}")]
+    Encode(String),
+    /// The MCAP writer failed.
+    #[error("writing {path} failed: {reason}{hint}")]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// The writer's error.
+        reason: String,
+        /// What to do about it.
+        hint: String,
+    },
+    /// A channel of the skin could not be read or created.
+    #[error(transparent)]
+    Channel(#[from] skinware::Error),
+    /// Nothing to record.
+    #[error("{0}")]
+    Nothing(String),
+}
+
+/// The advice for an I/O error while writing a recording.
+pub(crate) fn write_hint(error: &std::io::Error) -> String {
+    use std::io::ErrorKind;
+    match error.kind() {
+        ErrorKind::StorageFull | ErrorKind::QuotaExceeded | ErrorKind::FileTooLarge => format!(
+            "; no room is left ({}). Everything up to the last complete chunk (the last second) is in the file: \
+             `skin record --recover FILE --out ELSEWHERE.mcap` writes a finished copy",
+            match error.kind() {
+                ErrorKind::StorageFull => "the disk is full",
+                ErrorKind::QuotaExceeded => "the disk quota is exceeded",
+                _ => "the file size limit is reached",
+            }
+        ),
+        ErrorKind::PermissionDenied => "; permission denied: record into a directory you may write".to_owned(),
+        ErrorKind::ReadOnlyFilesystem => "; the file system is read-only: record elsewhere".to_owned(),
+        _ => String::new(),
+    }
+}

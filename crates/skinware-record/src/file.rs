@@ -1,0 +1,598 @@
+//! Reading recordings: a record stream that works on finished and unfinished
+//! files alike, the scan behind `skin info`, and recovery of an unfinished file.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use mcap::records::{Metadata, Record};
+use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+use serde::{Deserialize, Serialize};
+use skinware::ChannelKind;
+
+use crate::error::write_hint;
+use crate::msgs::{self, Time};
+use crate::{
+    DESCRIPTION_ATTACHMENT_PREFIX, FORMAT_VERSION, GEOMETRY_ATTACHMENT, RECORDING_METADATA, RecordError,
+    SUMMARY_METADATA, channel_keys,
+};
+
+/// The most a single read asks for, so that a damaged length field cannot
+/// make the reader allocate more than the file holds.
+const READ_STEP: usize = 1 << 20;
+/// The longest record accepted outside chunks.
+const RECORD_LIMIT: usize = 1 << 30;
+
+/// How a record stream ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Ending {
+    /// With the MCAP footer and end magic: the recorder finished the file.
+    Finished,
+    /// Before the footer: the recorder was killed or the disk filled. Every
+    /// complete chunk before the cut was read.
+    Truncated,
+    /// At damage (a bad checksum or record) after which nothing is trusted.
+    Damaged,
+}
+
+/// The records of an MCAP file, in file order, with chunks opened.
+pub struct RecordStream {
+    path: PathBuf,
+    file: File,
+    reader: LinearReader,
+    fed: u64,
+    ending: Option<Ending>,
+    damage: Option<String>,
+}
+
+impl RecordStream {
+    /// Opens `path`, checking that it is MCAP.
+    pub fn open(path: &Path) -> Result<RecordStream, RecordError> {
+        let io = |op, source| RecordError::Io { op, path: path.to_owned(), source, hint: String::new() };
+        let mut file = File::open(path).map_err(|e| io("open", e))?;
+        let mut start = Vec::with_capacity(8);
+        (&mut file).take(8).read_to_end(&mut start).map_err(|e| io("read", e))?;
+        if start != mcap::MAGIC {
+            return Err(RecordError::NotMcap { path: path.to_owned(), start });
+        }
+        let options = LinearReaderOptions::default()
+            .with_skip_start_magic(true)
+            .with_validate_chunk_crcs(true)
+            .with_record_length_limit(RECORD_LIMIT);
+        Ok(RecordStream {
+            path: path.to_owned(),
+            file,
+            reader: LinearReader::new_with_options(options),
+            fed: 8,
+            ending: None,
+            damage: None,
+        })
+    }
+
+    /// How the stream ended, once [`next_record`](Self::next_record) has returned `None`.
+    pub fn ending(&self) -> Option<Ending> {
+        self.ending
+    }
+
+    /// What the damage was, for [`Ending::Damaged`].
+    pub fn damage(&self) -> Option<&str> {
+        self.damage.as_deref()
+    }
+
+    /// Bytes of the file read so far.
+    pub fn bytes_read(&self) -> u64 {
+        self.fed
+    }
+
+    /// The next record; `None` at the end of the file, finished or cut short.
+    pub fn next_record(&mut self) -> Result<Option<Record<'static>>, RecordError> {
+        if self.ending.is_some() {
+            return Ok(None);
+        }
+        loop {
+            let event = match self.reader.next_event() {
+                None => {
+                    self.ending = Some(Ending::Finished);
+                    return Ok(None);
+                }
+                Some(Err(mcap::McapError::UnexpectedEof)) => {
+                    self.ending = Some(Ending::Truncated);
+                    return Ok(None);
+                }
+                Some(Err(e)) => return Err(self.damaged(e.to_string())),
+                Some(Ok(event)) => event,
+            };
+            match event {
+                LinearReadEvent::ReadRequest(need) => {
+                    let buffer = self.reader.insert(need.clamp(1, READ_STEP));
+                    let read = match self.file.read(buffer) {
+                        Ok(n) => n,
+                        Err(source) => {
+                            return Err(RecordError::Io {
+                                op: "read",
+                                path: self.path.clone(),
+                                source,
+                                hint: String::new(),
+                            });
+                        }
+                    };
+                    self.reader.notify_read(read);
+                    self.fed += read as u64;
+                }
+                LinearReadEvent::Record { opcode, data } => {
+                    let record = mcap::parse_record(opcode, data).map(Record::into_owned);
+                    return match record {
+                        Ok(record) => Ok(Some(record)),
+                        Err(e) => Err(self.damaged(e.to_string())),
+                    };
+                }
+            }
+        }
+    }
+
+    fn damaged(&self, reason: String) -> RecordError {
+        RecordError::Damaged { path: self.path.clone(), offset: self.fed, reason }
+    }
+}
+
+/// One recorded skinware channel.
+#[derive(Clone, Debug, Serialize)]
+pub struct RecordedChannel {
+    /// MCAP channel id of its frames.
+    pub id: u16,
+    /// Its topic.
+    pub topic: String,
+    /// The skinware channel's name.
+    pub channel: String,
+    /// Layer or service.
+    #[serde(serialize_with = "kind_name")]
+    pub kind: ChannelKind,
+    /// Frame size in bytes.
+    pub payload_bytes: usize,
+    /// The writer's frame buffers.
+    pub slots: usize,
+    /// The writer's period in ns (0: sporadic).
+    pub period_ns: u64,
+    /// Payload schema name and version.
+    pub schema: (String, u32),
+    /// Its description (a layer's topology, a service's labels).
+    #[serde(skip)]
+    pub description: Vec<u8>,
+}
+
+fn kind_name<S: serde::Serializer>(kind: &ChannelKind, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(kind_str(*kind))
+}
+
+/// `layer` or `service`.
+pub fn kind_str(kind: ChannelKind) -> &'static str {
+    match kind {
+        ChannelKind::Service => "service",
+        _ => "layer",
+    }
+}
+
+/// What the start of a recording says: everything the recorder writes before
+/// the first frame.
+#[derive(Clone, Debug, Default)]
+pub struct RecordingHeader {
+    /// The recorded skin.
+    pub skin: String,
+    /// Wall-clock time minus CLOCK_MONOTONIC time on the recording machine, ns:
+    /// every stamp in the file is wall-clock; subtracting this gives the
+    /// machine's monotonic time.
+    pub clock_offset_ns: i64,
+    /// The `skinware.recording` metadata.
+    pub metadata: BTreeMap<String, String>,
+    /// The skinware channels recorded, by MCAP channel id.
+    pub channels: BTreeMap<u16, RecordedChannel>,
+    /// The skin's geometry file, if it was published when recording.
+    pub geometry: Option<Vec<u8>>,
+    /// Every topic seen before the first message, by MCAP channel id.
+    pub topics: BTreeMap<u16, String>,
+}
+
+/// A message as read: its header and CDR bytes.
+pub type RawMessage = (mcap::records::MessageHeader, Vec<u8>);
+
+/// Reads the header of a recording from `stream`, up to and including the
+/// first message (returned, if there is one).
+pub fn read_header(stream: &mut RecordStream) -> Result<(RecordingHeader, Option<RawMessage>), RecordError> {
+    let mut collector = HeaderCollector::default();
+    while let Some(record) = stream.next_record()? {
+        if let Record::Message { header, data } = record {
+            let header_out = collector.finish(&stream.path)?;
+            return Ok((header_out, Some((header, data.into_owned()))));
+        }
+        collector.add(record)?;
+    }
+    Ok((collector.finish(&stream.path)?, None))
+}
+
+#[derive(Default)]
+struct HeaderCollector {
+    schemas: BTreeMap<u16, (String, String)>,
+    channels: BTreeMap<u16, mcap::records::Channel>,
+    metadata: Option<BTreeMap<String, String>>,
+    geometry: Option<Vec<u8>>,
+    descriptions: BTreeMap<String, Vec<u8>>,
+}
+
+impl HeaderCollector {
+    fn add(&mut self, record: Record<'static>) -> Result<(), RecordError> {
+        match record {
+            Record::Schema { header, .. } => {
+                self.schemas.insert(header.id, (header.name, header.encoding));
+            }
+            Record::Channel(channel) => {
+                self.channels.insert(channel.id, channel);
+            }
+            Record::Metadata(Metadata { name, metadata }) if name == RECORDING_METADATA => {
+                self.metadata = Some(metadata);
+            }
+            Record::Attachment { header, data, .. } => {
+                if header.name == GEOMETRY_ATTACHMENT {
+                    self.geometry = Some(data.into_owned());
+                } else if let Some(channel) = header.name.strip_prefix(DESCRIPTION_ATTACHMENT_PREFIX) {
+                    self.descriptions.insert(channel.to_owned(), data.into_owned());
+                }
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    fn finish(mut self, path: &Path) -> Result<RecordingHeader, RecordError> {
+        let not_recording =
+            |reason: &str| RecordError::NotARecording { path: path.to_owned(), reason: reason.to_owned() };
+        let metadata = self
+            .metadata
+            .take()
+            .ok_or_else(|| not_recording("no `skinware.recording` metadata before the first message"))?;
+        let version: u32 = metadata
+            .get("format_version")
+            .and_then(|v| v.parse().ok())
+            .ok_or_else(|| not_recording("`skinware.recording` has no numeric format_version"))?;
+        if version > FORMAT_VERSION {
+            return Err(RecordError::FutureVersion {
+                path: path.to_owned(),
+                found: version,
+                supported: FORMAT_VERSION,
+            });
+        }
+        let skin = metadata.get("skin").cloned().ok_or_else(|| not_recording("`skinware.recording` names no skin"))?;
+        let clock_offset_ns = metadata.get("clock_offset_ns").and_then(|v| v.parse().ok()).unwrap_or(0);
+        let mut channels = BTreeMap::new();
+        for (id, channel) in &self.channels {
+            let Some(name) = channel.metadata.get(channel_keys::CHANNEL) else {
+                continue;
+            };
+            let (schema, encoding) = self.schemas.get(&channel.schema_id).cloned().unwrap_or_default();
+            if schema != msgs::SKIN_FRAME
+                || encoding != msgs::SCHEMA_ENCODING
+                || channel.message_encoding != msgs::MESSAGE_ENCODING
+            {
+                return Err(RecordError::UnknownSchema {
+                    topic: channel.topic.clone(),
+                    schema,
+                    encoding: format!("{encoding}/{}", channel.message_encoding),
+                    expected: format!("{} ({}/{})", msgs::SKIN_FRAME, msgs::SCHEMA_ENCODING, msgs::MESSAGE_ENCODING),
+                });
+            }
+            let number = |key: &str| -> Result<u64, RecordError> {
+                channel.metadata.get(key).and_then(|v| v.parse().ok()).ok_or_else(|| RecordError::NotARecording {
+                    path: path.to_owned(),
+                    reason: format!("topic {}: metadata {key} is missing or not a number", channel.topic),
+                })
+            };
+            let kind = match channel.metadata.get(channel_keys::KIND).map(String::as_str) {
+                Some("service") => ChannelKind::Service,
+                Some("layer") => ChannelKind::Layer,
+                other => {
+                    return Err(not_recording(&format!(
+                        "topic {}: skinware.kind {other:?} is not layer or service",
+                        channel.topic
+                    )));
+                }
+            };
+            channels.insert(
+                *id,
+                RecordedChannel {
+                    id: *id,
+                    topic: channel.topic.clone(),
+                    channel: name.clone(),
+                    kind,
+                    payload_bytes: number(channel_keys::PAYLOAD_BYTES)? as usize,
+                    slots: number(channel_keys::SLOTS)? as usize,
+                    period_ns: number(channel_keys::PERIOD_NS)?,
+                    schema: (
+                        channel.metadata.get(channel_keys::SCHEMA_NAME).cloned().unwrap_or_default(),
+                        number(channel_keys::SCHEMA_VERSION)? as u32,
+                    ),
+                    description: self.descriptions.remove(name).unwrap_or_default(),
+                },
+            );
+        }
+        let topics = self.channels.iter().map(|(id, c)| (*id, c.topic.clone())).collect();
+        Ok(RecordingHeader { skin, clock_offset_ns, metadata, channels, geometry: self.geometry, topics })
+    }
+}
+
+/// What a recording holds, per channel.
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
+pub struct ChannelSummary {
+    /// Layer or service.
+    pub kind: String,
+    /// Frames in the file.
+    pub frames: u64,
+    /// Frames the recorder missed (the sum of the frames' `skipped`).
+    pub lost: u64,
+    /// Gaps: runs of missed frames.
+    pub gaps: u64,
+    /// Frames with a fault status.
+    pub faulted: u64,
+    /// Acquisition time of the first and last frame, wall clock ns.
+    pub first_ns: u64,
+    /// See `first_ns`.
+    pub last_ns: u64,
+    /// Frame payload bytes.
+    pub payload_bytes: usize,
+}
+
+/// What `skin info` says about a file.
+#[derive(Clone, Debug, Serialize)]
+pub struct RecordingInfo {
+    /// The file.
+    pub path: PathBuf,
+    /// Its size.
+    pub file_bytes: u64,
+    /// Finished, or cut short.
+    pub ending: Ending,
+    /// Where and how the file is damaged, if it is.
+    pub damage: Option<String>,
+    /// The recorded skin.
+    pub skin: String,
+    /// The `skinware.recording` metadata.
+    pub metadata: BTreeMap<String, String>,
+    /// Whether the geometry is in the file.
+    pub has_geometry: bool,
+    /// Per skinware channel.
+    pub channels: BTreeMap<String, ChannelSummary>,
+    /// Messages per topic (every topic, the map and statistics too).
+    pub topics: BTreeMap<String, u64>,
+    /// First to last frame, seconds.
+    pub duration_s: f64,
+    /// Every frame.
+    pub frames: u64,
+    /// Every frame missed.
+    pub lost: u64,
+    /// The `skinware.summary` the recorder wrote on finishing, if it did.
+    pub recorder_summary: Option<BTreeMap<String, String>>,
+}
+
+/// The first fields of a `SkinFrame`, decoded without its arrays.
+#[derive(Deserialize)]
+struct FrameHead {
+    stamp: Time,
+    _published: Time,
+    _seq: u64,
+    status: u64,
+    skipped: u64,
+}
+
+/// Reads `path` from start to end and says what it holds. An unfinished file
+/// is read up to its last complete chunk (see [`RecordingInfo::ending`]).
+pub fn scan(path: &Path) -> Result<RecordingInfo, RecordError> {
+    let mut stream = RecordStream::open(path)?;
+    let (header, first) = read_header(&mut stream)?;
+    let mut topics_by_id: BTreeMap<u16, String> = header.topics.clone();
+    let mut topics: BTreeMap<String, u64> = BTreeMap::new();
+    let mut channels: BTreeMap<String, ChannelSummary> = header
+        .channels
+        .values()
+        .map(|c| {
+            let summary = ChannelSummary {
+                kind: kind_str(c.kind).to_owned(),
+                payload_bytes: c.payload_bytes,
+                ..Default::default()
+            };
+            (c.channel.clone(), summary)
+        })
+        .collect();
+    for c in header.channels.values() {
+        topics_by_id.insert(c.id, c.topic.clone());
+    }
+    let mut recorder_summary = None;
+    let mut pending = first;
+    loop {
+        let (message, data) = match pending.take() {
+            Some(first) => first,
+            None => match stream.next_record() {
+                Ok(Some(Record::Message { header, data })) => (header, data.into_owned()),
+                Ok(Some(Record::Channel(channel))) => {
+                    topics_by_id.entry(channel.id).or_insert(channel.topic);
+                    continue;
+                }
+                Ok(Some(Record::Metadata(Metadata { name, metadata }))) if name == SUMMARY_METADATA => {
+                    recorder_summary = Some(metadata);
+                    continue;
+                }
+                Ok(Some(_)) => continue,
+                Ok(None) => break,
+                Err(RecordError::Damaged { offset, reason, .. }) => {
+                    stream.ending = Some(Ending::Damaged);
+                    stream.damage = Some(format!("at byte {offset}: {reason}"));
+                    break;
+                }
+                Err(e) => return Err(e),
+            },
+        };
+        if let Some(channel) = header.channels.get(&message.channel_id) {
+            let head: FrameHead = msgs::decode(&data, msgs::SKIN_FRAME)?;
+            let summary = channels.entry(channel.channel.clone()).or_default();
+            let stamp = head.stamp.to_ns();
+            if summary.frames == 0 {
+                summary.first_ns = stamp;
+            }
+            summary.last_ns = summary.last_ns.max(stamp);
+            summary.frames += 1;
+            summary.lost += head.skipped;
+            summary.gaps += u64::from(head.skipped > 0);
+            summary.faulted += u64::from(head.status & skinware::FrameStatus::FAULT.0 != 0);
+        }
+        let topic = topics_by_id.get(&message.channel_id).cloned();
+        *topics.entry(topic.unwrap_or_else(|| format!("channel {}", message.channel_id))).or_default() += 1;
+    }
+    let ending = stream.ending().unwrap_or(Ending::Truncated);
+    let file_bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+    let first_ns = channels.values().filter(|c| c.frames > 0).map(|c| c.first_ns).min().unwrap_or(0);
+    let last_ns = channels.values().map(|c| c.last_ns).max().unwrap_or(0);
+    Ok(RecordingInfo {
+        path: path.to_owned(),
+        file_bytes,
+        ending,
+        damage: stream.damage.clone(),
+        skin: header.skin,
+        metadata: header.metadata,
+        has_geometry: header.geometry.is_some(),
+        frames: channels.values().map(|c| c.frames).sum(),
+        lost: channels.values().map(|c| c.lost).sum(),
+        channels,
+        topics,
+        duration_s: last_ns.saturating_sub(first_ns) as f64 / 1e9,
+        recorder_summary,
+    })
+}
+
+/// What [`recover`] saved.
+#[derive(Clone, Debug, Serialize)]
+pub struct Recovered {
+    /// The file written.
+    pub out: PathBuf,
+    /// How the input ended.
+    pub input_ending: Ending,
+    /// Messages copied.
+    pub messages: u64,
+    /// Frames copied, per skinware channel.
+    pub frames: BTreeMap<String, u64>,
+    /// Attachments and metadata records copied.
+    pub attachments: u64,
+    /// Metadata records copied.
+    pub metadata: u64,
+    /// Acquisition time of the last message, wall clock ns.
+    pub last_log_time_ns: u64,
+    /// Why reading stopped early, if it did (damage rather than a cut).
+    pub stopped_by: Option<String>,
+}
+
+/// Writes every complete record of `input` (typically a recording whose
+/// recorder was killed) into a new, finished MCAP file `out`.
+pub fn recover(input: &Path, out: &Path, compression: Option<mcap::Compression>) -> Result<Recovered, RecordError> {
+    let mut stream = RecordStream::open(input)?;
+    let output = std::fs::OpenOptions::new().write(true).create_new(true).open(out).map_err(|source| {
+        if source.kind() == std::io::ErrorKind::AlreadyExists {
+            RecordError::Exists { path: out.to_owned() }
+        } else {
+            RecordError::Io { op: "create", path: out.to_owned(), hint: write_hint(&source), source }
+        }
+    })?;
+    let write_error = |e: mcap::McapError| RecordError::Write {
+        path: out.to_owned(),
+        hint: match &e {
+            mcap::McapError::Io(io) => write_hint(io),
+            _ => String::new(),
+        },
+        reason: e.to_string(),
+    };
+    let mut writer = mcap::WriteOptions::new()
+        .profile("ros2")
+        .compression(compression)
+        .create(std::io::BufWriter::new(output))
+        .map_err(write_error)?;
+    let mut skin_channels: BTreeMap<u16, String> = BTreeMap::new();
+    let mut report = Recovered {
+        out: out.to_owned(),
+        input_ending: Ending::Truncated,
+        messages: 0,
+        frames: BTreeMap::new(),
+        attachments: 0,
+        metadata: 0,
+        last_log_time_ns: 0,
+        stopped_by: None,
+    };
+    loop {
+        let record = match stream.next_record() {
+            Ok(Some(record)) => record,
+            Ok(None) => break,
+            Err(e) => {
+                report.stopped_by = Some(e.to_string());
+                report.input_ending = Ending::Damaged;
+                break;
+            }
+        };
+        match record {
+            Record::Schema { header, data } => {
+                writer.add_schema_with_id(header.id, &header.name, &header.encoding, &data).map_err(write_error)?;
+            }
+            Record::Channel(channel) => {
+                if let Some(name) = channel.metadata.get(channel_keys::CHANNEL) {
+                    skin_channels.insert(channel.id, name.clone());
+                }
+                writer
+                    .add_channel_with_id(
+                        channel.id,
+                        channel.schema_id,
+                        &channel.topic,
+                        &channel.message_encoding,
+                        &channel.metadata,
+                    )
+                    .map_err(write_error)?;
+            }
+            Record::Message { header, data } => {
+                writer.write_to_known_channel(&header, &data).map_err(write_error)?;
+                report.messages += 1;
+                report.last_log_time_ns = report.last_log_time_ns.max(header.log_time);
+                if let Some(name) = skin_channels.get(&header.channel_id) {
+                    *report.frames.entry(name.clone()).or_default() += 1;
+                }
+            }
+            Record::Attachment { header, data, .. } => {
+                let attachment = mcap::Attachment {
+                    log_time: header.log_time,
+                    create_time: header.create_time,
+                    name: header.name,
+                    media_type: header.media_type,
+                    data,
+                };
+                writer.attach(&attachment).map_err(write_error)?;
+                report.attachments += 1;
+            }
+            Record::Metadata(metadata) => {
+                writer.write_metadata(&metadata).map_err(write_error)?;
+                report.metadata += 1;
+            }
+            _ => {}
+        }
+    }
+    if let Some(ending) = stream.ending() {
+        report.input_ending = ending;
+    }
+    let mut recovery = BTreeMap::new();
+    recovery.insert("from".to_owned(), input.display().to_string());
+    recovery.insert("input_ending".to_owned(), format!("{:?}", report.input_ending).to_lowercase());
+    recovery.insert("messages".to_owned(), report.messages.to_string());
+    writer.write_metadata(&Metadata { name: "skinware.recovery".into(), metadata: recovery }).map_err(write_error)?;
+    writer.finish().map_err(write_error)?;
+    close(writer.into_inner(), out)?;
+    Ok(report)
+}
+
+/// Flushes and syncs a finished file, so that its end is on disk when we say it is.
+pub(crate) fn close(buffered: std::io::BufWriter<File>, path: &Path) -> Result<(), RecordError> {
+    let io =
+        |op, source: std::io::Error| RecordError::Io { op, path: path.to_owned(), hint: write_hint(&source), source };
+    let file = buffered.into_inner().map_err(|e| io("write", e.into_error()))?;
+    file.sync_all().map_err(|e| io("sync", e))
+}

@@ -1,0 +1,443 @@
+//! `skin replay`: a recording back into live channels, at its recorded times.
+//!
+//! The channels are created anew with the recorded names, frame sizes,
+//! descriptions and schemas, and the recorded geometry is published, so that
+//! readers, services and the viewer find what they found on the live skin.
+//! Each frame is published at its recorded publication time (scaled by the
+//! speed) with its recorded payload and status, and an acquisition time as far
+//! before that as it was when recorded. Sequence numbers are the replay
+//! writers' own: they start at 1, as those of a skin just started do.
+
+use std::cmp::Reverse;
+use std::collections::{BTreeMap, BinaryHeap};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use mcap::records::Record;
+use serde::Serialize;
+use skinware::rt::{RtOptions, Stop};
+use skinware::{Access, ChannelKind, FrameStatus, LayerTopology, Writer, WriterOptions, WriterState};
+use skinware_geometry::SkinGeometry;
+
+use crate::RecordError;
+use crate::file::{RecordStream, RecordedChannel, RecordingHeader, read_header};
+use crate::msgs::{self, SkinFrame};
+
+/// How far ahead of publication the file is read, to put frames from different
+/// channels (queued by different recorder threads) back in time order.
+const REORDER_WINDOW_NS: u64 = 250_000_000;
+
+/// What the replay does after the last frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum AtEnd {
+    /// Stop, and remove the channels.
+    #[default]
+    Exit,
+    /// Keep the channels, paused, with their last frames, until stopped.
+    Hold,
+    /// Start again from the first frame.
+    Loop,
+}
+
+/// How to replay.
+#[derive(Clone, Debug)]
+pub struct ReplayOptions {
+    /// Publish under this skin name instead of the recorded one.
+    pub skin: Option<String>,
+    /// Playback speed: 2 plays twice as fast.
+    pub speed: f64,
+    /// After the last frame.
+    pub at_end: AtEnd,
+    /// Start this many seconds after the first frame.
+    pub from_s: Option<f64>,
+    /// Stop this many seconds after the first frame.
+    pub to_s: Option<f64>,
+    /// Replay the recorded services too (else only the layers, for live services to read).
+    pub services: bool,
+    /// Publish the recorded geometry (else whoever runs the replay publishes one).
+    pub publish_geometry: bool,
+    /// Wait this long after creating the channels before the first frame, so
+    /// that readers started alongside catch it.
+    pub start_delay: Duration,
+    /// Who may read the channels.
+    pub access: Access,
+    /// Segment directory; `None` for the default.
+    pub dir: Option<PathBuf>,
+    /// Real-time settings of the publishing thread.
+    pub rt: RtOptions,
+}
+
+impl Default for ReplayOptions {
+    fn default() -> Self {
+        ReplayOptions {
+            skin: None,
+            speed: 1.0,
+            at_end: AtEnd::Exit,
+            from_s: None,
+            to_s: None,
+            services: true,
+            publish_geometry: true,
+            start_delay: Duration::ZERO,
+            access: Access::Owner,
+            dir: None,
+            rt: RtOptions::default(),
+        }
+    }
+}
+
+/// What a replay did.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct ReplayReport {
+    /// Frames published.
+    pub frames: u64,
+    /// Frames published per channel.
+    pub channels: BTreeMap<String, u64>,
+    /// Passes over the recording.
+    pub passes: u64,
+    /// How late each frame was published after its scheduled time: p50, ns.
+    pub late_p50_ns: u64,
+    /// p99, ns.
+    pub late_p99_ns: u64,
+    /// Worst, ns.
+    pub late_max_ns: u64,
+    /// Replay time, seconds.
+    pub seconds: f64,
+}
+
+struct Target {
+    recorded: RecordedChannel,
+    writer: Writer,
+    state: WriterState,
+}
+
+/// A recording being replayed.
+pub struct Replay {
+    path: PathBuf,
+    options: ReplayOptions,
+    header: RecordingHeader,
+    skin: String,
+    targets: BTreeMap<u16, Target>,
+    geometry: Option<PathBuf>,
+    stop: Stop,
+}
+
+impl Replay {
+    /// Reads the recording's header, creates its channels and publishes its geometry.
+    pub fn open(path: &Path, options: ReplayOptions) -> Result<Replay, RecordError> {
+        if !(options.speed.is_finite() && options.speed > 0.0) {
+            return Err(RecordError::Mismatch {
+                context: format!("speed {} must be a positive number", options.speed),
+            });
+        }
+        if let (Some(from), Some(to)) = (options.from_s, options.to_s)
+            && to <= from
+        {
+            return Err(RecordError::Mismatch { context: format!("--to {to} must be after --from {from}") });
+        }
+        let mut stream = RecordStream::open(path)?;
+        let (header, _) = read_header(&mut stream)?;
+        let skin = options.skin.clone().unwrap_or_else(|| header.skin.clone());
+        let dir = options.dir.clone().unwrap_or_else(skinware::shm::segment_dir);
+        let mut targets = BTreeMap::new();
+        for (id, recorded) in &header.channels {
+            if recorded.kind == ChannelKind::Service && !options.services {
+                continue;
+            }
+            let writer_options = WriterOptions {
+                slots: recorded.slots.clamp(skinware::MIN_SLOTS, skinware::MAX_SLOTS),
+                period: (recorded.period_ns > 0).then(|| Duration::from_nanos(recorded.period_ns)),
+                kind: recorded.kind,
+                schema_name: recorded.schema.0.clone(),
+                schema_version: recorded.schema.1,
+                access: options.access,
+                unlink_on_drop: true,
+                dir: Some(dir.clone()),
+            };
+            let writer = Writer::create(
+                &skin,
+                &recorded.channel,
+                recorded.payload_bytes,
+                &recorded.description,
+                &writer_options,
+            )?;
+            targets.insert(*id, Target { recorded: recorded.clone(), writer, state: WriterState::Running });
+        }
+        if targets.is_empty() {
+            return Err(RecordError::NotARecording {
+                path: path.to_owned(),
+                reason: "it records no channel to replay".into(),
+            });
+        }
+        let mut published = None;
+        if options.publish_geometry
+            && let Some(bytes) = &header.geometry
+        {
+            let mut geometry = SkinGeometry::decode(bytes)
+                .map_err(|e| RecordError::BadMessage { what: "geometry attachment".into(), reason: e.to_string() })?;
+            geometry.skin = skin.clone();
+            let at = geometry
+                .publish(&dir)
+                .map_err(|e| RecordError::Mismatch { context: format!("cannot publish the geometry: {e}") })?;
+            published = Some(at);
+        }
+        Ok(Replay { path: path.to_owned(), options, header, skin, targets, geometry: published, stop: Stop::new() })
+    }
+
+    /// The skin being replayed into.
+    pub fn skin(&self) -> &str {
+        &self.skin
+    }
+
+    /// The recorded skin's name.
+    pub fn recorded_skin(&self) -> &str {
+        &self.header.skin
+    }
+
+    /// The replayed layers' topologies.
+    pub fn layers(&self) -> Vec<LayerTopology> {
+        self.targets
+            .values()
+            .filter(|t| t.recorded.kind == ChannelKind::Layer)
+            .filter_map(|t| LayerTopology::decode(&t.recorded.description, &t.recorded.channel).ok())
+            .collect()
+    }
+
+    /// The names of the channels replayed.
+    pub fn channels(&self) -> Vec<String> {
+        self.targets.values().map(|t| t.recorded.channel.clone()).collect()
+    }
+
+    /// The signal that stops the replay.
+    pub fn stop_signal(&self) -> &Stop {
+        &self.stop
+    }
+
+    /// Publishes the frames at their times until the end (see [`AtEnd`]) or the stop signal.
+    pub fn run(&mut self) -> Result<ReplayReport, RecordError> {
+        for refusal in self.options.rt.apply() {
+            tracing::warn!("{refusal}");
+        }
+        let started = skinware::os::monotonic_ns();
+        let mut report = ReplayReport::default();
+        let mut lateness: Vec<u64> = Vec::new();
+        let mut pass_start = started + self.options.start_delay.as_nanos() as u64;
+        let mut result = Ok(());
+        while !self.stop.is_stopped() {
+            report.passes += 1;
+            match self.pass(pass_start, &mut report, &mut lateness) {
+                Ok(Some(end)) if self.options.at_end == AtEnd::Loop && report.frames > 0 => {
+                    // The next pass starts one typical period after this one's last frame.
+                    pass_start = end + self.typical_period_ns();
+                }
+                Ok(_) => break,
+                Err(e) => {
+                    result = Err(e);
+                    break;
+                }
+            }
+        }
+        if result.is_ok() && self.options.at_end == AtEnd::Hold {
+            for target in self.targets.values() {
+                target.writer.set_state(WriterState::Paused);
+            }
+            while self.stop.sleep_until(u64::MAX) {}
+        }
+        lateness.sort_unstable();
+        let quantile =
+            |q: f64| lateness.get(((lateness.len() as f64 - 1.0) * q).round() as usize).copied().unwrap_or(0);
+        report.late_p50_ns = quantile(0.5);
+        report.late_p99_ns = quantile(0.99);
+        report.late_max_ns = lateness.last().copied().unwrap_or(0);
+        report.seconds = (skinware::os::monotonic_ns() - started) as f64 / 1e9;
+        result.map(|()| report)
+    }
+
+    fn typical_period_ns(&self) -> u64 {
+        self.targets.values().map(|t| t.recorded.period_ns).filter(|&p| p > 0).min().unwrap_or(20_000_000)
+    }
+
+    /// One pass over the file, its first frame at `start_ns`; returns when its
+    /// last frame was due, or `None` if stopped.
+    ///
+    /// A loader thread reads, decompresses and decodes the file ahead of time
+    /// (a chunk takes milliseconds to decompress); this thread only sleeps until
+    /// each frame is due and copies it into its channel.
+    fn pass(
+        &mut self,
+        start_ns: u64,
+        report: &mut ReplayReport,
+        lateness: &mut Vec<u64>,
+    ) -> Result<Option<u64>, RecordError> {
+        let (sender, receiver) = std::sync::mpsc::sync_channel::<Result<Due, RecordError>>(LOAD_AHEAD);
+        let loader = Loader {
+            path: self.path.clone(),
+            sizes: self
+                .targets
+                .iter()
+                .map(|(id, t)| (*id, (t.recorded.channel.clone(), t.recorded.payload_bytes)))
+                .collect(),
+            from_ns: self.options.from_s.map(|s| (s * 1e9) as u64),
+            to_ns: self.options.to_s.map(|s| (s * 1e9) as u64),
+            stop: self.stop.clone(),
+        };
+        let loading = std::thread::Builder::new()
+            .name("replay-load".into())
+            .spawn(move || loader.run(&sender))
+            .map_err(|e| RecordError::Nothing(format!("cannot start the replay's loader thread: {e}")))?;
+        let speed = self.options.speed;
+        let mut outcome = Ok(Some(start_ns));
+        // The schedule starts when the first frame is ready (opening the file
+        // and decompressing its first chunk take a while), not before.
+        let mut start_ns = Some(start_ns);
+        let mut origin = 0;
+        for due in receiver.iter() {
+            let due = match due {
+                Ok(due) => due,
+                Err(e) => {
+                    outcome = Err(e);
+                    break;
+                }
+            };
+            if let Some(planned) = start_ns.take() {
+                origin = planned.max(skinware::os::monotonic_ns());
+            }
+            let at = origin + (due.offset_ns as f64 / speed) as u64;
+            if !self.stop.sleep_until(at) {
+                outcome = Ok(None);
+                break;
+            }
+            let Some(target) = self.targets.get_mut(&due.channel_id) else { continue };
+            let status = FrameStatus(due.status);
+            let state = if status.contains(FrameStatus::FAULT) { WriterState::Faulted } else { WriterState::Running };
+            if state != target.state {
+                target.writer.set_state(state);
+                target.state = state;
+            }
+            let mut out = target.writer.begin();
+            out.write_bytes(0, &due.bytes)?;
+            out.set_acquired_ns(at.saturating_sub(due.latency_ns));
+            out.set_status(status);
+            out.publish();
+            lateness.push(skinware::os::monotonic_ns().saturating_sub(at));
+            report.frames += 1;
+            *report.channels.entry(target.recorded.channel.clone()).or_default() += 1;
+            outcome = Ok(Some(at));
+        }
+        // Unblocks a loader still sending, then waits for it.
+        drop(receiver);
+        let _ = loading.join();
+        outcome
+    }
+}
+
+/// Frames decoded ahead of their publication.
+const LOAD_AHEAD: usize = 1024;
+
+/// A frame ready to publish.
+struct Due {
+    channel_id: u16,
+    /// After the pass's first frame (before the speed is applied).
+    offset_ns: u64,
+    /// Its recorded publication latency.
+    latency_ns: u64,
+    status: u64,
+    bytes: Vec<u8>,
+}
+
+/// Reads one pass's frames in publication order.
+struct Loader {
+    path: PathBuf,
+    /// Channel name and frame size, by MCAP channel id, of the channels replayed.
+    sizes: BTreeMap<u16, (String, usize)>,
+    from_ns: Option<u64>,
+    to_ns: Option<u64>,
+    stop: Stop,
+}
+
+impl Loader {
+    fn run(self, sender: &std::sync::mpsc::SyncSender<Result<Due, RecordError>>) {
+        if let Err(e) = self.load(sender) {
+            let _ = sender.send(Err(e));
+        }
+    }
+
+    fn load(&self, sender: &std::sync::mpsc::SyncSender<Result<Due, RecordError>>) -> Result<(), RecordError> {
+        let mut stream = RecordStream::open(&self.path)?;
+        let (_, first) = read_header(&mut stream)?;
+        // Publication time, file order, channel id, acquisition time, CDR bytes.
+        type Pending = Reverse<(u64, u64, u16, u64, Vec<u8>)>;
+        let mut pending: BinaryHeap<Pending> = BinaryHeap::new();
+        let mut order = 0u64;
+        let mut push = |pending: &mut BinaryHeap<_>, header: mcap::records::MessageHeader, data: Vec<u8>| {
+            order += 1;
+            pending.push(Reverse((header.publish_time, order, header.channel_id, header.log_time, data)));
+        };
+        if let Some((header, data)) = first
+            && self.sizes.contains_key(&header.channel_id)
+        {
+            push(&mut pending, header, data);
+        }
+        let (mut newest_read, mut exhausted, mut sent) = (0u64, false, 0u64);
+        let mut base: Option<u64> = None;
+        while !self.stop.is_stopped() {
+            while !exhausted && pending.peek().is_none_or(|Reverse(top)| newest_read < top.0 + REORDER_WINDOW_NS) {
+                match stream.next_record() {
+                    Ok(Some(Record::Message { header, data })) if self.sizes.contains_key(&header.channel_id) => {
+                        newest_read = newest_read.max(header.publish_time);
+                        push(&mut pending, header, data.into_owned());
+                    }
+                    Ok(Some(_)) => {}
+                    Ok(None) => exhausted = true,
+                    // A damaged tail is where the recording ends.
+                    Err(e) if sent > 0 => {
+                        tracing::warn!(error = %e, "the recording is damaged here; replaying what came before");
+                        exhausted = true;
+                    }
+                    Err(e) => return Err(e),
+                }
+            }
+            let Some(Reverse((publish_time, _, channel_id, log_time, data))) = pending.pop() else {
+                return Ok(());
+            };
+            let since_first = publish_time.saturating_sub(*base.get_or_insert(publish_time));
+            if self.from_ns.is_some_and(|from| since_first < from) {
+                continue;
+            }
+            if self.to_ns.is_some_and(|to| since_first > to) {
+                return Ok(());
+            }
+            let frame: SkinFrame = msgs::decode(&data, msgs::SKIN_FRAME)?;
+            let (channel, size) = &self.sizes[&channel_id];
+            let bytes = frame.channel_bytes();
+            if bytes.len() != *size {
+                return Err(RecordError::Mismatch {
+                    context: format!(
+                        "a frame of channel {channel} holds {} bytes, but the channel's frames are {size} bytes: \
+                         the recording is corrupt",
+                        bytes.len()
+                    ),
+                });
+            }
+            let due = Due {
+                channel_id,
+                offset_ns: since_first - self.from_ns.unwrap_or(0),
+                latency_ns: publish_time.saturating_sub(log_time),
+                status: frame.status,
+                bytes,
+            };
+            if sender.send(Ok(due)).is_err() {
+                return Ok(());
+            }
+            sent += 1;
+        }
+        Ok(())
+    }
+}
+
+impl Drop for Replay {
+    fn drop(&mut self) {
+        if let Some(path) = &self.geometry {
+            let _ = std::fs::remove_file(path);
+        }
+    }
+}
