@@ -38,20 +38,32 @@ pub enum Ending {
 }
 
 /// The records of an MCAP file, in file order, with chunks opened.
-pub struct RecordStream {
+pub struct RecordStream<R = File> {
     path: PathBuf,
-    file: File,
+    file: R,
     reader: LinearReader,
     fed: u64,
     ending: Option<Ending>,
     damage: Option<String>,
 }
 
-impl RecordStream {
+impl RecordStream<File> {
     /// Opens `path`, checking that it is MCAP.
-    pub fn open(path: &Path) -> Result<RecordStream, RecordError> {
+    pub fn open(path: &Path) -> Result<RecordStream<File>, RecordError> {
+        let file = File::open(path).map_err(|source| RecordError::Io {
+            op: "open",
+            path: path.to_owned(),
+            source,
+            hint: String::new(),
+        })?;
+        RecordStream::from_reader(path, file)
+    }
+}
+
+impl<R: Read> RecordStream<R> {
+    /// Reads MCAP from `file`, named `path` in errors, checking that it is MCAP.
+    pub fn from_reader(path: &Path, mut file: R) -> Result<RecordStream<R>, RecordError> {
         let io = |op, source| RecordError::Io { op, path: path.to_owned(), source, hint: String::new() };
-        let mut file = File::open(path).map_err(|e| io("open", e))?;
         let mut start = Vec::with_capacity(8);
         (&mut file).take(8).read_to_end(&mut start).map_err(|e| io("read", e))?;
         if start != mcap::MAGIC {
@@ -199,7 +211,9 @@ pub type RawMessage = (mcap::records::MessageHeader, Vec<u8>);
 
 /// Reads the header of a recording from `stream`, up to and including the
 /// first message (returned, if there is one).
-pub fn read_header(stream: &mut RecordStream) -> Result<(RecordingHeader, Option<RawMessage>), RecordError> {
+pub fn read_header<R: Read>(
+    stream: &mut RecordStream<R>,
+) -> Result<(RecordingHeader, Option<RawMessage>), RecordError> {
     let mut collector = HeaderCollector::default();
     while let Some(record) = stream.next_record()? {
         if let Record::Message { header, data } = record {
@@ -385,7 +399,14 @@ struct FrameHead {
 /// Reads `path` from start to end and says what it holds. An unfinished file
 /// is read up to its last complete chunk (see [`RecordingInfo::ending`]).
 pub fn scan(path: &Path) -> Result<RecordingInfo, RecordError> {
-    let mut stream = RecordStream::open(path)?;
+    let stream = RecordStream::open(path)?;
+    let file_bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+    scan_stream(stream, file_bytes)
+}
+
+/// [`scan`] of any stream of MCAP bytes (`file_bytes` long).
+pub fn scan_stream<R: Read>(mut stream: RecordStream<R>, file_bytes: u64) -> Result<RecordingInfo, RecordError> {
+    let path = stream.path.clone();
     let (header, first) = read_header(&mut stream)?;
     let mut topics_by_id: BTreeMap<u16, String> = header.topics.clone();
     let mut topics: BTreeMap<String, u64> = BTreeMap::new();
@@ -438,7 +459,7 @@ pub fn scan(path: &Path) -> Result<RecordingInfo, RecordError> {
             }
             summary.last_ns = summary.last_ns.max(stamp);
             summary.frames += 1;
-            summary.lost += head.skipped;
+            summary.lost = summary.lost.saturating_add(head.skipped);
             summary.gaps += u64::from(head.skipped > 0);
             summary.faulted += u64::from(head.status & skinware::FrameStatus::FAULT.0 != 0);
         }
@@ -446,11 +467,10 @@ pub fn scan(path: &Path) -> Result<RecordingInfo, RecordError> {
         *topics.entry(topic.unwrap_or_else(|| format!("channel {}", message.channel_id))).or_default() += 1;
     }
     let ending = stream.ending().unwrap_or(Ending::Truncated);
-    let file_bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
     let first_ns = channels.values().filter(|c| c.frames > 0).map(|c| c.first_ns).min().unwrap_or(0);
     let last_ns = channels.values().map(|c| c.last_ns).max().unwrap_or(0);
     Ok(RecordingInfo {
-        path: path.to_owned(),
+        path,
         file_bytes,
         ending,
         damage: stream.damage.clone(),
@@ -458,7 +478,7 @@ pub fn scan(path: &Path) -> Result<RecordingInfo, RecordError> {
         metadata: header.metadata,
         has_geometry: header.geometry.is_some(),
         frames: channels.values().map(|c| c.frames).sum(),
-        lost: channels.values().map(|c| c.lost).sum(),
+        lost: channels.values().fold(0u64, |sum, c| sum.saturating_add(c.lost)),
         channels,
         topics,
         duration_s: last_ns.saturating_sub(first_ns) as f64 / 1e9,

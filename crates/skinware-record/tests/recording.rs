@@ -1,0 +1,378 @@
+//! Recording and replaying a small skin in this process: frames round-trip
+//! bit for bit, gaps are counted, and bad files get clear errors, never
+//! panics. (The paper's skin, the CLI, SIGKILL and the Python oracle are in
+//! `skin`'s integration tests.)
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use skinware::{ChannelKind, FrameStatus, Reader, ReaderOptions, TopologyBuilder, Writer, WriterOptions};
+use skinware_record::file::{Ending, RecordStream, read_header};
+use skinware_record::msgs::{self, SkinFrame};
+use skinware_record::{
+    AtEnd, Compression, RecordError, RecordOptions, Recorder, Replay, ReplayOptions, ServiceChoice, scan,
+};
+
+struct TempDir(PathBuf);
+
+impl TempDir {
+    fn new(name: &str) -> TempDir {
+        let dir = PathBuf::from("/dev/shm").join(format!("skinware-record-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        TempDir(dir)
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount").arg(self.0.join("full")).output();
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// A layer of `sensors` taxels and a service channel, under skin `skin` in `dir`.
+fn channels(dir: &Path, skin: &str, sensors: u32) -> (Writer, Writer) {
+    let mut builder = TopologyBuilder::new("touch", "pressure", 200.0);
+    builder.patch(1).module(1, 0..sensors);
+    let topology = builder.build().unwrap();
+    let layer_options =
+        WriterOptions { period: Some(Duration::from_millis(5)), dir: Some(dir.to_owned()), ..WriterOptions::default() };
+    let layer = Writer::create(skin, "touch", topology.frame_bytes(), &topology.encode(), &layer_options).unwrap();
+    let service_options = WriterOptions {
+        kind: ChannelKind::Service,
+        schema_name: "test.records".into(),
+        schema_version: 3,
+        dir: Some(dir.to_owned()),
+        ..WriterOptions::default()
+    };
+    let service = Writer::create(skin, "events", 13, b"odd-sized records", &service_options).unwrap();
+    (layer, service)
+}
+
+fn layer_frame(k: u64, sensors: usize) -> Vec<u16> {
+    (0..sensors).map(|i| (k.wrapping_mul(7919) as usize ^ i.wrapping_mul(31)) as u16).collect()
+}
+
+fn options(dir: &Path, skin: &str) -> RecordOptions {
+    RecordOptions {
+        skin: skin.into(),
+        services: ServiceChoice::All,
+        map_hz: 0.0,
+        dir: Some(dir.to_owned()),
+        flush_interval: Duration::from_millis(200),
+        ..RecordOptions::default()
+    }
+}
+
+/// Every frame of `path`, per channel: (payload bytes, status, frames skipped before it).
+fn frames(path: &Path) -> BTreeMap<String, Vec<(Vec<u8>, u64, u64)>> {
+    let mut stream = RecordStream::open(path).unwrap();
+    let (header, first) = read_header(&mut stream).unwrap();
+    let mut out: BTreeMap<String, Vec<_>> = BTreeMap::new();
+    let mut add = |message: mcap::records::MessageHeader, data: &[u8]| {
+        if let Some(channel) = header.channels.get(&message.channel_id) {
+            let frame: SkinFrame = msgs::decode(data, msgs::SKIN_FRAME).unwrap();
+            out.entry(channel.channel.clone()).or_default().push((frame.channel_bytes(), frame.status, frame.skipped));
+        }
+    };
+    if let Some((message, data)) = first {
+        add(message, &data);
+    }
+    while let Some(record) = stream.next_record().unwrap() {
+        if let mcap::records::Record::Message { header: message, data } = record {
+            add(message, &data);
+        }
+    }
+    out
+}
+
+#[test]
+fn a_recording_replays_bit_for_bit_and_its_gaps_are_counted() {
+    let dir = TempDir::new("roundtrip");
+    let sensors = 300usize;
+    let (mut layer, mut service) = channels(&dir.0, "rt", sensors as u32);
+    let first = dir.0.join("first.mcap");
+    let recorder = Recorder::start(&first, options(&dir.0, "rt")).unwrap();
+    // The recorder's readers attach before the first frame.
+    std::thread::sleep(Duration::from_millis(100));
+    for k in 1..=200u64 {
+        let mut frame = layer.begin();
+        frame.write_responses(0, &layer_frame(k, sensors)).unwrap();
+        if k % 50 == 0 {
+            frame.set_status(FrameStatus::FAULT);
+        }
+        frame.publish();
+        if k % 4 == 0 {
+            let record: Vec<u8> = (0..13).map(|i| (k as u8).wrapping_add(i)).collect();
+            service.publish_bytes(&record, FrameStatus::OK).unwrap();
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    // Three frames faster than any reader can take them: a gap.
+    for k in 201..=203u64 {
+        let mut frame = layer.begin();
+        frame.write_responses(0, &layer_frame(k, sensors)).unwrap();
+        frame.publish();
+    }
+    std::thread::sleep(Duration::from_millis(100));
+    let summary = recorder.finish().unwrap();
+    let recorded = &summary.channels["touch"];
+    assert_eq!(recorded.frames + recorded.lost, 203, "every frame is recorded or counted lost: {recorded:?}");
+    assert_eq!(summary.channels["events"].frames, 50);
+    let info = scan(&first).unwrap();
+    assert_eq!(info.ending, Ending::Finished);
+    assert_eq!(info.channels["touch"].frames, recorded.frames);
+    assert_eq!(info.channels["touch"].lost, recorded.lost);
+    assert_eq!(info.channels["touch"].faulted, 4);
+    if recorded.lost > 0 {
+        assert_eq!(info.topics.get("/skin/rt/gaps").copied().unwrap_or(0), recorded.gaps);
+    }
+    drop((layer, service));
+
+    // Replay under another skin name, recorded again.
+    let replay_options = ReplayOptions {
+        skin: Some("rt2".into()),
+        start_delay: Duration::from_millis(300),
+        dir: Some(dir.0.clone()),
+        ..ReplayOptions::default()
+    };
+    let mut replay = Replay::open(&first, replay_options).unwrap();
+    let second = dir.0.join("second.mcap");
+    let again = Recorder::start(&second, options(&dir.0, "rt2")).unwrap();
+    let report = replay.run().unwrap();
+    assert_eq!(report.frames, info.frames);
+    drop(replay);
+    std::thread::sleep(Duration::from_millis(100));
+    let summary = again.finish().unwrap();
+    // A second recorder as slow as the first may miss frames of the replay
+    // too: what it got is aligned by the frames it says it skipped.
+    let (a, b) = (frames(&first), frames(&second));
+    for (channel, frames_a) in &a {
+        let frames_b = &b[channel];
+        let lost: u64 = frames_b.iter().map(|f| f.2).sum();
+        assert_eq!(frames_a.len() as u64, frames_b.len() as u64 + lost, "{channel}: {summary:?}");
+        let mut at = 0usize;
+        for fb in frames_b {
+            at += fb.2 as usize;
+            assert_eq!((&frames_a[at].0, frames_a[at].1), (&fb.0, fb.1), "{channel}: payload and status of frame {at}");
+            at += 1;
+        }
+    }
+}
+
+#[test]
+fn a_reader_of_a_replay_sees_the_recorded_description_and_schema() {
+    let dir = TempDir::new("schema");
+    let (mut layer, mut service) = channels(&dir.0, "sc", 40);
+    let path = dir.0.join("rec.mcap");
+    let recorder = Recorder::start(&path, options(&dir.0, "sc")).unwrap();
+    std::thread::sleep(Duration::from_millis(50));
+    for k in 0..20u64 {
+        let mut frame = layer.begin();
+        frame.write_responses(0, &layer_frame(k, 40)).unwrap();
+        frame.publish();
+        service.publish_bytes(&[k as u8; 13], FrameStatus::OK).unwrap();
+        std::thread::sleep(Duration::from_millis(3));
+    }
+    std::thread::sleep(Duration::from_millis(50));
+    recorder.finish().unwrap();
+    drop((layer, service));
+    let options = ReplayOptions { dir: Some(dir.0.clone()), at_end: AtEnd::Exit, ..ReplayOptions::default() };
+    let replay = Replay::open(&path, options).unwrap();
+    let reader_options = ReaderOptions { dir: Some(dir.0.clone()), ..ReaderOptions::default() };
+    let reader = Reader::open_with("sc", "events", &reader_options).unwrap();
+    assert_eq!(reader.schema(), ("test.records".to_owned(), 3));
+    assert_eq!(reader.description(), b"odd-sized records");
+    assert_eq!(reader.kind(), ChannelKind::Service);
+    let layer = Reader::open_with("sc", "touch", &reader_options).unwrap();
+    assert_eq!(layer.topology().unwrap().sensors.len(), 40);
+    assert_eq!(layer.writer_period(), Some(Duration::from_millis(5)));
+    drop(replay);
+}
+
+/// A finished recording's bytes, for the bad-file tests.
+fn small_recording(dir: &Path) -> Vec<u8> {
+    let (mut layer, _service) = channels(dir, "bad", 64);
+    let path = dir.join("small.mcap");
+    let recorder =
+        Recorder::start(&path, RecordOptions { compression: Compression::Lz4, ..options(dir, "bad") }).unwrap();
+    std::thread::sleep(Duration::from_millis(50));
+    for k in 0..60u64 {
+        let mut frame = layer.begin();
+        frame.write_responses(0, &layer_frame(k, 64)).unwrap();
+        frame.publish();
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    std::thread::sleep(Duration::from_millis(50));
+    recorder.finish().unwrap();
+    std::fs::read(&path).unwrap()
+}
+
+#[test]
+fn a_cut_file_is_read_up_to_its_last_complete_chunk_at_every_length() {
+    let dir = TempDir::new("cut");
+    let whole = small_recording(&dir.0);
+    let full = scan_bytes(&whole).unwrap();
+    assert_eq!(full.ending, Ending::Finished);
+    let cut = dir.0.join("cut.mcap");
+    let mut readable_lengths = 0;
+    let mut previous_frames = 0;
+    for length in (0..whole.len()).step_by(97) {
+        std::fs::write(&cut, &whole[..length]).unwrap();
+        match scan(&cut) {
+            Ok(info) => {
+                readable_lengths += 1;
+                assert_ne!(info.ending, Ending::Finished, "a file cut at {length} cannot look finished");
+                // Longer cuts never hold fewer frames.
+                assert!(info.frames >= previous_frames, "cut at {length}");
+                assert!(info.frames <= full.frames);
+                previous_frames = info.frames;
+            }
+            Err(e) => {
+                let text = e.to_string();
+                assert!(text.contains("cut.mcap"), "errors name the file: {text}");
+            }
+        }
+    }
+    assert!(readable_lengths > 0);
+    // The recovered copy of a cut file is a finished file with the same frames.
+    let at = whole.len() * 2 / 3;
+    std::fs::write(&cut, &whole[..at]).unwrap();
+    let cut_info = scan(&cut).unwrap();
+    let out = dir.0.join("recovered.mcap");
+    let recovered = skinware_record::recover(&cut, &out, None).unwrap();
+    assert_eq!(recovered.input_ending, Ending::Truncated);
+    let info = scan(&out).unwrap();
+    assert_eq!(info.ending, Ending::Finished);
+    assert_eq!(info.frames, cut_info.frames);
+    // A recovered file is never written over.
+    assert!(matches!(skinware_record::recover(&cut, &out, None), Err(RecordError::Exists { .. })));
+}
+
+fn scan_bytes(bytes: &[u8]) -> Result<skinware_record::RecordingInfo, RecordError> {
+    let stream = RecordStream::from_reader(Path::new("bytes.mcap"), std::io::Cursor::new(bytes.to_vec()))?;
+    skinware_record::file::scan_stream(stream, bytes.len() as u64)
+}
+
+#[test]
+fn flipped_bytes_give_errors_or_fewer_frames_never_a_panic() {
+    let dir = TempDir::new("flip");
+    let whole = small_recording(&dir.0);
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    for _ in 0..400 {
+        let mut bytes = whole.clone();
+        for _ in 0..3 {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            let at = (state % bytes.len() as u64) as usize;
+            bytes[at] ^= 1 << (state >> 61);
+        }
+        let _ = scan_bytes(&bytes);
+    }
+}
+
+#[test]
+fn foreign_files_get_errors_that_say_what_is_wrong() {
+    let dir = TempDir::new("foreign");
+    let text = dir.0.join("notes.txt");
+    std::fs::write(&text, "skin = \"default\"\n").unwrap();
+    let e = scan(&text).unwrap_err().to_string();
+    assert!(e.contains("is not an MCAP file"), "{e}");
+    let empty = dir.0.join("empty.mcap");
+    std::fs::write(&empty, b"").unwrap();
+    assert!(scan(&empty).unwrap_err().to_string().contains("is not an MCAP file"));
+    let missing = scan(&dir.0.join("nowhere.mcap")).unwrap_err().to_string();
+    assert!(missing.contains("cannot open") && missing.contains("nowhere.mcap"), "{missing}");
+
+    // MCAP, but not ours.
+    let other = dir.0.join("other.mcap");
+    write_mcap(&other, None, None);
+    let e = scan(&other).unwrap_err().to_string();
+    assert!(e.contains("holds no skinware recording") && e.contains("skinware.recording"), "{e}");
+
+    // Ours, from the future.
+    let future = dir.0.join("future.mcap");
+    write_mcap(&future, Some("99"), None);
+    let e = Replay::open(&future, ReplayOptions { dir: Some(dir.0.clone()), ..ReplayOptions::default() })
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("recording format 99") && e.contains("newer skinware"), "{e}");
+
+    // A skinware topic with a schema we do not know.
+    let unknown = dir.0.join("unknown.mcap");
+    write_mcap(&unknown, Some("1"), Some("vendor_msgs/msg/Blob"));
+    let e = scan(&unknown).unwrap_err().to_string();
+    assert!(e.contains("vendor_msgs/msg/Blob") && e.contains("/skin/x/touch") && e.contains("SkinFrame"), "{e}");
+}
+
+/// An MCAP file with an optional `skinware.recording` version and a
+/// skinware channel with the given schema.
+fn write_mcap(path: &Path, version: Option<&str>, schema: Option<&str>) {
+    let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let mut writer = mcap::WriteOptions::new().profile("ros2").create(file).unwrap();
+    if let Some(version) = version {
+        let metadata = [("format_version", version), ("skin", "x")].map(|(k, v)| (k.to_owned(), v.to_owned()));
+        writer
+            .write_metadata(&mcap::records::Metadata { name: "skinware.recording".into(), metadata: metadata.into() })
+            .unwrap();
+    }
+    let schema_id = writer.add_schema(schema.unwrap_or("std_msgs/msg/String"), "ros2msg", b"string data").unwrap();
+    let mut metadata = BTreeMap::new();
+    if schema.is_some() {
+        metadata.insert("skinware.channel".to_owned(), "touch".to_owned());
+        metadata.insert("skinware.kind".to_owned(), "layer".to_owned());
+    }
+    let channel = writer.add_channel(schema_id, "/skin/x/touch", "cdr", &metadata).unwrap();
+    let header = mcap::records::MessageHeader { channel_id: channel, sequence: 1, log_time: 1, publish_time: 1 };
+    writer.write_to_known_channel(&header, &[0, 1, 0, 0, 4, 0, 0, 0, b'a', b'b', b'c', 0]).unwrap();
+    writer.finish().unwrap();
+}
+
+#[test]
+fn a_full_disk_stops_the_recorder_with_a_clear_error_and_keeps_what_was_written() {
+    let dir = TempDir::new("full");
+    let small = dir.0.join("full");
+    std::fs::create_dir_all(&small).unwrap();
+    let mounted = std::process::Command::new("mount")
+        .args(["-t", "tmpfs", "-o", "size=1m", "tmpfs"])
+        .arg(&small)
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false);
+    if !mounted {
+        println!("SKIPPED: cannot mount a 1 MiB tmpfs to fill (needs root); the disk-full path is not exercised");
+        return;
+    }
+    let (mut layer, _service) = channels(&dir.0, "full", 4000);
+    let path = small.join("rec.mcap");
+    let recorder = Recorder::start(
+        &path,
+        RecordOptions {
+            compression: Compression::None,
+            flush_interval: Duration::from_millis(50),
+            ..options(&dir.0, "full")
+        },
+    )
+    .unwrap();
+    std::thread::sleep(Duration::from_millis(50));
+    // 8 KB frames, uncompressed: 1 MiB is full after about 130.
+    for k in 0..2000u64 {
+        let mut frame = layer.begin();
+        frame.write_responses(0, &layer_frame(k, 4000)).unwrap();
+        frame.publish();
+        std::thread::sleep(Duration::from_millis(1));
+        if recorder.has_failed() {
+            break;
+        }
+    }
+    assert!(recorder.has_failed(), "a 1 MiB disk must fill");
+    let e = recorder.finish().unwrap_err().to_string();
+    assert!(e.contains("rec.mcap") && e.contains("the disk is full") && e.contains("--recover"), "{e}");
+    let info = scan(&path).unwrap();
+    assert_ne!(info.ending, Ending::Finished);
+    assert!(info.frames > 10, "what was written before the disk filled is readable: {}", info.frames);
+}
