@@ -26,5 +26,6 @@ pub mod paper;
 mod paper_record;
 pub mod peers;
 mod plot;
+pub mod record;
 mod rwlock_peer;
 pub mod table1;

@@ -27,6 +27,8 @@ pub mod replay;
 
 pub use error::RecordError;
 pub use file::{ChannelSummary, RecordingInfo, recover, scan};
+/// The MCAP crate this one writes with, for readers of its records.
+pub use mcap;
 pub use recorder::{Compression, Progress, RecordOptions, RecordSummary, Recorder, ServiceChoice};
 pub use replay::{AtEnd, Replay, ReplayOptions, ReplayReport};
 

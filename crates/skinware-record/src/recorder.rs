@@ -33,6 +33,10 @@ use crate::{
 
 /// Frames queued between the reader threads and the file before a reader waits.
 const QUEUE: usize = 512;
+/// Uncompressed bytes per chunk. Smaller chunks compress a little worse, but
+/// each is written with shorter system calls, which matters to real-time
+/// threads on a kernel without full preemption.
+const CHUNK_BYTES: u64 = 1 << 20;
 /// How often the statistics messages are written.
 const STATS_INTERVAL: Duration = Duration::from_secs(1);
 /// How long a blocking read waits before it looks at the stop signal and the writer's state.
@@ -103,8 +107,8 @@ impl Default for RecordOptions {
             skin: "default".into(),
             layers: None,
             services: ServiceChoice::None,
-            map_hz: 5.0,
-            map_width: 640,
+            map_hz: 4.0,
+            map_width: 480,
             compression: Compression::Zstd,
             flush_interval: Duration::from_secs(1),
             dir: None,
@@ -258,8 +262,8 @@ impl Recorder {
             .profile("ros2")
             .library(concat!("skinware-record/", env!("CARGO_PKG_VERSION")))
             .compression(options.compression.mcap())
-            .chunk_size(Some(4 << 20))
-            .create(BufWriter::with_capacity(1 << 20, file))
+            .chunk_size(Some(CHUNK_BYTES))
+            .create(BufWriter::with_capacity(256 << 10, file))
             .map_err(write_error)?;
         let schema = |writer: &mut mcap::Writer<_>, name: &str| {
             let text = msgs::schema_text(name).unwrap_or_default();

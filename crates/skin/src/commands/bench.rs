@@ -15,6 +15,8 @@ pub enum Which {
     Can(Common),
     /// The whole-skin frame to 1, 4 and 15 waiting readers: skinware, iceoryx2 (feature), a lock-based baseline, memcpy, cyclictest.
     Peers(Common),
+    /// The recorder (zstd, lz4, none) and the replay on the paper's skin: throughput, CPU, file size, timing error.
+    Record(Common),
 }
 
 /// Options every benchmark takes.
@@ -115,6 +117,15 @@ pub fn run(which: &Which) -> Result<()> {
                 exe,
             };
             skinware_bench::peers::run(&options).map(|_| ())
+        }
+        Which::Record(common) => {
+            let options = skinware_bench::record::RecordBenchOptions {
+                quick: common.quick,
+                out: common.out.clone(),
+                seconds: common.seconds,
+                exe,
+            };
+            skinware_bench::record::run(&options).map(|_| ())
         }
     }
 }

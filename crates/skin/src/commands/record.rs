@@ -29,10 +29,10 @@ pub struct Args {
     #[arg(long)]
     seconds: Option<f64>,
     /// Map images per second (0: none).
-    #[arg(long, default_value_t = 5.0)]
+    #[arg(long, default_value_t = 4.0)]
     map_hz: f64,
     /// Width of the map image, pixels.
-    #[arg(long, default_value_t = 640)]
+    #[arg(long, default_value_t = 480)]
     map_width: usize,
     /// Chunk compression.
     #[arg(long, value_enum, default_value = "zstd")]

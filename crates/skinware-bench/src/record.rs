@@ -1,0 +1,314 @@
+//! `skin bench record`: the recorder and the replay on the paper's skin.
+//!
+//! `skin run` starts the paper's virtual skin (5 layers, 30,848 taxels, the
+//! contact and motion services) in its own processes. This process records it
+//! for a while with each compression (throughput, CPU of the recording
+//! process, file size per minute, frames lost), then stops the skin, replays
+//! the zstd recording and records the replay: the second recording's frames
+//! must be the first's, bit for bit, and their publication times, taken
+//! from the first frame of each, give the replay's timing error.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use serde::Serialize;
+use skinware_record::file::{RecordStream, read_header};
+use skinware_record::msgs::{self, SkinFrame};
+use skinware_record::{AtEnd, Compression, RecordOptions, Recorder, Replay, ReplayOptions, ServiceChoice};
+
+use crate::measure::Percentiles;
+
+const PAPER_SKIN: &str = include_str!("../../../examples/paper-virtual-skin.toml");
+
+/// Options of `skin bench record`.
+#[derive(Clone, Debug)]
+pub struct RecordBenchOptions {
+    /// CI-sized: 3 s per recording instead of 20 s.
+    pub quick: bool,
+    /// Where `record.json` goes.
+    pub out: PathBuf,
+    /// Seconds per recording.
+    pub seconds: Option<f64>,
+    /// The `skin` executable (runs the skin).
+    pub exe: PathBuf,
+}
+
+/// One recording.
+#[derive(Clone, Debug, Serialize)]
+pub struct RecordingRun {
+    /// zstd, lz4 or none.
+    pub compression: String,
+    /// Seconds recorded.
+    pub seconds: f64,
+    /// Frames written per second.
+    pub frames_per_s: f64,
+    /// Message MB per second (before compression).
+    pub message_mb_per_s: f64,
+    /// File MB per minute.
+    pub file_mb_per_min: f64,
+    /// CPU of the recording process, percent of one core.
+    pub cpu_percent: f64,
+    /// Frames lost.
+    pub lost: u64,
+    /// Map images per second.
+    pub images_per_s: f64,
+}
+
+/// What `skin bench record` measured.
+#[derive(Clone, Debug, Serialize)]
+pub struct RecordReport {
+    /// Taxels of the skin.
+    pub taxels: usize,
+    /// Each compression.
+    pub runs: Vec<RecordingRun>,
+    /// Frames replayed.
+    pub replayed_frames: u64,
+    /// Frames of the replay's recording identical (payload and status) to the original's.
+    pub identical_frames: u64,
+    /// Frames the replay's recorder lost.
+    pub replay_recording_lost: u64,
+    /// |replayed publication time − recorded publication time|, both from
+    /// their recording's first frame, µs.
+    pub timing_error_us: Percentiles,
+    /// How late the replay published after its schedule, µs (its own measure).
+    pub replay_late_us: Percentiles,
+}
+
+struct RunningSkin {
+    child: Child,
+}
+
+impl Drop for RunningSkin {
+    fn drop(&mut self) {
+        let _ = Command::new("kill").args(["-INT", &self.child.id().to_string()]).status();
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while Instant::now() < deadline {
+            if let Ok(Some(_)) = self.child.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn cpu_seconds() -> f64 {
+    let t = rustix::time::clock_gettime(rustix::time::ClockId::ProcessCPUTime);
+    t.tv_sec as f64 + t.tv_nsec as f64 / 1e9
+}
+
+/// Runs the measurement, prints it and writes `record.json`.
+pub fn run(options: &RecordBenchOptions) -> Result<RecordReport> {
+    let seconds = options.seconds.unwrap_or(if options.quick { 3.0 } else { 20.0 });
+    if !(seconds.is_finite() && seconds > 0.0) {
+        bail!("--seconds must be a positive number of seconds");
+    }
+    std::fs::create_dir_all(&options.out).with_context(|| format!("cannot create {}", options.out.display()))?;
+    let dir = PathBuf::from("/dev/shm").join(format!("skinware-bench-record-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir)?;
+    let result = measure(options, seconds, &dir);
+    let _ = std::fs::remove_dir_all(&dir);
+    let report = result?;
+    print(&report, seconds);
+    let path = options.out.join("record.json");
+    std::fs::write(&path, serde_json::to_vec_pretty(&report)?)?;
+    println!("  written: {}", path.display());
+    Ok(report)
+}
+
+fn measure(options: &RecordBenchOptions, seconds: f64, dir: &Path) -> Result<RecordReport> {
+    let config = dir.join("paper.toml");
+    std::fs::write(&config, PAPER_SKIN)?;
+    let files = dir.join("files");
+    std::fs::create_dir_all(&files)?;
+    let child = Command::new(&options.exe)
+        .arg("run")
+        .arg(&config)
+        .env("SKINWARE_SHM_DIR", dir)
+        .env("RUST_LOG", "warn")
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .context("cannot start `skin run`")?;
+    let skin = RunningSkin { child };
+    let taxels = wait_for_skin(dir)?;
+    let record_options = |compression| RecordOptions {
+        skin: "default".into(),
+        services: ServiceChoice::All,
+        compression,
+        dir: Some(dir.to_owned()),
+        ..RecordOptions::default()
+    };
+    let mut runs = Vec::new();
+    for (name, compression) in [("zstd", Compression::Zstd), ("lz4", Compression::Lz4), ("none", Compression::None)] {
+        let path = files.join(format!("{name}.mcap"));
+        let cpu_before = cpu_seconds();
+        let recorder = Recorder::start(&path, record_options(compression))?;
+        std::thread::sleep(Duration::from_secs_f64(seconds));
+        let summary = recorder.finish()?;
+        let cpu = cpu_seconds() - cpu_before;
+        runs.push(RecordingRun {
+            compression: name.into(),
+            seconds: summary.seconds,
+            frames_per_s: summary.frames_per_s,
+            message_mb_per_s: summary.mb_per_s,
+            file_mb_per_min: summary.file_bytes as f64 / 1e6 / summary.seconds * 60.0,
+            cpu_percent: 100.0 * cpu / summary.seconds,
+            lost: summary.lost,
+            images_per_s: summary.images as f64 / summary.seconds,
+        });
+    }
+    drop(skin);
+    // The skin's writers are gone; their names are free for the replay.
+    let original = files.join("zstd.mcap");
+    let replayed = files.join("replayed.mcap");
+    let replay_options = ReplayOptions {
+        start_delay: Duration::from_millis(500),
+        at_end: AtEnd::Exit,
+        dir: Some(dir.to_owned()),
+        rt: skinware::RtOptions { fifo_priority: Some(70), ..Default::default() },
+        ..ReplayOptions::default()
+    };
+    let mut replay = Replay::open(&original, replay_options)?;
+    let recorder = Recorder::start(&replayed, RecordOptions { map_hz: 0.0, ..record_options(Compression::Zstd) })?;
+    let replay_report = replay.run()?;
+    drop(replay);
+    std::thread::sleep(Duration::from_millis(200));
+    let second = recorder.finish()?;
+    let (a, b) = (frames(&original)?, frames(&replayed)?);
+    let (a0, b0) = (first_time(&a), first_time(&b));
+    let (mut identical, mut errors) = (0u64, Vec::new());
+    for (channel, frames_a) in &a {
+        let Some(frames_b) = b.get(channel) else { bail!("the replay's recording has no channel {channel}") };
+        let mut at = 0usize;
+        for fb in frames_b {
+            at += fb.skipped as usize;
+            let Some(fa) = frames_a.get(at) else { bail!("{channel}: the replay's recording has more frames") };
+            if fa.bytes != fb.bytes || fa.status != fb.status {
+                bail!("{channel}: frame {at} of the replay differs from the recording");
+            }
+            identical += 1;
+            errors.push(((fb.published - b0) as i64 - (fa.published - a0) as i64).unsigned_abs() / 1000);
+            at += 1;
+        }
+    }
+    let late_us = Percentiles {
+        p50: replay_report.late_p50_ns / 1000,
+        p99: replay_report.late_p99_ns / 1000,
+        max: replay_report.late_max_ns / 1000,
+        samples: replay_report.frames as usize,
+        ..Percentiles::default()
+    };
+    Ok(RecordReport {
+        taxels,
+        runs,
+        replayed_frames: replay_report.frames,
+        identical_frames: identical,
+        replay_recording_lost: second.lost,
+        timing_error_us: Percentiles::of(&mut errors),
+        replay_late_us: late_us,
+    })
+}
+
+/// Waits until every layer of the published geometry and both services run; returns the taxels.
+fn wait_for_skin(dir: &Path) -> Result<usize> {
+    let started = Instant::now();
+    loop {
+        if let Ok(geometry) = skinware_geometry_sensors(dir) {
+            let channels = skinware::list_channels(dir).unwrap_or_default();
+            let running = |name: &str| {
+                channels
+                    .iter()
+                    .any(|c| c.channel == name && c.state == skinware::WriterState::Running && c.stats.frames > 5)
+            };
+            if geometry.1.iter().all(|l| running(l)) && running("contact") && running("motion") {
+                return Ok(geometry.0);
+            }
+        }
+        if started.elapsed() > Duration::from_secs(120) {
+            bail!("the paper's skin did not come up within 120 s");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// Taxels and layer names of the skin's published geometry, read from the
+/// layers' channels (the bench does not link the geometry crate).
+fn skinware_geometry_sensors(dir: &Path) -> Result<(usize, Vec<String>)> {
+    let layers: Vec<_> = skinware::list_channels(dir)?
+        .into_iter()
+        .filter(|c| c.kind == Some(skinware::ChannelKind::Layer) && c.state == skinware::WriterState::Running)
+        .collect();
+    if layers.len() < 5 {
+        bail!("not all layers yet");
+    }
+    let taxels = layers.iter().map(|c| c.payload_bytes as usize / 2).sum();
+    Ok((taxels, layers.into_iter().map(|c| c.channel).collect()))
+}
+
+struct Recorded {
+    bytes: Vec<u8>,
+    status: u64,
+    skipped: u64,
+    published: u64,
+}
+
+fn frames(path: &Path) -> Result<BTreeMap<String, Vec<Recorded>>> {
+    let mut stream = RecordStream::open(path)?;
+    let (header, first) = read_header(&mut stream)?;
+    let mut out: BTreeMap<String, Vec<Recorded>> = BTreeMap::new();
+    let mut add = |message: skinware_record::mcap::records::MessageHeader, data: &[u8]| -> Result<()> {
+        if let Some(channel) = header.channels.get(&message.channel_id) {
+            let frame: SkinFrame = msgs::decode(data, msgs::SKIN_FRAME)?;
+            out.entry(channel.channel.clone()).or_default().push(Recorded {
+                bytes: frame.channel_bytes(),
+                status: frame.status,
+                skipped: frame.skipped,
+                published: message.publish_time,
+            });
+        }
+        Ok(())
+    };
+    if let Some((message, data)) = first {
+        add(message, &data)?;
+    }
+    while let Some(record) = stream.next_record()? {
+        if let skinware_record::mcap::records::Record::Message { header: message, data } = record {
+            add(message, &data)?;
+        }
+    }
+    Ok(out)
+}
+
+fn first_time(frames: &BTreeMap<String, Vec<Recorded>>) -> u64 {
+    frames.values().filter_map(|f| f.first()).map(|f| f.published).min().unwrap_or(0)
+}
+
+fn print(report: &RecordReport, seconds: f64) {
+    println!(
+        "skin bench record: the paper's skin ({} taxels, 5 layers, contact and motion services), {seconds} s per recording",
+        report.taxels
+    );
+    println!("  compression  frames/s  message MB/s  file MB/min  recorder CPU  map images/s  lost");
+    for r in &report.runs {
+        println!(
+            "  {:<11}  {:>8.0}  {:>12.2}  {:>11.1}  {:>11.1}%  {:>12.1}  {:>4}",
+            r.compression, r.frames_per_s, r.message_mb_per_s, r.file_mb_per_min, r.cpu_percent, r.images_per_s, r.lost
+        );
+    }
+    let t = &report.timing_error_us;
+    println!(
+        "  replay of the zstd recording, recorded again: {} of {} frames identical (lost by its recorder: {})",
+        report.identical_frames, report.replayed_frames, report.replay_recording_lost
+    );
+    println!(
+        "  timing error (publication times from each recording's first frame): p50 {} µs, p99 {} µs, max {} µs",
+        t.p50, t.p99, t.max
+    );
+    let l = &report.replay_late_us;
+    println!("  replay's own lateness after its schedule: p50 {} µs, p99 {} µs, max {} µs", l.p50, l.p99, l.max);
+}
