@@ -64,6 +64,15 @@ can = json.loads((out / "can.json").read_text())
 need(can.get("taxels") == 768 and can.get("layer_frames_per_s", 0) > 0 and can.get("bus_frames_per_s", 0) > 0, "can.json: rates missing")
 need(can.get("latency_us", {}).get("samples", 0) > 0, "can.json: no latency samples")
 
+record = json.loads((out / "record.json").read_text())
+need(record.get("taxels") == 30848, "record.json: not the paper's skin")
+need(sorted(r.get("compression") for r in record.get("runs", [])) == ["lz4", "none", "zstd"], "record.json: compressions")
+for run in record.get("runs", []):
+    need(run.get("frames_per_s", 0) > 0 and run.get("file_mb_per_min", 0) > 0 and run.get("lost") == 0,
+         f"record.json: {run.get('compression')} incomplete or lost frames")
+need(record.get("replayed_frames", 0) > 0 and record.get("identical_frames", 0) > 0, "record.json: no replay")
+need(record.get("timing_error_us", {}).get("samples", 0) > 0, "record.json: no timing samples")
+
 if problems:
     print("benchmark JSON problems:\n  " + "\n  ".join(problems))
     sys.exit(1)

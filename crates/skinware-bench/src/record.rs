@@ -70,8 +70,8 @@ pub struct RecordReport {
     pub identical_frames: u64,
     /// Frames the replay's recorder lost.
     pub replay_recording_lost: u64,
-    /// |replayed publication time − recorded publication time|, both from
-    /// their recording's first frame, µs.
+    /// How far each frame's replayed minus recorded publication time strays
+    /// from the first replayed frame's, µs.
     pub timing_error_us: Percentiles,
     /// How late the replay published after its schedule, µs (its own measure).
     pub replay_late_us: Percentiles,
@@ -180,8 +180,10 @@ fn measure(options: &RecordBenchOptions, seconds: f64, dir: &Path) -> Result<Rec
     std::thread::sleep(Duration::from_millis(200));
     let second = recorder.finish()?;
     let (a, b) = (frames(&original)?, frames(&replayed)?);
-    let (a0, b0) = (first_time(&a), first_time(&b));
-    let (mut identical, mut errors) = (0u64, Vec::new());
+    // Each replayed frame's publication time minus its recorded one: ideally
+    // one constant (when the replay started); the error is how far each
+    // strays from the first replayed frame's.
+    let (mut identical, mut deltas) = (0u64, Vec::new());
     for (channel, frames_a) in &a {
         let Some(frames_b) = b.get(channel) else { bail!("the replay's recording has no channel {channel}") };
         let mut at = 0usize;
@@ -192,10 +194,12 @@ fn measure(options: &RecordBenchOptions, seconds: f64, dir: &Path) -> Result<Rec
                 bail!("{channel}: frame {at} of the replay differs from the recording");
             }
             identical += 1;
-            errors.push(((fb.published - b0) as i64 - (fa.published - a0) as i64).unsigned_abs() / 1000);
+            deltas.push((fb.published, fb.published as i64 - fa.published as i64));
             at += 1;
         }
     }
+    let reference = deltas.iter().min().map_or(0, |d| d.1);
+    let mut errors: Vec<u64> = deltas.iter().map(|d| (d.1 - reference).unsigned_abs() / 1000).collect();
     let late_us = Percentiles {
         p50: replay_report.late_p50_ns / 1000,
         p99: replay_report.late_p99_ns / 1000,
@@ -284,10 +288,6 @@ fn frames(path: &Path) -> Result<BTreeMap<String, Vec<Recorded>>> {
     Ok(out)
 }
 
-fn first_time(frames: &BTreeMap<String, Vec<Recorded>>) -> u64 {
-    frames.values().filter_map(|f| f.first()).map(|f| f.published).min().unwrap_or(0)
-}
-
 fn print(report: &RecordReport, seconds: f64) {
     println!(
         "skin bench record: the paper's skin ({} taxels, 5 layers, contact and motion services), {seconds} s per recording",
@@ -306,7 +306,7 @@ fn print(report: &RecordReport, seconds: f64) {
         report.identical_frames, report.replayed_frames, report.replay_recording_lost
     );
     println!(
-        "  timing error (publication times from each recording's first frame): p50 {} µs, p99 {} µs, max {} µs",
+        "  timing error (each frame's replayed minus recorded publication time, against the first frame's): p50 {} µs, p99 {} µs, max {} µs",
         t.p50, t.p99, t.max
     );
     let l = &report.replay_late_us;

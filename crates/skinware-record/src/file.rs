@@ -113,7 +113,17 @@ impl<R: Read> RecordStream<R> {
                     self.ending = Some(Ending::Truncated);
                     return Ok(None);
                 }
-                Some(Err(e)) => return Err(self.damaged(e.to_string())),
+                // The writer fills in a chunk's lengths when it finishes it:
+                // a recorder killed while writing one leaves a chunk that
+                // ends inside a record. At the end of the file that is a cut,
+                // not damage.
+                Some(Err(e)) => {
+                    if self.at_end_of_file() {
+                        self.ending = Some(Ending::Truncated);
+                        return Ok(None);
+                    }
+                    return Err(self.damaged(e.to_string()));
+                }
                 Some(Ok(event)) => event,
             };
             match event {
@@ -142,6 +152,12 @@ impl<R: Read> RecordStream<R> {
                 }
             }
         }
+    }
+
+    /// Whether nothing is left to read.
+    fn at_end_of_file(&mut self) -> bool {
+        let mut probe = [0u8; 1];
+        matches!(self.file.read(&mut probe), Ok(0))
     }
 
     fn damaged(&self, reason: String) -> RecordError {

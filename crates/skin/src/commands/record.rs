@@ -180,25 +180,39 @@ pub fn run(args: &Args) -> Result<()> {
     Ok(())
 }
 
-/// Waits until the skin's geometry and at least one of its channels are up.
+/// Waits until the skin is up: every layer of its published geometry
+/// running, and no new channel for a second (its services start after its
+/// layers). A skin without a published geometry (bare writers) is up once a
+/// channel runs and none has appeared for a second.
 fn wait_for_skin(skin: &str, limit: Duration, shutdown: &std::sync::atomic::AtomicBool) -> Result<()> {
     let dir = skinware::shm::segment_dir();
     let started = Instant::now();
+    let mut known: Vec<String> = Vec::new();
+    let mut stable_since = Instant::now();
     loop {
-        let channels = skinware::list_channels(&dir).unwrap_or_default();
-        let running = channels.iter().any(|c| c.skin == skin && c.state != skinware::WriterState::Gone);
-        if running && skinware_geometry::SkinGeometry::open_in(&dir, skin).is_ok() {
-            return Ok(());
+        let running: Vec<String> = skinware::list_channels(&dir)
+            .unwrap_or_default()
+            .into_iter()
+            .filter(|c| c.skin == skin && c.state == skinware::WriterState::Running)
+            .map(|c| c.channel)
+            .collect();
+        if running != known {
+            known = running;
+            stable_since = Instant::now();
         }
-        if running && started.elapsed() > limit / 2 {
-            // A skin without published geometry (a bare writer) is recorded without the map.
+        let layers_up = match skinware_geometry::SkinGeometry::open_in(&dir, skin) {
+            Ok(geometry) => geometry.layers.iter().all(|l| known.contains(&l.name)),
+            Err(_) => !known.is_empty(),
+        };
+        if layers_up && stable_since.elapsed() >= Duration::from_secs(1) {
             return Ok(());
         }
         if started.elapsed() > limit || shutdown.load(Ordering::Relaxed) {
             bail!(
-                "skin {skin} did not come up within {:.1} s (no running channel in {})",
+                "skin {skin} did not come up within {:.1} s (running channels in {}: {})",
                 limit.as_secs_f64(),
-                dir.display()
+                dir.display(),
+                if known.is_empty() { "none".to_owned() } else { known.join(", ") }
             );
         }
         std::thread::sleep(Duration::from_millis(50));

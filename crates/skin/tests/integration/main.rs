@@ -3,6 +3,8 @@
 //!
 //! - [`e2e`]: `skin run` with a SIGKILLed driver and a pulled cable;
 //! - [`services_e2e`]: services, regions and geometry through the CLI;
+//! - [`record_e2e`]: `skin record`, `replay`, `info` and `--recover` on the
+//!   paper's skin, with Python's `mcap` as the independent reader;
 //! - [`browser`]: `skin demo` in headless Chromium (skipped without it,
 //!   except under `CI=true`).
 //!
@@ -11,5 +13,6 @@
 mod browser;
 mod can_e2e;
 mod e2e;
+mod record_e2e;
 mod services_e2e;
 mod util;
