@@ -144,6 +144,9 @@ impl<R: Read> RecordStream<R> {
                     self.fed += read as u64;
                 }
                 LinearReadEvent::Record { opcode, data } => {
+                    if let Err(reason) = lengths_fit(opcode, data) {
+                        return Err(self.damaged(reason));
+                    }
                     let record = mcap::parse_record(opcode, data).map(Record::into_owned);
                     return match record {
                         Ok(record) => Ok(Some(record)),
@@ -162,6 +165,112 @@ impl<R: Read> RecordStream<R> {
 
     fn damaged(&self, reason: String) -> RecordError {
         RecordError::Damaged { path: self.path.clone(), offset: self.fed, reason }
+    }
+}
+
+/// Checks that every length inside a record fits in the record, before the
+/// `mcap` crate parses it: its parser allocates whatever a string's length
+/// field says first (found by the `recording` fuzz target: a 3.5 GB string
+/// in a 100-byte record), and a damaged or hostile file must not make us
+/// allocate gigabytes. Field layouts from the MCAP specification.
+fn lengths_fit(opcode: u8, data: &[u8]) -> Result<(), String> {
+    struct Fields<'a>(&'a [u8]);
+    impl Fields<'_> {
+        fn skip(&mut self, n: u64) -> Result<(), String> {
+            let n = usize::try_from(n)
+                .ok()
+                .filter(|&n| n <= self.0.len())
+                .ok_or_else(|| format!("a field of {n} bytes in a record with {} bytes left", self.0.len()))?;
+            self.0 = &self.0[n..];
+            Ok(())
+        }
+        fn length(&mut self, bytes: usize) -> Result<u64, String> {
+            let field = self.0.get(..bytes).ok_or("a record too short for its fields")?;
+            let value = field.iter().rev().fold(0u64, |v, &b| v << 8 | u64::from(b));
+            self.0 = &self.0[bytes..];
+            Ok(value)
+        }
+        /// A string, or bytes with a 4-byte length.
+        fn string(&mut self) -> Result<(), String> {
+            let n = self.length(4)?;
+            self.skip(n)
+        }
+        /// A map or array with a 4-byte length in bytes; `strings` if its entries are strings.
+        fn map(&mut self, strings: bool) -> Result<(), String> {
+            let n = self.length(4)?;
+            let inner = self.0.get(..usize::try_from(n).unwrap_or(usize::MAX)).ok_or("a map longer than its record")?;
+            self.skip(n)?;
+            let mut inner = Fields(inner);
+            while strings && !inner.0.is_empty() {
+                inner.string()?;
+                inner.string()?;
+            }
+            Ok(())
+        }
+    }
+    let mut f = Fields(data);
+    match opcode {
+        // Header: profile, library.
+        0x01 => {
+            f.string()?;
+            f.string()
+        }
+        // Schema: id, name, encoding, data (4-byte length).
+        0x03 => {
+            f.skip(2)?;
+            f.string()?;
+            f.string()?;
+            f.string()
+        }
+        // Channel: id, schema id, topic, message encoding, metadata.
+        0x04 => {
+            f.skip(4)?;
+            f.string()?;
+            f.string()?;
+            f.map(true)
+        }
+        // Message index: channel id, (time, offset) array.
+        0x07 => {
+            f.skip(2)?;
+            f.map(false)
+        }
+        // Chunk index: 5 u64s, message index offsets, length, compression, sizes.
+        0x08 => {
+            f.skip(40)?;
+            f.map(false)?;
+            f.skip(8)?;
+            f.string()
+        }
+        // Attachment: times, name, media type, data (8-byte length), crc.
+        0x09 => {
+            f.skip(16)?;
+            f.string()?;
+            f.string()?;
+            let n = f.length(8)?;
+            f.skip(n)
+        }
+        // Attachment index: 5 u64s, name, media type.
+        0x0A => {
+            f.skip(40)?;
+            f.string()?;
+            f.string()
+        }
+        // Statistics: counts, then the per-channel counts.
+        0x0B => {
+            f.skip(8 + 2 + 4 * 4 + 8 + 8)?;
+            f.map(false)
+        }
+        // Metadata: name, map.
+        0x0C => {
+            f.string()?;
+            f.map(true)
+        }
+        // Metadata index: offset, length, name.
+        0x0D => {
+            f.skip(16)?;
+            f.string()
+        }
+        _ => Ok(()),
     }
 }
 
@@ -631,4 +740,29 @@ pub(crate) fn close(buffered: std::io::BufWriter<File>, path: &Path) -> Result<(
         |op, source: std::io::Error| RecordError::Io { op, path: path.to_owned(), hint: write_hint(&source), source };
     let file = buffered.into_inner().map_err(|e| io("write", e.into_error()))?;
     file.sync_all().map_err(|e| io("sync", e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::lengths_fit;
+
+    #[test]
+    fn a_string_longer_than_its_record_is_refused_before_parsing() {
+        // Metadata: a name of 3.5 GB in a record of 12 bytes (the fuzzer's find).
+        let mut record = 3_500_000_000u32.to_le_bytes().to_vec();
+        record.extend([0u8; 8]);
+        assert!(lengths_fit(0x0C, &record).is_err());
+        // The same record, honest: name "ab", an empty map.
+        let mut record = 2u32.to_le_bytes().to_vec();
+        record.extend(b"ab");
+        record.extend(0u32.to_le_bytes());
+        assert!(lengths_fit(0x0C, &record).is_ok());
+        assert!(mcap::parse_record(0x0C, &record).is_ok());
+        // A map whose entries overrun it.
+        let mut record = 0u32.to_le_bytes().to_vec();
+        record.extend(8u32.to_le_bytes());
+        record.extend(100u32.to_le_bytes());
+        record.extend([0u8; 4]);
+        assert!(lengths_fit(0x0C, &record).is_err());
+    }
 }

@@ -376,3 +376,29 @@ fn a_full_disk_stops_the_recorder_with_a_clear_error_and_keeps_what_was_written(
     assert_ne!(info.ending, Ending::Finished);
     assert!(info.frames > 10, "what was written before the disk filled is readable: {}", info.frames);
 }
+
+#[test]
+fn an_unwritable_path_or_an_existing_file_is_refused_before_recording() {
+    let dir = TempDir::new("unwritable");
+    let (_layer, _service) = channels(&dir.0, "uw", 8);
+    let nowhere = dir.0.join("no-such-directory").join("rec.mcap");
+    let e = Recorder::start(&nowhere, options(&dir.0, "uw")).err().unwrap().to_string();
+    assert!(e.contains("cannot create") && e.contains("no-such-directory"), "{e}");
+    let existing = dir.0.join("kept.mcap");
+    std::fs::write(&existing, b"precious").unwrap();
+    let e = Recorder::start(&existing, options(&dir.0, "uw")).err().unwrap().to_string();
+    assert!(e.contains("exists") && e.contains("never overwritten"), "{e}");
+    assert_eq!(std::fs::read(&existing).unwrap(), b"precious");
+    // Nothing to record: a skin that is not running.
+    let e = Recorder::start(&dir.0.join("x.mcap"), options(&dir.0, "absent")).err().unwrap().to_string();
+    assert!(e.contains("skin absent has no running channel"), "{e}");
+    // A layer that does not exist is named, with those that do.
+    let e = Recorder::start(
+        &dir.0.join("y.mcap"),
+        RecordOptions { layers: Some(vec!["tuch".into()]), ..options(&dir.0, "uw") },
+    )
+    .err()
+    .unwrap()
+    .to_string();
+    assert!(e.contains("no running layer \"tuch\"") && e.contains("touch"), "{e}");
+}

@@ -205,3 +205,20 @@ fn emulators_are_checked() {
         assert!(format!("{err:#}").contains(problem), "{from} -> {to}: {err:#}");
     }
 }
+
+#[test]
+fn replay_drivers_are_checked_without_reading_their_file() {
+    let base = "[[driver]]\nname = \"r\"\nkind = \"replay\"\n";
+    let message = |text: &str| format!("{:#}", load(text).unwrap_err());
+    assert!(message(base).contains("needs `file`"), "{}", message(base));
+    let text = format!("{base}file = \"x.mcap\"\nspeed = 0\n");
+    assert!(message(&text).contains("speed = 0 must be a positive number"), "{}", message(&text));
+    let text = format!("{base}file = \"x.mcap\"\nsensors = 5\n");
+    assert!(message(&text).contains("not a setting of kind = \"replay\""), "{}", message(&text));
+    let text = format!("{base}file = \"x.mcap\"\nfrom_s = 5\nto_s = 2\n");
+    assert!(message(&text).contains("to_s = 2 must be after from_s = 5"), "{}", message(&text));
+    // Parsing reads no file; building the driver finds the recording missing.
+    let config = load(&format!("{base}file = \"missing.mcap\"\n")).unwrap();
+    let error = format!("{:#}", config.drivers[0].build("s").err().unwrap());
+    assert!(error.contains("missing.mcap") && error.contains("is not a file"), "{error}");
+}

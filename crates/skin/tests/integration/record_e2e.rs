@@ -98,6 +98,7 @@ fn the_paper_skin_is_recorded_replayed_and_read_by_an_independent_reader() {
     interrupt(&mut supervisor.0);
 
     replay_is_recorded_bit_for_bit(d, &a);
+    the_demo_shows_a_recording(d, &a);
     the_python_oracle_reads_what_was_written(&a);
     the_python_oracle_reads_what_was_written(&d.join("recovered.mcap"));
 }
@@ -205,6 +206,59 @@ fn replay_is_recorded_bit_for_bit(d: &Path, a: &Path) {
         q(1.0),
         again["lost"]
     );
+}
+
+/// `skin demo --replay`: the recording's layers under the supervisor, the
+/// demo's services live on them, and the viewer serving its page.
+fn the_demo_shows_a_recording(d: &Path, a: &Path) {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    drop(listener);
+    let mut demo = Running(
+        skin_command(d)
+            .args([
+                "demo",
+                "--no-browser-hint",
+                "--listen",
+                &format!("127.0.0.1:{port}"),
+                "--replay",
+                a.to_str().unwrap(),
+            ])
+            .stdout(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let mut lines = std::io::BufRead::lines(std::io::BufReader::new(demo.0.stdout.take().unwrap()));
+    let url = lines.find_map(|line| line.ok()?.strip_prefix("skin demo: ").map(str::to_owned)).expect("the demo's URL");
+    let layers = json(d, &["ls", "--json"]);
+    let running: Vec<&str> = layers["layers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|l| l["state"] == "running")
+        .map(|l| l["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(running, ["virtual-0", "virtual-1", "virtual-2", "virtual-3", "virtual-4"], "{layers}");
+    let started = Instant::now();
+    loop {
+        let services = json(d, &["services", "--json"]);
+        let live = services["services"].as_array().unwrap().iter().filter(|s| s["state"] == "running").count();
+        if live == 3 {
+            break;
+        }
+        assert!(started.elapsed() < Duration::from_secs(60), "the demo's services on the replay: {services}");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let mut stream = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
+    std::io::Write::write_all(&mut stream, b"GET / HTTP/1.0\r\nHost: localhost\r\n\r\n").unwrap();
+    let mut page = String::new();
+    std::io::Read::read_to_string(&mut stream, &mut page).unwrap();
+    assert!(
+        page.starts_with("HTTP/1.1 200") || page.starts_with("HTTP/1.0 200"),
+        "{url}: {}",
+        &page[..page.len().min(200)]
+    );
+    interrupt(&mut demo.0);
 }
 
 /// What our reader finds in a file, in the oracle's terms.
