@@ -37,6 +37,14 @@ pub enum Ending {
     Damaged,
 }
 
+/// One step of the reader.
+enum Step {
+    Read(usize),
+    Record(Record<'static>),
+    End(Ending),
+    Failed(String),
+}
+
 /// The records of an MCAP file, in file order, with chunks opened.
 pub struct RecordStream<R = File> {
     path: PathBuf,
@@ -72,6 +80,8 @@ impl<R: Read> RecordStream<R> {
         let options = LinearReaderOptions::default()
             .with_skip_start_magic(true)
             .with_validate_chunk_crcs(true)
+            // A damaged chunk is refused whole, before any of its records.
+            .with_prevalidate_chunk_crcs(true)
             .with_record_length_limit(RECORD_LIMIT);
         Ok(RecordStream {
             path: path.to_owned(),
@@ -104,54 +114,53 @@ impl<R: Read> RecordStream<R> {
             return Ok(None);
         }
         loop {
-            let event = match self.reader.next_event() {
-                None => {
-                    self.ending = Some(Ending::Finished);
-                    return Ok(None);
-                }
-                Some(Err(mcap::McapError::UnexpectedEof)) => {
-                    self.ending = Some(Ending::Truncated);
+            // The `mcap` crate's reader can panic on a crafted chunk (an
+            // inner record longer than its chunk overflows a subtraction;
+            // found by the `recording` fuzz target): a panic in it is a
+            // damaged file, never a crash of ours.
+            let reader = &mut self.reader;
+            let step = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| match reader.next_event() {
+                None => Step::End(Ending::Finished),
+                Some(Err(mcap::McapError::UnexpectedEof)) => Step::End(Ending::Truncated),
+                Some(Err(e)) => Step::Failed(e.to_string()),
+                Some(Ok(LinearReadEvent::ReadRequest(need))) => Step::Read(need),
+                Some(Ok(LinearReadEvent::Record { opcode, data })) => match lengths_fit(opcode, data) {
+                    Err(reason) => Step::Failed(reason),
+                    Ok(()) => match mcap::parse_record(opcode, data) {
+                        Ok(record) => Step::Record(record.into_owned()),
+                        Err(e) => Step::Failed(e.to_string()),
+                    },
+                },
+            }))
+            .unwrap_or_else(|_| Step::Failed("the MCAP reader gave up on a malformed chunk".into()));
+            match step {
+                Step::End(ending) => {
+                    self.ending = Some(ending);
                     return Ok(None);
                 }
                 // The writer fills in a chunk's lengths when it finishes it:
                 // a recorder killed while writing one leaves a chunk that
                 // ends inside a record. At the end of the file that is a cut,
                 // not damage.
-                Some(Err(e)) => {
+                Step::Failed(reason) => {
                     if self.at_end_of_file() {
                         self.ending = Some(Ending::Truncated);
                         return Ok(None);
                     }
-                    return Err(self.damaged(e.to_string()));
+                    self.ending = Some(Ending::Damaged);
+                    return Err(self.damaged(reason));
                 }
-                Some(Ok(event)) => event,
-            };
-            match event {
-                LinearReadEvent::ReadRequest(need) => {
+                Step::Record(record) => return Ok(Some(record)),
+                Step::Read(need) => {
                     let buffer = self.reader.insert(need.clamp(1, READ_STEP));
-                    let read = match self.file.read(buffer) {
-                        Ok(n) => n,
-                        Err(source) => {
-                            return Err(RecordError::Io {
-                                op: "read",
-                                path: self.path.clone(),
-                                source,
-                                hint: String::new(),
-                            });
-                        }
-                    };
+                    let read = self.file.read(buffer).map_err(|source| RecordError::Io {
+                        op: "read",
+                        path: self.path.clone(),
+                        source,
+                        hint: String::new(),
+                    })?;
                     self.reader.notify_read(read);
                     self.fed += read as u64;
-                }
-                LinearReadEvent::Record { opcode, data } => {
-                    if let Err(reason) = lengths_fit(opcode, data) {
-                        return Err(self.damaged(reason));
-                    }
-                    let record = mcap::parse_record(opcode, data).map(Record::into_owned);
-                    return match record {
-                        Ok(record) => Ok(Some(record)),
-                        Err(e) => Err(self.damaged(e.to_string())),
-                    };
                 }
             }
         }

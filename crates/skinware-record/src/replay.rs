@@ -302,6 +302,13 @@ impl Replay {
                 origin = planned.max(skinware::os::monotonic_ns());
             }
             let at = origin + (due.offset_ns as f64 / speed) as u64;
+            if at.saturating_sub(skinware::os::monotonic_ns()) > PAUSE_NS {
+                // A pause in the recording: say so, rather than look hung.
+                for target in self.targets.values_mut().filter(|t| t.state != WriterState::Paused) {
+                    target.writer.set_state(WriterState::Paused);
+                    target.state = WriterState::Paused;
+                }
+            }
             if !self.stop.sleep_until(at) {
                 outcome = Ok(None);
                 break;
@@ -329,6 +336,10 @@ impl Replay {
         outcome
     }
 }
+
+/// A wait for the next frame longer than this marks the channels paused
+/// until their next frames (a supervisor takes silent running writers for hung).
+const PAUSE_NS: u64 = 500_000_000;
 
 /// Frames decoded ahead of their publication.
 const LOAD_AHEAD: usize = 1024;

@@ -193,7 +193,7 @@ fn wait_for_skin(skin: &str, limit: Duration, shutdown: &std::sync::atomic::Atom
         let running: Vec<String> = skinware::list_channels(&dir)
             .unwrap_or_default()
             .into_iter()
-            .filter(|c| c.skin == skin && c.state == skinware::WriterState::Running)
+            .filter(|c| c.skin == skin && c.state != skinware::WriterState::Gone)
             .map(|c| c.channel)
             .collect();
         if running != known {

@@ -73,8 +73,17 @@ pub fn run(args: &Args) -> Result<()> {
         rt: skinware::RtOptions { fifo_priority: args.fifo_priority, ..Default::default() },
         ..ReplayOptions::default()
     };
-    let mut replay =
-        Replay::open(&args.file, options).with_context(|| format!("cannot replay {}", args.file.display()))?;
+    let mut replay = match Replay::open(&args.file, options) {
+        Ok(replay) => replay,
+        Err(e @ skinware_record::RecordError::Channel(skinware::Error::Busy { .. })) => {
+            return Err(anyhow::Error::new(e).context(format!(
+                "cannot replay {}: that skin is running here; stop it, or replay beside it under another name \
+                 (--skin replayed)",
+                args.file.display()
+            )));
+        }
+        Err(e) => return Err(anyhow::Error::new(e).context(format!("cannot replay {}", args.file.display()))),
+    };
     eprintln!(
         "replaying {} as skin {} (recorded as {}): {}; Ctrl-C stops",
         args.file.display(),

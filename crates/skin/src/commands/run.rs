@@ -267,7 +267,9 @@ impl Supervised {
             }
             let Some(reader) = readers.get_mut(name) else { continue };
             reader.follow_recreated();
-            if reader.writer_pid() != pid || reader.writer_state() == WriterState::Gone {
+            // A paused writer is silent on purpose (a replay holding its
+            // last frames, or between the recorded frames of a long pause).
+            if reader.writer_pid() != pid || matches!(reader.writer_state(), WriterState::Gone | WriterState::Paused) {
                 continue;
             }
             let stats = reader.writer_stats();
