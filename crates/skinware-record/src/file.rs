@@ -197,6 +197,7 @@ fn parse(opcode: u8, data: &[u8]) -> Result<Record<'static>, String> {
 /// overflow checks, found by the `recording` fuzz target; a wrap that reads
 /// past the chunk without them).
 fn open_chunk(data: &[u8]) -> Result<std::collections::VecDeque<Record<'static>>, String> {
+    lengths_fit(CHUNK, data)?;
     let Record::Chunk { header, data } = mcap::parse_record(CHUNK, data).map_err(|e| e.to_string())? else {
         return Err("a chunk record that is not a chunk".into());
     };
@@ -307,6 +308,13 @@ fn lengths_fit(opcode: u8, data: &[u8]) -> Result<(), String> {
             f.string()?;
             f.string()?;
             f.map(true)
+        }
+        // Chunk: times, uncompressed size and crc, compression, records (8-byte length).
+        0x06 => {
+            f.skip(28)?;
+            f.string()?;
+            let n = f.length(8)?;
+            f.skip(n)
         }
         // Message index: channel id, (time, offset) array.
         0x07 => {
