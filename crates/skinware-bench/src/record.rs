@@ -186,16 +186,15 @@ fn measure(options: &RecordBenchOptions, seconds: f64, dir: &Path) -> Result<Rec
     let (mut identical, mut deltas) = (0u64, Vec::new());
     for (channel, frames_a) in &a {
         let Some(frames_b) = b.get(channel) else { bail!("the replay's recording has no channel {channel}") };
-        let mut at = 0usize;
+        // The replay's sequence numbers start at 1: its frame k is the recording's k-th.
         for fb in frames_b {
-            at += fb.skipped as usize;
+            let at = fb.seq.saturating_sub(1) as usize;
             let Some(fa) = frames_a.get(at) else { bail!("{channel}: the replay's recording has more frames") };
             if fa.bytes != fb.bytes || fa.status != fb.status {
                 bail!("{channel}: frame {at} of the replay differs from the recording");
             }
             identical += 1;
             deltas.push((fb.published, fb.published as i64 - fa.published as i64));
-            at += 1;
         }
     }
     let reference = deltas.iter().min().map_or(0, |d| d.1);
@@ -257,7 +256,7 @@ fn skinware_geometry_sensors(dir: &Path) -> Result<(usize, Vec<String>)> {
 struct Recorded {
     bytes: Vec<u8>,
     status: u64,
-    skipped: u64,
+    seq: u64,
     published: u64,
 }
 
@@ -271,7 +270,7 @@ fn frames(path: &Path) -> Result<BTreeMap<String, Vec<Recorded>>> {
             out.entry(channel.channel.clone()).or_default().push(Recorded {
                 bytes: frame.channel_bytes(),
                 status: frame.status,
-                skipped: frame.skipped,
+                seq: frame.seq,
                 published: message.publish_time,
             });
         }

@@ -123,6 +123,12 @@ impl<R: Read> RecordStream<R> {
             let step = match self.reader.next_event() {
                 None => Step::End(Ending::Finished),
                 Some(Err(mcap::McapError::UnexpectedEof)) => Step::End(Ending::Truncated),
+                // The writer streams a chunk into the file with a placeholder
+                // length (all ones) and fills it in when the chunk is done: a
+                // chunk with that length is where a killed recorder stopped.
+                Some(Err(mcap::McapError::RecordTooLarge { opcode: CHUNK, len: u64::MAX })) => {
+                    Step::End(Ending::Truncated)
+                }
                 Some(Err(e)) => Step::Failed(e.to_string()),
                 Some(Ok(LinearReadEvent::ReadRequest(need))) => Step::Read(need),
                 Some(Ok(LinearReadEvent::Record { opcode: CHUNK, data })) => match open_chunk(data) {
@@ -334,7 +340,8 @@ fn lengths_fit(opcode: u8, data: &[u8]) -> Result<(), String> {
             f.string()?;
             f.string()?;
             let n = f.length(8)?;
-            f.skip(n)
+            f.skip(n)?;
+            f.skip(4)
         }
         // Attachment index: 5 u64s, name, media type.
         0x0A => {
@@ -663,7 +670,15 @@ pub fn scan_stream<R: Read>(mut stream: RecordStream<R>, file_bytes: u64) -> Res
             },
         };
         if let Some(channel) = header.channels.get(&message.channel_id) {
-            let head: FrameHead = msgs::decode(&data, msgs::SKIN_FRAME)?;
+            let head: FrameHead = match msgs::decode(&data, msgs::SKIN_FRAME) {
+                Ok(head) => head,
+                // A frame that does not decode is damage: what came before is read.
+                Err(e) => {
+                    stream.ending = Some(Ending::Damaged);
+                    stream.damage = Some(format!("near byte {}: topic {}: {e}", stream.fed, channel.topic));
+                    break;
+                }
+            };
             let summary = channels.entry(channel.channel.clone()).or_default();
             let stamp = head.stamp.to_ns();
             if summary.frames == 0 {
@@ -851,5 +866,15 @@ mod tests {
         record.extend(100u32.to_le_bytes());
         record.extend([0u8; 4]);
         assert!(lengths_fit(0x0C, &record).is_err());
+        // An attachment without the 4-byte checksum after its data (the
+        // mcap crate slices `body.len() - 4` without looking).
+        let mut record = vec![0u8; 16];
+        record.extend(0u32.to_le_bytes());
+        record.extend(0u32.to_le_bytes());
+        record.extend(0u64.to_le_bytes());
+        assert!(lengths_fit(0x09, &record).is_err());
+        record.extend(0u32.to_le_bytes());
+        assert!(lengths_fit(0x09, &record).is_ok());
+        assert!(mcap::parse_record(0x09, &record).is_ok());
     }
 }

@@ -464,14 +464,7 @@ impl Recorder {
     /// Stops reading, writes what was read, finishes the file and says what it holds.
     /// After a failure (disk full), the error, with what the file keeps.
     pub fn finish(mut self) -> Result<RecordSummary, RecordError> {
-        self.shared.stop.stop();
-        for thread in self.readers.drain(..) {
-            let _ = thread.join();
-        }
-        let written = match self.writer.take().map(JoinHandle::join) {
-            Some(Ok(result)) => result,
-            _ => Err(RecordError::Nothing("the file-writing thread panicked".into())),
-        };
+        let written = self.shutdown();
         let seconds = self.started.elapsed().as_secs_f64();
         if let Some(error) = self.shared.failure.lock().unwrap_or_else(|p| p.into_inner()).take() {
             return Err(error);
@@ -493,11 +486,26 @@ impl Recorder {
             compression: format!("{:?}", self.compression).to_lowercase(),
         })
     }
+
+    /// Stops the threads and waits for the file to be finished (once).
+    fn shutdown(&mut self) -> Result<(), RecordError> {
+        self.shared.stop.stop();
+        for thread in self.readers.drain(..) {
+            let _ = thread.join();
+        }
+        match self.writer.take().map(JoinHandle::join) {
+            None => Ok(()),
+            Some(Ok(result)) => result,
+            Some(Err(_)) => Err(RecordError::Nothing("the file-writing thread panicked".into())),
+        }
+    }
 }
 
 impl Drop for Recorder {
+    /// A recorder dropped without [`finish`](Recorder::finish) (an early
+    /// return, a panic) still finishes its file before it goes.
     fn drop(&mut self) {
-        self.shared.stop.stop();
+        let _ = self.shutdown();
     }
 }
 

@@ -163,10 +163,17 @@ impl Replay {
             targets.insert(*id, Target { recorded: recorded.clone(), writer, state: WriterState::Running });
         }
         if targets.is_empty() {
-            return Err(RecordError::NotARecording {
-                path: path.to_owned(),
-                reason: "it records no channel to replay".into(),
-            });
+            let services = header.channels.values().filter(|c| c.kind == ChannelKind::Service).count();
+            if services > 0 {
+                return Err(RecordError::Mismatch {
+                    context: format!(
+                        "{} records only services ({services}) and no layer; replay them too: drop --no-services \
+                         (or set `services = true` in a replay driver)",
+                        path.display()
+                    ),
+                });
+            }
+            return Err(RecordError::NotARecording { path: path.to_owned(), reason: "it records no channel".into() });
         }
         let mut published = None;
         if options.publish_geometry
@@ -301,7 +308,7 @@ impl Replay {
             if let Some(planned) = start_ns.take() {
                 origin = planned.max(skinware::os::monotonic_ns());
             }
-            let at = origin + (due.offset_ns as f64 / speed) as u64;
+            let at = origin.saturating_add((due.offset_ns as f64 / speed) as u64);
             if at.saturating_sub(skinware::os::monotonic_ns()) > PAUSE_NS {
                 // A pause in the recording: say so, rather than look hung.
                 for target in self.targets.values_mut().filter(|t| t.state != WriterState::Paused) {
@@ -332,7 +339,14 @@ impl Replay {
         }
         // Unblocks a loader still sending, then waits for it.
         drop(receiver);
-        let _ = loading.join();
+        if loading.join().is_err() && outcome.is_ok() {
+            return Err(RecordError::Mismatch {
+                context: format!(
+                    "reading {} failed (the loader thread panicked); replayed up to there",
+                    self.path.display()
+                ),
+            });
+        }
         outcome
     }
 }
@@ -391,7 +405,9 @@ impl Loader {
         let (mut newest_read, mut exhausted, mut sent) = (0u64, false, 0u64);
         let mut base: Option<u64> = None;
         while !self.stop.is_stopped() {
-            while !exhausted && pending.peek().is_none_or(|Reverse(top)| newest_read < top.0 + REORDER_WINDOW_NS) {
+            while !exhausted
+                && pending.peek().is_none_or(|Reverse(top)| newest_read < top.0.saturating_add(REORDER_WINDOW_NS))
+            {
                 match stream.next_record() {
                     Ok(Some(Record::Message { header, data })) if self.sizes.contains_key(&header.channel_id) => {
                         newest_read = newest_read.max(header.publish_time);
@@ -417,14 +433,21 @@ impl Loader {
             if self.to_ns.is_some_and(|to| since_first > to) {
                 return Ok(());
             }
-            let frame: SkinFrame = msgs::decode(&data, msgs::SKIN_FRAME)?;
             let (channel, size) = &self.sizes[&channel_id];
+            let frame: SkinFrame = msgs::decode(&data, msgs::SKIN_FRAME).map_err(|e| RecordError::Mismatch {
+                context: format!(
+                    "{}: a frame of channel {channel} {e}; `skin record --recover {}` keeps what came before it",
+                    self.path.display(),
+                    self.path.display()
+                ),
+            })?;
             let bytes = frame.channel_bytes();
             if bytes.len() != *size {
                 return Err(RecordError::Mismatch {
                     context: format!(
-                        "a frame of channel {channel} holds {} bytes, but the channel's frames are {size} bytes: \
+                        "{}: a frame of channel {channel} holds {} bytes, but the channel's frames are {size} bytes: \
                          the recording is corrupt",
+                        self.path.display(),
                         bytes.len()
                     ),
                 });

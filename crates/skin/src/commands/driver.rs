@@ -42,7 +42,7 @@ fn run_replay(config: &skin::config::Config, name: &str, replay: skin::config::d
     tracing::info!(driver = name, channels = ?player.channels(), file = %replay.file.display(), "replaying");
     let stop = player.stop_signal().clone();
     stop_on_signals(move || stop.stop())?;
-    let report = player.run()?;
+    let report = player.run().with_context(|| format!("driver {name}: replaying {} stopped", replay.file.display()))?;
     tracing::info!(driver = name, frames = report.frames, passes = report.passes, "replay stopped");
     Ok(())
 }

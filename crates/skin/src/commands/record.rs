@@ -80,7 +80,7 @@ pub fn run(args: &Args) -> Result<()> {
         );
     };
     if let Some(seconds) = args.seconds
-        && !(seconds.is_finite() && seconds > 0.0)
+        && !(seconds.is_finite() && seconds > 0.0 && seconds < 1e9)
     {
         bail!("--seconds {seconds} must be a positive number");
     }
@@ -104,7 +104,10 @@ pub fn run(args: &Args) -> Result<()> {
     };
     let shutdown = super::run::shutdown_on_signals()?;
     if let Some(wait) = args.wait {
-        wait_for_skin(&args.skin, Duration::from_secs_f64(wait.max(0.0)), &shutdown)?;
+        if !(wait.is_finite() && wait >= 0.0) {
+            bail!("--wait {wait} must be a number of seconds");
+        }
+        wait_for_skin(&args.skin, Duration::from_secs_f64(wait.min(86_400.0)), &shutdown)?;
     }
     let recorder = Recorder::start(out, options).with_context(|| format!("cannot record skin {}", args.skin))?;
     let channels = recorder.channels();

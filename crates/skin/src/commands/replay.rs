@@ -49,6 +49,9 @@ pub struct Args {
 
 /// Runs `skin replay`.
 pub fn run(args: &Args) -> Result<()> {
+    if !args.start_delay.is_finite() {
+        anyhow::bail!("--start-delay {} must be a number of seconds", args.start_delay);
+    }
     let access = match args.access.as_str() {
         "owner" => skinware::Access::Owner,
         "group" => skinware::Access::Group,
@@ -68,7 +71,7 @@ pub fn run(args: &Args) -> Result<()> {
         from_s: args.from,
         to_s: args.to,
         services: !args.no_services,
-        start_delay: Duration::from_secs_f64(args.start_delay.max(0.0)),
+        start_delay: Duration::from_secs_f64(args.start_delay.clamp(0.0, 3600.0)),
         access,
         rt: skinware::RtOptions { fifo_priority: args.fifo_priority, ..Default::default() },
         ..ReplayOptions::default()
@@ -99,7 +102,7 @@ pub fn run(args: &Args) -> Result<()> {
             stop.stop();
         }
     });
-    let report = replay.run()?;
+    let report = replay.run().with_context(|| format!("replaying {} stopped", args.file.display()))?;
     let mut out = std::io::stdout().lock();
     if args.json {
         serde_json::to_writer_pretty(&mut out, &report)?;

@@ -273,6 +273,19 @@ impl DriverConfig {
     /// Builds the driver this table describes.
     pub fn build(&self, skin: &str) -> Result<BuiltDriver> {
         skinware::shm::validate_name("driver", &self.name)?;
+        if self.kind != DriverKind::Replay {
+            let replay_keys = [
+                ("file", self.file.is_some()),
+                ("speed", self.speed.is_some()),
+                ("loop", self.loop_.is_some()),
+                ("from_s", self.from_s.is_some()),
+                ("to_s", self.to_s.is_some()),
+                ("services", self.services.is_some()),
+            ];
+            if let Some((key, _)) = replay_keys.iter().find(|(_, given)| *given) {
+                bail!("`{key}` is a setting of kind = \"replay\", not of this driver");
+            }
+        }
         match self.kind {
             DriverKind::Can => self.build_can().map(BuiltDriver::Can),
             DriverKind::Replay => self.build_replay().map(|r| BuiltDriver::Replay(Box::new(r))),
@@ -282,7 +295,6 @@ impl DriverConfig {
                     ("protocol", self.protocol.is_some()),
                     ("board", !self.boards.is_empty()),
                     ("base_ids", !self.base_ids.is_empty()),
-                    ("file", self.file.is_some()),
                 ];
                 if let Some((key, _)) = can_keys.iter().find(|(_, given)| *given) {
                     bail!("`{key}` is a setting of kind = \"can\", not of the virtual skin");
