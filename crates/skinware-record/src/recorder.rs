@@ -655,6 +655,27 @@ struct ChannelJob {
     shared: Arc<Shared>,
 }
 
+/// A frame copied out of the reader.
+struct Copied {
+    seq: u64,
+    acquired_ns: u64,
+    published_ns: u64,
+    status: FrameStatus,
+    bytes: Vec<u8>,
+}
+
+impl Copied {
+    fn of(frame: &skinware::Frame<'_>) -> Copied {
+        Copied {
+            seq: frame.seq(),
+            acquired_ns: frame.acquired_ns(),
+            published_ns: frame.published_ns(),
+            status: frame.status(),
+            bytes: frame.bytes().to_vec(),
+        }
+    }
+}
+
 impl ChannelJob {
     fn run(mut self) {
         self.reader.set_stop(&self.shared.stop);
@@ -663,8 +684,8 @@ impl ChannelJob {
         let mut size_hint = 64;
         while !self.shared.stop.is_stopped() {
             self.counters.state.store(state_code(self.reader.writer_state()), Ordering::Relaxed);
-            let frame = match self.reader.wait_newer(READ_SLICE) {
-                Ok(frame) => frame,
+            let (newest, skipped) = match self.reader.wait_newer(READ_SLICE) {
+                Ok(frame) => (Copied::of(&frame), frame.skipped()),
                 Err(Error::Timeout { .. } | Error::WriterGone { .. } | Error::Lapped { .. }) => continue,
                 Err(Error::Stopped { .. }) => break,
                 Err(e) => {
@@ -673,72 +694,93 @@ impl ChannelJob {
                     continue;
                 }
             };
-            let stamp = wall(frame.acquired_ns(), self.clock_offset_ns);
-            let published = wall(frame.published_ns(), self.clock_offset_ns);
-            let skipped = frame.skipped();
-            let payload: &[u8] = if is_layer { &[] } else { frame.bytes() };
-            if is_layer {
-                // The frame's bytes need not be 2-aligned for a borrowed `&[u16]`: copy.
-                responses.clear();
-                responses.extend(frame.bytes().chunks_exact(2).map(|b| u16::from_ne_bytes([b[0], b[1]])));
-            }
-            let message = SkinFrameRef {
-                stamp: Time::from_ns(stamp),
-                published: Time::from_ns(published),
-                seq: frame.seq(),
-                status: frame.status().0,
-                skipped,
-                responses: if is_layer { &responses } else { &[] },
-                payload,
-            };
-            let data = match msgs::encode(&message, size_hint) {
-                Ok(data) => data,
-                Err(e) => {
-                    self.shared.fail(e);
-                    break;
-                }
-            };
-            size_hint = data.len();
-            let seq = frame.seq();
-            let latency = frame.published_ns().saturating_sub(frame.acquired_ns());
-            if frame.status().contains(FrameStatus::FAULT) {
-                self.counters.faulted.fetch_add(1, Ordering::Relaxed);
-            }
-            if skipped > 0 {
-                self.counters.lost.fetch_add(skipped, Ordering::Relaxed);
-                self.counters.gaps.fetch_add(1, Ordering::Relaxed);
-                let gap = Gap {
-                    stamp: Time::from_ns(stamp),
-                    channel: self.name.clone(),
-                    first_seq: seq - skipped,
-                    count: skipped,
-                };
-                if let Ok(data) = msgs::encode(&gap, 64) {
-                    let item = Item {
-                        channel_id: self.gap_channel,
-                        sequence: 0,
-                        log_time: stamp,
-                        publish_time: published,
-                        data,
-                    };
-                    if self.sender.send(item).is_err() {
-                        break;
+            // Woken late: the frames between the previous one and the newest
+            // stay in the writer's buffers for K-1 frames each; copy those
+            // still there, and count the rest as missed.
+            let mut missed = 0;
+            for seq in newest.seq - skipped..newest.seq {
+                match self.reader.read_seq(seq).map(|frame| Copied::of(&frame)) {
+                    Some(older) => {
+                        if !self.emit(&older, missed, is_layer, &mut responses, &mut size_hint) {
+                            return;
+                        }
+                        missed = 0;
                     }
+                    None => missed += 1,
                 }
             }
-            let item = Item {
-                channel_id: self.channel_id,
-                sequence: seq as u32,
-                log_time: stamp,
-                publish_time: published,
-                data,
-            };
-            if self.sender.send(item).is_err() {
-                break;
+            if !self.emit(&newest, missed, is_layer, &mut responses, &mut size_hint) {
+                return;
             }
-            self.counters.frames.fetch_add(1, Ordering::Relaxed);
-            self.counters.latency_ns.fetch_add(latency, Ordering::Relaxed);
         }
+    }
+
+    /// Writes one frame, `missed` frames after the previous one written;
+    /// `false` once the file is gone.
+    fn emit(
+        &self,
+        frame: &Copied,
+        missed: u64,
+        is_layer: bool,
+        responses: &mut Vec<u16>,
+        size_hint: &mut usize,
+    ) -> bool {
+        let stamp = wall(frame.acquired_ns, self.clock_offset_ns);
+        let published = wall(frame.published_ns, self.clock_offset_ns);
+        if is_layer {
+            responses.clear();
+            responses.extend(frame.bytes.chunks_exact(2).map(|b| u16::from_ne_bytes([b[0], b[1]])));
+        }
+        let message = SkinFrameRef {
+            stamp: Time::from_ns(stamp),
+            published: Time::from_ns(published),
+            seq: frame.seq,
+            status: frame.status.0,
+            skipped: missed,
+            responses: if is_layer { responses } else { &[] },
+            payload: if is_layer { &[] } else { &frame.bytes },
+        };
+        let data = match msgs::encode(&message, *size_hint) {
+            Ok(data) => data,
+            Err(e) => {
+                self.shared.fail(e);
+                return false;
+            }
+        };
+        *size_hint = data.len();
+        if frame.status.contains(FrameStatus::FAULT) {
+            self.counters.faulted.fetch_add(1, Ordering::Relaxed);
+        }
+        if missed > 0 {
+            self.counters.lost.fetch_add(missed, Ordering::Relaxed);
+            self.counters.gaps.fetch_add(1, Ordering::Relaxed);
+            let gap = Gap {
+                stamp: Time::from_ns(stamp),
+                channel: self.name.clone(),
+                first_seq: frame.seq - missed,
+                count: missed,
+            };
+            if let Ok(data) = msgs::encode(&gap, 64) {
+                let item =
+                    Item { channel_id: self.gap_channel, sequence: 0, log_time: stamp, publish_time: published, data };
+                if self.sender.send(item).is_err() {
+                    return false;
+                }
+            }
+        }
+        let item = Item {
+            channel_id: self.channel_id,
+            sequence: frame.seq as u32,
+            log_time: stamp,
+            publish_time: published,
+            data,
+        };
+        if self.sender.send(item).is_err() {
+            return false;
+        }
+        self.counters.frames.fetch_add(1, Ordering::Relaxed);
+        self.counters.latency_ns.fetch_add(frame.published_ns.saturating_sub(frame.acquired_ns), Ordering::Relaxed);
+        true
     }
 }
 

@@ -316,6 +316,19 @@ impl Reader {
         }
     }
 
+    /// An older frame, `seq`, if the writer has not reused its buffer yet.
+    /// A reader that woke late gets the newest frame with
+    /// [`Frame::skipped`] > 0; the frames in between stay readable until the
+    /// writer comes back to their buffers (K-1 frames after each), and this
+    /// copies one of them. Wait-free, like [`latest`](Self::latest); `None`
+    /// when the frame is gone (or was never published). It does not change
+    /// which frame the other reads count as this reader's newest.
+    pub fn read_seq(&mut self, seq: u64) -> Option<Frame<'_>> {
+        let meta = self.shared.ring().read_seq(seq, &mut self.buffer)?;
+        let bytes: &[u8] = bytemuck::cast_slice(&self.buffer);
+        Some(Frame { meta, skipped: 0, fresh: true, payload: &bytes[..self.payload_bytes()] })
+    }
+
     fn frame(&self, skipped: u64, fresh: bool) -> Frame<'_> {
         let bytes: &[u8] = bytemuck::cast_slice(&self.buffer);
         Frame { meta: self.last, skipped, fresh, payload: &bytes[..self.payload_bytes()] }

@@ -166,6 +166,37 @@ impl<'a> Ring<'a> {
             loom::thread::yield_now();
         }
     }
+
+    /// Reader: copies frame `seq` into `out` if its slot still holds it, with
+    /// the same checks as [`read_latest`](Self::read_latest) but one attempt
+    /// (wait-free): `None` if the writer has reused the slot since, is
+    /// rewriting it, or never published `seq`.
+    ///
+    /// This is how a reader that woke late catches up on the frames between
+    /// its previous one and the newest: each stays readable until the writer
+    /// comes back to its slot, K-1 frames later.
+    pub(crate) fn read_seq(&self, seq: u64, out: &mut [u64]) -> Option<Meta> {
+        if seq == 0 || seq > self.published() {
+            return None;
+        }
+        let slot = self.slot(seq);
+        // Acquire: pairs with the Release stamp store in `publish`.
+        let stamp = slot[STAMP].load(Ordering::Acquire);
+        if stamp != seq.wrapping_mul(2) || slot[SEQ].load(Ordering::Relaxed) != seq {
+            return None;
+        }
+        let meta = Meta {
+            seq,
+            acquired_ns: slot[ACQUIRED_NS].load(Ordering::Relaxed),
+            published_ns: slot[PUBLISHED_NS].load(Ordering::Relaxed),
+            status: slot[STATUS].load(Ordering::Relaxed),
+        };
+        super::copy::load_words(out, &slot[META_WORDS..]);
+        // As in `read_latest`: a copy that raced the writer's reuse of the
+        // slot sees the stamp move, and is discarded.
+        fence(Ordering::Acquire);
+        (slot[STAMP].load(Ordering::Relaxed) == stamp).then_some(meta)
+    }
 }
 
 /// Writes `bytes` into payload `words` starting at byte `offset`, a word at a time.
@@ -273,6 +304,30 @@ mod tests {
         // Once the writer publishes again, reading is sound again.
         write_frame(&ring, 3);
         assert_eq!(ring.read_latest(&mut out, 8).unwrap().0.seq, 3);
+    }
+
+    #[test]
+    fn an_older_frame_is_readable_until_its_slot_is_reused() {
+        let (published, slots) = ring_memory(3, 4);
+        let ring = Ring::new(&published, &slots, 3);
+        let mut out = [0u64; 4];
+        assert_eq!(ring.read_seq(1, &mut out), None, "not published yet");
+        for seq in 1..=5 {
+            write_frame(&ring, seq);
+        }
+        // Slots hold 3, 4 and 5; 1 and 2 were overwritten.
+        for seq in 3..=5 {
+            assert_eq!(ring.read_seq(seq, &mut out).map(|m| m.seq), Some(seq));
+            assert!(consistent(seq, &out));
+        }
+        assert_eq!(ring.read_seq(2, &mut out), None);
+        assert_eq!(ring.read_seq(6, &mut out), None);
+        assert_eq!(ring.read_seq(0, &mut out), None);
+        // The writer starts frame 6 in frame 3's slot: 3 is gone at once.
+        let payload = ring.begin(6);
+        payload[0].store(0xdead, Ordering::Relaxed);
+        assert_eq!(ring.read_seq(3, &mut out), None);
+        assert_eq!(ring.read_seq(4, &mut out).map(|m| m.seq), Some(4));
     }
 
     #[test]
@@ -389,6 +444,46 @@ mod loom_tests {
             for handle in handles {
                 handle.join().unwrap();
             }
+        });
+    }
+
+    /// A reader catching up on frame 1 (`read_seq`) while the writer laps
+    /// its slot in a two-slot ring: it gets frame 1 whole, or nothing.
+    #[test]
+    fn loom_catch_up_read_is_whole_or_nothing() {
+        let frames = env_or("SKINWARE_LOOM_FRAMES", 3);
+        let mut model = loom::model::Builder::new();
+        if model.preemption_bound.is_none() {
+            model.preemption_bound = Some(2);
+        }
+        model.check(move || {
+            struct Memory {
+                published: AtomicU64,
+                slots: Vec<AtomicU64>,
+            }
+            let memory = loom::sync::Arc::new(Memory {
+                published: AtomicU64::new(0),
+                slots: (0..2 * (META_WORDS + 1)).map(|_| AtomicU64::new(0)).collect(),
+            });
+            let reader = {
+                let memory = memory.clone();
+                loom::thread::spawn(move || {
+                    let ring = Ring::new(&memory.published, &memory.slots, 2);
+                    let mut out = [0u64; 1];
+                    if let Some(meta) = ring.read_seq(1, &mut out) {
+                        assert_eq!(meta.seq, 1);
+                        assert_eq!(out[0], 100, "torn payload");
+                        assert_eq!(meta.acquired_ns, 7, "torn metadata");
+                    }
+                })
+            };
+            let ring = Ring::new(&memory.published, &memory.slots, 2);
+            for seq in 1..=frames {
+                let payload = ring.begin(seq);
+                payload[0].store(seq * 100, Ordering::Relaxed);
+                ring.publish(&Meta { seq, acquired_ns: seq * 7, published_ns: 0, status: 0 });
+            }
+            reader.join().unwrap();
         });
     }
 }
