@@ -141,7 +141,7 @@ fn frames(path: &Path) -> BTreeMap<String, Vec<Frame>> {
             out.entry(channel.channel.clone()).or_default().push((
                 f.channel_bytes(),
                 f.status,
-                f.skipped,
+                f.seq,
                 message.publish_time,
             ));
         }
