@@ -92,8 +92,8 @@ pub struct RecordOptions {
     pub map_width: usize,
     /// Chunk compression.
     pub compression: Compression,
-    /// How often the current chunk is finished and flushed: at most this much
-    /// is lost if the recorder is killed.
+    /// How often the current chunk is finished, written and synced to disk:
+    /// at most this much is lost if the recorder is killed or the power fails.
     pub flush_interval: Duration,
     /// Segment directory; `None` for the default.
     pub dir: Option<PathBuf>,
@@ -263,7 +263,15 @@ impl Recorder {
             .library(concat!("skinware-record/", env!("CARGO_PKG_VERSION")))
             .compression(options.compression.mcap())
             .chunk_size(Some(CHUNK_BYTES))
-            .create(BufWriter::with_capacity(256 << 10, file))
+            .create(BufWriter::with_capacity(
+                256 << 10,
+                file.try_clone().map_err(|source| RecordError::Io {
+                    op: "open a second handle to",
+                    path: path.to_owned(),
+                    hint: String::new(),
+                    source,
+                })?,
+            ))
             .map_err(write_error)?;
         let schema = |writer: &mut mcap::Writer<_>, name: &str| {
             let text = msgs::schema_text(name).unwrap_or_default();
@@ -409,6 +417,7 @@ impl Recorder {
         let file_job = FileJob {
             path: path.to_owned(),
             writer,
+            sync: file,
             receiver,
             flush_interval: options.flush_interval,
             shared: shared.clone(),
@@ -929,6 +938,8 @@ impl Watcher {
 struct FileJob {
     path: PathBuf,
     writer: mcap::Writer<BufWriter<File>>,
+    /// The same file, to sync what was flushed.
+    sync: File,
     receiver: Receiver<Item>,
     flush_interval: Duration,
     shared: Arc<Shared>,
@@ -972,8 +983,15 @@ impl FileJob {
                 Err(RecvTimeoutError::Disconnected) => return Ok(()),
             }
             if Instant::now() >= next_flush {
-                // A finished chunk, on disk: what a killed recorder leaves is readable up to here.
+                // A finished chunk, on disk: what a killed recorder (or a
+                // machine that loses power) leaves is readable up to here.
                 self.writer.flush().map_err(|e| mcap_write_error(&self.path, e))?;
+                self.sync.sync_data().map_err(|source| RecordError::Io {
+                    op: "sync",
+                    path: self.path.clone(),
+                    hint: write_hint(&source),
+                    source,
+                })?;
                 next_flush = Instant::now() + self.flush_interval;
             }
         }
