@@ -580,7 +580,7 @@ fn choose_channels(dir: &Path, options: &RecordOptions) -> Result<Vec<String>, R
     });
     if chosen.is_empty() {
         return Err(RecordError::Nothing(format!(
-            "skin {} has no running channel to record in {}; start it first (`skin run`), or name the skin with --skin",
+            "skin {} has no running channel to record in {}; start it first (`skin run`; `skin record --wait 60` waits for it), or name the skin with --skin",
             options.skin,
             dir.display()
         )));
