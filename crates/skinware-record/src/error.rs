@@ -126,3 +126,26 @@ pub(crate) fn write_hint(error: &std::io::Error) -> String {
         _ => String::new(),
     }
 }
+
+/// Creates `path` for a new recording, never over an existing file.
+pub(crate) fn create_new(path: &std::path::Path) -> Result<std::fs::File, RecordError> {
+    std::fs::OpenOptions::new().write(true).create_new(true).open(path).map_err(|source| {
+        if source.kind() == std::io::ErrorKind::AlreadyExists {
+            RecordError::Exists { path: path.to_owned() }
+        } else {
+            RecordError::Io { op: "create", path: path.to_owned(), hint: write_hint(&source), source }
+        }
+    })
+}
+
+/// An error of the MCAP writer on `path`, with advice for I/O errors.
+pub(crate) fn mcap_write_error(path: &std::path::Path, e: mcap::McapError) -> RecordError {
+    RecordError::Write {
+        path: path.to_owned(),
+        hint: match &e {
+            mcap::McapError::Io(io) => write_hint(io),
+            _ => String::new(),
+        },
+        reason: e.to_string(),
+    }
+}

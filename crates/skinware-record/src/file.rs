@@ -738,21 +738,8 @@ pub struct Recovered {
 /// recorder was killed) into a new, finished MCAP file `out`.
 pub fn recover(input: &Path, out: &Path, compression: Option<mcap::Compression>) -> Result<Recovered, RecordError> {
     let mut stream = RecordStream::open(input)?;
-    let output = std::fs::OpenOptions::new().write(true).create_new(true).open(out).map_err(|source| {
-        if source.kind() == std::io::ErrorKind::AlreadyExists {
-            RecordError::Exists { path: out.to_owned() }
-        } else {
-            RecordError::Io { op: "create", path: out.to_owned(), hint: write_hint(&source), source }
-        }
-    })?;
-    let write_error = |e: mcap::McapError| RecordError::Write {
-        path: out.to_owned(),
-        hint: match &e {
-            mcap::McapError::Io(io) => write_hint(io),
-            _ => String::new(),
-        },
-        reason: e.to_string(),
-    };
+    let output = crate::error::create_new(out)?;
+    let write_error = |e: mcap::McapError| crate::error::mcap_write_error(out, e);
     let mut writer = mcap::WriteOptions::new()
         .profile("ros2")
         .compression(compression)

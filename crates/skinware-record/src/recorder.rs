@@ -22,7 +22,7 @@ use skinware::rt::{Stop, Ticker};
 use skinware::{ChannelKind, Error, FrameStatus, Reader, ReaderOptions, WriterState};
 use skinware_geometry::SkinGeometry;
 
-use crate::error::write_hint;
+use crate::error::{mcap_write_error, write_hint};
 use crate::file::kind_str;
 use crate::heatmap::{HeatMap, LayerLook};
 use crate::msgs::{self, Gap, Header, Image, LayerStats, SkinFrameRef, Time};
@@ -250,13 +250,7 @@ impl Recorder {
             }
         });
 
-        let file = std::fs::OpenOptions::new().write(true).create_new(true).open(path).map_err(|source| {
-            if source.kind() == std::io::ErrorKind::AlreadyExists {
-                RecordError::Exists { path: path.to_owned() }
-            } else {
-                RecordError::Io { op: "create", path: path.to_owned(), hint: write_hint(&source), source }
-            }
-        })?;
+        let file = crate::error::create_new(path)?;
         let write_error = |e: mcap::McapError| mcap_write_error(path, e);
         let mut writer = mcap::WriteOptions::new()
             .profile("ros2")
@@ -388,9 +382,15 @@ impl Recorder {
             .collect();
         let (sender, receiver) = sync_channel::<Item>(QUEUE);
         let mut threads = Vec::new();
-        for ((reader, recorded), &channel_id) in readers.into_iter().zip(&channels).zip(&frame_channels) {
+        // The recording starts now, the file ready: every frame after these
+        // is recorded or counted as lost.
+        let starts: Vec<u64> = readers.iter().map(Reader::published_seq).collect();
+        for (((reader, recorded), &channel_id), last_seq) in
+            readers.into_iter().zip(&channels).zip(&frame_channels).zip(starts)
+        {
             let job = ChannelJob {
                 reader,
+                last_seq,
                 name: recorded.name.clone(),
                 channel_id,
                 gap_channel,
@@ -535,17 +535,6 @@ fn spawn(name: &str, job: impl FnOnce() + Send + 'static) -> Result<JoinHandle<(
         .map_err(|e| RecordError::Nothing(format!("cannot start thread {name}: {e}")))
 }
 
-fn mcap_write_error(path: &Path, e: mcap::McapError) -> RecordError {
-    RecordError::Write {
-        path: path.to_owned(),
-        hint: match &e {
-            mcap::McapError::Io(io) => write_hint(io),
-            _ => String::new(),
-        },
-        reason: e.to_string(),
-    }
-}
-
 /// The channels of `options.skin` to record, by name, layers first.
 fn choose_channels(dir: &Path, options: &RecordOptions) -> Result<Vec<String>, RecordError> {
     let listed = skinware::list_channels(dir)?;
@@ -655,6 +644,8 @@ fn state_of(code: u32) -> WriterState {
 /// A reader thread's job.
 struct ChannelJob {
     reader: Reader,
+    /// The newest frame written (or, at the start, published when the recording started).
+    last_seq: u64,
     name: String,
     channel_id: u16,
     gap_channel: u16,
@@ -694,6 +685,11 @@ impl ChannelJob {
         while !self.shared.stop.is_stopped() {
             self.counters.state.store(state_code(self.reader.writer_state()), Ordering::Relaxed);
             let (newest, skipped) = match self.reader.wait_newer(READ_SLICE) {
+                // Counted from the last frame written, so that frames published
+                // between the start and this thread's first read count too;
+                // a writer that started again (its numbers restarted) is
+                // counted by the reader.
+                Ok(frame) if frame.seq() > self.last_seq => (Copied::of(&frame), frame.seq() - self.last_seq - 1),
                 Ok(frame) => (Copied::of(&frame), frame.skipped()),
                 Err(Error::Timeout { .. } | Error::WriterGone { .. } | Error::Lapped { .. }) => continue,
                 Err(Error::Stopped { .. }) => break,
@@ -721,6 +717,7 @@ impl ChannelJob {
             if !self.emit(&newest, missed, is_layer, &mut responses, &mut size_hint) {
                 return;
             }
+            self.last_seq = newest.seq;
         }
     }
 

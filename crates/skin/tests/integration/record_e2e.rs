@@ -128,8 +128,8 @@ fn killed_recorder_leaves_a_readable_file(d: &Path) {
     assert!(info["has_geometry"].as_bool().unwrap());
 }
 
-/// One recorded frame: payload, status, sequence number, publication time.
-type Frame = (Vec<u8>, u64, u64, u64);
+/// One recorded frame: payload, status, sequence number, publication time, frames missed before it.
+type Frame = (Vec<u8>, u64, u64, u64, u64);
 
 fn frames(path: &Path) -> BTreeMap<String, Vec<Frame>> {
     let mut stream = RecordStream::open(path).unwrap();
@@ -143,6 +143,7 @@ fn frames(path: &Path) -> BTreeMap<String, Vec<Frame>> {
                 f.status,
                 f.seq,
                 message.publish_time,
+                f.skipped,
             ));
         }
     };
@@ -184,10 +185,11 @@ fn replay_is_recorded_bit_for_bit(d: &Path, a: &Path) {
     for (channel, recorded) in &first {
         let replayed = &second[channel];
         // The replay's sequence numbers start at 1: its frame k is the recording's k-th.
-        // Every frame is accounted for: missed before the first, missed between, recorded.
-        let missed_first = replayed[0].2 - 1;
+        // Every frame is accounted for: published before the recorder
+        // started, missed (counted), recorded.
+        let before_start = replayed[0].2 - 1 - replayed[0].4;
         let lost = again["channels"][channel]["lost"].as_u64().unwrap();
-        assert_eq!(recorded.len() as u64, missed_first + lost + replayed.len() as u64, "{channel}: {again}");
+        assert_eq!(recorded.len() as u64, before_start + lost + replayed.len() as u64, "{channel}: {again}");
         for f in replayed {
             let at = f.2 as usize - 1;
             assert_eq!((&recorded[at].0, recorded[at].1), (&f.0, f.1), "{channel}: frame {at} differs");
