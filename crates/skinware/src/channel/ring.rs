@@ -396,6 +396,37 @@ mod loom_tests {
         std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
     }
 
+    /// A two-slot ring of one payload word each.
+    struct Memory {
+        published: AtomicU64,
+        slots: Vec<AtomicU64>,
+    }
+
+    fn two_slot_memory() -> loom::sync::Arc<Memory> {
+        loom::sync::Arc::new(Memory {
+            published: AtomicU64::new(0),
+            slots: (0..2 * (META_WORDS + 1)).map(|_| AtomicU64::new(0)).collect(),
+        })
+    }
+
+    /// The writer: frames 1..=`frames`, payload `seq * 100`, acquired at `seq * 7`.
+    fn publish_frames(memory: &Memory, frames: u64) {
+        let ring = Ring::new(&memory.published, &memory.slots, 2);
+        for seq in 1..=frames {
+            let payload = ring.begin(seq);
+            payload[0].store(seq * 100, Ordering::Relaxed);
+            ring.publish(&Meta { seq, acquired_ns: seq * 7, published_ns: 0, status: 0 });
+        }
+    }
+
+    fn model() -> loom::model::Builder {
+        let mut model = loom::model::Builder::new();
+        if model.preemption_bound.is_none() {
+            model.preemption_bound = Some(2);
+        }
+        model
+    }
+
     /// One writer publishes frames into a two-slot ring (three frames lap the
     /// slot of frame 1) while two readers read: every frame read is whole, with
     /// its own metadata, and a reader's later read never returns an older frame.
@@ -404,19 +435,8 @@ mod loom_tests {
         let frames = env_or("SKINWARE_LOOM_FRAMES", 3);
         let readers = env_or("SKINWARE_LOOM_READERS", 2);
         let reads = env_or("SKINWARE_LOOM_READS", 1);
-        let mut model = loom::model::Builder::new();
-        if model.preemption_bound.is_none() {
-            model.preemption_bound = Some(2);
-        }
-        model.check(move || {
-            struct Memory {
-                published: AtomicU64,
-                slots: Vec<AtomicU64>,
-            }
-            let memory = loom::sync::Arc::new(Memory {
-                published: AtomicU64::new(0),
-                slots: (0..2 * (META_WORDS + 1)).map(|_| AtomicU64::new(0)).collect(),
-            });
+        model().check(move || {
+            let memory = two_slot_memory();
             let handles: Vec<_> = (0..readers)
                 .map(|_| {
                     let memory = memory.clone();
@@ -435,12 +455,7 @@ mod loom_tests {
                     })
                 })
                 .collect();
-            let ring = Ring::new(&memory.published, &memory.slots, 2);
-            for seq in 1..=frames {
-                let payload = ring.begin(seq);
-                payload[0].store(seq * 100, Ordering::Relaxed);
-                ring.publish(&Meta { seq, acquired_ns: seq * 7, published_ns: 0, status: 0 });
-            }
+            publish_frames(&memory, frames);
             for handle in handles {
                 handle.join().unwrap();
             }
@@ -452,19 +467,8 @@ mod loom_tests {
     #[test]
     fn loom_catch_up_read_is_whole_or_nothing() {
         let frames = env_or("SKINWARE_LOOM_FRAMES", 3);
-        let mut model = loom::model::Builder::new();
-        if model.preemption_bound.is_none() {
-            model.preemption_bound = Some(2);
-        }
-        model.check(move || {
-            struct Memory {
-                published: AtomicU64,
-                slots: Vec<AtomicU64>,
-            }
-            let memory = loom::sync::Arc::new(Memory {
-                published: AtomicU64::new(0),
-                slots: (0..2 * (META_WORDS + 1)).map(|_| AtomicU64::new(0)).collect(),
-            });
+        model().check(move || {
+            let memory = two_slot_memory();
             let reader = {
                 let memory = memory.clone();
                 loom::thread::spawn(move || {
@@ -477,12 +481,7 @@ mod loom_tests {
                     }
                 })
             };
-            let ring = Ring::new(&memory.published, &memory.slots, 2);
-            for seq in 1..=frames {
-                let payload = ring.begin(seq);
-                payload[0].store(seq * 100, Ordering::Relaxed);
-                ring.publish(&Meta { seq, acquired_ns: seq * 7, published_ns: 0, status: 0 });
-            }
+            publish_frames(&memory, frames);
             reader.join().unwrap();
         });
     }
