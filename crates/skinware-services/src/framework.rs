@@ -187,41 +187,8 @@ impl<T: ServicePayload> ServiceWriter<T> {
     /// Creates the service channel (taking over the name of a dead writer's) `skin`/`spec.name`.
     /// `options`' kind, schema and period are set from the spec and `T`.
     pub fn create(skin: &str, spec: &ServiceSpec, options: &WriterOptions) -> Result<ServiceWriter<T>> {
-        if let Some(label) = spec.labels.iter().find(|l| l.is_empty() || l.chars().any(char::is_whitespace)) {
-            return Err(Error::InvalidLayout {
-                channel: format!("{skin}/{}", spec.name),
-                reason: format!("record label {label:?} must be one word"),
-            });
-        }
-        if !spec.labels.is_empty() && spec.labels.len() != spec.records {
-            return Err(Error::InvalidLayout {
-                channel: format!("{skin}/{}", spec.name),
-                reason: format!("{} labels for {} records", spec.labels.len(), spec.records),
-            });
-        }
-        let record_bytes = std::mem::size_of::<T>();
+        let writer = create_service_channel(skin, spec, (T::SCHEMA, T::VERSION), std::mem::size_of::<T>(), options)?;
         let records = spec.records;
-        let period = match spec.mode {
-            ServiceMode::Periodic { hz } => match Duration::try_from_secs_f64(1.0 / hz) {
-                Ok(period) if hz.is_finite() && hz > 0.0 && period >= Duration::from_micros(1) => Some(period),
-                _ => {
-                    return Err(Error::InvalidLayout {
-                        channel: format!("{skin}/{}", spec.name),
-                        reason: format!("rate {hz} Hz must be finite, above 0 and at most 1 MHz"),
-                    });
-                }
-            },
-            ServiceMode::Sporadic => None,
-        };
-        let options = WriterOptions {
-            kind: ChannelKind::Service,
-            schema_name: T::SCHEMA.to_owned(),
-            schema_version: T::VERSION,
-            period,
-            ..options.clone()
-        };
-        let description = spec.description(T::SCHEMA, T::VERSION, record_bytes);
-        let writer = Writer::create(skin, &spec.name, records * record_bytes, &description, &options)?;
         Ok(ServiceWriter { writer, records, mode: spec.mode, buffer: vec![T::zeroed(); records] })
     }
 
@@ -276,6 +243,96 @@ impl<T: ServicePayload> ServiceWriter<T> {
     }
 }
 
+/// Creates a service's channel for records of `record_bytes` bytes with
+/// schema `(name, version)`: what [`ServiceWriter::create`] does for a
+/// record type known at compile time, for records whose layout is known only
+/// at run time (the Python bindings' services). Checks the labels and the
+/// rate; `options`' kind, schema and period are set from the spec.
+pub fn create_service_channel(
+    skin: &str,
+    spec: &ServiceSpec,
+    schema: (&str, u32),
+    record_bytes: usize,
+    options: &WriterOptions,
+) -> Result<Writer> {
+    if let Some(label) = spec.labels.iter().find(|l| l.is_empty() || l.chars().any(char::is_whitespace)) {
+        return Err(Error::InvalidLayout {
+            channel: format!("{skin}/{}", spec.name),
+            reason: format!("record label {label:?} must be one word"),
+        });
+    }
+    if !spec.labels.is_empty() && spec.labels.len() != spec.records {
+        return Err(Error::InvalidLayout {
+            channel: format!("{skin}/{}", spec.name),
+            reason: format!("{} labels for {} records", spec.labels.len(), spec.records),
+        });
+    }
+    let period = match spec.mode {
+        ServiceMode::Periodic { hz } => match Duration::try_from_secs_f64(1.0 / hz) {
+            Ok(period) if hz.is_finite() && hz > 0.0 && period >= Duration::from_micros(1) => Some(period),
+            _ => {
+                return Err(Error::InvalidLayout {
+                    channel: format!("{skin}/{}", spec.name),
+                    reason: format!("rate {hz} Hz must be finite, above 0 and at most 1 MHz"),
+                });
+            }
+        },
+        ServiceMode::Sporadic => None,
+    };
+    let options = WriterOptions {
+        kind: ChannelKind::Service,
+        schema_name: schema.0.to_owned(),
+        schema_version: schema.1,
+        period,
+        ..options.clone()
+    };
+    let description = spec.description(schema.0, schema.1, record_bytes);
+    Writer::create(skin, &spec.name, spec.records * record_bytes, &description, &options)
+}
+
+/// Attaches to service `name` of `skin` and checks that it publishes records
+/// of schema `(name, version)` and `record.0` bytes (`record.1` names the
+/// record type in errors): what [`ServiceReader::open_with`] does for a
+/// record type known at compile time, for the Python bindings' readers.
+pub fn open_service_channel(
+    skin: &str,
+    name: &str,
+    schema: (&str, u32),
+    record: (usize, &str),
+    options: &ReaderOptions,
+) -> Result<(Reader, ServiceInfo)> {
+    let reader = Reader::open_with(skin, name, &ReaderOptions { expect_schema: None, ..options.clone() })?;
+    let mismatch = |reason: String| Error::NotThisService {
+        channel: reader.label().to_owned(),
+        expected: format!("{} version {}", schema.0, schema.1),
+        reason,
+    };
+    if reader.kind() != ChannelKind::Service {
+        return Err(mismatch("it is a layer, not a service".into()));
+    }
+    let (found, found_version) = reader.schema();
+    if found != schema.0 || found_version != schema.1 {
+        return Err(Error::SchemaMismatch {
+            channel: reader.label().to_owned(),
+            found,
+            found_version,
+            expected: schema.0.to_owned(),
+            expected_version: schema.1,
+        });
+    }
+    let info = ServiceInfo::decode(&reader.description())
+        .map_err(|e| mismatch(format!("its description is not a service description ({e})")))?;
+    let (record_bytes, type_name) = record;
+    if info.record_bytes != record_bytes {
+        return Err(mismatch(format!("its records are {} bytes, {} is {record_bytes}", info.record_bytes, type_name)));
+    }
+    let count = reader.payload_bytes() / record_bytes.max(1);
+    if count * record_bytes != reader.payload_bytes() {
+        return Err(mismatch(format!("its {}-byte frame is not whole records", reader.payload_bytes())));
+    }
+    Ok((reader, info))
+}
+
 /// One service frame as a reader got it.
 #[derive(Debug)]
 pub struct ServiceFrame<'r, T> {
@@ -309,39 +366,14 @@ impl<T: ServicePayload> ServiceReader<T> {
 
     /// Attaches with reader options (the expected schema is set from `T`).
     pub fn open_with(skin: &str, name: &str, options: &ReaderOptions) -> Result<ServiceReader<T>> {
-        let reader = Reader::open_with(skin, name, &ReaderOptions { expect_schema: None, ..options.clone() })?;
-        let mismatch = |reason: String| Error::NotThisService {
-            channel: reader.label().to_owned(),
-            expected: format!("{} version {}", T::SCHEMA, T::VERSION),
-            reason,
-        };
-        if reader.kind() != ChannelKind::Service {
-            return Err(mismatch("it is a layer, not a service".into()));
-        }
-        let (found, found_version) = reader.schema();
-        if found != T::SCHEMA || found_version != T::VERSION {
-            return Err(Error::SchemaMismatch {
-                channel: reader.label().to_owned(),
-                found,
-                found_version,
-                expected: T::SCHEMA.to_owned(),
-                expected_version: T::VERSION,
-            });
-        }
-        let info = ServiceInfo::decode(&reader.description())
-            .map_err(|e| mismatch(format!("its description is not a service description ({e})")))?;
-        let record_bytes = std::mem::size_of::<T>();
-        if info.record_bytes != record_bytes {
-            return Err(mismatch(format!(
-                "its records are {} bytes, {} is {record_bytes}",
-                info.record_bytes,
-                std::any::type_name::<T>()
-            )));
-        }
-        let count = reader.payload_bytes() / record_bytes.max(1);
-        if count * record_bytes != reader.payload_bytes() {
-            return Err(mismatch(format!("its {}-byte frame is not whole records", reader.payload_bytes())));
-        }
+        let (reader, info) = open_service_channel(
+            skin,
+            name,
+            (T::SCHEMA, T::VERSION),
+            (std::mem::size_of::<T>(), std::any::type_name::<T>()),
+            options,
+        )?;
+        let count = reader.payload_bytes() / std::mem::size_of::<T>().max(1);
         Ok(ServiceReader { reader, info, records: vec![T::zeroed(); count] })
     }
 
