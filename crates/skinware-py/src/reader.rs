@@ -150,6 +150,8 @@ impl Copied {
 /// Why a read returned no frame.
 enum Failure {
     Closed,
+    /// Nothing new before the caller's timeout, the writer alive.
+    TimedOut,
     Exchange(skinware::Error),
     Python(PyErr),
 }
@@ -341,11 +343,16 @@ impl Reader {
         match failure {
             Failure::Closed => self.closed_error(py),
             Failure::Python(error) => error,
-            // The slice's own timeout, from a request answered by an old frame.
-            Failure::Exchange(skinware::Error::Timeout { channel, .. }) if channel.is_empty() => errors::raise(
+            Failure::TimedOut => errors::raise(
                 py,
                 "Timeout",
-                format!("timed out after {timeout:?} waiting on channel {}/{}", self.skin, self.channel),
+                format!(
+                    "no new frame on channel {}/{} within {} s (its writer is {})",
+                    self.skin,
+                    self.channel,
+                    timeout.map_or(f64::INFINITY, |t| t.as_secs_f64()),
+                    state_name(self.state_now())
+                ),
             ),
             Failure::Exchange(error) => self.explain(py, error),
         }
@@ -411,7 +418,10 @@ impl Reader {
                 && matches!(error, skinware::Error::Timeout { .. } | skinware::Error::WriterGone { .. })
                 && deadline.is_none_or(|deadline| ticks::monotonic_ns() < deadline);
             if !retry {
-                return Err(Failure::Exchange(error));
+                return Err(match error {
+                    skinware::Error::Timeout { .. } => Failure::TimedOut,
+                    error => Failure::Exchange(error),
+                });
             }
             py.check_signals().map_err(Failure::Python)?;
         }
@@ -858,7 +868,7 @@ impl Periodic {
                     Ok(copied) => return reader.frame(py, copied, None).map(Some),
                     Err(Failure::Closed) => return Ok(None),
                     // A living writer with nothing new: keep waiting.
-                    Err(Failure::Exchange(skinware::Error::Timeout { .. })) => continue,
+                    Err(Failure::TimedOut) => continue,
                     Err(Failure::Exchange(skinware::Error::WriterGone { .. })) => {
                         return Err(self.gone_error(py, reader));
                     }

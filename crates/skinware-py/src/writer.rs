@@ -110,8 +110,15 @@ impl Core {
                 }
                 None => ticks::SIGNAL_CHECK,
             };
-            if self.with(py, |w| w.wait_request(slice))? {
-                return Ok(true);
+            if self.stop.is_stopped() {
+                return Ok(false);
+            }
+            match py.detach(|| self.lock().as_mut().map(|w| w.wait_request(slice))) {
+                Some(Ok(true)) => return Ok(true),
+                Some(Ok(false)) => {}
+                // Closed, possibly by another thread while this one waited.
+                None | Some(Err(skinware::Error::Stopped { .. })) => return Ok(false),
+                Some(Err(e)) => return Err(errors::exchange(py, e)),
             }
             if self.stop.is_stopped() || deadline.is_some_and(|d| ticks::monotonic_ns() >= d) {
                 return Ok(false);
