@@ -74,6 +74,13 @@ for run in record.get("runs", []):
 need(record.get("replayed_frames", 0) > 0 and record.get("identical_frames", 0) > 0, "record.json: no replay")
 need(record.get("timing_error_us", {}).get("samples", 0) > 0, "record.json: no timing samples")
 
+python = json.loads((out / "python.json").read_text())
+need(python.get("sensors") == 30848, "python.json: not the paper's whole-skin frame")
+for key in ("rust_latest", "rust_latest_to_vec", "python_latest", "python_read_into", "rust_newer_latency", "python_newer_latency"):
+    stats = python.get(key, {})
+    need(stats.get("samples", 0) > 0 and is_count(stats.get("p50")) and is_count(stats.get("p99")), f"python.json: {key} incomplete")
+need(is_count(python.get("python_newer_skipped")), "python.json: skipped frames not counted")
+
 if problems:
     print("benchmark JSON problems:\n  " + "\n  ".join(problems))
     sys.exit(1)

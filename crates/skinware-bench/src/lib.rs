@@ -26,6 +26,7 @@ pub mod paper;
 mod paper_record;
 pub mod peers;
 mod plot;
+pub mod python;
 pub mod record;
 mod rwlock_peer;
 pub mod table1;

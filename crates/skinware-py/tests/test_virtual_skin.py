@@ -110,3 +110,39 @@ def test_motion_and_taxel_state_services(virtual_skin):
         skinware.ContactReader(virtual_skin, "motion")
     with pytest.raises(skinware.SchemaMismatch, match="layer"):
         skinware.MotionReader(virtual_skin, "body-0")
+
+
+EXAMPLES = __import__("conftest").REPO / "examples" / "python"
+
+
+def test_the_contact_logger_example_logs_contacts(virtual_skin):
+    import subprocess
+    import sys
+
+    result = subprocess.run(
+        [sys.executable, str(EXAMPLES / "contact_logger.py"), "--skin", virtual_skin, "--seconds", "1.5"],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert lines[0].startswith("time_s,seq,region,taxels")
+    regions = {line.split(",")[2] for line in lines[1:]}
+    assert regions == {"torso", "left_forearm"}, lines[:5]
+
+
+def test_the_heatmap_example_draws_the_skin(virtual_skin, tmp_path):
+    import subprocess
+    import sys
+
+    pytest.importorskip("matplotlib", reason="the heatmap example needs matplotlib")
+    image = tmp_path / "skin.png"
+    result = subprocess.run(
+        [sys.executable, str(EXAMPLES / "heatmap.py"), "--skin", virtual_skin, "--frames", "10", "--save", str(image)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 0, result.stderr
+    assert image.stat().st_size > 10_000 and "after 10 frames" in result.stdout

@@ -17,6 +17,8 @@ pub enum Which {
     Peers(Common),
     /// The recorder (zstd, lz4, none) and the replay on the paper's skin: throughput, CPU, file size, timing error.
     Record(Common),
+    /// The Python bindings beside the Rust reader on a 30,848-sensor frame: latest(), read_into(), wait_newer() latency ($SKINWARE_PYTHON).
+    Python(Common),
 }
 
 /// Options every benchmark takes.
@@ -126,6 +128,15 @@ pub fn run(which: &Which) -> Result<()> {
                 exe,
             };
             skinware_bench::record::run(&options).map(|_| ())
+        }
+        Which::Python(common) => {
+            let options = skinware_bench::python::PythonBenchOptions {
+                quick: common.quick,
+                out: common.out.clone(),
+                seconds: common.seconds,
+                python: std::env::var("SKINWARE_PYTHON").unwrap_or_else(|_| "python3".into()),
+            };
+            skinware_bench::python::run(&options).map(|_| ())
         }
     }
 }

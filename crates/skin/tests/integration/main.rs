@@ -6,13 +6,16 @@
 //! - [`record_e2e`]: `skin record`, `replay`, `info` and `--recover` on the
 //!   paper's skin, with Python's `mcap` as the independent reader;
 //! - [`browser`]: `skin demo` in headless Chromium (skipped without it,
-//!   except under `CI=true`).
+//!   except under `CI=true`);
+//! - [`python`]: the Python bindings' pytest suite, against this build's
+//!   `skin` (skipped without the package, except under `CI=true`).
 //!
 //! Run one file's tests with `cargo test -p skin --test integration e2e::`.
 
 mod browser;
 mod can_e2e;
 mod e2e;
+mod python;
 mod record_e2e;
 mod services_e2e;
 mod util;
