@@ -260,6 +260,13 @@ impl Reader {
         self.core.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
     }
 
+    /// Runs `f` on the open reader, taking the reader's lock with the GIL
+    /// released: a thread holds that lock while it waits for a frame, and
+    /// another one must not freeze the interpreter while it queues for it.
+    fn peek<T: Send>(&self, py: Python<'_>, f: impl FnOnce(&mut skinware::Reader) -> T + Send) -> Option<T> {
+        py.detach(|| self.lock().as_mut().map(f))
+    }
+
     fn closed_error(&self, py: Python<'_>) -> PyErr {
         errors::raise(py, "ReaderClosed", format!("the reader of {}/{} is closed", self.skin, self.channel))
     }
@@ -351,7 +358,7 @@ impl Reader {
                     self.skin,
                     self.channel,
                     timeout.map_or(f64::INFINITY, |t| t.as_secs_f64()),
-                    state_name(self.state_now())
+                    state_name(self.state_now(py))
                 ),
             ),
             Failure::Exchange(error) => self.explain(py, error),
@@ -431,15 +438,14 @@ impl Reader {
     /// still the one it reads with (a layer's topology can change while its
     /// frame size stays the same).
     fn check_generation(&self, py: Python<'_>) -> PyResult<()> {
-        let now = match self.lock().as_ref() {
-            Some(reader) => reader.writer_generation(),
-            None => return Err(self.closed_error(py)),
+        let Some(now) = self.peek(py, |r| r.writer_generation()) else {
+            return Err(self.closed_error(py));
         };
         let mut seen = self.generation.lock().unwrap_or_else(|p| p.into_inner());
         if *seen == now {
             return Ok(());
         }
-        let description = self.lock().as_ref().map(|r| r.description()).unwrap_or_default();
+        let description = self.peek(py, |r| r.description()).unwrap_or_default();
         let same = match &self.kind {
             Kind::Layer { topology } => {
                 skinware::LayerTopology::decode(&description, &self.channel).is_ok_and(|now| now == topology.inner)
@@ -480,8 +486,8 @@ impl Reader {
         })
     }
 
-    fn state_now(&self) -> WriterState {
-        self.lock().as_ref().map_or(WriterState::Gone, |r| r.writer_state())
+    fn state_now(&self, py: Python<'_>) -> WriterState {
+        self.peek(py, |r| r.writer_state()).unwrap_or(WriterState::Gone)
     }
 }
 
@@ -502,10 +508,10 @@ impl Reader {
     /// On request: the newest complete frame, now. Never blocks.
     fn latest(&self, py: Python<'_>) -> PyResult<Frame> {
         let copied = self.read(py, Mode::Latest, None, None)?;
-        if !copied.fresh && self.state_now() == WriterState::Gone {
+        if !copied.fresh && self.state_now(py) == WriterState::Gone {
             // A writer that died: follow its successor if it has one, or say
             // why this reader cannot.
-            let followed = py.detach(|| self.lock().as_mut().is_some_and(|r| r.follow_recreated()));
+            let followed = self.peek(py, |r| r.follow_recreated()).unwrap_or(false);
             if followed {
                 self.check_generation(py)?;
             } else if let Some(change) = self.layout_change(py) {
@@ -603,8 +609,8 @@ impl Reader {
 
     /// The writer's state: "running", "paused", "faulted" or "gone".
     #[getter]
-    fn state(&self) -> &'static str {
-        state_name(self.state_now())
+    fn state(&self, py: Python<'_>) -> &'static str {
+        state_name(self.state_now(py))
     }
 
     /// The layer's topology.
@@ -642,32 +648,32 @@ impl Reader {
     /// The sequence number the writer published last (0 before its first frame).
     #[getter]
     fn published_seq(&self, py: Python<'_>) -> PyResult<u64> {
-        self.lock().as_ref().map(|r| r.published_seq()).ok_or_else(|| self.closed_error(py))
+        self.peek(py, |r| r.published_seq()).ok_or_else(|| self.closed_error(py))
     }
 
     /// The writer's process id.
     #[getter]
     fn writer_pid(&self, py: Python<'_>) -> PyResult<u32> {
-        self.lock().as_ref().map(|r| r.writer_pid()).ok_or_else(|| self.closed_error(py))
+        self.peek(py, |r| r.writer_pid()).ok_or_else(|| self.closed_error(py))
     }
 
     /// How many writers the channel has had (one more after each revival).
     #[getter]
     fn generation(&self, py: Python<'_>) -> PyResult<u64> {
-        self.lock().as_ref().map(|r| r.writer_generation()).ok_or_else(|| self.closed_error(py))
+        self.peek(py, |r| r.writer_generation()).ok_or_else(|| self.closed_error(py))
     }
 
     /// The writer's period in seconds, or `None` for a sporadic writer.
     #[getter]
     fn period(&self, py: Python<'_>) -> PyResult<Option<f64>> {
-        self.lock().as_ref().map(|r| r.writer_period().map(|p| p.as_secs_f64())).ok_or_else(|| self.closed_error(py))
+        self.peek(py, |r| r.writer_period().map(|p| p.as_secs_f64())).ok_or_else(|| self.closed_error(py))
     }
 
     /// This reader's statistics: reads, retries, skipped, read_ns_min,
     /// read_ns_mean, read_ns_max.
     #[getter]
     fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let stats = self.lock().as_ref().map(|r| r.stats().clone()).ok_or_else(|| self.closed_error(py))?;
+        let stats = self.peek(py, |r| r.stats().clone()).ok_or_else(|| self.closed_error(py))?;
         let dict = PyDict::new(py);
         dict.set_item("reads", stats.reads)?;
         dict.set_item("retries", stats.retries)?;
@@ -682,7 +688,7 @@ impl Reader {
     /// write_ns_min/mean/max, lateness_ns_mean/max.
     #[getter]
     fn writer_stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let stats = self.lock().as_ref().map(|r| r.writer_stats()).ok_or_else(|| self.closed_error(py))?;
+        let stats = self.peek(py, |r| r.writer_stats()).ok_or_else(|| self.closed_error(py))?;
         let dict = PyDict::new(py);
         dict.set_item("frames", stats.frames)?;
         dict.set_item("overruns", stats.overruns)?;
@@ -698,8 +704,8 @@ impl Reader {
 
     /// Whether the reader is closed.
     #[getter]
-    fn closed(&self) -> bool {
-        self.lock().is_none()
+    fn closed(&self, py: Python<'_>) -> bool {
+        self.peek(py, |_| ()).is_none()
     }
 
     /// Detaches from the channel. A read blocked in another thread returns
@@ -720,14 +726,14 @@ impl Reader {
         false
     }
 
-    fn __repr__(&self) -> String {
+    fn __repr__(&self, py: Python<'_>) -> String {
         let what = match &self.kind {
             Kind::Layer { topology } => format!("layer, {} sensors", topology.inner.sensors.len()),
             Kind::Service { info, .. } => {
                 format!("service {} v{}, {} records", info.schema.0, info.schema.1, self.__len__())
             }
         };
-        format!("<{} {}/{} ({what}), {}>", "skinware.Reader", self.skin, self.channel, state_name(self.state_now()))
+        format!("<{} {}/{} ({what}), {}>", "skinware.Reader", self.skin, self.channel, state_name(self.state_now(py)))
     }
 }
 
@@ -808,7 +814,7 @@ impl ServiceReader {
 pub struct Periodic {
     reader: Py<Reader>,
     /// `None`: as soon as available.
-    schedule: Option<Mutex<Schedule>>,
+    schedule: Option<Schedule>,
     gone_timeout_ns: u64,
     gone_since: Mutex<Option<u64>>,
 }
@@ -817,7 +823,7 @@ impl Periodic {
     fn new(reader: Py<Reader>, period: Option<Duration>, gone_timeout: Duration) -> Periodic {
         Periodic {
             reader,
-            schedule: period.map(|period| Mutex::new(Schedule::new(period))),
+            schedule: period.map(Schedule::new),
             gone_timeout_ns: gone_timeout.as_nanos() as u64,
             gone_since: Mutex::new(None),
         }
@@ -875,7 +881,7 @@ impl Periodic {
                     Err(failure) => return Err(reader.failure(py, failure, timeout)),
                 }
             };
-            let reached = schedule.lock().unwrap_or_else(|p| p.into_inner()).wait(py, &reader.stop)?;
+            let reached = schedule.wait(py, &reader.stop)?;
             if reached.is_none() {
                 return Ok(None);
             }
@@ -886,8 +892,8 @@ impl Periodic {
                 Err(Failure::Exchange(skinware::Error::NoFrameYet { .. })) => continue,
                 Err(failure) => return Err(reader.failure(py, failure, None)),
             };
-            let gone = !copied.fresh && reader.state_now() == WriterState::Gone;
-            if gone && py.detach(|| reader.lock().as_mut().is_some_and(|r| r.follow_recreated())) {
+            let gone = !copied.fresh && reader.state_now(py) == WriterState::Gone;
+            if gone && reader.peek(py, |r| r.follow_recreated()).unwrap_or(false) {
                 reader.check_generation(py)?;
             } else if self.gone_too_long(gone) {
                 return Err(self.gone_error(py, reader));

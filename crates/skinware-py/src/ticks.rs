@@ -1,6 +1,7 @@
 //! Time for the bindings: the clock frames are stamped with, and waits that
 //! release the GIL and stay interruptible by Ctrl-C.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 use pyo3::prelude::*;
@@ -37,9 +38,12 @@ pub fn period(py: Python<'_>, hz: f64, what: &str) -> PyResult<Duration> {
 
 /// An absolute-time schedule (deadlines at `start + k * period`, so lateness
 /// never accumulates) whose waits release the GIL and check for signals.
+/// Its state is one atomic, so that threads sharing an iterator never hold a
+/// lock while they sleep without the GIL (a thread blocked on that lock while
+/// holding the GIL would stop the sleeper from ever taking it back).
 pub struct Schedule {
     period_ns: u64,
-    next_ns: u64,
+    next_ns: AtomicU64,
 }
 
 /// One deadline reached.
@@ -55,14 +59,14 @@ impl Schedule {
     /// A schedule whose first deadline is now.
     pub fn new(period: Duration) -> Schedule {
         let period_ns = (period.as_nanos().min(u128::from(u64::MAX)) as u64).max(1);
-        Schedule { period_ns, next_ns: monotonic_ns() }
+        Schedule { period_ns, next_ns: AtomicU64::new(monotonic_ns()) }
     }
 
     /// Sleeps until the next deadline (at once if it passed: the deadlines
     /// missed are skipped, not made up for). `Ok(None)` if `stop` was
     /// signalled; a Python exception if a signal handler raised one.
-    pub fn wait(&mut self, py: Python<'_>, stop: &Stop) -> PyResult<Option<Reached>> {
-        let deadline = self.next_ns;
+    pub fn wait(&self, py: Python<'_>, stop: &Stop) -> PyResult<Option<Reached>> {
+        let deadline = self.next_ns.load(Ordering::Relaxed);
         loop {
             let now = monotonic_ns();
             if stop.is_stopped() {
@@ -71,7 +75,7 @@ impl Schedule {
             if now >= deadline {
                 let missed = (now - deadline) / self.period_ns;
                 let reached = deadline + missed * self.period_ns;
-                self.next_ns = reached + self.period_ns;
+                self.next_ns.fetch_max(reached + self.period_ns, Ordering::Relaxed);
                 return Ok(Some(Reached { deadline_ns: reached, missed }));
             }
             let slice_end = deadline.min(now.saturating_add(SIGNAL_CHECK.as_nanos() as u64));

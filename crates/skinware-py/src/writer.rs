@@ -64,6 +64,12 @@ impl Core {
         self.writer.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
     }
 
+    /// Runs `f` on the open writer, taking the lock with the GIL released (a
+    /// thread may hold it while it waits for a request).
+    fn peek<T: Send>(&self, py: Python<'_>, f: impl FnOnce(&mut skinware::Writer) -> T + Send) -> Option<T> {
+        py.detach(|| self.lock().as_mut().map(f))
+    }
+
     fn closed(&self, py: Python<'_>) -> PyErr {
         errors::raise(py, "WriterClosed", format!("the writer of {} is closed", self.label))
     }
@@ -97,7 +103,7 @@ impl Core {
                 ));
             }
         };
-        Ok(Ticks { schedule: Mutex::new(Schedule::new(period)), stop: self.stop.clone() })
+        Ok(Ticks { schedule: Schedule::new(period), stop: self.stop.clone() })
     }
 
     fn wait_request(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<bool> {
@@ -128,7 +134,7 @@ impl Core {
     }
 
     fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let stats = self.lock().as_ref().map(|w| w.stats()).ok_or_else(|| self.closed(py))?;
+        let stats = self.peek(py, |w| w.stats()).ok_or_else(|| self.closed(py))?;
         let dict = PyDict::new(py);
         dict.set_item("frames", stats.frames)?;
         dict.set_item("faults", stats.faults)?;
@@ -139,12 +145,12 @@ impl Core {
     }
 
     fn state(&self, py: Python<'_>) -> PyResult<&'static str> {
-        self.lock().as_ref().map(|w| state_name(w.state())).ok_or_else(|| self.closed(py))
+        self.peek(py, |w| state_name(w.state())).ok_or_else(|| self.closed(py))
     }
 
     fn set_state(&self, py: Python<'_>, state: &str) -> PyResult<()> {
         let state = writer_state(py, state)?;
-        self.lock().as_ref().map(|w| w.set_state(state)).ok_or_else(|| self.closed(py))
+        self.peek(py, |w| w.set_state(state)).ok_or_else(|| self.closed(py))
     }
 }
 
@@ -295,7 +301,7 @@ impl Writer {
     /// Whether the channel took over the name of a writer that died.
     #[getter]
     fn revived(&self, py: Python<'_>) -> PyResult<bool> {
-        self.core.lock().as_ref().map(|w| w.revived()).ok_or_else(|| self.core.closed(py))
+        self.core.peek(py, |w| w.revived()).ok_or_else(|| self.core.closed(py))
     }
 
     /// The writer's statistics: frames, faults, write_ns_min/mean/max.
@@ -518,7 +524,7 @@ impl ServiceWriter {
 /// The periods of a writer: `(deadline_ns, missed)` on an absolute-time grid.
 #[pyclass(module = "skinware", frozen)]
 pub struct Ticks {
-    schedule: Mutex<Schedule>,
+    schedule: Schedule,
     stop: Stop,
 }
 
@@ -529,7 +535,6 @@ impl Ticks {
     }
 
     fn __next__(&self, py: Python<'_>) -> PyResult<Option<(u64, u64)>> {
-        let mut schedule = self.schedule.lock().unwrap_or_else(|p| p.into_inner());
-        Ok(schedule.wait(py, &self.stop)?.map(|r| (r.deadline_ns, r.missed)))
+        Ok(self.schedule.wait(py, &self.stop)?.map(|r| (r.deadline_ns, r.missed)))
     }
 }
