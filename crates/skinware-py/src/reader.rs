@@ -2,6 +2,7 @@
 //! the three modes of the exchange, each read a private copy made with the
 //! GIL released.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Mutex, MutexGuard};
 use std::time::Duration;
 
@@ -124,6 +125,9 @@ struct Copied {
     skipped: u64,
     fresh: bool,
     data: Data,
+    /// The writer generation and state when the frame was read.
+    generation: u64,
+    state: WriterState,
 }
 
 enum Data {
@@ -143,6 +147,8 @@ impl Copied {
             skipped: frame.skipped(),
             fresh: frame.is_fresh(),
             data,
+            generation: 0,
+            state: WriterState::Running,
         }
     }
 }
@@ -196,7 +202,7 @@ pub struct Reader {
     channel: String,
     kind: Kind,
     /// The writer generation whose layout `kind` describes.
-    generation: Mutex<u64>,
+    generation: AtomicU64,
 }
 
 impl Reader {
@@ -252,7 +258,7 @@ impl Reader {
             skin: skin.to_owned(),
             channel: channel.to_owned(),
             kind,
-            generation: Mutex::new(generation),
+            generation: AtomicU64::new(generation),
         })
     }
 
@@ -411,12 +417,16 @@ impl Reader {
                         Err(e) => Err(e),
                     },
                 };
-                Some(result)
+                Some(result.map(|mut copied| {
+                    copied.generation = reader.writer_generation();
+                    copied.state = reader.writer_state();
+                    copied
+                }))
             });
             let error = match result {
                 None => return Err(Failure::Closed),
                 Some(Ok(copied)) => {
-                    self.check_generation(py).map_err(Failure::Python)?;
+                    self.check_generation(py, copied.generation).map_err(Failure::Python)?;
                     return Ok(copied);
                 }
                 Some(Err(error)) => error,
@@ -437,12 +447,9 @@ impl Reader {
     /// A reader that followed a re-created channel checks that its layout is
     /// still the one it reads with (a layer's topology can change while its
     /// frame size stays the same).
-    fn check_generation(&self, py: Python<'_>) -> PyResult<()> {
-        let Some(now) = self.peek(py, |r| r.writer_generation()) else {
-            return Err(self.closed_error(py));
-        };
-        let mut seen = self.generation.lock().unwrap_or_else(|p| p.into_inner());
-        if *seen == now {
+    fn check_generation(&self, py: Python<'_>, now: u64) -> PyResult<()> {
+        let seen = self.generation.load(Ordering::Relaxed);
+        if seen == now {
             return Ok(());
         }
         let description = self.peek(py, |r| r.description()).unwrap_or_default();
@@ -457,13 +464,21 @@ impl Reader {
                 py,
                 "LayoutChanged",
                 format!(
-                    "{}/{} was re-created with another layout (writer generation {now}, was {}); open a new reader to read it",
-                    self.skin, self.channel, *seen
+                    "{}/{} was re-created with another layout (writer generation {now}, was {seen}); open a new reader to read it",
+                    self.skin, self.channel
                 ),
             ));
         }
-        *seen = now;
+        self.generation.store(now, Ordering::Relaxed);
         Ok(())
+    }
+
+    /// [`check_generation`](Self::check_generation) against the writer now.
+    fn check_current_generation(&self, py: Python<'_>) -> PyResult<()> {
+        match self.peek(py, |r| r.writer_generation()) {
+            Some(now) => self.check_generation(py, now),
+            None => Err(self.closed_error(py)),
+        }
     }
 
     fn frame(&self, py: Python<'_>, copied: Copied, into: Option<Py<PyAny>>) -> PyResult<Frame> {
@@ -508,12 +523,12 @@ impl Reader {
     /// On request: the newest complete frame, now. Never blocks.
     fn latest(&self, py: Python<'_>) -> PyResult<Frame> {
         let copied = self.read(py, Mode::Latest, None, None)?;
-        if !copied.fresh && self.state_now(py) == WriterState::Gone {
+        if !copied.fresh && copied.state == WriterState::Gone {
             // A writer that died: follow its successor if it has one, or say
             // why this reader cannot.
             let followed = self.peek(py, |r| r.follow_recreated()).unwrap_or(false);
             if followed {
-                self.check_generation(py)?;
+                self.check_current_generation(py)?;
             } else if let Some(change) = self.layout_change(py) {
                 return Err(errors::raise(py, "LayoutChanged", change));
             }
@@ -892,9 +907,9 @@ impl Periodic {
                 Err(Failure::Exchange(skinware::Error::NoFrameYet { .. })) => continue,
                 Err(failure) => return Err(reader.failure(py, failure, None)),
             };
-            let gone = !copied.fresh && reader.state_now(py) == WriterState::Gone;
+            let gone = !copied.fresh && copied.state == WriterState::Gone;
             if gone && reader.peek(py, |r| r.follow_recreated()).unwrap_or(false) {
-                reader.check_generation(py)?;
+                reader.check_current_generation(py)?;
             } else if self.gone_too_long(gone) {
                 return Err(self.gone_error(py, reader));
             }
