@@ -131,8 +131,9 @@ def fault(writer: skinware.Writer, last: np.ndarray, why: str) -> None:
     """Marks the layer faulted, with a frame that says so."""
     if writer.state != "faulted":
         print(f"faulted: {why}", file=sys.stderr, flush=True)
-        writer.state = "faulted"
+        # The frame first: a reader that sees the state sees the frame too.
         writer.publish(last, status=skinware.Status.FAULT)
+        writer.state = "faulted"
 
 
 if __name__ == "__main__":

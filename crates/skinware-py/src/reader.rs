@@ -89,6 +89,9 @@ impl Frame {
         let data = self.data.bind(py).clone();
         match (dtype, copy) {
             (None, None | Some(false)) => Ok(data),
+            (Some(_), Some(false)) => Err(pyo3::exceptions::PyValueError::new_err(
+                "a frame's data converts to another dtype only by copying; allow a copy",
+            )),
             (dtype, _) => {
                 let dtype = match dtype {
                     Some(dtype) => dtype,
@@ -125,8 +128,9 @@ struct Copied {
     skipped: u64,
     fresh: bool,
     data: Data,
-    /// The writer generation and state when the frame was read.
-    generation: u64,
+    /// Re-created channels the reader had followed, and the writer's state,
+    /// when the frame was read.
+    follows: u64,
     state: WriterState,
 }
 
@@ -147,7 +151,7 @@ impl Copied {
             skipped: frame.skipped(),
             fresh: frame.is_fresh(),
             data,
-            generation: 0,
+            follows: 0,
             state: WriterState::Running,
         }
     }
@@ -201,8 +205,11 @@ pub struct Reader {
     skin: String,
     channel: String,
     kind: Kind,
-    /// The writer generation whose layout `kind` describes.
-    generation: AtomicU64,
+    /// Bytes per frame, as the channel had them when the reader attached.
+    payload_bytes: usize,
+    /// How many re-created channels the reader had followed when it last
+    /// checked that their layout is the one `kind` describes.
+    follows: AtomicU64,
 }
 
 impl Reader {
@@ -230,6 +237,17 @@ impl Reader {
                     ));
                 }
                 let topology = reader.topology().map_err(|e| errors::raise(py, "ChannelError", e.to_string()))?;
+                if topology.frame_bytes() != reader.payload_bytes() {
+                    return Err(errors::raise(
+                        py,
+                        "ChannelError",
+                        format!(
+                            "layer {skin}/{channel} has {} sensors but {}-byte frames (2 bytes a sensor); its writer is broken",
+                            topology.sensors.len(),
+                            reader.payload_bytes()
+                        ),
+                    ));
+                }
                 (reader, Kind::Layer { topology: Topology { inner: topology } })
             }
             Some((schema, version, dtype)) => {
@@ -251,14 +269,15 @@ impl Reader {
         let stop = Stop::new();
         let mut reader = reader;
         reader.set_stop(&stop);
-        let generation = reader.writer_generation();
+        let payload_bytes = reader.payload_bytes();
         Ok(Reader {
             core: Mutex::new(Some(reader)),
             stop,
             skin: skin.to_owned(),
             channel: channel.to_owned(),
             kind,
-            generation: AtomicU64::new(generation),
+            payload_bytes,
+            follows: AtomicU64::new(0),
         })
     }
 
@@ -304,15 +323,8 @@ impl Reader {
                     Ok(now) if successor.kind() == ChannelKind::Layer => now,
                     _ => return Some(format!("{label} is no longer a layer; {reopen}")),
                 };
-                (now != topology.inner).then(|| {
-                    format!(
-                        "layer {label} was re-created with another topology ({} sensors in {} modules, was {} in {}); {reopen}",
-                        now.sensors.len(),
-                        now.modules.len(),
-                        topology.inner.sensors.len(),
-                        topology.inner.modules.len()
-                    )
-                })
+                topology_change(&topology.inner, &now)
+                    .map(|change| format!("layer {label} was re-created with {change}; {reopen}"))
             }
             Kind::Service { info, .. } => {
                 let now = ServiceInfo::parse(&successor.description());
@@ -324,10 +336,7 @@ impl Reader {
     }
 
     fn payload_bytes(&self) -> usize {
-        match &self.kind {
-            Kind::Layer { topology } => topology.inner.frame_bytes(),
-            Kind::Service { info, .. } => info.record_bytes * info.labels.len().max(1),
-        }
+        self.payload_bytes
     }
 
     fn copy(&self, frame: &skinware::Frame<'_>) -> Copied {
@@ -389,7 +398,7 @@ impl Reader {
         let mut into = into;
         // A request is made once; later slices wait for a frame newer than
         // those published when it was made.
-        let mut requested_after: Option<u64> = None;
+        let mut requested_after: Option<(u64, u64)> = None;
         loop {
             let now = ticks::monotonic_ns();
             let slice = match deadline {
@@ -403,32 +412,59 @@ impl Reader {
                 let result = match (mode, requested_after) {
                     (Mode::Latest, _) => reader.latest().map(|f| copy_out(&f, into_slice)),
                     (Mode::Newer, _) => reader.wait_newer(slice).map(|f| copy_out(&f, into_slice)),
+                    // A request is made again to a successor (whose numbers
+                    // start again from 1).
                     (Mode::Request, None) => {
-                        let after = reader.published_seq();
+                        let after = (reader.published_seq(), reader.follows());
                         let result = reader.request(slice).map(|f| copy_out(&f, into_slice));
                         if result.is_err() {
                             requested_after = Some(after);
                         }
                         result
                     }
-                    (Mode::Request, Some(after)) => match reader.wait_newer(slice) {
+                    (Mode::Request, Some((_, follows))) if follows != reader.follows() => {
+                        requested_after = None;
+                        Err(skinware::Error::Timeout { channel: String::new(), timeout: slice })
+                    }
+                    (Mode::Request, Some((after, _))) => match reader.wait_newer(slice) {
                         Ok(f) if f.seq() > after => Ok(copy_out(&f, into_slice)),
                         Ok(_) => Err(skinware::Error::Timeout { channel: String::new(), timeout: slice }),
                         Err(e) => Err(e),
                     },
                 };
-                Some(result.map(|mut copied| {
-                    copied.generation = reader.writer_generation();
+                let mut result = result.map(|mut copied| {
+                    copied.follows = reader.follows();
                     copied.state = reader.writer_state();
                     copied
-                }))
+                });
+                // A writer that died: follow its successor if it has one
+                // (the waits do it themselves), so that a caller of
+                // `latest()` reads the successor's frames next time.
+                if let Ok(copied) = &mut result
+                    && mode == Mode::Latest
+                    && !copied.fresh
+                    && copied.state == WriterState::Gone
+                    && reader.follow_recreated()
+                {
+                    copied.follows = reader.follows();
+                }
+                Some(result)
             });
             let error = match result {
                 None => return Err(Failure::Closed),
                 Some(Ok(copied)) => {
-                    self.check_generation(py, copied.generation).map_err(Failure::Python)?;
+                    self.check_follows(py, copied.follows).map_err(Failure::Python)?;
+                    if mode == Mode::Latest
+                        && !copied.fresh
+                        && copied.state == WriterState::Gone
+                        && let Some(change) = self.layout_change(py)
+                    {
+                        return Err(Failure::Python(errors::raise(py, "LayoutChanged", change)));
+                    }
                     return Ok(copied);
                 }
+                // Closed from another thread while this one waited.
+                Some(Err(skinware::Error::Stopped { .. })) => return Err(Failure::Closed),
                 Some(Err(error)) => error,
             };
             let retry = mode != Mode::Latest
@@ -447,36 +483,35 @@ impl Reader {
     /// A reader that followed a re-created channel checks that its layout is
     /// still the one it reads with (a layer's topology can change while its
     /// frame size stays the same).
-    fn check_generation(&self, py: Python<'_>, now: u64) -> PyResult<()> {
-        let seen = self.generation.load(Ordering::Relaxed);
+    fn check_follows(&self, py: Python<'_>, now: u64) -> PyResult<()> {
+        let seen = self.follows.load(Ordering::Relaxed);
         if seen == now {
             return Ok(());
         }
         let description = self.peek(py, |r| r.description()).unwrap_or_default();
-        let same = match &self.kind {
-            Kind::Layer { topology } => {
-                skinware::LayerTopology::decode(&description, &self.channel).is_ok_and(|now| now == topology.inner)
-            }
-            Kind::Service { info, .. } => ServiceInfo::parse(&description).as_ref() == Some(info),
+        let change = match &self.kind {
+            Kind::Layer { topology } => match skinware::LayerTopology::decode(&description, &self.channel) {
+                Ok(now) => topology_change(&topology.inner, &now),
+                Err(e) => Some(format!("a topology that does not decode ({e})")),
+            },
+            Kind::Service { info, .. } => (ServiceInfo::parse(&description).as_ref() != Some(info))
+                .then(|| "other records (schema, labels or size)".to_owned()),
         };
-        if !same {
+        if let Some(change) = change {
             return Err(errors::raise(
                 py,
                 "LayoutChanged",
-                format!(
-                    "{}/{} was re-created with another layout (writer generation {now}, was {seen}); open a new reader to read it",
-                    self.skin, self.channel
-                ),
+                format!("{}/{} was re-created with {change}; open a new reader to read it", self.skin, self.channel),
             ));
         }
-        self.generation.store(now, Ordering::Relaxed);
+        self.follows.store(now, Ordering::Relaxed);
         Ok(())
     }
 
-    /// [`check_generation`](Self::check_generation) against the writer now.
-    fn check_current_generation(&self, py: Python<'_>) -> PyResult<()> {
-        match self.peek(py, |r| r.writer_generation()) {
-            Some(now) => self.check_generation(py, now),
+    /// [`check_follows`](Self::check_follows) against the reader now.
+    fn check_current_follows(&self, py: Python<'_>) -> PyResult<()> {
+        match self.peek(py, |r| r.follows()) {
+            Some(now) => self.check_follows(py, now),
             None => Err(self.closed_error(py)),
         }
     }
@@ -520,19 +555,11 @@ impl Reader {
         Reader::open(py, skin, layer, allow_gone, anticipate, None)
     }
 
-    /// On request: the newest complete frame, now. Never blocks.
+    /// On request: the newest complete frame, now. Never blocks. A writer
+    /// that died is replaced by its successor, if it has one, from the next
+    /// read on.
     fn latest(&self, py: Python<'_>) -> PyResult<Frame> {
         let copied = self.read(py, Mode::Latest, None, None)?;
-        if !copied.fresh && copied.state == WriterState::Gone {
-            // A writer that died: follow its successor if it has one, or say
-            // why this reader cannot.
-            let followed = self.peek(py, |r| r.follow_recreated()).unwrap_or(false);
-            if followed {
-                self.check_current_generation(py)?;
-            } else if let Some(change) = self.layout_change(py) {
-                return Err(errors::raise(py, "LayoutChanged", change));
-            }
-        }
         self.frame(py, copied, None)
     }
 
@@ -656,7 +683,7 @@ impl Reader {
     fn __len__(&self) -> usize {
         match &self.kind {
             Kind::Layer { topology } => topology.inner.sensors.len(),
-            Kind::Service { info, .. } => self.payload_bytes() / info.record_bytes.max(1),
+            Kind::Service { info, .. } => self.payload_bytes / info.record_bytes.max(1),
         }
     }
 
@@ -883,15 +910,25 @@ impl Periodic {
         let reader = self.reader.get();
         loop {
             let Some(schedule) = &self.schedule else {
-                // As soon as available.
-                let timeout = Some(Duration::from_nanos(self.gone_timeout_ns.max(1)));
+                // As soon as available, in short waits, so that a writer
+                // gone for `gone_timeout` is noticed within a quarter second.
+                let timeout = Some(Duration::from_millis(250));
                 match reader.read_raw(py, Mode::Newer, timeout, None) {
-                    Ok(copied) => return reader.frame(py, copied, None).map(Some),
+                    Ok(copied) => {
+                        self.gone_too_long(false);
+                        return reader.frame(py, copied, None).map(Some);
+                    }
                     Err(Failure::Closed) => return Ok(None),
                     // A living writer with nothing new: keep waiting.
-                    Err(Failure::TimedOut) => continue,
+                    Err(Failure::TimedOut) => {
+                        self.gone_too_long(false);
+                        continue;
+                    }
                     Err(Failure::Exchange(skinware::Error::WriterGone { .. })) => {
-                        return Err(self.gone_error(py, reader));
+                        if self.gone_too_long(true) {
+                            return Err(self.gone_error(py, reader));
+                        }
+                        continue;
                     }
                     Err(failure) => return Err(reader.failure(py, failure, timeout)),
                 }
@@ -909,11 +946,32 @@ impl Periodic {
             };
             let gone = !copied.fresh && copied.state == WriterState::Gone;
             if gone && reader.peek(py, |r| r.follow_recreated()).unwrap_or(false) {
-                reader.check_current_generation(py)?;
+                reader.check_current_follows(py)?;
             } else if self.gone_too_long(gone) {
                 return Err(self.gone_error(py, reader));
             }
             return reader.frame(py, copied, None).map(Some);
         }
     }
+}
+
+/// What differs between two layer topologies, as far as a reader cares: the
+/// sensors, their modules and patches (not the rate, the name or the type).
+fn topology_change(was: &skinware::LayerTopology, now: &skinware::LayerTopology) -> Option<String> {
+    if was.sensors.len() != now.sensors.len() {
+        return Some(format!("another topology ({} sensors, was {})", now.sensors.len(), was.sensors.len()));
+    }
+    if was.sensors != now.sensors {
+        return Some("other sensor uids or another sensor order".to_owned());
+    }
+    if was.modules != now.modules || was.patches != now.patches {
+        return Some(format!(
+            "other modules or patches ({} modules on {} patches, was {} on {})",
+            now.modules.len(),
+            now.patches.len(),
+            was.modules.len(),
+            was.patches.len()
+        ));
+    }
+    None
 }

@@ -29,10 +29,12 @@ pub fn timeout(py: Python<'_>, seconds: Option<f64>) -> PyResult<Option<Duration
 
 /// A rate from Python, in Hz, checked: the period it stands for.
 pub fn period(py: Python<'_>, hz: f64, what: &str) -> PyResult<Duration> {
-    if hz.is_finite() && hz > 0.0 && hz <= 1e6 {
-        Ok(Duration::from_secs_f64(1.0 / hz))
-    } else {
-        Err(crate::errors::invalid(py, format!("{what} {hz} Hz: give a rate above 0 and at most 1 MHz")))
+    match Duration::try_from_secs_f64(1.0 / hz) {
+        Ok(period) if hz.is_finite() && hz <= 1e6 && period <= Duration::from_secs(86_400) => Ok(period),
+        _ => Err(crate::errors::invalid(
+            py,
+            format!("{what} {hz} Hz: give a rate of at least one frame a day and at most 1 MHz"),
+        )),
     }
 }
 

@@ -375,6 +375,9 @@ impl ServiceWriter {
                 format!("service {name}: records of dtype {} have no bytes", dtype.str()?),
             ));
         }
+        if let Some(hz) = rate_hz {
+            ticks::period(py, hz, "rate")?;
+        }
         let mode = match rate_hz {
             Some(hz) => ServiceMode::Periodic { hz },
             None => ServiceMode::Sporadic,
@@ -406,7 +409,7 @@ impl ServiceWriter {
             )
         });
         let writer = created.map_err(|e| errors::exchange(py, e))?;
-        let period = rate_hz.map(|hz| Duration::from_secs_f64(1.0 / hz));
+        let period = rate_hz.map(|hz| ticks::period(py, hz, "rate")).transpose()?;
         Ok(ServiceWriter { core: Core::new(writer, period), dtype: dtype.unbind(), records })
     }
 

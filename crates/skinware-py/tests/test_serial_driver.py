@@ -90,7 +90,7 @@ def test_the_serial_driver_publishes_faults_and_recovers(skin):
         # The device goes silent: the layer turns faulted, with a FAULT frame.
         device.sending.clear()
         wait_for(lambda: reader.state == "faulted", timeout=5, what="the layer to turn faulted")
-        assert reader.latest().faulted
+        wait_for(lambda: reader.latest().faulted, timeout=5, what="a FAULT frame")
         # It comes back: running again, good frames.
         device.sending.set()
         wait_for(lambda: reader.state == "running", timeout=5, what="the layer to run again")

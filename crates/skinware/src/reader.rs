@@ -67,6 +67,8 @@ pub struct Reader {
     channel: String,
     dir: PathBuf,
     anticipation: Option<Anticipation>,
+    /// Channels followed since it attached.
+    follows: u64,
 }
 
 impl std::fmt::Debug for Reader {
@@ -147,6 +149,7 @@ impl Reader {
             skin: skin.to_owned(),
             channel: channel.to_owned(),
             dir,
+            follows: 0,
             anticipation: options
                 .anticipate
                 .map(|d| Anticipation::new(d.as_nanos().min(u128::from(u64::MAX / 4)) as u64)),
@@ -193,6 +196,7 @@ impl Reader {
         tracing::info!(channel = %replacement.label, "following the re-created channel");
         self.shared = replacement;
         self.last = Meta::default();
+        self.follows += 1;
         true
     }
 
@@ -254,6 +258,14 @@ impl Reader {
     /// The process id of the current (or last) writer.
     pub fn writer_pid(&self) -> u32 {
         self.shared.header().writer_pid.load(Ordering::Relaxed)
+    }
+
+    /// How many times this reader followed a re-created channel (see
+    /// [`follow_recreated`](Self::follow_recreated)). The writer generation
+    /// cannot tell: a writer that stopped cleanly removes the channel's name,
+    /// and its successor starts again at generation 1.
+    pub fn follows(&self) -> u64 {
+        self.follows
     }
 
     /// How many writers have owned the channel (each successor under the name adds one).

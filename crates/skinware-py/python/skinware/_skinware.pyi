@@ -142,11 +142,15 @@ class Reader:
     def latest(self) -> Frame:
         """The newest complete frame, now (raises ``NoFrameYet`` before the first)."""
     def wait_newer(self, timeout: Optional[float] = 1.0) -> Frame:
-        """The next frame, as soon as it is published (``Timeout``, ``WriterGone``)."""
+        """The next frame, as soon as it is published. ``Timeout`` after
+        ``timeout`` seconds if the writer lives, ``WriterGone`` if it is gone;
+        ``None`` waits without limit, also for a gone writer's successor."""
     def request(self, timeout: Optional[float] = 1.0) -> Frame:
         """Asks for a frame newer than any published now and waits for it."""
     def read_into(self, out: npt.NDArray[np.uint16], mode: _Mode = "latest", timeout: Optional[float] = 1.0) -> Frame:
-        """Reads into ``out`` (one uint16 per sensor) instead of a new array."""
+        """Reads into ``out`` (one uint16 per sensor) instead of a new array.
+        The copy is made without the GIL: other threads must not use ``out``
+        meanwhile."""
     def periodic(self, hz: float, gone_timeout: float = 2.0) -> Periodic:
         """The newest frame at ``hz``, fresh or not, on an absolute-time grid."""
     def frames(self, gone_timeout: float = 2.0) -> Periodic:
