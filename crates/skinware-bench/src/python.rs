@@ -1,26 +1,41 @@
 //! `skin bench python`: the Python bindings beside the Rust reader, in one run.
 //!
-//! This process writes a layer of the paper's whole-skin size (30,848
-//! sensors) at a fixed rate, times the Rust reader's `latest()` and its
-//! as-soon-as-available latency, then runs the same reads from Python
-//! (`$SKINWARE_PYTHON`, with the `skinware` package installed) on the same
-//! writer: `latest()` (a new read-only numpy array per frame), `read_into()`
-//! (the caller's array) and `wait_newer()`'s latency from publication to the
-//! frame in Python.
+//! `skin run` writes one virtual layer of the paper's whole-skin size (30,848
+//! sensors) at 100 Hz in its own process. This process times the Rust
+//! reader's `latest()` and its as-soon-as-available latency on it, then runs
+//! the same reads from Python (`$SKINWARE_PYTHON`, with the `skinware`
+//! package installed), in another process, on the same writer: `latest()` (a
+//! new read-only numpy array per frame), `read_into()` (the caller's array)
+//! and `wait_newer()`'s latency from publication to the frame in Python. So
+//! both readers are a process apart from the writer, as an application is.
 
-use std::path::PathBuf;
-use std::process::Command;
-use std::time::Duration;
+use std::path::{Path, PathBuf};
+use std::io::{BufRead, BufReader, Read, Write};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
-use skinware::{Reader, Stop, Ticker, TopologyBuilder, Writer, WriterOptions};
+use skinware::{Reader, ReaderOptions, WriterState};
 
 use crate::measure::Percentiles;
 
 const SCRIPT: &str = include_str!("python_bench.py");
 /// The paper's whole skin, as one layer.
 const SENSORS: u32 = 30_848;
+const RATE_HZ: f64 = 100.0;
+const LAYER: &str = "bench-0";
+/// One virtual layer of 30,848 sensors.
+const CONFIG: &str = r#"
+skin = "pybench"
+
+[[driver]]
+name = "bench"
+kind = "virtual"
+sensors = 30848
+layers = 1
+rate_hz = 100
+"#;
 
 /// Options of `skin bench python`.
 #[derive(Clone, Debug)]
@@ -33,6 +48,8 @@ pub struct PythonBenchOptions {
     pub seconds: Option<f64>,
     /// The Python with the `skinware` package.
     pub python: String,
+    /// The `skin` executable (runs the writer).
+    pub exe: PathBuf,
 }
 
 /// What `skin bench python` measured, ns.
@@ -51,7 +68,8 @@ pub struct PythonReport {
     pub python_latest: Percentiles,
     /// Python `Reader.read_into(out)`.
     pub python_read_into: Percentiles,
-    /// Rust `wait_newer()`: publication to return.
+    /// Rust `wait_newer()`: publication to return, in blocks alternating
+    /// with the Python reader's.
     pub rust_newer_latency: Percentiles,
     /// Python `wait_newer()`: publication to the frame in Python.
     pub python_newer_latency: Percentiles,
@@ -97,35 +115,17 @@ pub fn run(options: &PythonBenchOptions) -> Result<PythonReport> {
             bail!("cannot run {}: {e}; set SKINWARE_PYTHON to a Python with the skinware package", options.python)
         }
     }
-    let rate_hz = 500.0;
     let reads = if options.quick { 3_000 } else { 20_000 };
-    let seconds = options.seconds.unwrap_or(if options.quick { 2.0 } else { 10.0 });
-    let frames = (seconds * rate_hz) as usize;
-    let skin = format!("pybench{}", std::process::id());
-    let layer = "skin";
-
-    let mut builder = TopologyBuilder::new(layer, "pressure", rate_hz);
-    builder.patch(0);
-    for module in 0..SENSORS / 16 {
-        builder.module(module, module * 16..(module + 1) * 16);
+    let seconds = options.seconds.unwrap_or(if options.quick { 3.0 } else { 20.0 });
+    if !(seconds.is_finite() && seconds > 0.0) {
+        bail!("--seconds must be a positive number of seconds");
     }
-    let topology = builder.build()?;
-    let writer_options = WriterOptions { period: Some(Duration::from_secs_f64(1.0 / rate_hz)), ..Default::default() };
-    let mut writer = Writer::create(&skin, layer, topology.frame_bytes(), &topology.encode(), &writer_options)?;
-    let stop = Stop::new();
-    writer.set_stop(&stop);
-    let writing = std::thread::spawn(move || {
-        let mut values = vec![0u16; SENSORS as usize];
-        let mut k = 0u16;
-        writer.run_periodic(Ticker::from_hz(rate_hz), |frame| {
-            k = k.wrapping_add(1);
-            values.fill(k);
-            frame.write_responses(0, &values)
-        })
-    });
-    let result = measure(&skin, layer, reads, frames, rate_hz, options);
-    stop.stop();
-    writing.join().map_err(|_| anyhow::anyhow!("the writer thread panicked"))??;
+    let frames = (seconds * RATE_HZ) as usize;
+    let dir = PathBuf::from("/dev/shm").join(format!("skinware-bench-python-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir)?;
+    let result = start_skin(options, &dir).and_then(|_skin| measure(&dir, reads, frames, options));
+    let _ = std::fs::remove_dir_all(&dir);
     let report = result?;
     print(&report);
     std::fs::create_dir_all(&options.out).with_context(|| format!("cannot create {}", options.out.display()))?;
@@ -135,15 +135,52 @@ pub fn run(options: &PythonBenchOptions) -> Result<PythonReport> {
     Ok(report)
 }
 
-fn measure(
-    skin: &str,
-    layer: &str,
-    reads: usize,
-    frames: usize,
-    rate_hz: f64,
-    options: &PythonBenchOptions,
-) -> Result<PythonReport> {
-    let mut reader = Reader::open(skin, layer)?;
+/// `skin run` of the one-layer skin; stopped (SIGINT) when dropped.
+struct RunningSkin(Child);
+
+impl Drop for RunningSkin {
+    fn drop(&mut self) {
+        let _ = Command::new("kill").args(["-INT", &self.0.id().to_string()]).status();
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while Instant::now() < deadline {
+            if let Ok(Some(_)) = self.0.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn start_skin(options: &PythonBenchOptions, dir: &Path) -> Result<RunningSkin> {
+    let config = dir.join("skin.toml");
+    std::fs::write(&config, CONFIG)?;
+    let child = Command::new(&options.exe)
+        .arg("run")
+        .arg(&config)
+        .env("SKINWARE_SHM_DIR", dir)
+        .env("RUST_LOG", "warn")
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .context("cannot start `skin run`")?;
+    let skin = RunningSkin(child);
+    let started = Instant::now();
+    loop {
+        let channels = skinware::list_channels(dir).unwrap_or_default();
+        if channels.iter().any(|c| c.channel == LAYER && c.state == WriterState::Running && c.stats.frames > 5) {
+            return Ok(skin);
+        }
+        if started.elapsed() > Duration::from_secs(120) {
+            bail!("the one-layer skin did not come up within 120 s");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+fn measure(dir: &Path, reads: usize, frames: usize, options: &PythonBenchOptions) -> Result<PythonReport> {
+    let (skin, layer) = ("pybench", LAYER);
+    let mut reader = Reader::open_with(skin, layer, &ReaderOptions { dir: Some(dir.to_owned()), ..Default::default() })?;
     reader.wait_newer(Duration::from_secs(5))?;
     let mut latest = Vec::with_capacity(reads);
     let mut to_vec = Vec::with_capacity(reads);
@@ -159,24 +196,51 @@ fn measure(
         to_vec.push(skinware::os::monotonic_ns() - started);
         std::hint::black_box(copy);
     }
-    let mut newer = Vec::with_capacity(frames);
-    reader.wait_newer(Duration::from_secs(5))?;
-    for _ in 0..frames {
-        let published = reader.wait_newer(Duration::from_secs(5))?.published_ns();
-        newer.push(skinware::os::monotonic_ns().saturating_sub(published));
-    }
-
-    let output = Command::new(&options.python)
-        .args(["-c", SCRIPT, skin, layer, &reads.to_string(), &frames.to_string()])
-        .output()
+    // The Python process times its reads alone, then both readers take
+    // frames as soon as available in alternating blocks: never at once (on 2
+    // cores the second woken would wait for the first's CPU), both through
+    // the same stretch of the machine's life.
+    let mut child = Command::new(&options.python)
+        .args(["-c", SCRIPT, skin, layer, &reads.to_string()])
+        .env("SKINWARE_SHM_DIR", dir)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
         .with_context(|| format!("cannot run {}", options.python))?;
-    if !output.status.success() {
-        bail!("the Python side failed: {}", String::from_utf8_lossy(&output.stderr));
+    let mut stdin = child.stdin.take().context("the Python side's input")?;
+    let mut stdout = BufReader::new(child.stdout.take().context("the Python side's output")?);
+    let mut line = String::new();
+    stdout.read_line(&mut line)?;
+    let mut newer = Vec::with_capacity(frames);
+    if line.trim() == "ready" {
+        let block = (frames / 10).max(1);
+        for _ in 0..frames.div_ceil(block) {
+            writeln!(stdin, "{block}")?;
+            line.clear();
+            stdout.read_line(&mut line)?;
+            if line.trim() != "done" {
+                break;
+            }
+            reader.wait_newer(Duration::from_secs(5))?;
+            for _ in 0..block {
+                let published = reader.wait_newer(Duration::from_secs(5))?.published_ns();
+                newer.push(skinware::os::monotonic_ns().saturating_sub(published));
+            }
+        }
+        writeln!(stdin)?;
     }
-    let mut python: PythonSide = serde_json::from_slice(&output.stdout).context("the Python side's JSON")?;
+    drop(stdin);
+    let mut json = String::new();
+    stdout.read_to_string(&mut json)?;
+    let output = child.wait_with_output()?;
+    if !output.status.success() || newer.is_empty() {
+        bail!("the Python side failed: {line}{}", String::from_utf8_lossy(&output.stderr));
+    }
+    let mut python: PythonSide = serde_json::from_str(&json).context("the Python side's JSON")?;
     Ok(PythonReport {
         sensors: SENSORS,
-        rate_hz,
+        rate_hz: RATE_HZ,
         rust_latest: Percentiles::of(&mut latest),
         rust_latest_to_vec: Percentiles::of(&mut to_vec),
         python_latest: Percentiles::of(&mut python.latest_ns),

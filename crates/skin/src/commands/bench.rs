@@ -17,7 +17,7 @@ pub enum Which {
     Peers(Common),
     /// The recorder (zstd, lz4, none) and the replay on the paper's skin: throughput, CPU, file size, timing error.
     Record(Common),
-    /// The Python bindings beside the Rust reader on a 30,848-sensor frame: latest(), read_into(), wait_newer() latency ($SKINWARE_PYTHON).
+    /// The Python bindings beside the Rust reader on a 30,848-sensor layer of `skin run`: latest(), read_into(), wait_newer() latency ($SKINWARE_PYTHON).
     Python(Common),
 }
 
@@ -135,6 +135,7 @@ pub fn run(which: &Which) -> Result<()> {
                 out: common.out.clone(),
                 seconds: common.seconds,
                 python: std::env::var("SKINWARE_PYTHON").unwrap_or_else(|_| "python3".into()),
+                exe,
             };
             skinware_bench::python::run(&options).map(|_| ())
         }
