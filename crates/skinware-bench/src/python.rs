@@ -9,8 +9,8 @@
 //! and `wait_newer()`'s latency from publication to the frame in Python. So
 //! both readers are a process apart from the writer, as an application is.
 
-use std::path::{Path, PathBuf};
 use std::io::{BufRead, BufReader, Read, Write};
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -180,7 +180,8 @@ fn start_skin(options: &PythonBenchOptions, dir: &Path) -> Result<RunningSkin> {
 
 fn measure(dir: &Path, reads: usize, frames: usize, options: &PythonBenchOptions) -> Result<PythonReport> {
     let (skin, layer) = ("pybench", LAYER);
-    let mut reader = Reader::open_with(skin, layer, &ReaderOptions { dir: Some(dir.to_owned()), ..Default::default() })?;
+    let mut reader =
+        Reader::open_with(skin, layer, &ReaderOptions { dir: Some(dir.to_owned()), ..Default::default() })?;
     reader.wait_newer(Duration::from_secs(5))?;
     let mut latest = Vec::with_capacity(reads);
     let mut to_vec = Vec::with_capacity(reads);
