@@ -135,6 +135,41 @@ pub fn spawn_app(
         .with_context(|| format!("cannot start application process {}", exe.display()))
 }
 
+/// A `skin run` a benchmark started, with its channels in `dir`: stopped
+/// with SIGINT (as Ctrl-C would) when dropped, killed if it has not exited
+/// 10 s later.
+pub struct RunningSkin(Child);
+
+impl RunningSkin {
+    /// Starts `exe run config` with its channels in `dir`.
+    pub fn start(exe: &Path, config: &Path, dir: &Path) -> Result<RunningSkin> {
+        let child = Command::new(exe)
+            .arg("run")
+            .arg(config)
+            .env("SKINWARE_SHM_DIR", dir)
+            .env("RUST_LOG", "warn")
+            .stdout(std::process::Stdio::null())
+            .spawn()
+            .context("cannot start `skin run`")?;
+        Ok(RunningSkin(child))
+    }
+}
+
+impl Drop for RunningSkin {
+    fn drop(&mut self) {
+        let _ = Command::new("kill").args(["-INT", &self.0.id().to_string()]).status();
+        let deadline = std::time::Instant::now() + Duration::from_secs(10);
+        while std::time::Instant::now() < deadline {
+            if let Ok(Some(_)) = self.0.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

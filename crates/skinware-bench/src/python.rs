@@ -11,14 +11,14 @@
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 use skinware::{Reader, ReaderOptions, WriterState};
 
-use crate::measure::Percentiles;
+use crate::measure::{Percentiles, RunningSkin};
 
 const SCRIPT: &str = include_str!("python_bench.py");
 /// The paper's whole skin, as one layer.
@@ -135,36 +135,10 @@ pub fn run(options: &PythonBenchOptions) -> Result<PythonReport> {
     Ok(report)
 }
 
-/// `skin run` of the one-layer skin; stopped (SIGINT) when dropped.
-struct RunningSkin(Child);
-
-impl Drop for RunningSkin {
-    fn drop(&mut self) {
-        let _ = Command::new("kill").args(["-INT", &self.0.id().to_string()]).status();
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while Instant::now() < deadline {
-            if let Ok(Some(_)) = self.0.try_wait() {
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 fn start_skin(options: &PythonBenchOptions, dir: &Path) -> Result<RunningSkin> {
     let config = dir.join("skin.toml");
     std::fs::write(&config, CONFIG)?;
-    let child = Command::new(&options.exe)
-        .arg("run")
-        .arg(&config)
-        .env("SKINWARE_SHM_DIR", dir)
-        .env("RUST_LOG", "warn")
-        .stdout(std::process::Stdio::null())
-        .spawn()
-        .context("cannot start `skin run`")?;
-    let skin = RunningSkin(child);
+    let skin = RunningSkin::start(&options.exe, &config, dir)?;
     let started = Instant::now();
     loop {
         let channels = skinware::list_channels(dir).unwrap_or_default();

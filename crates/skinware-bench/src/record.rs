@@ -10,7 +10,6 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
@@ -19,7 +18,7 @@ use skinware_record::file::{RecordStream, read_header};
 use skinware_record::msgs::{self, SkinFrame};
 use skinware_record::{AtEnd, Compression, RecordOptions, Recorder, Replay, ReplayOptions, ServiceChoice};
 
-use crate::measure::Percentiles;
+use crate::measure::{Percentiles, RunningSkin};
 
 const PAPER_SKIN: &str = include_str!("../../../examples/paper-virtual-skin.toml");
 
@@ -77,25 +76,6 @@ pub struct RecordReport {
     pub replay_late_us: Percentiles,
 }
 
-struct RunningSkin {
-    child: Child,
-}
-
-impl Drop for RunningSkin {
-    fn drop(&mut self) {
-        let _ = Command::new("kill").args(["-INT", &self.child.id().to_string()]).status();
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while Instant::now() < deadline {
-            if let Ok(Some(_)) = self.child.try_wait() {
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
 fn cpu_seconds() -> f64 {
     let t = rustix::time::clock_gettime(rustix::time::ClockId::ProcessCPUTime);
     t.tv_sec as f64 + t.tv_nsec as f64 / 1e9
@@ -126,15 +106,7 @@ fn measure(options: &RecordBenchOptions, seconds: f64, dir: &Path) -> Result<Rec
     std::fs::write(&config, PAPER_SKIN)?;
     let files = dir.join("files");
     std::fs::create_dir_all(&files)?;
-    let child = Command::new(&options.exe)
-        .arg("run")
-        .arg(&config)
-        .env("SKINWARE_SHM_DIR", dir)
-        .env("RUST_LOG", "warn")
-        .stdout(std::process::Stdio::null())
-        .spawn()
-        .context("cannot start `skin run`")?;
-    let skin = RunningSkin { child };
+    let skin = RunningSkin::start(&options.exe, &config, dir)?;
     let taxels = wait_for_skin(dir)?;
     let record_options = |compression| RecordOptions {
         skin: "default".into(),

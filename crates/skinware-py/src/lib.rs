@@ -31,6 +31,7 @@ fn _skinware(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<reader::ServiceReader>()?;
     m.add_class::<reader::Periodic>()?;
     m.add_class::<topology::Topology>()?;
+    m.add_class::<writer::ChannelWriter>()?;
     m.add_class::<writer::Writer>()?;
     m.add_class::<writer::ServiceWriter>()?;
     m.add_class::<writer::Ticks>()?;

@@ -44,20 +44,23 @@ fn slots(py: Python<'_>, slots: usize) -> PyResult<usize> {
     }
 }
 
-/// What both writers share: the channel's writer, closed on `close()`.
-struct Core {
+/// What both writers share (the base class of `Writer` and
+/// `ServiceWriter`): the channel's writer, its periods and requests, its
+/// state, statistics and `close()`.
+#[pyclass(module = "skinware", subclass, frozen)]
+pub struct ChannelWriter {
     writer: Mutex<Option<skinware::Writer>>,
     stop: Stop,
     label: String,
     period: Option<Duration>,
 }
 
-impl Core {
-    fn new(mut writer: skinware::Writer, period: Option<Duration>) -> Core {
+impl ChannelWriter {
+    fn new(mut writer: skinware::Writer, period: Option<Duration>) -> ChannelWriter {
         let stop = Stop::new();
         writer.set_stop(&stop);
         let label = writer.label().to_owned();
-        Core { writer: Mutex::new(Some(writer)), stop, label, period }
+        ChannelWriter { writer: Mutex::new(Some(writer)), stop, label, period }
     }
 
     fn lock(&self) -> MutexGuard<'_, Option<skinware::Writer>> {
@@ -86,13 +89,13 @@ impl Core {
         }
     }
 
-    fn close(&self, py: Python<'_>) {
+    fn close_impl(&self, py: Python<'_>) {
         self.stop.stop();
         let writer = py.detach(|| self.lock().take());
         drop(writer);
     }
 
-    fn ticks(&self, py: Python<'_>, hz: Option<f64>) -> PyResult<Ticks> {
+    fn ticks_impl(&self, py: Python<'_>, hz: Option<f64>) -> PyResult<Ticks> {
         let period = match (hz, self.period) {
             (Some(hz), _) => ticks::period(py, hz, "ticks")?,
             (None, Some(period)) => period,
@@ -106,7 +109,7 @@ impl Core {
         Ok(Ticks { schedule: Schedule::new(period), stop: self.stop.clone() })
     }
 
-    fn wait_request(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<bool> {
+    fn wait_request_impl(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<bool> {
         let timeout = ticks::timeout(py, timeout)?;
         let deadline = timeout.map(|t| ticks::monotonic_ns().saturating_add(t.as_nanos() as u64));
         loop {
@@ -133,7 +136,7 @@ impl Core {
         }
     }
 
-    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+    fn stats_impl<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let stats = self.peek(py, |w| w.stats()).ok_or_else(|| self.closed(py))?;
         let dict = PyDict::new(py);
         dict.set_item("frames", stats.frames)?;
@@ -144,13 +147,73 @@ impl Core {
         Ok(dict)
     }
 
-    fn state(&self, py: Python<'_>) -> PyResult<&'static str> {
+    fn state_impl(&self, py: Python<'_>) -> PyResult<&'static str> {
         self.peek(py, |w| state_name(w.state())).ok_or_else(|| self.closed(py))
     }
 
-    fn set_state(&self, py: Python<'_>, state: &str) -> PyResult<()> {
+    fn set_state_impl(&self, py: Python<'_>, state: &str) -> PyResult<()> {
         let state = writer_state(py, state)?;
         self.peek(py, |w| w.set_state(state)).ok_or_else(|| self.closed(py))
+    }
+}
+
+#[pymethods]
+impl ChannelWriter {
+    /// An iterator of the channel's periods (at `hz`, default its rate), on
+    /// an absolute-time grid: each item is `(deadline_ns, missed)`, `missed`
+    /// counting the periods skipped because the loop ran late. It ends when
+    /// the writer is closed.
+    #[pyo3(signature = (hz = None))]
+    fn ticks(&self, py: Python<'_>, hz: Option<f64>) -> PyResult<Ticks> {
+        self.ticks_impl(py, hz)
+    }
+
+    /// A sporadic channel: waits (without the GIL) until a reader requests a
+    /// frame; `False` after `timeout` seconds (`None`: no limit) or when the
+    /// writer is closed.
+    #[pyo3(signature = (timeout = None))]
+    fn wait_request(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<bool> {
+        self.wait_request_impl(py, timeout)
+    }
+
+    /// The state readers see: "running", "paused" or "faulted". A driver
+    /// whose sensors fail sets "faulted" (and publishes frames with
+    /// `Status.FAULT`), and "running" once they answer again.
+    #[getter]
+    fn state(&self, py: Python<'_>) -> PyResult<&'static str> {
+        self.state_impl(py)
+    }
+
+    #[setter]
+    fn set_state(&self, py: Python<'_>, state: &str) -> PyResult<()> {
+        self.set_state_impl(py, state)
+    }
+
+    /// `skin/channel`.
+    #[getter]
+    fn label(&self) -> &str {
+        &self.label
+    }
+
+    /// The writer's statistics: frames, faults, write_ns_min/mean/max.
+    #[getter]
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        self.stats_impl(py)
+    }
+
+    /// Removes the channel; readers see it gone.
+    fn close(&self, py: Python<'_>) {
+        self.close_impl(py);
+    }
+
+    fn __enter__(slf: Bound<'_, Self>) -> Bound<'_, Self> {
+        slf
+    }
+
+    #[pyo3(signature = (*_args))]
+    fn __exit__(&self, py: Python<'_>, _args: &Bound<'_, PyTuple>) -> bool {
+        self.close_impl(py);
+        false
     }
 }
 
@@ -158,9 +221,8 @@ impl Core {
 /// layer's channel (publishing its topology) and publishes frames of one
 /// `uint16` response per sensor. Readers in any process, `skin ls`, the
 /// services and the viewer see it as any other layer.
-#[pyclass(module = "skinware", frozen)]
+#[pyclass(module = "skinware", extends = ChannelWriter, frozen)]
 pub struct Writer {
-    core: Core,
     topology: skinware::LayerTopology,
 }
 
@@ -179,7 +241,7 @@ impl Writer {
         rate_hz: Option<f64>,
         slots: usize,
         access: &str,
-    ) -> PyResult<Writer> {
+    ) -> PyResult<PyClassInitializer<Writer>> {
         let mut layout = topology.inner.clone();
         layout.name = layer.to_owned();
         if let Some(hz) = rate_hz {
@@ -199,7 +261,7 @@ impl Writer {
         let bytes = layout.frame_bytes();
         let created = py.detach(|| skinware::Writer::create(skin, layer, bytes, &description, &options));
         let writer = created.map_err(|e| errors::exchange(py, e))?;
-        Ok(Writer { core: Core::new(writer, period), topology: layout })
+        Ok(PyClassInitializer::from(ChannelWriter::new(writer, period)).add_subclass(Writer { topology: layout }))
     }
 
     /// Publishes one frame: `responses` is a 1-D `uint16` array of one value
@@ -208,13 +270,14 @@ impl Writer {
     /// clock; default: now). Returns the frame's sequence number.
     #[pyo3(signature = (responses, status = 0, acquired_ns = None))]
     fn publish(
-        &self,
-        py: Python<'_>,
+        slf: &Bound<'_, Self>,
         responses: Bound<'_, PyAny>,
         status: u64,
         acquired_ns: Option<u64>,
     ) -> PyResult<u64> {
-        let sensors = self.topology.sensors.len();
+        let py = slf.py();
+        let this = slf.get();
+        let sensors = this.topology.sensors.len();
         let array = responses.cast::<PyArray1<u16>>().map_err(|_| {
             let found = responses.getattr("dtype").map(|d| d.to_string()).unwrap_or_else(|_| responses.get_type().to_string());
             errors::invalid(
@@ -227,7 +290,7 @@ impl Writer {
         if array.len() != sensors {
             return Err(errors::invalid(
                 py,
-                format!("layer {} has {sensors} sensors, the array has {} responses", self.topology.name, array.len()),
+                format!("layer {} has {sensors} sensors, the array has {} responses", this.topology.name, array.len()),
             ));
         }
         let readonly =
@@ -240,7 +303,7 @@ impl Writer {
                 &copied
             }
         };
-        self.core.with(py, |writer| {
+        slf.as_super().get().with(py, |writer| {
             let mut frame = writer.begin();
             frame.write_responses(0, values)?;
             frame.set_status(FrameStatus(status));
@@ -249,36 +312,6 @@ impl Writer {
             }
             Ok(frame.publish())
         })
-    }
-
-    /// An iterator of the layer's periods (at `hz`, default the layer's
-    /// rate), on an absolute-time grid: each item is `(deadline_ns, missed)`,
-    /// `missed` counting the periods skipped because the loop ran late. It
-    /// ends when the writer is closed.
-    #[pyo3(signature = (hz = None))]
-    fn ticks(&self, py: Python<'_>, hz: Option<f64>) -> PyResult<Ticks> {
-        self.core.ticks(py, hz)
-    }
-
-    /// A sporadic layer: waits (without the GIL) until a reader requests a
-    /// frame; `False` after `timeout` seconds (`None`: no limit) or when the
-    /// writer is closed.
-    #[pyo3(signature = (timeout = None))]
-    fn wait_request(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<bool> {
-        self.core.wait_request(py, timeout)
-    }
-
-    /// The state readers see: "running", "paused" or "faulted". A driver
-    /// whose sensors fail sets "faulted" (and publishes frames with
-    /// `Status.FAULT`), and "running" once they answer again.
-    #[getter]
-    fn state(&self, py: Python<'_>) -> PyResult<&'static str> {
-        self.core.state(py)
-    }
-
-    #[setter]
-    fn set_state(&self, py: Python<'_>, state: &str) -> PyResult<()> {
-        self.core.set_state(py, state)
     }
 
     /// The layer's topology.
@@ -292,55 +325,25 @@ impl Writer {
         self.topology.sensors.len()
     }
 
-    /// `skin/layer`.
-    #[getter]
-    fn label(&self) -> &str {
-        &self.core.label
-    }
-
     /// Whether the channel took over the name of a writer that died.
     #[getter]
-    fn revived(&self, py: Python<'_>) -> PyResult<bool> {
-        self.core.peek(py, |w| w.revived()).ok_or_else(|| self.core.closed(py))
+    fn revived(slf: &Bound<'_, Self>) -> PyResult<bool> {
+        let (py, core) = (slf.py(), slf.as_super().get());
+        core.peek(py, |w| w.revived()).ok_or_else(|| core.closed(py))
     }
 
-    /// The writer's statistics: frames, faults, write_ns_min/mean/max.
-    #[getter]
-    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        self.core.stats(py)
-    }
-
-    /// Removes the layer's channel; readers see it gone.
-    fn close(&self, py: Python<'_>) {
-        self.core.close(py);
-    }
-
-    fn __enter__(slf: Bound<'_, Self>) -> Bound<'_, Self> {
-        slf
-    }
-
-    #[pyo3(signature = (*_args))]
-    fn __exit__(&self, py: Python<'_>, _args: &Bound<'_, PyTuple>) -> bool {
-        self.close(py);
-        false
-    }
-
-    fn __repr__(&self) -> String {
-        format!(
-            "<skinware.Writer {} ({} sensors, {} Hz)>",
-            self.core.label,
-            self.topology.sensors.len(),
-            self.topology.rate_hz
-        )
+    fn __repr__(slf: &Bound<'_, Self>) -> String {
+        let this = slf.get();
+        let label = &slf.as_super().get().label;
+        format!("<skinware.Writer {label} ({} sensors, {} Hz)>", this.topology.sensors.len(), this.topology.rate_hz)
     }
 }
 
 /// The writer of a service published from Python (the paper's
 /// application-based service): frames of `records` records of a numpy
 /// structured `dtype`, with a schema name and version that readers check.
-#[pyclass(module = "skinware", frozen)]
+#[pyclass(module = "skinware", extends = ChannelWriter, frozen)]
 pub struct ServiceWriter {
-    core: Core,
     dtype: Py<PyAny>,
     records: usize,
 }
@@ -366,7 +369,7 @@ impl ServiceWriter {
         rate_hz: Option<f64>,
         inputs: Option<Vec<String>>,
         access: &str,
-    ) -> PyResult<ServiceWriter> {
+    ) -> PyResult<PyClassInitializer<ServiceWriter>> {
         let dtype = py.import("numpy")?.call_method1("dtype", (dtype,))?;
         let record_bytes: usize = dtype.getattr("itemsize")?.extract()?;
         if record_bytes == 0 {
@@ -410,38 +413,41 @@ impl ServiceWriter {
         });
         let writer = created.map_err(|e| errors::exchange(py, e))?;
         let period = rate_hz.map(|hz| ticks::period(py, hz, "rate")).transpose()?;
-        Ok(ServiceWriter { core: Core::new(writer, period), dtype: dtype.unbind(), records })
+        Ok(PyClassInitializer::from(ChannelWriter::new(writer, period))
+            .add_subclass(ServiceWriter { dtype: dtype.unbind(), records }))
     }
 
     /// Publishes one frame: `records`, a numpy array of the service's dtype
     /// with one record per label. Returns the frame's sequence number.
     #[pyo3(signature = (records, status = 0, acquired_ns = None))]
     fn publish(
-        &self,
-        py: Python<'_>,
+        slf: &Bound<'_, Self>,
         records: Bound<'_, PyAny>,
         status: u64,
         acquired_ns: Option<u64>,
     ) -> PyResult<u64> {
-        let dtype = self.dtype.bind(py);
+        let py = slf.py();
+        let this = slf.get();
+        let core = slf.as_super().get();
+        let dtype = this.dtype.bind(py);
         let given = records.getattr("dtype").ok();
         if !given.as_ref().is_some_and(|g| g.eq(dtype).unwrap_or(false)) {
             let found = given.map(|g| g.to_string()).unwrap_or_else(|| records.get_type().to_string());
             return Err(errors::invalid(
                 py,
-                format!("service {}: publish needs an array of dtype {dtype}, got {found}", self.core.label),
+                format!("service {}: publish needs an array of dtype {dtype}, got {found}", core.label),
             ));
         }
         let count: usize = records.len()?;
-        if count != self.records {
+        if count != this.records {
             return Err(errors::invalid(
                 py,
-                format!("service {} publishes {} records per frame, {count} given", self.core.label, self.records),
+                format!("service {} publishes {} records per frame, {count} given", core.label, this.records),
             ));
         }
         let bytes = records.call_method0("tobytes")?;
         let bytes = bytes.cast::<PyBytes>()?.as_bytes();
-        self.core.with(py, |writer| {
+        core.with(py, |writer| {
             let mut frame = writer.begin();
             frame.write_bytes(0, bytes)?;
             frame.set_status(FrameStatus(status));
@@ -457,30 +463,6 @@ impl ServiceWriter {
         py.import("numpy")?.call_method1("zeros", (self.records, self.dtype.bind(py)))
     }
 
-    /// An iterator of the service's periods: `(deadline_ns, missed)`.
-    #[pyo3(signature = (hz = None))]
-    fn ticks(&self, py: Python<'_>, hz: Option<f64>) -> PyResult<Ticks> {
-        self.core.ticks(py, hz)
-    }
-
-    /// A sporadic service: waits until a reader requests a frame; `False`
-    /// after `timeout` seconds (`None`: no limit) or once closed.
-    #[pyo3(signature = (timeout = None))]
-    fn wait_request(&self, py: Python<'_>, timeout: Option<f64>) -> PyResult<bool> {
-        self.core.wait_request(py, timeout)
-    }
-
-    /// The state readers see: "running", "paused" or "faulted".
-    #[getter]
-    fn state(&self, py: Python<'_>) -> PyResult<&'static str> {
-        self.core.state(py)
-    }
-
-    #[setter]
-    fn set_state(&self, py: Python<'_>, state: &str) -> PyResult<()> {
-        self.core.set_state(py, state)
-    }
-
     /// The records' dtype.
     #[getter]
     fn dtype(&self, py: Python<'_>) -> Py<PyAny> {
@@ -492,35 +474,9 @@ impl ServiceWriter {
         self.records
     }
 
-    /// `skin/name`.
-    #[getter]
-    fn label(&self) -> &str {
-        &self.core.label
-    }
-
-    /// The writer's statistics: frames, faults, write_ns_min/mean/max.
-    #[getter]
-    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        self.core.stats(py)
-    }
-
-    /// Removes the service's channel.
-    fn close(&self, py: Python<'_>) {
-        self.core.close(py);
-    }
-
-    fn __enter__(slf: Bound<'_, Self>) -> Bound<'_, Self> {
-        slf
-    }
-
-    #[pyo3(signature = (*_args))]
-    fn __exit__(&self, py: Python<'_>, _args: &Bound<'_, PyTuple>) -> bool {
-        self.close(py);
-        false
-    }
-
-    fn __repr__(&self) -> String {
-        format!("<skinware.ServiceWriter {} ({} records)>", self.core.label, self.records)
+    fn __repr__(slf: &Bound<'_, Self>) -> String {
+        let label = &slf.as_super().get().label;
+        format!("<skinware.ServiceWriter {label} ({} records)>", slf.get().records)
     }
 }
 

@@ -57,6 +57,7 @@ from ._services import (
 from ._skinware import (
     ABI_VERSION,
     ChannelInfo,
+    ChannelWriter,
     Frame,
     Geometry,
     Periodic,
@@ -114,6 +115,7 @@ __all__ = [
     "ChannelError",
     "ChannelInfo",
     "ChannelMissing",
+    "ChannelWriter",
     "ContactFlags",
     "ContactReader",
     "Frame",

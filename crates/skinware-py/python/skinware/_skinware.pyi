@@ -13,6 +13,7 @@ import numpy.typing as npt
 __all__ = [
     "ABI_VERSION",
     "ChannelInfo",
+    "ChannelWriter",
     "Frame",
     "Geometry",
     "Periodic",
@@ -218,8 +219,29 @@ class Ticks(Iterator[Tuple[int, int]]):
     def __iter__(self) -> Ticks: ...
     def __next__(self) -> Tuple[int, int]: ...
 
+class ChannelWriter:
+    """What ``Writer`` and ``ServiceWriter`` share: periods, requests, state, ``close()``."""
+
+    def ticks(self, hz: Optional[float] = None) -> Ticks:
+        """The channel's periods on an absolute-time grid: ``(deadline_ns, missed)``."""
+    def wait_request(self, timeout: Optional[float] = None) -> bool:
+        """A sporadic channel: waits for a reader's request; ``False`` on timeout or close."""
+    state: _WriterStateName
+    @property
+    def label(self) -> str: ...
+    @property
+    def stats(self) -> dict[str, int]: ...
+    def close(self) -> None: ...
+    def __enter__(self) -> Self: ...
+    def __exit__(
+        self,
+        exc_type: Optional[Type[BaseException]],
+        exc: Optional[BaseException],
+        traceback: Optional[TracebackType],
+    ) -> bool: ...
+
 @final
-class Writer:
+class Writer(ChannelWriter):
     """The writer of one layer: a driver written in Python."""
 
     def __new__(
@@ -232,30 +254,16 @@ class Writer:
         slots: int = 3,
         access: _AccessName = "owner",
     ) -> Self: ...
-    def publish(self, responses: npt.NDArray[np.uint16], status: int = 0, acquired_ns: Optional[int] = None) -> int: ...
-    def ticks(self, hz: Optional[float] = None) -> Ticks: ...
-    def wait_request(self, timeout: Optional[float] = None) -> bool: ...
-    state: _WriterStateName
+    def publish(self, responses: npt.NDArray[np.uint16], status: int = 0, acquired_ns: Optional[int] = None) -> int:
+        """Publishes one frame of one uint16 response per sensor; returns its sequence number."""
     @property
     def topology(self) -> Topology: ...
     @property
-    def label(self) -> str: ...
-    @property
     def revived(self) -> bool: ...
-    @property
-    def stats(self) -> dict[str, int]: ...
-    def close(self) -> None: ...
     def __len__(self) -> int: ...
-    def __enter__(self) -> Writer: ...
-    def __exit__(
-        self,
-        exc_type: Optional[Type[BaseException]],
-        exc: Optional[BaseException],
-        traceback: Optional[TracebackType],
-    ) -> bool: ...
 
 @final
-class ServiceWriter:
+class ServiceWriter(ChannelWriter):
     """A service published from Python (an application-based service)."""
 
     def __new__(
@@ -271,26 +279,13 @@ class ServiceWriter:
         *,
         access: _AccessName = "owner",
     ) -> Self: ...
-    def publish(self, records: np.ndarray, status: int = 0, acquired_ns: Optional[int] = None) -> int: ...
-    def empty(self) -> np.ndarray: ...
-    def ticks(self, hz: Optional[float] = None) -> Ticks: ...
-    def wait_request(self, timeout: Optional[float] = None) -> bool: ...
-    state: _WriterStateName
+    def publish(self, records: np.ndarray, status: int = 0, acquired_ns: Optional[int] = None) -> int:
+        """Publishes one frame of records of the service's dtype."""
+    def empty(self) -> np.ndarray:
+        """A zeroed array of one frame's records, to fill and publish."""
     @property
     def dtype(self) -> np.dtype: ...
-    @property
-    def label(self) -> str: ...
-    @property
-    def stats(self) -> dict[str, int]: ...
-    def close(self) -> None: ...
     def __len__(self) -> int: ...
-    def __enter__(self) -> ServiceWriter: ...
-    def __exit__(
-        self,
-        exc_type: Optional[Type[BaseException]],
-        exc: Optional[BaseException],
-        traceback: Optional[TracebackType],
-    ) -> bool: ...
 
 @final
 class Geometry:
