@@ -104,6 +104,38 @@ with skinware.Writer(skin, layer, topology, rate_hz=hz) as writer:
 """
 
 
+def drive_in_thread(writer: "skinware.Writer"):
+    """Publishes frame k, holding k % 65536 in every response, at each of the
+    writer's periods, from a thread of this process. Returns the function
+    that stops the thread and closes the writer."""
+    import threading
+
+    import numpy as np
+
+    stop = threading.Event()
+
+    def drive():
+        frame = np.empty(len(writer), np.uint16)
+        try:
+            for k, _ in enumerate(writer.ticks(), start=1):
+                if stop.is_set():
+                    return
+                frame.fill(k % 65536)
+                writer.publish(frame)
+        except skinware.WriterClosed:
+            pass
+
+    thread = threading.Thread(target=drive, daemon=True)
+    thread.start()
+
+    def finish():
+        stop.set()
+        writer.close()
+        thread.join(5)
+
+    return finish
+
+
 def start_driver(skin: str, layer: str = "pressure", sensors: int = 120, hz: float = 200.0) -> PythonProcess:
     driver = PythonProcess(DRIVER, skin, layer, str(sensors), str(hz))
     line = driver.process.stdout.readline()

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import skinware
-from conftest import start_driver, wait_for
+from conftest import drive_in_thread, start_driver, wait_for
 
 
 @pytest.fixture
@@ -18,22 +18,9 @@ def layer(skin):
     """A 72-sensor layer at 200 Hz written in this process; frame k holds k everywhere."""
     topology = skinware.Topology.uniform("pressure", 2, 3, 12, rate_hz=200)
     writer = skinware.Writer(skin, "pressure", topology)
-    stop = threading.Event()
-
-    def drive():
-        frame = np.empty(len(writer), np.uint16)
-        for k, _ in enumerate(writer.ticks(), start=1):
-            if stop.is_set():
-                return
-            frame.fill(k % 65536)
-            writer.publish(frame)
-
-    thread = threading.Thread(target=drive, daemon=True)
-    thread.start()
+    finish = drive_in_thread(writer)
     yield skin, writer
-    stop.set()
-    writer.close()
-    thread.join(5)
+    finish()
 
 
 def whole(frame) -> bool:

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import skinware
-from conftest import PythonProcess, start_driver, wait_for
+from conftest import PythonProcess, drive_in_thread, start_driver, wait_for
 
 #: A reader process: `skin layer mode`; reads as fast as it can, forever.
 BUSY_READER = """
@@ -98,16 +98,7 @@ def test_a_wait_releases_the_gil(skin):
 def test_readers_shared_by_threads(skin):
     topology = skinware.Topology.uniform("shared", 4, 8, 12, rate_hz=500)
     writer = skinware.Writer(skin, "shared", topology)
-    stop = threading.Event()
-
-    def drive():
-        frame = np.empty(len(writer), np.uint16)
-        for k, _ in enumerate(writer.ticks(), start=1):
-            if stop.is_set():
-                return
-            frame.fill(k % 65536)
-            writer.publish(frame)
-
+    finish = drive_in_thread(writer)
     shared = skinware.Reader(skin, "shared")
     results: dict[str, list[int]] = {}
     errors: list[BaseException] = []
@@ -133,8 +124,6 @@ def test_readers_shared_by_threads(skin):
             errors.append(error)
         results[name] = seqs
 
-    driver = threading.Thread(target=drive)
-    driver.start()
     wait_for(lambda: shared.published_seq > 0, what="the first frame")
     threads = []
     for i, mode in enumerate(("newer", "latest", "into", "periodic") * 2):
@@ -145,9 +134,7 @@ def test_readers_shared_by_threads(skin):
         thread.start()
     for thread in threads:
         thread.join(10)
-    stop.set()
-    driver.join(5)
-    writer.close()
+    finish()
     assert not errors, errors
     assert len(results) == 16
     for name, seqs in results.items():
