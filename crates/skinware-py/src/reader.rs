@@ -731,17 +731,7 @@ impl Reader {
     #[getter]
     fn writer_stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let stats = self.peek(py, |r| r.writer_stats()).ok_or_else(|| self.closed_error(py))?;
-        let dict = PyDict::new(py);
-        dict.set_item("frames", stats.frames)?;
-        dict.set_item("overruns", stats.overruns)?;
-        dict.set_item("missed_periods", stats.missed_periods)?;
-        dict.set_item("faults", stats.faults)?;
-        dict.set_item("write_ns_min", stats.write_ns_min)?;
-        dict.set_item("write_ns_mean", stats.write_ns_mean)?;
-        dict.set_item("write_ns_max", stats.write_ns_max)?;
-        dict.set_item("lateness_ns_mean", stats.lateness_ns_mean)?;
-        dict.set_item("lateness_ns_max", stats.lateness_ns_max)?;
-        Ok(dict)
+        writer_stats_dict(py, &stats)
     }
 
     /// Whether the reader is closed.
@@ -974,4 +964,19 @@ fn topology_change(was: &skinware::LayerTopology, now: &skinware::LayerTopology)
         ));
     }
     None
+}
+
+/// A writer's statistics as Python sees them, from a reader or the writer.
+pub fn writer_stats_dict<'py>(py: Python<'py>, stats: &skinware::WriterStats) -> PyResult<Bound<'py, PyDict>> {
+    let dict = PyDict::new(py);
+    dict.set_item("frames", stats.frames)?;
+    dict.set_item("overruns", stats.overruns)?;
+    dict.set_item("missed_periods", stats.missed_periods)?;
+    dict.set_item("faults", stats.faults)?;
+    dict.set_item("write_ns_min", stats.write_ns_min)?;
+    dict.set_item("write_ns_mean", stats.write_ns_mean)?;
+    dict.set_item("write_ns_max", stats.write_ns_max)?;
+    dict.set_item("lateness_ns_mean", stats.lateness_ns_mean)?;
+    dict.set_item("lateness_ns_max", stats.lateness_ns_max)?;
+    Ok(dict)
 }

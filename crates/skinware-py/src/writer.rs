@@ -12,7 +12,7 @@ use skinware::{Access, FrameStatus, Stop, WriterOptions, WriterState};
 use skinware_services::{ServiceMode, ServiceSpec};
 
 use crate::errors;
-use crate::reader::state_name;
+use crate::reader::{state_name, writer_stats_dict};
 use crate::ticks::{self, Schedule};
 use crate::topology::Topology;
 
@@ -138,13 +138,7 @@ impl ChannelWriter {
 
     fn stats_impl<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let stats = self.peek(py, |w| w.stats()).ok_or_else(|| self.closed(py))?;
-        let dict = PyDict::new(py);
-        dict.set_item("frames", stats.frames)?;
-        dict.set_item("faults", stats.faults)?;
-        dict.set_item("write_ns_min", stats.write_ns_min)?;
-        dict.set_item("write_ns_mean", stats.write_ns_mean)?;
-        dict.set_item("write_ns_max", stats.write_ns_max)?;
-        Ok(dict)
+        writer_stats_dict(py, &stats)
     }
 
     fn state_impl(&self, py: Python<'_>) -> PyResult<&'static str> {
@@ -195,7 +189,8 @@ impl ChannelWriter {
         &self.label
     }
 
-    /// The writer's statistics: frames, faults, write_ns_min/mean/max.
+    /// The writer's statistics: frames, overruns, missed_periods, faults,
+    /// write_ns_min/mean/max, lateness_ns_mean/max.
     #[getter]
     fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         self.stats_impl(py)

@@ -242,6 +242,7 @@ def test_a_sporadic_python_service_answers_requests(skin):
         (lambda s: skinware.ServiceWriter(s, "x", "u1", ("s", 1)), skinware.InvalidArgument, "labels"),
         (lambda s: skinware.ServiceWriter(s, "x", "u1", ("s", 1), labels=["two words"]), skinware.InvalidArgument, "one word"),
         (lambda s: skinware.ServiceWriter(s, "x", "u1", ("s" * 40, 1), records=1), skinware.InvalidArgument, "32 bytes"),
+        (lambda s: skinware.ServiceWriter(s, "x", "<u8", ("s", 1), records=2**62), skinware.InvalidArgument, "do not fit"),
     ],
 )
 def test_bad_input_raises_a_typed_error_that_says_what_to_do(skin, make, error, words):

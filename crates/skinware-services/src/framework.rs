@@ -287,7 +287,11 @@ pub fn create_service_channel(
         ..options.clone()
     };
     let description = spec.description(schema.0, schema.1, record_bytes);
-    Writer::create(skin, &spec.name, spec.records * record_bytes, &description, &options)
+    let frame_bytes = spec.records.checked_mul(record_bytes).ok_or_else(|| Error::InvalidLayout {
+        channel: format!("{skin}/{}", spec.name),
+        reason: format!("{} records of {record_bytes} bytes do not fit in memory", spec.records),
+    })?;
+    Writer::create(skin, &spec.name, frame_bytes, &description, &options)
 }
 
 /// Attaches to service `name` of `skin` and checks that it publishes records
