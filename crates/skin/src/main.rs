@@ -50,6 +50,8 @@ enum Command {
     Replay(commands::replay::Args),
     /// What a recording holds: channels, duration, frames, gaps; whether it was finished.
     Info(commands::info::Args),
+    /// The skin on zenoh: for skinware readers on other machines and ROS 2 (rmw_zenoh) nodes (feature `zenoh`).
+    Bridge(commands::bridge::Args),
     /// Regions: record one by touching the skin.
     Region {
         #[command(subcommand)]
@@ -102,7 +104,9 @@ enum Command {
 
 fn main() -> std::process::ExitCode {
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,zenoh=warn".into()),
+        )
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();
@@ -138,6 +142,7 @@ fn main() -> std::process::ExitCode {
         Command::Replay(args) => commands::replay::run(&args),
         Command::Info(args) => commands::info::run(&args),
         Command::Region { which } => commands::region::run(&which),
+        Command::Bridge(args) => commands::bridge::run(&args),
         Command::BenchApp(args) => commands::bench::app(&args),
         Command::BenchPeerReader(args) => commands::bench::peer_reader(&args),
     };

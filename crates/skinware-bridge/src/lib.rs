@@ -18,8 +18,14 @@
 
 #![forbid(unsafe_code)]
 
+#[cfg(feature = "zenoh")]
+pub mod bridge;
+#[cfg(feature = "zenoh")]
+pub mod link;
 pub mod messages;
 pub mod protocol;
+#[cfg(feature = "zenoh")]
+pub mod remote;
 pub mod ros2;
 
 /// What went wrong in the bridge or a remote reader.

@@ -176,7 +176,7 @@ pub fn hashed_type_description(name: &str) -> Option<String> {
             .collect();
         format!("{{\"type_name\": \"{}\", \"fields\": [{}]}}", t.name, fields.join(", "))
     };
-    let references: Option<Vec<String>> = referenced.iter().map(|n| message_type(n).map(|t| describe(t))).collect();
+    let references: Option<Vec<String>> = referenced.iter().map(|n| message_type(n).map(&describe)).collect();
     Some(format!(
         "{{\"type_description\": {}, \"referenced_type_descriptions\": [{}]}}",
         describe(root),

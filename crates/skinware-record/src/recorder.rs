@@ -602,7 +602,9 @@ fn describe(reader: &Reader, topic: &str) -> String {
 }
 
 /// Wall-clock time minus CLOCK_MONOTONIC time, ns, from the closest of a few readings.
-fn clock_offset_ns() -> i64 {
+/// CLOCK_REALTIME minus CLOCK_MONOTONIC, ns: what turns a frame's monotonic
+/// times into wall-clock ones (the best of five readings).
+pub fn clock_offset_ns() -> i64 {
     let mut best = (u64::MAX, 0i64);
     for _ in 0..5 {
         let before = skinware::os::monotonic_ns();

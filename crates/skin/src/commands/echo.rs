@@ -45,6 +45,8 @@ pub struct Args {
     /// Seconds to wait for a frame before reporting the writer's state.
     #[arg(long, default_value_t = 2.0)]
     timeout: f64,
+    #[command(flatten)]
+    remote: super::bridge::RemoteArgs,
 }
 
 /// Runs `skin echo`.
@@ -55,6 +57,23 @@ pub fn run(args: &Args) -> Result<()> {
         (Some(layer), None) => ("layer", layer.as_str()),
         (None, None) => anyhow::bail!("name a layer, or a service with --service"),
     };
+    if args.remote.remote.is_some() {
+        let mode = match args.mode {
+            Mode::Periodic => super::bridge::EchoMode::Periodic,
+            Mode::Asap => super::bridge::EchoMode::Asap,
+            Mode::Request => super::bridge::EchoMode::Request,
+        };
+        let echo = super::bridge::RemoteEcho {
+            skin: args.skin.clone(),
+            channel: channel.to_owned(),
+            mode,
+            rate: args.rate,
+            count: args.count,
+            full: args.full,
+            timeout: args.timeout,
+        };
+        return super::bridge::echo(&args.remote, &echo);
+    }
     let mut reader = Reader::open_with(&args.skin, channel, &options)
         .with_context(|| format!("cannot attach to {what} {}/{channel}", args.skin))?;
     let decoder = if args.service.is_some() { Some(ServiceDecoder::new(&reader)?) } else { None };

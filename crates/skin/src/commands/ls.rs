@@ -20,10 +20,15 @@ pub struct Args {
     /// List the regions and sub-regions instead (from the published geometry).
     #[arg(long)]
     regions: bool,
+    #[command(flatten)]
+    remote: super::bridge::RemoteArgs,
 }
 
 /// Runs `skin ls`.
 pub fn run(args: &Args) -> Result<()> {
+    if args.remote.remote.is_some() {
+        return super::bridge::ls(&args.remote, args.skin.as_deref(), args.json);
+    }
     if args.regions {
         return regions(args);
     }

@@ -1,6 +1,7 @@
 //! One file per verb.
 
 pub mod bench;
+pub mod bridge;
 pub mod clean;
 pub mod demo;
 pub mod driver;

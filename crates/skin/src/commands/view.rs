@@ -14,11 +14,16 @@ pub struct Args {
     /// The skin to show.
     #[arg(long, default_value = "default")]
     skin: String,
+    #[command(flatten)]
+    remote: super::bridge::RemoteArgs,
 }
 
 /// Runs `skin view` until SIGINT or SIGTERM.
 pub fn run(args: &Args) -> Result<()> {
     skinware::shm::validate_name("skin", &args.skin)?;
+    if args.remote.remote.is_some() {
+        return super::bridge::view(&args.remote, &args.skin, &args.listen);
+    }
     // Each browser reloads the geometry when it connects; this only checks
     // now that there is a skin to show.
     SkinGeometry::open(&args.skin).with_context(|| format!("cannot show skin {}", args.skin))?;

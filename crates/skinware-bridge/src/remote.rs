@@ -1,0 +1,501 @@
+//! Reading a skin on another machine, through its bridge, like a local one:
+//! the same three modes (periodic, as soon as available, on request), the
+//! writer's state, and `unreachable` when the link is cut, from which a
+//! reader resumes by itself when the link returns.
+//!
+//! ```no_run
+//! use std::time::Duration;
+//! use skinware_bridge::link::LinkOptions;
+//! use skinware_bridge::remote::RemoteSkin;
+//!
+//! let link = LinkOptions { connect: vec!["tcp/robot-pc:7447".into()], ..LinkOptions::default() };
+//! let skin = RemoteSkin::connect(&link, "default", Duration::from_secs(5))?;
+//! let mut reader = skin.reader("virtual-0")?;
+//! let frame = reader.wait_newer(Duration::from_secs(1))?;
+//! println!("seq {} with {} responses, {:?}", frame.seq, frame.responses().len(), reader.state());
+//! # Ok::<(), skinware_bridge::BridgeError>(())
+//! ```
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use skinware::{FrameStatus, LayerTopology, Stop, Ticker, Writer, WriterOptions, WriterState};
+use skinware_geometry::SkinGeometry;
+use zenoh::handlers::{FifoChannelHandler, RingChannel, RingChannelHandler};
+use zenoh::pubsub::Subscriber;
+use zenoh::query::Reply;
+use zenoh::sample::Sample;
+use zenoh::{Session, Wait};
+
+use crate::BridgeError;
+use crate::link::LinkOptions;
+use crate::protocol::{self, ChannelList, ChannelState, RemoteChannel};
+
+/// A remote channel's state.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RemoteState {
+    /// Its writer, as the bridge last said.
+    Writer(WriterState),
+    /// Nothing heard from the bridge for longer than the reader's
+    /// `unreachable_after`: the link is cut, or the bridge stopped.
+    Unreachable,
+}
+
+impl RemoteState {
+    /// `running`, `paused`, `faulted`, `gone` or `unreachable`.
+    pub fn name(self) -> &'static str {
+        match self {
+            RemoteState::Writer(WriterState::Running) => "running",
+            RemoteState::Writer(WriterState::Paused) => "paused",
+            RemoteState::Writer(WriterState::Faulted) => "faulted",
+            RemoteState::Writer(WriterState::Gone) => "gone",
+            RemoteState::Unreachable => "unreachable",
+        }
+    }
+}
+
+/// A connection to a remote skin's bridge.
+pub struct RemoteSkin {
+    session: Session,
+    skin: String,
+    list: ChannelList,
+}
+
+/// Queries `key` and returns the first good reply's bytes.
+fn query_bytes(session: &Session, key: &str, timeout: Duration) -> Result<Option<Vec<u8>>, BridgeError> {
+    let replies: FifoChannelHandler<Reply> =
+        session.get(key).timeout(timeout).wait().map_err(|e| BridgeError::Zenoh(format!("cannot query {key}: {e}")))?;
+    let mut refusal = None;
+    while let Ok(reply) = replies.recv() {
+        match reply.result() {
+            Ok(sample) => return Ok(Some(sample.payload().to_bytes().into_owned())),
+            Err(error) => refusal = Some(error.payload().try_to_string().map(|s| s.into_owned()).unwrap_or_default()),
+        }
+    }
+    match refusal {
+        Some(reason) => Err(BridgeError::Invalid(format!("{key}: the bridge refused: {reason}"))),
+        None => Ok(None),
+    }
+}
+
+impl RemoteSkin {
+    /// Connects and asks the bridge of `skin` for its channels, trying until
+    /// `timeout` (the link may take a moment to come up).
+    pub fn connect(link: &LinkOptions, skin: &str, timeout: Duration) -> Result<RemoteSkin, BridgeError> {
+        protocol::check_name("skin", skin)?;
+        let session = link.open()?;
+        let deadline = Instant::now() + timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now()).min(Duration::from_secs(1));
+            if let Some(bytes) =
+                query_bytes(&session, &protocol::channels_key(skin), left.max(Duration::from_millis(100)))?
+            {
+                let list = ChannelList::decode(&bytes)?;
+                return Ok(RemoteSkin { session, skin: skin.to_owned(), list });
+            }
+            if Instant::now() >= deadline {
+                return Err(BridgeError::Timeout(format!(
+                    "no bridge of skin {skin:?} answered within {timeout:?} (connect {:?}); is `skin bridge` running there, \
+                     listening where this connects (it listens on {} unless told otherwise)?",
+                    link.connect,
+                    crate::link::DEFAULT_LISTEN
+                )));
+            }
+        }
+    }
+
+    /// Every skin whose bridge answers within `timeout`.
+    pub fn list(link: &LinkOptions, timeout: Duration) -> Result<Vec<ChannelList>, BridgeError> {
+        let session = link.open()?;
+        let deadline = Instant::now() + timeout;
+        let mut skins = BTreeMap::new();
+        while Instant::now() < deadline && skins.is_empty() {
+            let replies: FifoChannelHandler<Reply> = session
+                .get("skinware/*/@channels")
+                .timeout(deadline.saturating_duration_since(Instant::now()).min(Duration::from_secs(1)))
+                .wait()
+                .map_err(|e| BridgeError::Zenoh(format!("cannot ask for bridges: {e}")))?;
+            while let Ok(reply) = replies.recv() {
+                if let Ok(sample) = reply.result() {
+                    let list = ChannelList::decode(&sample.payload().to_bytes())?;
+                    skins.insert(list.skin.clone(), list);
+                }
+            }
+        }
+        let _ = session.close().wait();
+        Ok(skins.into_values().collect())
+    }
+
+    /// The skin's name.
+    pub fn skin(&self) -> &str {
+        &self.skin
+    }
+
+    /// Its bridged channels, as the bridge listed them when this connected.
+    pub fn channels(&self) -> &[RemoteChannel] {
+        &self.list.channels
+    }
+
+    /// The skin's geometry file (topology of every layer, calibration,
+    /// regions, neighbour graph, 2-D map), decoded.
+    pub fn geometry(&self, timeout: Duration) -> Result<SkinGeometry, BridgeError> {
+        let bytes = query_bytes(&self.session, &protocol::geometry_key(&self.skin), timeout)?.ok_or_else(|| {
+            BridgeError::Timeout(format!("the bridge of {} sent no geometry within {timeout:?}", self.skin))
+        })?;
+        SkinGeometry::decode(&bytes)
+            .map_err(|e| BridgeError::Malformed { what: "geometry".into(), reason: e.to_string() })
+    }
+
+    /// A reader of `channel`.
+    pub fn reader(&self, channel: &str) -> Result<Reader, BridgeError> {
+        let Some(info) = self.list.channels.iter().find(|c| c.name == channel) else {
+            let names: Vec<&str> = self.list.channels.iter().map(|c| c.name.as_str()).collect();
+            return Err(BridgeError::Invalid(format!(
+                "the bridge of skin {} has no channel {channel:?}; it bridges {names:?}",
+                self.skin
+            )));
+        };
+        Reader::open(&self.session, &self.skin, info.clone())
+    }
+}
+
+/// One frame of a remote channel.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RemoteFrame {
+    /// The writer's sequence number.
+    pub seq: u64,
+    /// Acquisition time, ns since the Unix epoch (the robot PC's clock).
+    pub acquired_unix_ns: u64,
+    /// Publication time, ns since the Unix epoch.
+    pub published_unix_ns: u64,
+    /// The frame's status.
+    pub status: FrameStatus,
+    /// Frames of the writer this reader did not get since its previous one
+    /// (dropped by the bridge or lost on the link).
+    pub skipped: u64,
+    /// The payload, in the channel's own layout (a layer's responses as
+    /// native-endian `u16`s).
+    pub bytes: Vec<u8>,
+}
+
+impl RemoteFrame {
+    /// A layer's responses.
+    pub fn responses(&self) -> Vec<u16> {
+        self.bytes.chunks_exact(2).map(|b| u16::from_ne_bytes([b[0], b[1]])).collect()
+    }
+}
+
+/// What a remote reader counted.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RemoteStats {
+    /// Frames received.
+    pub received: u64,
+    /// Frames of the writer never received (sequence gaps).
+    pub skipped: u64,
+    /// Messages refused as malformed.
+    pub malformed: u64,
+    /// Times the link was found cut.
+    pub unreachable: u64,
+}
+
+/// A reader of one remote channel.
+pub struct Reader {
+    session: Session,
+    skin: String,
+    channel: RemoteChannel,
+    frames: Subscriber<RingChannelHandler<Sample>>,
+    states: Subscriber<RingChannelHandler<Sample>>,
+    newest: Option<RemoteFrame>,
+    state: Option<ChannelState>,
+    heard_at: Instant,
+    was_unreachable: bool,
+    unreachable_after: Duration,
+    stats: RemoteStats,
+}
+
+impl Reader {
+    fn open(session: &Session, skin: &str, channel: RemoteChannel) -> Result<Reader, BridgeError> {
+        let subscribe = |key: String| {
+            session
+                .declare_subscriber(key.clone())
+                .with(RingChannel::new(1))
+                .wait()
+                .map_err(|e| BridgeError::Zenoh(format!("cannot subscribe to {key}: {e}")))
+        };
+        Ok(Reader {
+            frames: subscribe(protocol::frame_key(skin, &channel.name))?,
+            states: subscribe(protocol::state_key(skin, &channel.name))?,
+            session: session.clone(),
+            skin: skin.to_owned(),
+            channel,
+            newest: None,
+            state: None,
+            heard_at: Instant::now(),
+            was_unreachable: false,
+            unreachable_after: DEFAULT_UNREACHABLE_AFTER,
+            stats: RemoteStats::default(),
+        })
+    }
+
+    /// The channel's description, as the bridge listed it.
+    pub fn channel(&self) -> &RemoteChannel {
+        &self.channel
+    }
+
+    /// A layer's topology.
+    pub fn topology(&self) -> Result<LayerTopology, BridgeError> {
+        LayerTopology::decode(&self.channel.description, &self.channel.name).map_err(|e| BridgeError::Malformed {
+            what: format!("topology of {}", self.channel.name),
+            reason: e.to_string(),
+        })
+    }
+
+    /// Sets how long without a word from the bridge makes the channel
+    /// unreachable (default [`DEFAULT_UNREACHABLE_AFTER`]).
+    pub fn set_unreachable_after(&mut self, after: Duration) {
+        self.unreachable_after = after;
+    }
+
+    /// What this reader counted.
+    pub fn stats(&self) -> RemoteStats {
+        self.stats
+    }
+
+    /// The bridge's newest word on the channel (its figures), if any.
+    pub fn bridge_state(&mut self) -> Option<ChannelState> {
+        self.drain_states();
+        self.state
+    }
+
+    fn drain_states(&mut self) {
+        while let Ok(Some(sample)) = self.states.try_recv() {
+            match ChannelState::decode(&sample.payload().to_bytes()) {
+                Ok(state) => {
+                    self.state = Some(state);
+                    self.heard_at = Instant::now();
+                }
+                Err(e) => {
+                    self.stats.malformed += 1;
+                    tracing::debug!("{e}");
+                }
+            }
+        }
+    }
+
+    /// The channel's state: the writer's, or `unreachable`.
+    pub fn state(&mut self) -> RemoteState {
+        self.drain_states();
+        let unreachable = self.heard_at.elapsed() > self.unreachable_after;
+        if unreachable && !self.was_unreachable {
+            self.stats.unreachable += 1;
+        }
+        self.was_unreachable = unreachable;
+        match (unreachable, self.state) {
+            (true, _) => RemoteState::Unreachable,
+            (false, Some(state)) => RemoteState::Writer(state.state),
+            // Connected, but the bridge has not spoken yet.
+            (false, None) => RemoteState::Writer(WriterState::Running),
+        }
+    }
+
+    fn accept(&mut self, sample: &Sample) -> Result<(), BridgeError> {
+        self.heard_at = Instant::now();
+        let frame = protocol::decode_frame(&self.channel, &sample.payload().to_bytes()).inspect_err(|_| {
+            self.stats.malformed += 1;
+        })?;
+        let skipped = match &self.newest {
+            Some(previous) if frame.seq > previous.seq => frame.seq - previous.seq - 1,
+            // The first frame, or a restarted writer counting from 1 again.
+            _ => 0,
+        };
+        self.stats.received += 1;
+        self.stats.skipped += skipped;
+        let bytes = frame.channel_bytes();
+        self.newest = Some(RemoteFrame {
+            seq: frame.seq,
+            acquired_unix_ns: frame.stamp.to_ns(),
+            published_unix_ns: frame.published.to_ns(),
+            status: FrameStatus(frame.status),
+            skipped,
+            bytes,
+        });
+        Ok(())
+    }
+
+    /// The newest frame received (none yet: an error saying so).
+    pub fn latest(&mut self) -> Result<&RemoteFrame, BridgeError> {
+        if let Ok(Some(sample)) = self.frames.try_recv() {
+            self.accept(&sample)?;
+        }
+        self.newest.as_ref().ok_or_else(|| self.nothing_yet())
+    }
+
+    fn nothing_yet(&self) -> BridgeError {
+        BridgeError::Timeout(format!("no frame of {}/{} has arrived yet", self.skin, self.channel.name))
+    }
+
+    /// As soon as available: waits up to `timeout` for a frame newer than
+    /// the last one returned.
+    pub fn wait_newer(&mut self, timeout: Duration) -> Result<&RemoteFrame, BridgeError> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            match self.frames.recv_deadline(deadline) {
+                Ok(Some(sample)) => {
+                    self.accept(&sample)?;
+                    return self.newest.as_ref().ok_or_else(|| self.nothing_yet());
+                }
+                Ok(None) => {
+                    let state = self.state().name();
+                    return Err(BridgeError::Timeout(format!(
+                        "no new frame of {}/{} within {timeout:?} (state: {state})",
+                        self.skin, self.channel.name,
+                    )));
+                }
+                Err(e) => return Err(BridgeError::Zenoh(format!("the subscription ended: {e}"))),
+            }
+        }
+    }
+
+    /// Periodic: waits for `ticker`'s next deadline and returns the newest frame then.
+    pub fn next_periodic(&mut self, ticker: &mut Ticker, stop: &Stop) -> Result<&RemoteFrame, BridgeError> {
+        if ticker.wait(stop).is_none() {
+            return Err(BridgeError::Invalid("stopped".into()));
+        }
+        self.latest()
+    }
+
+    /// On request: the bridge asks the writer for a frame newer than any
+    /// published now (as a local reader's `request`) and sends it back.
+    pub fn request(&mut self, timeout: Duration) -> Result<&RemoteFrame, BridgeError> {
+        let key = protocol::request_key(&self.skin, &self.channel.name);
+        let selector = format!("{key}?timeout_ms={}", timeout.as_millis());
+        let replies: FifoChannelHandler<Reply> = self
+            .session
+            .get(selector)
+            .timeout(timeout + Duration::from_millis(500))
+            .wait()
+            .map_err(|e| BridgeError::Zenoh(format!("cannot request a frame of {}: {e}", self.channel.name)))?;
+        match replies.recv() {
+            Ok(reply) => match reply.result() {
+                Ok(sample) => {
+                    self.accept(sample)?;
+                    self.newest.as_ref().ok_or_else(|| self.nothing_yet())
+                }
+                Err(error) => Err(BridgeError::Invalid(format!(
+                    "the bridge could not get a frame of {} on request: {}",
+                    self.channel.name,
+                    error.payload().try_to_string().map(|s| s.into_owned()).unwrap_or_default()
+                ))),
+            },
+            Err(_) => {
+                let state = self.state().name();
+                Err(BridgeError::Timeout(format!(
+                    "no answer to a request for {}/{} within {timeout:?} (state: {state})",
+                    self.skin, self.channel.name,
+                )))
+            }
+        }
+    }
+}
+
+/// How long without a word from the bridge (it speaks every 100 ms) makes a
+/// channel unreachable.
+pub const DEFAULT_UNREACHABLE_AFTER: Duration = Duration::from_millis(500);
+
+/// A remote skin copied into local channels, so that every local tool (the
+/// viewer, Python, a recorder) reads it as if it were here. An unreachable
+/// channel is marked faulted until the link returns.
+pub struct Mirror {
+    stop: Stop,
+    threads: Vec<JoinHandle<()>>,
+    channels: Vec<String>,
+}
+
+impl Mirror {
+    /// Creates `local_skin`'s channels in `dir` (and its geometry, when the
+    /// bridge serves one) and starts copying frames into them.
+    pub fn start(remote: &RemoteSkin, local_skin: &str, dir: &Path) -> Result<Mirror, BridgeError> {
+        let stop = Stop::new();
+        match remote.geometry(Duration::from_secs(5)) {
+            Ok(mut geometry) => {
+                geometry.skin = local_skin.to_owned();
+                geometry
+                    .publish(dir)
+                    .map_err(|e| BridgeError::Invalid(format!("cannot publish the remote skin's geometry: {e}")))?;
+            }
+            Err(e) => tracing::warn!("the mirror has no geometry: {e}"),
+        }
+        let mut threads = Vec::new();
+        let mut channels = Vec::new();
+        for channel in remote.channels() {
+            let options = WriterOptions {
+                slots: channel.slots.clamp(skinware::MIN_SLOTS, skinware::MAX_SLOTS),
+                period: channel.period,
+                kind: channel.kind,
+                schema_name: channel.schema.0.clone(),
+                schema_version: channel.schema.1,
+                unlink_on_drop: true,
+                dir: Some(dir.to_owned()),
+                ..WriterOptions::default()
+            };
+            let writer =
+                Writer::create(local_skin, &channel.name, channel.payload_bytes, &channel.description, &options)?;
+            let reader = remote.reader(&channel.name)?;
+            let stop = stop.clone();
+            channels.push(channel.name.clone());
+            threads.push(
+                std::thread::Builder::new()
+                    .name(format!("mirror-{}", channel.name).chars().take(15).collect())
+                    .spawn(move || mirror_channel(reader, writer, &stop))
+                    .map_err(|e| BridgeError::Invalid(format!("cannot start a mirror thread: {e}")))?,
+            );
+        }
+        Ok(Mirror { stop, threads, channels })
+    }
+
+    /// The mirrored channels.
+    pub fn channels(&self) -> &[String] {
+        &self.channels
+    }
+}
+
+impl Drop for Mirror {
+    fn drop(&mut self) {
+        self.stop.stop();
+        for thread in self.threads.drain(..) {
+            let _ = thread.join();
+        }
+    }
+}
+
+fn mirror_channel(mut reader: Reader, mut writer: Writer, stop: &Stop) {
+    let mut shown = WriterState::Running;
+    let offset_ns = skinware_record::recorder::clock_offset_ns();
+    while !stop.is_stopped() {
+        let state = match reader.state() {
+            RemoteState::Writer(WriterState::Gone) | RemoteState::Unreachable => WriterState::Faulted,
+            RemoteState::Writer(state) => state,
+        };
+        if state != shown {
+            writer.set_state(state);
+            shown = state;
+        }
+        let Ok(frame) = reader.wait_newer(Duration::from_millis(100)) else { continue };
+        if frame.bytes.len() != writer.payload_bytes() {
+            continue;
+        }
+        let mut out = writer.begin();
+        if out.write_bytes(0, &frame.bytes).is_err() {
+            continue;
+        }
+        out.set_acquired_ns((frame.acquired_unix_ns as i64 - offset_ns).max(0) as u64);
+        out.set_status(frame.status);
+        out.publish();
+        if shown != WriterState::Running && matches!(reader.state(), RemoteState::Writer(WriterState::Running)) {
+            writer.set_state(WriterState::Running);
+            shown = WriterState::Running;
+        }
+    }
+}
