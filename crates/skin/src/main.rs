@@ -67,6 +67,9 @@ enum Command {
         #[command(subcommand)]
         which: commands::bench::Which,
     },
+    /// The far side of `skin bench bridge`: reads every layer, remote or local, and prints figures as JSON.
+    #[command(hide = true)]
+    BridgeProbe(commands::bridge_bench::ProbeArgs),
     /// One reader process of `skin bench peers`.
     #[command(hide = true)]
     BenchPeerReader(commands::bench::PeerReaderArgs),
@@ -143,6 +146,7 @@ fn main() -> std::process::ExitCode {
         Command::Info(args) => commands::info::run(&args),
         Command::Region { which } => commands::region::run(&which),
         Command::Bridge(args) => commands::bridge::run(&args),
+        Command::BridgeProbe(args) => commands::bridge_bench::probe(&args),
         Command::BenchApp(args) => commands::bench::app(&args),
         Command::BenchPeerReader(args) => commands::bench::peer_reader(&args),
     };

@@ -4,11 +4,14 @@
 //!
 //! One thread per channel reads its newest frame (as soon as it is published,
 //! or at most `--max-hz` times a second) and hands it to zenoh with
-//! congestion control *block*: when the link is slower than the writer the
-//! thread waits for the link, and then sends the newest frame, never a
-//! backlog. Every frame the writer published that the bridge did not send is
-//! counted (`dropped`), as the local exchange counts a reader's skipped
-//! frames, and reaches remote readers in each channel's state.
+//! congestion control *drop*: when the link is slower than the writer, zenoh
+//! drops what finds no room in its one-batch queue rather than build a
+//! backlog, and nothing waits (a thread blocked on a full queue can also
+//! stall zenoh's own threads, which we saw on a 1 Mbit/s link). Nothing is
+//! lost silently: every frame carries the writer's sequence number, so a
+//! remote reader counts each frame it did not get (`skipped`, as a local
+//! reader does), and the bridge counts the frames it did not send (`dropped`:
+//! rate limit, or it read too late) in each channel's state.
 //!
 //! A second thread publishes every channel's state ten times a second (its
 //! absence tells a remote reader the link is cut) and picks up channels
@@ -31,7 +34,6 @@ use zenoh::bytes::ZBytes;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Publisher;
 use zenoh::qos::{CongestionControl, Priority};
-use zenoh::query::Query;
 use zenoh::{Session, Wait};
 
 use crate::link::LinkOptions;
@@ -246,6 +248,7 @@ struct Shared {
     channels: Mutex<BTreeMap<String, Arc<Channel>>>,
     threads: Mutex<Vec<JoinHandle<()>>>,
     _node_token: Option<LivelinessToken>,
+    _bridge_token: LivelinessToken,
 }
 
 impl Shared {
@@ -383,7 +386,13 @@ impl Bridge {
         } else {
             None
         };
+        let bridge_token = session
+            .liveliness()
+            .declare_token(protocol::bridge_token_key(&options.skin))
+            .wait()
+            .map_err(|e| BridgeError::Zenoh(format!("cannot announce the bridge: {e}")))?;
         let shared = Arc::new(Shared {
+            _bridge_token: bridge_token,
             dir,
             session,
             stop: Stop::new(),
@@ -396,7 +405,11 @@ impl Bridge {
             options,
         });
         shared.discover()?;
-        declare_queryables(&shared)?;
+        shared.spawn("br-describe".into(), |shared| {
+            if let Err(e) = serve_descriptions(&shared) {
+                tracing::warn!("the bridge no longer describes the skin: {e}");
+            }
+        })?;
         shared.spawn("br-state".into(), |shared| heartbeat(&shared))?;
         shared.spawn("br-request".into(), |shared| {
             if let Err(e) = serve_requests(&shared) {
@@ -483,11 +496,12 @@ impl Bridge {
 impl Drop for Bridge {
     fn drop(&mut self) {
         self.shared.stop.stop();
+        // Closing the session first releases a thread waiting for a slow link.
+        let _ = self.shared.session.close().wait();
         let threads: Vec<JoinHandle<()>> = lock(&self.shared.threads).drain(..).collect();
         for thread in threads {
             let _ = thread.join();
         }
-        let _ = self.shared.session.close().wait();
     }
 }
 
@@ -499,7 +513,7 @@ fn send_channel(shared: &Arc<Shared>, channel: &Channel, mut reader: Reader) -> 
     let frames = shared
         .session
         .declare_publisher(protocol::frame_key(skin, name))
-        .congestion_control(CongestionControl::Block)
+        .congestion_control(CongestionControl::Drop)
         .priority(Priority::Data)
         .wait()
         .map_err(|e| BridgeError::Zenoh(format!("cannot declare the publisher of {name}: {e}")))?;
@@ -643,29 +657,29 @@ fn heartbeat(shared: &Arc<Shared>) {
 /// How often every channel's state is sent.
 pub const HEARTBEAT: Duration = Duration::from_millis(100);
 
-fn declare_queryables(shared: &Arc<Shared>) -> Result<(), BridgeError> {
-    let skin = shared.options.skin.clone();
+/// The channel list and the geometry, answered from a thread of the bridge:
+/// a reply waits for room on a slow link, which must never block zenoh's own
+/// threads (as a reply from a callback would).
+fn serve_descriptions(shared: &Arc<Shared>) -> Result<(), BridgeError> {
+    let skin = &shared.options.skin;
     let zenoh = |what: &str, e: zenoh::Error| BridgeError::Zenoh(format!("cannot declare {what}: {e}"));
-    let weak = Arc::downgrade(shared);
-    shared
+    let channels = shared
         .session
-        .declare_queryable(protocol::channels_key(&skin))
-        .callback(move |query: Query| {
-            let Some(shared) = weak.upgrade() else { return };
-            let channels = lock(&shared.channels).values().map(|c| c.info.clone()).collect();
-            let list = ChannelList { skin: shared.options.skin.clone(), channels };
-            let _ = query.reply(query.key_expr().clone(), list.encode()).wait();
-        })
-        .background()
+        .declare_queryable(protocol::channels_key(skin))
         .wait()
         .map_err(|e| zenoh("the channel list", e))?;
-    let weak = Arc::downgrade(shared);
-    shared
-        .session
-        .declare_queryable(protocol::geometry_key(&skin))
-        .callback(move |query: Query| {
-            let Some(shared) = weak.upgrade() else { return };
-            let path = SkinGeometry::published_path(&shared.dir, &shared.options.skin);
+    let geometry =
+        shared.session.declare_queryable(protocol::geometry_key(skin)).wait().map_err(|e| zenoh("the geometry", e))?;
+    while !shared.stop.is_stopped() {
+        if let Ok(Some(query)) = channels.recv_timeout(Duration::from_millis(50)) {
+            let list = ChannelList {
+                skin: skin.clone(),
+                channels: lock(&shared.channels).values().map(|c| c.info.clone()).collect(),
+            };
+            let _ = query.reply(query.key_expr().clone(), list.encode()).wait();
+        }
+        while let Ok(Some(query)) = geometry.try_recv() {
+            let path = SkinGeometry::published_path(&shared.dir, skin);
             let _ = match std::fs::read(&path) {
                 Ok(bytes) => query.reply(query.key_expr().clone(), bytes).wait(),
                 Err(e) => query
@@ -675,10 +689,8 @@ fn declare_queryables(shared: &Arc<Shared>) -> Result<(), BridgeError> {
                     ))
                     .wait(),
             };
-        })
-        .background()
-        .wait()
-        .map_err(|e| zenoh("the geometry", e))?;
+        }
+    }
     Ok(())
 }
 

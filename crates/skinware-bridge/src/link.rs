@@ -22,6 +22,28 @@ pub struct LinkOptions {
     /// How long a silent link lasts before zenoh closes it and reconnects
     /// (default [`DEFAULT_LEASE`]; a configuration file's own stands).
     pub lease: Option<Duration>,
+    /// The kernel's send buffer of each TCP link, bytes (`so_sndbuf`): what
+    /// a slow link can hold back. `None` keeps the kernel's autotuning (up
+    /// to megabytes: seconds of backlog on a slow link).
+    pub send_buffer: Option<usize>,
+}
+
+pub use crate::protocol::BRIDGE_SEND_BUFFER;
+
+fn with_send_buffer(endpoints: &[String], bytes: Option<usize>) -> Vec<String> {
+    endpoints
+        .iter()
+        .map(|endpoint| match bytes {
+            Some(bytes)
+                if (endpoint.starts_with("tcp/") || endpoint.starts_with("tls/"))
+                    && !endpoint.contains("so_sndbuf") =>
+            {
+                let separator = if endpoint.contains('#') { ';' } else { '#' };
+                format!("{endpoint}{separator}so_sndbuf={bytes}")
+            }
+            _ => endpoint.clone(),
+        })
+        .collect()
 }
 
 /// The bridge's endpoint when none is given: this machine only.
@@ -60,6 +82,10 @@ impl LinkOptions {
                 let lease = self.lease.unwrap_or(DEFAULT_LEASE).as_millis().max(100);
                 config.insert_json5("transport/link/tx/lease", &lease.to_string()).map_err(|e| config_error("lease", e))?;
                 // Retry a lost connection every 250 ms, then at most every second.
+                // One batch of data waiting per link, not two: less held back on a slow link.
+                config
+                    .insert_json5("transport/link/tx/queue/size/data", "1")
+                    .map_err(|e| config_error("transport/link/tx/queue/size/data", e))?;
                 config
                     .insert_json5("connect/retry", "{period_init_ms: 250, period_max_ms: 1000, period_increase_factor: 2}")
                     .map_err(|e| config_error("connect/retry", e))?;
@@ -72,15 +98,14 @@ impl LinkOptions {
         }
         if !self.listen.is_empty() {
             config
-                .insert_json5("listen/endpoints", &json_list(&self.listen))
+                .insert_json5("listen/endpoints", &json_list(&with_send_buffer(&self.listen, self.send_buffer)))
                 .map_err(|e| config_error(&format!("listen endpoints {:?}", self.listen), e))?;
         }
         if !self.connect.is_empty() {
             config
-                .insert_json5("connect/endpoints", &json_list(&self.connect))
+                .insert_json5("connect/endpoints", &json_list(&with_send_buffer(&self.connect, self.send_buffer)))
                 .map_err(|e| config_error(&format!("connect endpoints {:?}", self.connect), e))?;
-            // Start even while the other side is away, and keep trying.
-            config.insert_json5("connect/timeout_ms", "0").map_err(|e| config_error("connect/timeout_ms", e))?;
+            // Start even while the other side is away, and keep trying in the background.
             config
                 .insert_json5("connect/exit_on_failure", "false")
                 .map_err(|e| config_error("connect/exit_on_failure", e))?;

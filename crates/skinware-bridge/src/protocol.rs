@@ -20,6 +20,11 @@ use skinware_record::msgs::{SkinFrame, SkinFrameRef, Time};
 
 use crate::BridgeError;
 
+/// The bridge's TCP send buffer: 64 KiB (the kernel doubles it), a
+/// millisecond at 1 Gbit/s, enough for a LAN; a slow link then holds back
+/// about a second at 1 Mbit/s instead of many (raise it for long, fast links).
+pub const BRIDGE_SEND_BUFFER: usize = 64 << 10;
+
 /// The root of every key of skin `skin`.
 pub fn skin_prefix(skin: &str) -> String {
     format!("skinware/{skin}")

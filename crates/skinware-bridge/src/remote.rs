@@ -23,10 +23,10 @@ use std::time::{Duration, Instant};
 
 use skinware::{FrameStatus, LayerTopology, Stop, Ticker, Writer, WriterOptions, WriterState};
 use skinware_geometry::SkinGeometry;
-use zenoh::handlers::{FifoChannelHandler, RingChannel, RingChannelHandler};
+use zenoh::handlers::{FifoChannel, FifoChannelHandler, RingChannel, RingChannelHandler};
 use zenoh::pubsub::Subscriber;
 use zenoh::query::Reply;
-use zenoh::sample::Sample;
+use zenoh::sample::{Sample, SampleKind};
 use zenoh::{Session, Wait};
 
 use crate::BridgeError;
@@ -75,6 +75,8 @@ fn query_bytes(session: &Session, key: &str, timeout: Duration) -> Result<Option
         }
     }
     match refusal {
+        // zenoh's own answer when nothing replied in time.
+        Some(reason) if reason == "Timeout" => Ok(None),
         Some(reason) => Err(BridgeError::Invalid(format!("{key}: the bridge refused: {reason}"))),
         None => Ok(None),
     }
@@ -88,7 +90,7 @@ impl RemoteSkin {
         let session = link.open()?;
         let deadline = Instant::now() + timeout;
         loop {
-            let left = deadline.saturating_duration_since(Instant::now()).min(Duration::from_secs(1));
+            let left = deadline.saturating_duration_since(Instant::now()).min(Duration::from_secs(5));
             if let Some(bytes) =
                 query_bytes(&session, &protocol::channels_key(skin), left.max(Duration::from_millis(100)))?
             {
@@ -207,6 +209,8 @@ pub struct Reader {
     channel: RemoteChannel,
     frames: Subscriber<RingChannelHandler<Sample>>,
     states: Subscriber<RingChannelHandler<Sample>>,
+    bridge: Subscriber<FifoChannelHandler<Sample>>,
+    bridge_alive: bool,
     newest: Option<RemoteFrame>,
     state: Option<ChannelState>,
     heard_at: Instant,
@@ -224,7 +228,19 @@ impl Reader {
                 .wait()
                 .map_err(|e| BridgeError::Zenoh(format!("cannot subscribe to {key}: {e}")))
         };
+        // The bridge's liveliness token goes when zenoh finds the link dead
+        // (its lease, 1 s); a slow link that still carries data keeps it.
+        let token = protocol::bridge_token_key(skin);
+        let bridge = session
+            .liveliness()
+            .declare_subscriber(token.clone())
+            .history(true)
+            .with(FifoChannel::new(64))
+            .wait()
+            .map_err(|e| BridgeError::Zenoh(format!("cannot watch {token}: {e}")))?;
         Ok(Reader {
+            bridge,
+            bridge_alive: true,
             frames: subscribe(protocol::frame_key(skin, &channel.name))?,
             states: subscribe(protocol::state_key(skin, &channel.name))?,
             session: session.clone(),
@@ -270,6 +286,12 @@ impl Reader {
     }
 
     fn drain_states(&mut self) {
+        while let Ok(Some(sample)) = self.bridge.try_recv() {
+            self.bridge_alive = sample.kind() == SampleKind::Put;
+            if self.bridge_alive {
+                self.heard_at = Instant::now();
+            }
+        }
         while let Ok(Some(sample)) = self.states.try_recv() {
             match ChannelState::decode(&sample.payload().to_bytes()) {
                 Ok(state) => {
@@ -287,7 +309,7 @@ impl Reader {
     /// The channel's state: the writer's, or `unreachable`.
     pub fn state(&mut self) -> RemoteState {
         self.drain_states();
-        let unreachable = self.heard_at.elapsed() > self.unreachable_after;
+        let unreachable = !self.bridge_alive || self.heard_at.elapsed() > self.unreachable_after;
         if unreachable && !self.was_unreachable {
             self.stats.unreachable += 1;
         }
@@ -401,8 +423,10 @@ impl Reader {
 }
 
 /// How long without a word from the bridge (it speaks every 100 ms) makes a
-/// channel unreachable.
-pub const DEFAULT_UNREACHABLE_AFTER: Duration = Duration::from_millis(500);
+/// channel unreachable even while zenoh still holds the link (a bridge that
+/// hangs, or a link slower than this holds back). A link zenoh finds dead
+/// (no traffic for its lease) is unreachable at once.
+pub const DEFAULT_UNREACHABLE_AFTER: Duration = Duration::from_secs(3);
 
 /// A remote skin copied into local channels, so that every local tool (the
 /// viewer, Python, a recorder) reads it as if it were here. An unreachable

@@ -19,6 +19,8 @@ pub enum Which {
     Record(Common),
     /// The Python bindings beside the Rust reader on a 30,848-sensor layer of `skin run`: latest(), read_into(), wait_newer() latency ($SKINWARE_PYTHON).
     Python(Common),
+    /// The paper's skin across a veth link between two network namespaces: `skin bridge` (feature `zenoh`) beside the local exchange, at 100/10/1 Mbit/s, and a cut link (needs root).
+    Bridge(Common),
 }
 
 /// Options every benchmark takes.
@@ -26,13 +28,13 @@ pub enum Which {
 pub struct Common {
     /// A short, CI-sized run.
     #[arg(long)]
-    quick: bool,
+    pub quick: bool,
     /// Directory for the JSON and plots.
     #[arg(long, default_value = "target/bench")]
-    out: PathBuf,
+    pub out: PathBuf,
     /// Seconds per configuration (and round; overrides the default of --quick or the full run).
     #[arg(long)]
-    seconds: Option<f64>,
+    pub seconds: Option<f64>,
 }
 
 /// Options of `skin bench paper`.
@@ -129,6 +131,7 @@ pub fn run(which: &Which) -> Result<()> {
             };
             skinware_bench::record::run(&options).map(|_| ())
         }
+        Which::Bridge(common) => super::bridge_bench::bench(common),
         Which::Python(common) => {
             let options = skinware_bench::python::PythonBenchOptions {
                 quick: common.quick,

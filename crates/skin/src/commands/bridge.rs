@@ -46,6 +46,11 @@ pub struct Args {
     /// zenoh offers (see docs/remote.md).
     #[arg(long)]
     zenoh_config: Option<PathBuf>,
+    /// The TCP send buffer of each link, bytes: what a slow link may hold
+    /// back before the bridge sends only the newest frames (0: the kernel's
+    /// autotuning, which holds seconds on a slow link).
+    #[arg(long, default_value_t = skinware_bridge::protocol::BRIDGE_SEND_BUFFER)]
+    send_buffer: usize,
     /// Print every channel's figures each second.
     #[arg(long)]
     stats: bool,
@@ -197,6 +202,7 @@ mod with_zenoh {
             connect: args.connect.clone(),
             config_file: args.zenoh_config.clone(),
             lease: None,
+            send_buffer: (args.send_buffer > 0).then_some(args.send_buffer),
         };
         let shutdown = super::super::run::shutdown_on_signals()?;
         let bridge = Bridge::start(options.clone())?;

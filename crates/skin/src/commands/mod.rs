@@ -2,6 +2,7 @@
 
 pub mod bench;
 pub mod bridge;
+pub mod bridge_bench;
 pub mod clean;
 pub mod demo;
 pub mod driver;
