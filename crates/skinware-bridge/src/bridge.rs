@@ -5,7 +5,7 @@
 //! One thread per channel reads its newest frame (as soon as it is published,
 //! or at most `--max-hz` times a second) and hands it to zenoh with
 //! congestion control *drop*: when the link is slower than the writer, zenoh
-//! drops what finds no room in its one-batch queue rather than build a
+//! drops what finds no room in its two-batch queue rather than build a
 //! backlog, and nothing waits (a thread blocked on a full queue can also
 //! stall zenoh's own threads, which we saw on a 1 Mbit/s link). Nothing is
 //! lost silently: every frame carries the writer's sequence number, so a

@@ -82,10 +82,6 @@ impl LinkOptions {
                 let lease = self.lease.unwrap_or(DEFAULT_LEASE).as_millis().max(100);
                 config.insert_json5("transport/link/tx/lease", &lease.to_string()).map_err(|e| config_error("lease", e))?;
                 // Retry a lost connection every 250 ms, then at most every second.
-                // One batch of data waiting per link, not two: less held back on a slow link.
-                config
-                    .insert_json5("transport/link/tx/queue/size/data", "1")
-                    .map_err(|e| config_error("transport/link/tx/queue/size/data", e))?;
                 config
                     .insert_json5("connect/retry", "{period_init_ms: 250, period_max_ms: 1000, period_increase_factor: 2}")
                     .map_err(|e| config_error("connect/retry", e))?;

@@ -16,14 +16,15 @@
 //! # Ok::<(), skinware_bridge::BridgeError>(())
 //! ```
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 use std::path::Path;
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use skinware::{FrameStatus, LayerTopology, Stop, Ticker, Writer, WriterOptions, WriterState};
 use skinware_geometry::SkinGeometry;
-use zenoh::handlers::{FifoChannel, FifoChannelHandler, RingChannel, RingChannelHandler};
+use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::Subscriber;
 use zenoh::query::Reply;
 use zenoh::sample::{Sample, SampleKind};
@@ -207,9 +208,12 @@ pub struct Reader {
     session: Session,
     skin: String,
     channel: RemoteChannel,
-    frames: Subscriber<RingChannelHandler<Sample>>,
-    states: Subscriber<RingChannelHandler<Sample>>,
-    bridge: Subscriber<FifoChannelHandler<Sample>>,
+    _frames: Subscriber<()>,
+    newest_sample: Arc<NewestSample>,
+    _states: Subscriber<()>,
+    state_queue: Arc<Mutex<VecDeque<Vec<u8>>>>,
+    _bridge: Subscriber<()>,
+    bridge_events: Arc<Mutex<VecDeque<bool>>>,
     bridge_alive: bool,
     newest: Option<RemoteFrame>,
     state: Option<ChannelState>,
@@ -221,28 +225,44 @@ pub struct Reader {
 
 impl Reader {
     fn open(session: &Session, skin: &str, channel: RemoteChannel) -> Result<Reader, BridgeError> {
-        let subscribe = |key: String| {
-            session
-                .declare_subscriber(key.clone())
-                .with(RingChannel::new(1))
-                .wait()
-                .map_err(|e| BridgeError::Zenoh(format!("cannot subscribe to {key}: {e}")))
-        };
         // The bridge's liveliness token goes when zenoh finds the link dead
         // (its lease, 1 s); a slow link that still carries data keeps it.
         let token = protocol::bridge_token_key(skin);
+        // Callbacks that never block: a full channel would block zenoh's own
+        // thread, and with it every subscription of the session.
+        let bridge_events = Arc::new(Mutex::new(VecDeque::new()));
+        let events = Arc::clone(&bridge_events);
         let bridge = session
             .liveliness()
             .declare_subscriber(token.clone())
             .history(true)
-            .with(FifoChannel::new(64))
+            .callback(move |sample: Sample| push_bounded(&events, sample.kind() == SampleKind::Put))
             .wait()
             .map_err(|e| BridgeError::Zenoh(format!("cannot watch {token}: {e}")))?;
+        let newest_sample = Arc::new(NewestSample::default());
+        let state_queue = Arc::new(Mutex::new(VecDeque::new()));
+        let queue = Arc::clone(&state_queue);
         Ok(Reader {
-            bridge,
+            _bridge: bridge,
+            bridge_events,
+            state_queue,
             bridge_alive: true,
-            frames: subscribe(protocol::frame_key(skin, &channel.name))?,
-            states: subscribe(protocol::state_key(skin, &channel.name))?,
+            _frames: {
+                let key = protocol::frame_key(skin, &channel.name);
+                let slot = Arc::clone(&newest_sample);
+                session
+                    .declare_subscriber(key.clone())
+                    .callback(move |sample: Sample| slot.put(sample.payload().to_bytes().into_owned()))
+                    .wait()
+                    .map_err(|e| BridgeError::Zenoh(format!("cannot subscribe to {key}: {e}")))?
+            },
+            newest_sample,
+            // Every state in order (a ring of one could hide a bad one behind a good one).
+            _states: session
+                .declare_subscriber(protocol::state_key(skin, &channel.name))
+                .callback(move |sample: Sample| push_bounded(&queue, sample.payload().to_bytes().into_owned()))
+                .wait()
+                .map_err(|e| BridgeError::Zenoh(format!("cannot subscribe to the state of {}: {e}", channel.name)))?,
             session: session.clone(),
             skin: skin.to_owned(),
             channel,
@@ -286,14 +306,16 @@ impl Reader {
     }
 
     fn drain_states(&mut self) {
-        while let Ok(Some(sample)) = self.bridge.try_recv() {
-            self.bridge_alive = sample.kind() == SampleKind::Put;
+        let events: Vec<bool> = lock(&self.bridge_events).drain(..).collect();
+        for alive in events {
+            self.bridge_alive = alive;
             if self.bridge_alive {
                 self.heard_at = Instant::now();
             }
         }
-        while let Ok(Some(sample)) = self.states.try_recv() {
-            match ChannelState::decode(&sample.payload().to_bytes()) {
+        let states: Vec<Vec<u8>> = lock(&self.state_queue).drain(..).collect();
+        for bytes in states {
+            match ChannelState::decode(&bytes) {
                 Ok(state) => {
                     self.state = Some(state);
                     self.heard_at = Instant::now();
@@ -322,9 +344,9 @@ impl Reader {
         }
     }
 
-    fn accept(&mut self, sample: &Sample) -> Result<(), BridgeError> {
+    fn accept(&mut self, bytes: &[u8]) -> Result<(), BridgeError> {
         self.heard_at = Instant::now();
-        let frame = protocol::decode_frame(&self.channel, &sample.payload().to_bytes()).inspect_err(|_| {
+        let frame = protocol::decode_frame(&self.channel, bytes).inspect_err(|_| {
             self.stats.malformed += 1;
         })?;
         let skipped = match &self.newest {
@@ -348,8 +370,8 @@ impl Reader {
 
     /// The newest frame received (none yet: an error saying so).
     pub fn latest(&mut self) -> Result<&RemoteFrame, BridgeError> {
-        if let Ok(Some(sample)) = self.frames.try_recv() {
-            self.accept(&sample)?;
+        if let Some(bytes) = self.newest_sample.take() {
+            self.accept(&bytes)?;
         }
         self.newest.as_ref().ok_or_else(|| self.nothing_yet())
     }
@@ -363,19 +385,18 @@ impl Reader {
     pub fn wait_newer(&mut self, timeout: Duration) -> Result<&RemoteFrame, BridgeError> {
         let deadline = Instant::now() + timeout;
         loop {
-            match self.frames.recv_deadline(deadline) {
-                Ok(Some(sample)) => {
-                    self.accept(&sample)?;
+            match self.newest_sample.wait(deadline) {
+                Some(bytes) => {
+                    self.accept(&bytes)?;
                     return self.newest.as_ref().ok_or_else(|| self.nothing_yet());
                 }
-                Ok(None) => {
+                None => {
                     let state = self.state().name();
                     return Err(BridgeError::Timeout(format!(
                         "no new frame of {}/{} within {timeout:?} (state: {state})",
                         self.skin, self.channel.name,
                     )));
                 }
-                Err(e) => return Err(BridgeError::Zenoh(format!("the subscription ended: {e}"))),
             }
         }
     }
@@ -402,7 +423,7 @@ impl Reader {
         match replies.recv() {
             Ok(reply) => match reply.result() {
                 Ok(sample) => {
-                    self.accept(sample)?;
+                    self.accept(&sample.payload().to_bytes())?;
                     self.newest.as_ref().ok_or_else(|| self.nothing_yet())
                 }
                 Err(error) => Err(BridgeError::Invalid(format!(
@@ -420,6 +441,65 @@ impl Reader {
             }
         }
     }
+}
+
+impl std::fmt::Debug for Reader {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Reader").field("skin", &self.skin).field("channel", &self.channel.name).finish_non_exhaustive()
+    }
+}
+
+impl std::fmt::Debug for RemoteSkin {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RemoteSkin")
+            .field("skin", &self.skin)
+            .field("channels", &self.list.channels.len())
+            .finish_non_exhaustive()
+    }
+}
+
+/// The newest frame message not read yet: filled from zenoh's thread (which
+/// never waits here), taken by the reader.
+#[derive(Default)]
+struct NewestSample {
+    slot: Mutex<Option<Vec<u8>>>,
+    arrived: Condvar,
+}
+
+impl NewestSample {
+    fn put(&self, bytes: Vec<u8>) {
+        *lock(&self.slot) = Some(bytes);
+        self.arrived.notify_all();
+    }
+
+    fn take(&self) -> Option<Vec<u8>> {
+        lock(&self.slot).take()
+    }
+
+    fn wait(&self, deadline: Instant) -> Option<Vec<u8>> {
+        let mut slot = lock(&self.slot);
+        loop {
+            if let Some(bytes) = slot.take() {
+                return Some(bytes);
+            }
+            let left = deadline.checked_duration_since(Instant::now()).filter(|d| !d.is_zero())?;
+            slot = self.arrived.wait_timeout(slot, left).map(|(guard, _)| guard).unwrap_or_else(|p| p.into_inner().0);
+        }
+    }
+}
+
+fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
+    mutex.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// Keeps the newest 64 items: a reader that looks at its state rarely loses
+/// the oldest, and nothing ever waits.
+fn push_bounded<T>(queue: &Mutex<VecDeque<T>>, item: T) {
+    let mut queue = lock(queue);
+    if queue.len() == 64 {
+        queue.pop_front();
+    }
+    queue.push_back(item);
 }
 
 /// How long without a word from the bridge (it speaks every 100 ms) makes a

@@ -10,8 +10,14 @@
 //! - [`python`]: the Python bindings' pytest suite, against this build's
 //!   `skin` (skipped without the package, except under `CI=true`).
 //!
+//! - [`bridge_e2e`] (feature `zenoh`): `skin bridge` between two network
+//!   namespaces, and a ROS 2 subscriber made of Python's `eclipse-zenoh` and
+//!   `rosbags`.
+//!
 //! Run one file's tests with `cargo test -p skin --test integration e2e::`.
 
+#[cfg(feature = "zenoh")]
+mod bridge_e2e;
 mod browser;
 mod can_e2e;
 mod e2e;
