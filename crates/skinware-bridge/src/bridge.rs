@@ -37,7 +37,7 @@ use zenoh::qos::{CongestionControl, Priority};
 use zenoh::{Session, Wait};
 
 use crate::link::LinkOptions;
-use crate::protocol::{self, ChannelList, ChannelState, RemoteChannel};
+use crate::protocol::{self, ChannelList, ChannelState, ReaderReport, RemoteChannel};
 use crate::ros2::{self, Attachment, EntityKind, Liveliness};
 use crate::{BridgeError, messages};
 
@@ -111,6 +111,14 @@ pub struct ChannelReport {
     pub latency_p50_us: f64,
     /// The same, 99th percentile.
     pub latency_p99_us: f64,
+    /// Remote skinware readers that reported in the last 5 s.
+    pub remote_readers: u64,
+    /// Frames those readers did not get although the bridge sent them
+    /// (lost on the link, or dropped by zenoh's queue when the link was
+    /// full), summed over the readers.
+    pub remote_skipped: u64,
+    /// The slowest reader's mean acquisition-to-receipt time over its last second, µs.
+    pub remote_latency_us: f64,
     /// Errors (encoding, zenoh).
     pub errors: u64,
     /// The last error.
@@ -249,6 +257,9 @@ struct Shared {
     threads: Mutex<Vec<JoinHandle<()>>>,
     _node_token: Option<LivelinessToken>,
     _bridge_token: LivelinessToken,
+    /// The newest report of each remote reader: (channel, reader) -> (report, when).
+    reader_reports: Arc<Mutex<BTreeMap<(String, String), (ReaderReport, std::time::Instant)>>>,
+    _reports: zenoh::pubsub::Subscriber<()>,
 }
 
 impl Shared {
@@ -391,7 +402,27 @@ impl Bridge {
             .declare_token(protocol::bridge_token_key(&options.skin))
             .wait()
             .map_err(|e| BridgeError::Zenoh(format!("cannot announce the bridge: {e}")))?;
+        let reader_reports = Arc::new(Mutex::new(BTreeMap::new()));
+        let into = Arc::clone(&reader_reports);
+        let reports = session
+            .declare_subscriber(format!("{}/*/readers/*", protocol::skin_prefix(&options.skin)))
+            .callback(move |sample: zenoh::sample::Sample| {
+                let key = sample.key_expr().as_str();
+                let mut parts = key.rsplit('/');
+                let (Some(reader), Some(_), Some(channel)) = (parts.next(), parts.next(), parts.next()) else { return };
+                if let Ok(report) = ReaderReport::decode(&sample.payload().to_bytes()) {
+                    let mut reports = lock(&into);
+                    // A reader per session and channel; a hostile flood of ids stays bounded.
+                    if reports.len() < 4096 || reports.contains_key(&(channel.to_owned(), reader.to_owned())) {
+                        reports.insert((channel.to_owned(), reader.to_owned()), (report, std::time::Instant::now()));
+                    }
+                }
+            })
+            .wait()
+            .map_err(|e| BridgeError::Zenoh(format!("cannot listen to the remote readers' reports: {e}")))?;
         let shared = Arc::new(Shared {
+            reader_reports,
+            _reports: reports,
             _bridge_token: bridge_token,
             dir,
             session,
@@ -461,6 +492,18 @@ impl Bridge {
                     }
                     *hz
                 };
+                let (mut remote_readers, mut remote_skipped, mut remote_latency_ns) = (0, 0, 0);
+                {
+                    let mut reports = lock(&self.shared.reader_reports);
+                    reports.retain(|_, (_, at)| at.elapsed() < Duration::from_secs(60));
+                    for ((name, _), (report, at)) in reports.iter() {
+                        if *name == channel.info.name && at.elapsed() < Duration::from_secs(5) {
+                            remote_readers += 1;
+                            remote_skipped += report.skipped;
+                            remote_latency_ns = remote_latency_ns.max(report.latency_ns);
+                        }
+                    }
+                }
                 let mut latencies: Vec<u64> = lock(&c.latencies).iter().copied().collect();
                 latencies.sort_unstable();
                 let quantile = |q: f64| {
@@ -478,6 +521,9 @@ impl Bridge {
                     rate_hz,
                     latency_p50_us: quantile(0.5),
                     latency_p99_us: quantile(0.99),
+                    remote_readers,
+                    remote_skipped,
+                    remote_latency_us: remote_latency_ns as f64 / 1e3,
                     errors: c.errors.load(Ordering::Relaxed),
                     last_error: lock(&c.last_error).clone(),
                 }

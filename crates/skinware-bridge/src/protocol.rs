@@ -55,6 +55,13 @@ pub fn request_key(skin: &str, channel: &str) -> String {
     format!("skinware/{skin}/{channel}/request")
 }
 
+/// Where a remote reader of `channel` reports what it received, once a
+/// second (`reader` is its zenoh session id), so that the bridge sees what
+/// the link lost.
+pub fn reader_report_key(skin: &str, channel: &str, reader: &str) -> String {
+    format!("skinware/{skin}/{channel}/readers/{reader}")
+}
+
 /// The liveliness token of a bridge serving `skin`.
 pub fn bridge_token_key(skin: &str) -> String {
     format!("skinware/{skin}/@bridge")
@@ -255,6 +262,51 @@ impl ChannelState {
     }
 }
 
+/// What a remote reader received since it started: the bridge adds it up
+/// per channel, so that frames lost on the link show on the robot PC too.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ReaderReport {
+    /// Frames received.
+    pub received: u64,
+    /// Frames of the writer never received (sequence gaps).
+    pub skipped: u64,
+    /// Messages refused as malformed.
+    pub malformed: u64,
+    /// Mean acquisition-to-receipt time over the last second, ns.
+    pub latency_ns: u64,
+}
+
+const READER_REPORT_MAGIC: &[u8; 8] = b"SKBRRP01";
+
+impl ReaderReport {
+    /// Its bytes.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut out = Encoder::with_capacity(READER_REPORT_MAGIC, 48);
+        out.u64(self.received);
+        out.u64(self.skipped);
+        out.u64(self.malformed);
+        out.u64(self.latency_ns);
+        out.finish()
+    }
+
+    /// Reads a report; any bytes give a report or an error.
+    pub fn decode(bytes: &[u8]) -> Result<ReaderReport, BridgeError> {
+        let malformed = |e: skinware::wire::DecodeError| BridgeError::Malformed {
+            what: "reader report".into(),
+            reason: e.to_string(),
+        };
+        let mut input = Decoder::new(bytes, "reader report", READER_REPORT_MAGIC).map_err(malformed)?;
+        let report = ReaderReport {
+            received: input.u64("received").map_err(malformed)?,
+            skipped: input.u64("skipped").map_err(malformed)?,
+            malformed: input.u64("malformed").map_err(malformed)?,
+            latency_ns: input.u64("latency").map_err(malformed)?,
+        };
+        input.finish().map_err(malformed)?;
+        Ok(report)
+    }
+}
+
 /// Encodes one frame of a channel as a `SkinFrame` (a layer's responses, or a service's bytes).
 pub fn encode_frame(
     kind: ChannelKind,
@@ -332,6 +384,8 @@ mod tests {
             period_ns: 20_000_000,
         };
         assert_eq!(ChannelState::decode(&state.encode()).unwrap(), state);
+        let report = ReaderReport { received: 5, skipped: 2, malformed: 1, latency_ns: 3 };
+        assert_eq!(ReaderReport::decode(&report.encode()).unwrap(), report);
     }
 
     #[test]
@@ -370,6 +424,7 @@ mod tests {
         fn any_bytes_decode_to_a_value_or_an_error(bytes in proptest::collection::vec(any::<u8>(), 0..300)) {
             let _ = ChannelList::decode(&bytes);
             let _ = ChannelState::decode(&bytes);
+            let _ = ReaderReport::decode(&bytes);
             let _ = decode_frame(&layer(), &bytes);
         }
 

@@ -25,14 +25,14 @@ use std::time::{Duration, Instant};
 use skinware::{FrameStatus, LayerTopology, Stop, Ticker, Writer, WriterOptions, WriterState};
 use skinware_geometry::SkinGeometry;
 use zenoh::handlers::FifoChannelHandler;
-use zenoh::pubsub::Subscriber;
+use zenoh::pubsub::{Publisher, Subscriber};
 use zenoh::query::Reply;
 use zenoh::sample::{Sample, SampleKind};
 use zenoh::{Session, Wait};
 
 use crate::BridgeError;
 use crate::link::LinkOptions;
-use crate::protocol::{self, ChannelList, ChannelState, RemoteChannel};
+use crate::protocol::{self, ChannelList, ChannelState, ReaderReport, RemoteChannel};
 
 /// A remote channel's state.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -221,6 +221,11 @@ pub struct Reader {
     was_unreachable: bool,
     unreachable_after: Duration,
     stats: RemoteStats,
+    reports: Publisher<'static>,
+    reported_at: Instant,
+    latency_sum_ns: u64,
+    latency_count: u64,
+    clock_offset_ns: i64,
 }
 
 impl Reader {
@@ -263,6 +268,15 @@ impl Reader {
                 .callback(move |sample: Sample| push_bounded(&queue, sample.payload().to_bytes().into_owned()))
                 .wait()
                 .map_err(|e| BridgeError::Zenoh(format!("cannot subscribe to the state of {}: {e}", channel.name)))?,
+            reports: session
+                .declare_publisher(protocol::reader_report_key(skin, &channel.name, &session.zid().to_string()))
+                .congestion_control(zenoh::qos::CongestionControl::Drop)
+                .wait()
+                .map_err(|e| BridgeError::Zenoh(format!("cannot declare the reports of {}: {e}", channel.name)))?,
+            reported_at: Instant::now(),
+            latency_sum_ns: 0,
+            latency_count: 0,
+            clock_offset_ns: skinware_record::recorder::clock_offset_ns(),
             session: session.clone(),
             skin: skin.to_owned(),
             channel,
@@ -331,6 +345,7 @@ impl Reader {
     /// The channel's state: the writer's, or `unreachable`.
     pub fn state(&mut self) -> RemoteState {
         self.drain_states();
+        self.report_if_due();
         let unreachable = !self.bridge_alive || self.heard_at.elapsed() > self.unreachable_after;
         if unreachable && !self.was_unreachable {
             self.stats.unreachable += 1;
@@ -356,7 +371,11 @@ impl Reader {
         };
         self.stats.received += 1;
         self.stats.skipped += skipped;
+        let now_unix = (skinware::os::monotonic_ns() as i64).saturating_add(self.clock_offset_ns).max(0) as u64;
+        self.latency_sum_ns += now_unix.saturating_sub(frame.stamp.to_ns());
+        self.latency_count += 1;
         let bytes = frame.channel_bytes();
+        self.report_if_due();
         self.newest = Some(RemoteFrame {
             seq: frame.seq,
             acquired_unix_ns: frame.stamp.to_ns(),
@@ -366,6 +385,23 @@ impl Reader {
             bytes,
         });
         Ok(())
+    }
+
+    /// Tells the bridge, once a second, what this reader received: frames
+    /// lost on the link then show on the robot PC too (`skin bridge --stats`).
+    fn report_if_due(&mut self) {
+        if self.reported_at.elapsed() < Duration::from_secs(1) {
+            return;
+        }
+        self.reported_at = Instant::now();
+        let report = ReaderReport {
+            received: self.stats.received,
+            skipped: self.stats.skipped,
+            malformed: self.stats.malformed,
+            latency_ns: self.latency_sum_ns.checked_div(self.latency_count).unwrap_or(0),
+        };
+        (self.latency_sum_ns, self.latency_count) = (0, 0);
+        let _ = self.reports.put(report.encode()).wait();
     }
 
     /// The newest frame received (none yet: an error saying so).

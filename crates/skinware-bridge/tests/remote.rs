@@ -157,3 +157,15 @@ fn the_attachment_is_what_zenoh_ext_serializes() {
     let mut deserializer = zenoh_ext::ZDeserializer::new(&bytes);
     assert_eq!(deserializer.deserialize::<i64>().unwrap(), 42);
 }
+
+#[test]
+fn the_example_zenoh_configurations_are_valid() {
+    let examples = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/zenoh");
+    for name in ["robot-tls.json5", "robot-acl.json5"] {
+        let link = LinkOptions { config_file: Some(examples.join(name)), ..LinkOptions::default() };
+        let config = link.config().unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert!(config.get_json("listen/endpoints").unwrap().contains("tls/0.0.0.0:7447"), "{name}");
+    }
+    let missing = LinkOptions { config_file: Some(examples.join("missing.json5")), ..LinkOptions::default() };
+    assert!(missing.config().unwrap_err().to_string().contains("missing.json5"));
+}

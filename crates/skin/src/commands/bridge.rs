@@ -252,7 +252,9 @@ mod with_zenoh {
                 serde_json::json!({
                     "channel": c.channel, "kind": c.kind, "state": c.state, "sent": c.sent, "dropped": c.dropped,
                     "ros_sent": c.ros_sent, "rate_hz": c.rate_hz, "latency_p50_us": c.latency_p50_us,
-                    "latency_p99_us": c.latency_p99_us, "errors": c.errors, "last_error": c.last_error,
+                    "latency_p99_us": c.latency_p99_us, "remote_readers": c.remote_readers,
+                    "remote_skipped": c.remote_skipped, "remote_latency_us": c.remote_latency_us,
+                    "errors": c.errors, "last_error": c.last_error,
                 })
             })
             .collect();
@@ -263,13 +265,25 @@ mod with_zenoh {
         writeln!(out, "after {seconds:.1} s:")?;
         writeln!(
             out,
-            "  {:<16} {:<8} {:<8} {:>9} {:>8} {:>8} {:>8} {:>10} {:>10} {:>6}",
-            "channel", "kind", "state", "sent", "dropped", "ros", "rate Hz", "p50 µs", "p99 µs", "errors"
+            "  {:<16} {:<8} {:<8} {:>9} {:>8} {:>8} {:>8} {:>10} {:>10} {:>7} {:>9} {:>10} {:>6}",
+            "channel",
+            "kind",
+            "state",
+            "sent",
+            "dropped",
+            "ros",
+            "rate Hz",
+            "p50 µs",
+            "p99 µs",
+            "readers",
+            "link lost",
+            "remote µs",
+            "errors"
         )?;
         for c in report {
             writeln!(
                 out,
-                "  {:<16} {:<8} {:<8} {:>9} {:>8} {:>8} {:>8.1} {:>10.0} {:>10.0} {:>6}",
+                "  {:<16} {:<8} {:<8} {:>9} {:>8} {:>8} {:>8.1} {:>10.0} {:>10.0} {:>7} {:>9} {:>10.0} {:>6}",
                 c.channel,
                 c.kind,
                 c.state,
@@ -279,6 +293,9 @@ mod with_zenoh {
                 c.rate_hz,
                 c.latency_p50_us,
                 c.latency_p99_us,
+                c.remote_readers,
+                c.remote_skipped,
+                c.remote_latency_us,
                 c.errors
             )?;
             if let Some(error) = &c.last_error {
@@ -444,7 +461,7 @@ mod with_zenoh {
     pub fn view(remote: &RemoteArgs, skin: &str, listen: &str) -> Result<()> {
         let link = link(remote)?;
         let remote_skin = RemoteSkin::connect(&link, skin, CONNECT_TIMEOUT)?;
-        let dir = skinware::shm::segment_dir().join(format!("skinware-remote-{}", std::process::id()));
+        let dir = skinware::shm::segment_dir().join(format!("remote-{}", std::process::id()));
         std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
         let cleanup = RemoveDir(dir.clone());
         let mirror = Mirror::start(&remote_skin, skin, &dir)?;

@@ -356,13 +356,23 @@ mod with_zenoh {
         while skinware::list_channels(&dir).map(|c| c.len()).unwrap_or(0) < 8 && Instant::now() < deadline {
             std::thread::sleep(Duration::from_millis(200));
         }
+        // The bridge's own figures, a JSON line a second: what it sent and
+        // dropped, and what its remote readers report they did not get.
+        let stats_path = common.out.join("bridge-stats.jsonl");
         let _bridge = Stopping(
             hosts
                 .command(&hosts.a, &exe, &dir)
-                .args(["bridge", "--listen", &endpoint])
-                .stdout(Stdio::null())
+                .args(["bridge", "--listen", &endpoint, "--stats", "--json"])
+                .stdout(std::fs::File::create(&stats_path)?)
                 .spawn()?,
         );
+        let bridge_figures = || -> serde_json::Value {
+            std::thread::sleep(Duration::from_millis(1100));
+            std::fs::read_to_string(&stats_path)
+                .ok()
+                .and_then(|text| text.lines().rev().find_map(|line| serde_json::from_str(line).ok()))
+                .unwrap_or(serde_json::Value::Null)
+        };
         let probe = |ns: &str, remote: bool, verify: bool, seconds: f64| {
             let mut command = hosts.command(ns, &exe, &dir);
             command.arg("bridge-probe").args(["--seconds", &seconds.to_string()]);
@@ -407,7 +417,9 @@ mod with_zenoh {
 
         for mbit in [100, 10, 1] {
             hosts.shape(Some(mbit))?;
-            let shaped = run_probe(probe(&hosts.b, true, false, seconds))?;
+            // The first second fills the link's buffers; a slow link needs longer than that to show its rate.
+            let mut shaped = run_probe(probe(&hosts.b, true, false, seconds.max(6.0)))?;
+            shaped["bridge"] = bridge_figures();
             row(&format!("veth, {mbit} Mbit/s"), &shaped);
             results.insert(format!("{mbit}mbit"), shaped);
         }

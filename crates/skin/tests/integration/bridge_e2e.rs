@@ -116,6 +116,11 @@ fn two_hosts_read_the_skin_through_the_bridge_across_shaping_and_a_cut_link() {
     assert!(one["received"].as_u64().unwrap() > 0, "nothing across 1 Mbit/s: {one}");
     assert!(one["skipped"].as_u64().unwrap() > 0, "2.3 MB/s through 1 Mbit/s must skip frames, and count them: {one}");
     assert!(one["mb_per_s"].as_f64().unwrap() < 0.2, "more than 1 Mbit/s through a 1 Mbit/s link? {one}");
+    // And the bridge knows: its remote reader reported what the link lost.
+    let channels = one["bridge"]["channels"].as_array().expect("the bridge's --json figures");
+    let lost: u64 = channels.iter().filter_map(|c| c["remote_skipped"].as_u64()).sum();
+    let readers: u64 = channels.iter().filter_map(|c| c["remote_readers"].as_u64()).sum();
+    assert!(readers >= 5 && lost > 0, "the bridge does not see the link's losses: {}", one["bridge"]);
 
     // A cut link is noticed, and reading resumes by itself when it returns.
     let cut = &results["cut"];
@@ -154,8 +159,8 @@ fn skin_view_remote_mirrors_the_remote_skin_for_the_viewer() {
         ip(&["-n", ns, "link", "set", dev, "up"]);
         ip(&["-n", ns, "link", "set", "lo", "up"]);
     }
-    let robot = Dir(PathBuf::from("/dev/shm").join(format!("skin-bridge-view-a-{id}")));
-    let station = Dir(PathBuf::from("/dev/shm").join(format!("skin-bridge-view-b-{id}")));
+    let robot = Dir(PathBuf::from("/dev/shm").join(format!("sbv-a-{id}")));
+    let station = Dir(PathBuf::from("/dev/shm").join(format!("sbv-b-{id}")));
     std::fs::create_dir_all(&robot.0).unwrap();
     std::fs::create_dir_all(&station.0).unwrap();
     let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/paper-virtual-skin.toml");
@@ -189,9 +194,9 @@ fn skin_view_remote_mirrors_the_remote_skin_for_the_viewer() {
         let mirrors: Vec<PathBuf> = std::fs::read_dir(&station.0)
             .map(|d| d.filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.is_dir()).collect())
             .unwrap_or_default();
-        let ready = mirrors.iter().find(|d| {
-            skinware::list_channels(d).is_ok_and(|c| c.iter().filter(|c| c.stats.published > 20).count() >= 5)
-        });
+        let ready = mirrors
+            .iter()
+            .find(|d| skinware::list_channels(d).is_ok_and(|c| c.iter().filter(|c| c.stats.frames > 20).count() >= 5));
         if let Some(ready) = ready {
             break ready.clone();
         }
