@@ -245,6 +245,9 @@ impl RosPublisher {
     }
 }
 
+/// The newest report of each remote reader: (channel, reader) -> (report, when it came).
+type ReaderReports = BTreeMap<(String, String), (ReaderReport, std::time::Instant)>;
+
 struct Shared {
     options: BridgeOptions,
     dir: PathBuf,
@@ -257,8 +260,7 @@ struct Shared {
     threads: Mutex<Vec<JoinHandle<()>>>,
     _node_token: Option<LivelinessToken>,
     _bridge_token: LivelinessToken,
-    /// The newest report of each remote reader: (channel, reader) -> (report, when).
-    reader_reports: Arc<Mutex<BTreeMap<(String, String), (ReaderReport, std::time::Instant)>>>,
+    reader_reports: Arc<Mutex<ReaderReports>>,
     _reports: zenoh::pubsub::Subscriber<()>,
 }
 
@@ -292,7 +294,7 @@ impl Shared {
     fn wanted(&self, info: &skinware::ChannelInfo) -> bool {
         match info.kind {
             Some(ChannelKind::Layer) => {
-                self.options.layers.as_ref().is_none_or(|layers| layers.iter().any(|l| *l == info.channel))
+                self.options.layers.as_ref().is_none_or(|layers| layers.contains(&info.channel))
             }
             Some(ChannelKind::Service) => self.options.services,
             None => false,
@@ -655,7 +657,7 @@ fn heartbeat(shared: &Arc<Shared>) {
     let mut beats = 0u64;
     while ticker.wait(&shared.stop).is_some() {
         beats += 1;
-        if beats % 10 == 0
+        if beats.is_multiple_of(10)
             && let Err(e) = shared.discover()
         {
             tracing::warn!("cannot look for new channels: {e}");

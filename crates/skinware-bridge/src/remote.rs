@@ -419,20 +419,17 @@ impl Reader {
     /// As soon as available: waits up to `timeout` for a frame newer than
     /// the last one returned.
     pub fn wait_newer(&mut self, timeout: Duration) -> Result<&RemoteFrame, BridgeError> {
-        let deadline = Instant::now() + timeout;
-        loop {
-            match self.newest_sample.wait(deadline) {
-                Some(bytes) => {
-                    self.accept(&bytes)?;
-                    return self.newest.as_ref().ok_or_else(|| self.nothing_yet());
-                }
-                None => {
-                    let state = self.state().name();
-                    return Err(BridgeError::Timeout(format!(
-                        "no new frame of {}/{} within {timeout:?} (state: {state})",
-                        self.skin, self.channel.name,
-                    )));
-                }
+        match self.newest_sample.wait(Instant::now() + timeout) {
+            Some(bytes) => {
+                self.accept(&bytes)?;
+                self.newest.as_ref().ok_or_else(|| self.nothing_yet())
+            }
+            None => {
+                let state = self.state().name();
+                Err(BridgeError::Timeout(format!(
+                    "no new frame of {}/{} within {timeout:?} (state: {state})",
+                    self.skin, self.channel.name,
+                )))
             }
         }
     }

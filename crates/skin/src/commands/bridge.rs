@@ -108,6 +108,8 @@ pub fn view(_: &RemoteArgs, _: &str, _: &str) -> Result<()> {
 
 /// What `skin echo --remote` prints.
 #[derive(Clone, Debug)]
+// Without zenoh, `echo` only says how to rebuild.
+#[cfg_attr(not(feature = "zenoh"), allow(dead_code))]
 pub struct RemoteEcho {
     /// The skin.
     pub skin: String,

@@ -13,12 +13,7 @@
 //! of the same sequence number), so latencies are from acquisition to the
 //! remote reader's copy, on one clock.
 
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::time::Duration;
-
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 
 /// Arguments of the hidden `bridge-probe` role.
 #[derive(clap::Args)]
@@ -36,14 +31,6 @@ pub struct ProbeArgs {
     /// same sequence number (the same machine's shared memory).
     #[arg(long)]
     verify: bool,
-}
-
-/// Percentiles of a sample, in µs.
-fn quantiles_us(samples: &mut [u64]) -> serde_json::Value {
-    samples.sort_unstable();
-    let at =
-        |q: f64| samples.get(((samples.len() as f64 - 1.0) * q).round() as usize).map_or(0.0, |&ns| ns as f64 / 1e3);
-    serde_json::json!({ "p50": at(0.5), "p99": at(0.99), "max": at(1.0), "samples": samples.len() })
 }
 
 #[cfg(not(feature = "zenoh"))]
@@ -71,7 +58,23 @@ mod with_zenoh {
     use skinware_bridge::link::LinkOptions;
     use skinware_bridge::remote::{RemoteSkin, RemoteState};
 
+    use std::collections::BTreeMap;
+    use std::path::{Path, PathBuf};
+    use std::process::{Child, Command, Stdio};
+    use std::time::Duration;
+
+    use anyhow::Context;
+
     use super::*;
+
+    /// Percentiles of a sample, in µs.
+    fn quantiles_us(samples: &mut [u64]) -> serde_json::Value {
+        samples.sort_unstable();
+        let at = |q: f64| {
+            samples.get(((samples.len() as f64 - 1.0) * q).round() as usize).map_or(0.0, |&ns| ns as f64 / 1e3)
+        };
+        serde_json::json!({ "p50": at(0.5), "p99": at(0.99), "max": at(1.0), "samples": samples.len() })
+    }
 
     #[derive(Default)]
     struct LayerFigures {
