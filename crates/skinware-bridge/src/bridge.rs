@@ -98,10 +98,11 @@ pub struct ChannelReport {
     pub kind: String,
     /// The writer's state.
     pub state: String,
-    /// Frames sent to remote skinware readers.
+    /// Frames handed to zenoh for remote skinware readers.
     pub sent: u64,
-    /// Frames the writer published that the bridge did not send (rate
-    /// limit, or a link slower than the writer).
+    /// Frames the writer published that the bridge did not hand to zenoh
+    /// (the rate limit, or it read too late). What zenoh then drops on a
+    /// full link is in `remote_lost`, as the remote readers report it.
     pub dropped: u64,
     /// ROS messages sent (0 while no ROS subscriber listens).
     pub ros_sent: u64,
@@ -116,7 +117,7 @@ pub struct ChannelReport {
     /// Frames those readers did not get although the bridge sent them
     /// (lost on the link, or dropped by zenoh's queue when the link was
     /// full), summed over the readers.
-    pub remote_skipped: u64,
+    pub remote_lost: u64,
     /// The slowest reader's mean acquisition-to-receipt time over its last second, µs.
     pub remote_latency_us: f64,
     /// Errors (encoding, zenoh).
@@ -186,6 +187,37 @@ fn state_code(state: WriterState) -> u32 {
 struct Channel {
     info: RemoteChannel,
     counters: Counters,
+    requests: RequestQueue,
+}
+
+/// Queries for a frame on request, waiting for this channel's request thread.
+/// Filled from zenoh's thread, which must never wait: past
+/// [`MAX_WAITING_REQUESTS`] a query is dropped (its asker times out).
+#[derive(Default)]
+struct RequestQueue {
+    queries: Mutex<VecDeque<zenoh::query::Query>>,
+    arrived: std::sync::Condvar,
+}
+
+/// Requests one channel holds before it drops new ones.
+const MAX_WAITING_REQUESTS: usize = 16;
+
+impl RequestQueue {
+    fn push(&self, query: zenoh::query::Query) {
+        let mut queries = lock(&self.queries);
+        if queries.len() < MAX_WAITING_REQUESTS {
+            queries.push_back(query);
+            self.arrived.notify_one();
+        }
+    }
+
+    fn pop(&self, timeout: Duration) -> Option<zenoh::query::Query> {
+        let mut queries = lock(&self.queries);
+        if queries.is_empty() {
+            queries = self.arrived.wait_timeout(queries, timeout).map(|(q, _)| q).unwrap_or_else(|p| p.into_inner().0);
+        }
+        queries.pop_front()
+    }
 }
 
 /// A ROS publisher: its key, GID, sequence numbers and graph token.
@@ -331,8 +363,11 @@ impl Shared {
                     description: reader.description(),
                 },
                 counters: Counters::default(),
+                requests: RequestQueue::default(),
             });
             lock(&self.channels).insert(info.channel.clone(), Arc::clone(&channel));
+            let answering = Arc::clone(&channel);
+            self.spawn(format!("rq-{}", info.channel), move |shared| serve_requests(&shared, &answering))?;
             self.spawn(format!("br-{}", info.channel), move |shared| {
                 if let Err(e) = send_channel(&shared, &channel, reader) {
                     channel.counters.error(format!("bridging {} stopped: {e}", channel.info.name));
@@ -347,6 +382,7 @@ impl Shared {
 /// A running bridge. Dropping it stops it.
 pub struct Bridge {
     shared: Arc<Shared>,
+    _requests: Option<zenoh::query::Queryable<()>>,
 }
 
 impl Bridge {
@@ -365,9 +401,30 @@ impl Bridge {
             )));
         }
         let dir = options.dir.clone().unwrap_or_else(skinware::shm::segment_dir);
-        let any =
-            skinware::list_channels(&dir)?.into_iter().any(|c| c.skin == options.skin && c.state != WriterState::Gone);
-        if !any {
+        let live: Vec<skinware::ChannelInfo> = skinware::list_channels(&dir)?
+            .into_iter()
+            .filter(|c| c.skin == options.skin && c.state != WriterState::Gone)
+            .collect();
+        let names: Vec<&str> = live.iter().map(|c| c.channel.as_str()).collect();
+        let layers: Vec<&str> =
+            live.iter().filter(|c| c.kind == Some(ChannelKind::Layer)).map(|c| c.channel.as_str()).collect();
+        for wanted in options.layers.iter().flatten() {
+            if !layers.contains(&wanted.as_str()) {
+                return Err(BridgeError::Invalid(format!(
+                    "--layers {wanted}: skin {} has no live layer of that name; its layers are {layers:?}",
+                    options.skin
+                )));
+            }
+        }
+        for limited in options.max_hz_per_channel.keys() {
+            if !names.contains(&limited.as_str()) {
+                return Err(BridgeError::Invalid(format!(
+                    "--max-hz {limited}=...: skin {} has no live channel of that name; its channels are {names:?}",
+                    options.skin
+                )));
+            }
+        }
+        if live.is_empty() {
             return Err(BridgeError::Invalid(format!(
                 "skin {:?} has no live channel in {} to bridge; start it first (skin run CONFIG, or skin demo)",
                 options.skin,
@@ -437,6 +494,7 @@ impl Bridge {
             _node_token: node_token,
             options,
         });
+        let bridge = Bridge { shared: Arc::clone(&shared), _requests: None };
         shared.discover()?;
         shared.spawn("br-describe".into(), |shared| {
             if let Err(e) = serve_descriptions(&shared) {
@@ -444,11 +502,18 @@ impl Bridge {
             }
         })?;
         shared.spawn("br-state".into(), |shared| heartbeat(&shared))?;
-        shared.spawn("br-request".into(), |shared| {
-            if let Err(e) = serve_requests(&shared) {
-                tracing::warn!("the bridge no longer serves requests: {e}");
+        shared.spawn("br-discover".into(), |shared| {
+            // New channels (a service started later), apart from the states'
+            // thread: opening a channel that does not answer takes a while.
+            let mut ticker = skinware::Ticker::new(Duration::from_secs(1));
+            while ticker.wait(&shared.stop).is_some() {
+                if let Err(e) = shared.discover() {
+                    tracing::warn!("cannot look for new channels: {e}");
+                }
             }
         })?;
+        let mut bridge = bridge;
+        bridge._requests = Some(declare_requests(&shared)?);
         if shared.options.ros && shared.options.map_hz > 0.0 {
             shared.spawn("br-map".into(), |shared| {
                 if let Err(e) = publish_map(&shared) {
@@ -456,7 +521,7 @@ impl Bridge {
                 }
             })?;
         }
-        Ok(Bridge { shared })
+        Ok(bridge)
     }
 
     /// The zenoh session's id.
@@ -494,14 +559,14 @@ impl Bridge {
                     }
                     *hz
                 };
-                let (mut remote_readers, mut remote_skipped, mut remote_latency_ns) = (0, 0, 0);
+                let (mut remote_readers, mut remote_lost, mut remote_latency_ns) = (0, 0, 0);
                 {
                     let mut reports = lock(&self.shared.reader_reports);
                     reports.retain(|_, (_, at)| at.elapsed() < Duration::from_secs(60));
                     for ((name, _), (report, at)) in reports.iter() {
                         if *name == channel.info.name && at.elapsed() < Duration::from_secs(5) {
                             remote_readers += 1;
-                            remote_skipped += report.skipped;
+                            remote_lost += report.lost;
                             remote_latency_ns = remote_latency_ns.max(report.latency_ns);
                         }
                     }
@@ -524,7 +589,7 @@ impl Bridge {
                     latency_p50_us: quantile(0.5),
                     latency_p99_us: quantile(0.99),
                     remote_readers,
-                    remote_skipped,
+                    remote_lost,
                     remote_latency_us: remote_latency_ns as f64 / 1e3,
                     errors: c.errors.load(Ordering::Relaxed),
                     last_error: lock(&c.last_error).clone(),
@@ -546,9 +611,15 @@ impl Drop for Bridge {
         self.shared.stop.stop();
         // Closing the session first releases a thread waiting for a slow link.
         let _ = self.shared.session.close().wait();
-        let threads: Vec<JoinHandle<()>> = lock(&self.shared.threads).drain(..).collect();
-        for thread in threads {
-            let _ = thread.join();
+        // A thread started while these are joined is joined on the next pass.
+        loop {
+            let threads: Vec<JoinHandle<()>> = lock(&self.shared.threads).drain(..).collect();
+            if threads.is_empty() {
+                break;
+            }
+            for thread in threads {
+                let _ = thread.join();
+            }
         }
     }
 }
@@ -607,7 +678,10 @@ fn send_channel(shared: &Arc<Shared>, channel: &Channel, mut reader: Reader) -> 
         // or (after a writer's restart) everything the new writer published first.
         let missed = match last_sent_seq {
             Some(last) if seq > last => seq - last - 1,
-            _ => seq.saturating_sub(1).min(frame.skipped()),
+            // A restarted writer counts from 1 again: what it published before this one.
+            Some(_) => seq.saturating_sub(1),
+            // What was published before the bridge started is not its to send.
+            None => 0,
         };
         channel.counters.dropped.fetch_add(missed, Ordering::Relaxed);
         last_sent_seq = Some(seq);
@@ -654,14 +728,7 @@ fn send_channel(shared: &Arc<Shared>, channel: &Channel, mut reader: Reader) -> 
 fn heartbeat(shared: &Arc<Shared>) {
     let mut publishers: BTreeMap<String, (Publisher<'static>, Reader)> = BTreeMap::new();
     let mut ticker = skinware::Ticker::new(HEARTBEAT);
-    let mut beats = 0u64;
     while ticker.wait(&shared.stop).is_some() {
-        beats += 1;
-        if beats.is_multiple_of(10)
-            && let Err(e) = shared.discover()
-        {
-            tracing::warn!("cannot look for new channels: {e}");
-        }
         let channels: Vec<Arc<Channel>> = lock(&shared.channels).values().cloned().collect();
         for channel in channels {
             let name = &channel.info.name;
@@ -742,55 +809,66 @@ fn serve_descriptions(shared: &Arc<Shared>) -> Result<(), BridgeError> {
     Ok(())
 }
 
-/// Frames on request: the local reader's `request`, answered with its frame.
-fn serve_requests(shared: &Arc<Shared>) -> Result<(), BridgeError> {
+/// Frames on request for one channel: its own thread and reader, so that a
+/// request waiting for a slow or sporadic writer delays no other channel's.
+fn serve_requests(shared: &Arc<Shared>, channel: &Channel) {
     let skin = &shared.options.skin;
-    let queries = shared
-        .session
-        .declare_queryable(format!("{}/*/request", protocol::skin_prefix(skin)))
-        .wait()
-        .map_err(|e| BridgeError::Zenoh(format!("cannot declare the request queryable: {e}")))?;
-    let mut readers: BTreeMap<String, Reader> = BTreeMap::new();
+    let name = &channel.info.name;
+    let mut reader: Option<Reader> = None;
     while !shared.stop.is_stopped() {
-        let query = match queries.recv_timeout(Duration::from_millis(100)) {
-            Ok(Some(query)) => query,
-            Ok(None) => continue,
-            Err(_) => break,
-        };
-        let key = query.key_expr().as_str().to_owned();
-        let name = key.rsplit('/').nth(1).unwrap_or_default().to_owned();
-        let Some(channel) = lock(&shared.channels).get(&name).cloned() else {
-            let _ = query.reply_err(format!("the bridge of skin {skin} does not bridge a channel {name:?}")).wait();
-            continue;
-        };
-        if !readers.contains_key(&name) {
-            match Reader::open_with(skin, &name, &shared.reader_options()) {
-                Ok(mut reader) => {
-                    reader.set_stop(&shared.stop);
-                    readers.insert(name.clone(), reader);
+        let Some(query) = channel.requests.pop(Duration::from_millis(100)) else { continue };
+        if reader.is_none() {
+            match Reader::open_with(skin, name, &shared.reader_options()) {
+                Ok(mut opened) => {
+                    opened.set_stop(&shared.stop);
+                    reader = Some(opened);
                 }
                 Err(e) => {
-                    let _ = query.reply_err(format!("cannot read {name}: {e}")).wait();
+                    let _ = query.reply_err(format!("error: cannot read {skin}/{name}: {e}")).wait();
                     continue;
                 }
             }
         }
-        let Some(reader) = readers.get_mut(&name) else { continue };
+        let Some(reader) = reader.as_mut() else { continue };
         let timeout = query
             .parameters()
             .get("timeout_ms")
             .and_then(|t| t.parse::<u64>().ok())
             .map_or(Duration::from_secs(1), Duration::from_millis)
             .min(Duration::from_secs(10));
-        let answer = reader.request(timeout).map_err(|e| e.to_string()).and_then(|frame| {
-            protocol::encode_frame(channel.info.kind, &frame, shared.clock_offset_ns).map_err(|e| e.to_string())
-        });
+        let answer = match reader.request(timeout) {
+            Ok(frame) => protocol::encode_frame(channel.info.kind, &frame, shared.clock_offset_ns)
+                .map_err(|e| format!("error: {e}")),
+            Err(e @ (Error::Timeout { .. } | Error::WriterGone { .. })) => {
+                Err(format!("{}{e}", protocol::TIMEOUT_PREFIX))
+            }
+            Err(e) => Err(format!("error: {e}")),
+        };
         let _ = match answer {
-            Ok(bytes) => query.reply(key.as_str(), bytes).wait(),
+            Ok(bytes) => query.reply(query.key_expr().clone(), bytes).wait(),
             Err(e) => query.reply_err(e).wait(),
         };
     }
-    Ok(())
+}
+
+/// Routes each request to its channel's queue, from zenoh's thread, without waiting.
+fn declare_requests(shared: &Arc<Shared>) -> Result<zenoh::query::Queryable<()>, BridgeError> {
+    let weak = Arc::downgrade(shared);
+    shared
+        .session
+        .declare_queryable(format!("{}/*/request", protocol::skin_prefix(&shared.options.skin)))
+        .callback(move |query: zenoh::query::Query| {
+            let Some(shared) = weak.upgrade() else { return };
+            let name = query.key_expr().as_str().rsplit('/').nth(1).unwrap_or_default().to_owned();
+            let channel = lock(&shared.channels).get(&name).cloned();
+            // An unknown channel's query is dropped: its asker times out and
+            // says the channel is not bridged (it checked the list first).
+            if let Some(channel) = channel {
+                channel.requests.push(query);
+            }
+        })
+        .wait()
+        .map_err(|e| BridgeError::Zenoh(format!("cannot declare the request queryable: {e}")))
 }
 
 /// The 2-D map as a `sensor_msgs/Image`, a few times a second.
@@ -813,6 +891,7 @@ fn publish_map(shared: &Arc<Shared>) -> Result<(), BridgeError> {
                 *slot = Reader::open_with(skin, &layer.name, &shared.reader_options()).ok();
             }
             let read = slot.as_mut().map(|reader| {
+                reader.follow_recreated();
                 let look = match reader.writer_state() {
                     WriterState::Gone => LayerLook::Gone,
                     WriterState::Faulted => LayerLook::Faulted,

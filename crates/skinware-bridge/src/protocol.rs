@@ -7,6 +7,8 @@
 //! | `skinware/<skin>/<channel>/frame` | every frame the bridge sends | `skinware_msgs/SkinFrame` CDR, as in a recording |
 //! | `skinware/<skin>/<channel>/state` | the writer's state, 10 times a second | [`ChannelState`] (`SKBSTA01`) |
 //! | `skinware/<skin>/<channel>/request` | queryable: one frame acquired on request | `SkinFrame` CDR |
+//! | `skinware/<skin>/<channel>/readers/<zid>` | what a remote reader received, once a second | [`ReaderReport`] (`SKBRRP01`) |
+//! | `skinware/<skin>/@bridge` | the bridge's liveliness token | |
 //!
 //! Every decoder here takes bytes from the network, so none trusts them: any
 //! input ends in a value or a [`BridgeError::Malformed`] naming the key and
@@ -24,6 +26,10 @@ use crate::BridgeError;
 /// millisecond at 1 Gbit/s, enough for a LAN; a slow link then holds back
 /// about a second at 1 Mbit/s instead of many (raise it for long, fast links).
 pub const BRIDGE_SEND_BUFFER: usize = 64 << 10;
+
+/// How the bridge begins its answer to a request that timed out (the writer
+/// gave no frame in time), so that the asker reports a timeout, not a fault.
+pub const TIMEOUT_PREFIX: &str = "timeout: ";
 
 /// The root of every key of skin `skin`.
 pub fn skin_prefix(skin: &str) -> String {
@@ -270,6 +276,9 @@ pub struct ReaderReport {
     pub received: u64,
     /// Frames of the writer never received (sequence gaps).
     pub skipped: u64,
+    /// Of those, the frames the bridge sent: lost on the link, or dropped by
+    /// zenoh when the link was full (the rest the bridge never sent).
+    pub lost: u64,
     /// Messages refused as malformed.
     pub malformed: u64,
     /// Mean acquisition-to-receipt time over the last second, ns.
@@ -281,9 +290,10 @@ const READER_REPORT_MAGIC: &[u8; 8] = b"SKBRRP01";
 impl ReaderReport {
     /// Its bytes.
     pub fn encode(&self) -> Vec<u8> {
-        let mut out = Encoder::with_capacity(READER_REPORT_MAGIC, 48);
+        let mut out = Encoder::with_capacity(READER_REPORT_MAGIC, 56);
         out.u64(self.received);
         out.u64(self.skipped);
+        out.u64(self.lost);
         out.u64(self.malformed);
         out.u64(self.latency_ns);
         out.finish()
@@ -299,6 +309,7 @@ impl ReaderReport {
         let report = ReaderReport {
             received: input.u64("received").map_err(malformed)?,
             skipped: input.u64("skipped").map_err(malformed)?,
+            lost: input.u64("lost").map_err(malformed)?,
             malformed: input.u64("malformed").map_err(malformed)?,
             latency_ns: input.u64("latency").map_err(malformed)?,
         };
@@ -384,7 +395,7 @@ mod tests {
             period_ns: 20_000_000,
         };
         assert_eq!(ChannelState::decode(&state.encode()).unwrap(), state);
-        let report = ReaderReport { received: 5, skipped: 2, malformed: 1, latency_ns: 3 };
+        let report = ReaderReport { received: 5, skipped: 2, lost: 1, malformed: 1, latency_ns: 3 };
         assert_eq!(ReaderReport::decode(&report.encode()).unwrap(), report);
     }
 

@@ -99,14 +99,43 @@ impl RemoteSkin {
                 return Ok(RemoteSkin { session, skin: skin.to_owned(), list });
             }
             if Instant::now() >= deadline {
-                return Err(BridgeError::Timeout(format!(
-                    "no bridge of skin {skin:?} answered within {timeout:?} (connect {:?}); is `skin bridge` running there, \
-                     listening where this connects (it listens on {} unless told otherwise)?",
-                    link.connect,
-                    crate::link::DEFAULT_LISTEN
-                )));
+                let elsewhere = Self::answering_skins(&session);
+                let endpoints = if link.connect.is_empty() {
+                    "the configuration file's endpoints".to_owned()
+                } else {
+                    link.connect.join(", ")
+                };
+                return Err(BridgeError::Timeout(if elsewhere.is_empty() {
+                    format!(
+                        "no bridge of skin {skin:?} answered within {timeout:?} at {endpoints}; is `skin bridge` running \
+                         there, listening where this connects (it listens on {} unless told otherwise)?",
+                        crate::link::DEFAULT_LISTEN
+                    )
+                } else {
+                    format!("no bridge of skin {skin:?} at {endpoints}; bridges there serve {elsewhere:?}: pass --skin")
+                }));
+            }
+            // Nothing answers at once when no bridge is there yet: do not spin.
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    /// The skins whose bridges answer on `session` now.
+    fn answering_skins(session: &Session) -> Vec<String> {
+        let Ok(replies) = session.get("skinware/*/@channels").timeout(Duration::from_millis(500)).wait() else {
+            return Vec::new();
+        };
+        let mut skins = Vec::new();
+        while let Ok(reply) = replies.recv() {
+            if let Ok(list) = reply
+                .result()
+                .map_err(|_| ())
+                .and_then(|s| ChannelList::decode(&s.payload().to_bytes()).map_err(|_| ()))
+            {
+                skins.push(list.skin);
             }
         }
+        skins
     }
 
     /// Every skin whose bridge answers within `timeout`.
@@ -121,10 +150,17 @@ impl RemoteSkin {
                 .wait()
                 .map_err(|e| BridgeError::Zenoh(format!("cannot ask for bridges: {e}")))?;
             while let Ok(reply) = replies.recv() {
-                if let Ok(sample) = reply.result() {
-                    let list = ChannelList::decode(&sample.payload().to_bytes())?;
-                    skins.insert(list.skin.clone(), list);
+                // One bad answer does not hide the good ones.
+                match reply.result().map(|sample| ChannelList::decode(&sample.payload().to_bytes())) {
+                    Ok(Ok(list)) => {
+                        skins.insert(list.skin.clone(), list);
+                    }
+                    Ok(Err(e)) => tracing::warn!("{e}"),
+                    Err(_) => {}
                 }
+            }
+            if skins.is_empty() {
+                std::thread::sleep(Duration::from_millis(100));
             }
         }
         let _ = session.close().wait();
@@ -178,6 +214,9 @@ pub struct RemoteFrame {
     /// Frames of the writer this reader did not get since its previous one
     /// (dropped by the bridge or lost on the link).
     pub skipped: u64,
+    /// Of those, the frames the bridge had sent (lost on the link, or
+    /// dropped by zenoh on a full link); the rest the bridge never sent.
+    pub lost: u64,
     /// The payload, in the channel's own layout (a layer's responses as
     /// native-endian `u16`s).
     pub bytes: Vec<u8>,
@@ -197,6 +236,8 @@ pub struct RemoteStats {
     pub received: u64,
     /// Frames of the writer never received (sequence gaps).
     pub skipped: u64,
+    /// Of those, the frames the bridge had sent.
+    pub lost: u64,
     /// Messages refused as malformed.
     pub malformed: u64,
     /// Times the link was found cut.
@@ -211,7 +252,7 @@ pub struct Reader {
     _frames: Subscriber<()>,
     newest_sample: Arc<NewestSample>,
     _states: Subscriber<()>,
-    state_queue: Arc<Mutex<VecDeque<Vec<u8>>>>,
+    state_queue: Arc<Mutex<VecDeque<Arrived>>>,
     _bridge: Subscriber<()>,
     bridge_events: Arc<Mutex<VecDeque<bool>>>,
     bridge_alive: bool,
@@ -265,7 +306,9 @@ impl Reader {
             // Every state in order (a ring of one could hide a bad one behind a good one).
             _states: session
                 .declare_subscriber(protocol::state_key(skin, &channel.name))
-                .callback(move |sample: Sample| push_bounded(&queue, sample.payload().to_bytes().into_owned()))
+                .callback(move |sample: Sample| {
+                    push_bounded(&queue, (sample.payload().to_bytes().into_owned(), Instant::now()))
+                })
                 .wait()
                 .map_err(|e| BridgeError::Zenoh(format!("cannot subscribe to the state of {}: {e}", channel.name)))?,
             reports: session
@@ -327,12 +370,12 @@ impl Reader {
                 self.heard_at = Instant::now();
             }
         }
-        let states: Vec<Vec<u8>> = lock(&self.state_queue).drain(..).collect();
-        for bytes in states {
+        let states: Vec<Arrived> = lock(&self.state_queue).drain(..).collect();
+        for (bytes, arrived) in states {
             match ChannelState::decode(&bytes) {
                 Ok(state) => {
                     self.state = Some(state);
-                    self.heard_at = Instant::now();
+                    self.heard_at = self.heard_at.max(arrived);
                 }
                 Err(e) => {
                     self.stats.malformed += 1;
@@ -359,18 +402,21 @@ impl Reader {
         }
     }
 
-    fn accept(&mut self, bytes: &[u8]) -> Result<(), BridgeError> {
-        self.heard_at = Instant::now();
+    fn accept(&mut self, bytes: &[u8], arrived: Instant) -> Result<(), BridgeError> {
         let frame = protocol::decode_frame(&self.channel, bytes).inspect_err(|_| {
             self.stats.malformed += 1;
         })?;
+        self.heard_at = self.heard_at.max(arrived);
         let skipped = match &self.newest {
             Some(previous) if frame.seq > previous.seq => frame.seq - previous.seq - 1,
             // The first frame, or a restarted writer counting from 1 again.
             _ => 0,
         };
+        // The frame says how many the bridge itself did not send before it.
+        let lost = skipped.saturating_sub(frame.skipped);
         self.stats.received += 1;
         self.stats.skipped += skipped;
+        self.stats.lost += lost;
         let now_unix = (skinware::os::monotonic_ns() as i64).saturating_add(self.clock_offset_ns).max(0) as u64;
         self.latency_sum_ns += now_unix.saturating_sub(frame.stamp.to_ns());
         self.latency_count += 1;
@@ -382,6 +428,7 @@ impl Reader {
             published_unix_ns: frame.published.to_ns(),
             status: FrameStatus(frame.status),
             skipped,
+            lost,
             bytes,
         });
         Ok(())
@@ -397,6 +444,7 @@ impl Reader {
         let report = ReaderReport {
             received: self.stats.received,
             skipped: self.stats.skipped,
+            lost: self.stats.lost,
             malformed: self.stats.malformed,
             latency_ns: self.latency_sum_ns.checked_div(self.latency_count).unwrap_or(0),
         };
@@ -406,8 +454,8 @@ impl Reader {
 
     /// The newest frame received (none yet: an error saying so).
     pub fn latest(&mut self) -> Result<&RemoteFrame, BridgeError> {
-        if let Some(bytes) = self.newest_sample.take() {
-            self.accept(&bytes)?;
+        if let Some((bytes, arrived)) = self.newest_sample.take() {
+            self.accept(&bytes, arrived)?;
         }
         self.newest.as_ref().ok_or_else(|| self.nothing_yet())
     }
@@ -416,12 +464,14 @@ impl Reader {
         BridgeError::Timeout(format!("no frame of {}/{} has arrived yet", self.skin, self.channel.name))
     }
 
-    /// As soon as available: waits up to `timeout` for a frame newer than
-    /// the last one returned.
+    /// As soon as available: waits up to `timeout` for the next frame the
+    /// bridge sends (a restarted writer's frames count from 1 again). A
+    /// malformed message is returned as [`BridgeError::Malformed`] at once;
+    /// the next call waits for the next frame.
     pub fn wait_newer(&mut self, timeout: Duration) -> Result<&RemoteFrame, BridgeError> {
         match self.newest_sample.wait(Instant::now() + timeout) {
-            Some(bytes) => {
-                self.accept(&bytes)?;
+            Some((bytes, arrived)) => {
+                self.accept(&bytes, arrived)?;
                 self.newest.as_ref().ok_or_else(|| self.nothing_yet())
             }
             None => {
@@ -437,7 +487,10 @@ impl Reader {
     /// Periodic: waits for `ticker`'s next deadline and returns the newest frame then.
     pub fn next_periodic(&mut self, ticker: &mut Ticker, stop: &Stop) -> Result<&RemoteFrame, BridgeError> {
         if ticker.wait(stop).is_none() {
-            return Err(BridgeError::Invalid("stopped".into()));
+            return Err(BridgeError::Invalid(format!(
+                "the periodic reader of {}/{} was stopped (its stop signal was set)",
+                self.skin, self.channel.name
+            )));
         }
         self.latest()
     }
@@ -456,14 +509,25 @@ impl Reader {
         match replies.recv() {
             Ok(reply) => match reply.result() {
                 Ok(sample) => {
-                    self.accept(&sample.payload().to_bytes())?;
+                    self.accept(&sample.payload().to_bytes(), Instant::now())?;
                     self.newest.as_ref().ok_or_else(|| self.nothing_yet())
                 }
-                Err(error) => Err(BridgeError::Invalid(format!(
-                    "the bridge could not get a frame of {} on request: {}",
-                    self.channel.name,
-                    error.payload().try_to_string().map(|s| s.into_owned()).unwrap_or_default()
-                ))),
+                Err(error) => {
+                    let text = error.payload().try_to_string().map(|s| s.into_owned()).unwrap_or_default();
+                    let state = self.state().name();
+                    // zenoh's own "Timeout", or the bridge's: the writer gave no frame in time.
+                    if text == "Timeout" || text.starts_with(protocol::TIMEOUT_PREFIX) {
+                        Err(BridgeError::Timeout(format!(
+                            "no frame of {}/{} on request within {timeout:?} (state: {state}): {text}",
+                            self.skin, self.channel.name
+                        )))
+                    } else {
+                        Err(BridgeError::Invalid(format!(
+                            "the bridge could not get a frame of {}/{} on request: {text}",
+                            self.skin, self.channel.name
+                        )))
+                    }
+                }
             },
             Err(_) => {
                 let state = self.state().name();
@@ -491,29 +555,32 @@ impl std::fmt::Debug for RemoteSkin {
     }
 }
 
+/// A message's bytes and when it arrived.
+type Arrived = (Vec<u8>, Instant);
+
 /// The newest frame message not read yet: filled from zenoh's thread (which
 /// never waits here), taken by the reader.
 #[derive(Default)]
 struct NewestSample {
-    slot: Mutex<Option<Vec<u8>>>,
+    slot: Mutex<Option<Arrived>>,
     arrived: Condvar,
 }
 
 impl NewestSample {
     fn put(&self, bytes: Vec<u8>) {
-        *lock(&self.slot) = Some(bytes);
+        *lock(&self.slot) = Some((bytes, Instant::now()));
         self.arrived.notify_all();
     }
 
-    fn take(&self) -> Option<Vec<u8>> {
+    fn take(&self) -> Option<Arrived> {
         lock(&self.slot).take()
     }
 
-    fn wait(&self, deadline: Instant) -> Option<Vec<u8>> {
+    fn wait(&self, deadline: Instant) -> Option<Arrived> {
         let mut slot = lock(&self.slot);
         loop {
-            if let Some(bytes) = slot.take() {
-                return Some(bytes);
+            if let Some(newest) = slot.take() {
+                return Some(newest);
             }
             let left = deadline.checked_duration_since(Instant::now()).filter(|d| !d.is_zero())?;
             slot = self.arrived.wait_timeout(slot, left).map(|(guard, _)| guard).unwrap_or_else(|p| p.into_inner().0);
@@ -554,18 +621,17 @@ impl Mirror {
     /// Creates `local_skin`'s channels in `dir` (and its geometry, when the
     /// bridge serves one) and starts copying frames into them.
     pub fn start(remote: &RemoteSkin, local_skin: &str, dir: &Path) -> Result<Mirror, BridgeError> {
-        let stop = Stop::new();
+        // Built first: a failure half-way stops (on drop) what already runs.
+        let mut mirror = Mirror { stop: Stop::new(), threads: Vec::new(), channels: Vec::new() };
         match remote.geometry(Duration::from_secs(5)) {
             Ok(mut geometry) => {
                 geometry.skin = local_skin.to_owned();
-                geometry
-                    .publish(dir)
-                    .map_err(|e| BridgeError::Invalid(format!("cannot publish the remote skin's geometry: {e}")))?;
+                geometry.publish(dir).map_err(|e| {
+                    BridgeError::Invalid(format!("cannot publish the remote skin's geometry in {}: {e}", dir.display()))
+                })?;
             }
             Err(e) => tracing::warn!("the mirror has no geometry: {e}"),
         }
-        let mut threads = Vec::new();
-        let mut channels = Vec::new();
         for channel in remote.channels() {
             let options = WriterOptions {
                 slots: channel.slots.clamp(skinware::MIN_SLOTS, skinware::MAX_SLOTS),
@@ -580,16 +646,18 @@ impl Mirror {
             let writer =
                 Writer::create(local_skin, &channel.name, channel.payload_bytes, &channel.description, &options)?;
             let reader = remote.reader(&channel.name)?;
-            let stop = stop.clone();
-            channels.push(channel.name.clone());
-            threads.push(
+            let stop = mirror.stop.clone();
+            mirror.channels.push(channel.name.clone());
+            mirror.threads.push(
                 std::thread::Builder::new()
                     .name(format!("mirror-{}", channel.name).chars().take(15).collect())
                     .spawn(move || mirror_channel(reader, writer, &stop))
-                    .map_err(|e| BridgeError::Invalid(format!("cannot start a mirror thread: {e}")))?,
+                    .map_err(|e| {
+                        BridgeError::Invalid(format!("cannot start the mirror thread of {}: {e}", channel.name))
+                    })?,
             );
         }
-        Ok(Mirror { stop, threads, channels })
+        Ok(mirror)
     }
 
     /// The mirrored channels.

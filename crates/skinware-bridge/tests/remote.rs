@@ -78,7 +78,16 @@ fn a_fake_bridge_is_read_and_its_garbage_refused() {
     let remote = RemoteSkin::connect(&link, "fake", Duration::from_secs(10)).expect("connect");
     assert!(remote.reader("elbow").unwrap_err().to_string().contains("has no channel \"elbow\""));
     let mut reader = remote.reader("palm").unwrap();
-    std::thread::sleep(Duration::from_millis(300));
+    // Until the reader's subscription has reached the fake bridge.
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while !frames.matching_status().wait().unwrap().matching() {
+        assert!(Instant::now() < deadline, "the reader's subscription never reached the bridge");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    while !states.matching_status().wait().unwrap().matching() {
+        assert!(Instant::now() < deadline, "the reader's state subscription never reached the bridge");
+        std::thread::sleep(Duration::from_millis(10));
+    }
 
     // As soon as available; then a gap of two frames is counted.
     frames.put(frame(1, &[1, 2, 3])).wait().unwrap();

@@ -159,6 +159,11 @@ mod with_zenoh {
     fn rate_limits(options: &mut BridgeOptions, specs: &[String]) -> Result<()> {
         for spec in specs {
             let (channel, hz) = match spec.split_once('=') {
+                Some((channel, _)) if channel.trim().is_empty() => {
+                    anyhow::bail!(
+                        "--max-hz {spec:?}: name the channel before `=` (`virtual-0=10`), or give only the rate"
+                    )
+                }
                 Some((channel, hz)) => (Some(channel.trim()), hz),
                 None => (None, spec.as_str()),
             };
@@ -194,6 +199,9 @@ mod with_zenoh {
                 _ => 0,
             },
         };
+        if options.domain > 232 {
+            anyhow::bail!("ROS domain {} is beyond 232, the largest ROS 2 allows; pick 0 to 232", options.domain);
+        }
         rate_limits(&mut options, &args.max_hz)?;
         let mut listen = args.listen.clone();
         if listen.is_empty() && args.connect.is_empty() && args.zenoh_config.is_none() {
@@ -255,7 +263,7 @@ mod with_zenoh {
                     "channel": c.channel, "kind": c.kind, "state": c.state, "sent": c.sent, "dropped": c.dropped,
                     "ros_sent": c.ros_sent, "rate_hz": c.rate_hz, "latency_p50_us": c.latency_p50_us,
                     "latency_p99_us": c.latency_p99_us, "remote_readers": c.remote_readers,
-                    "remote_skipped": c.remote_skipped, "remote_latency_us": c.remote_latency_us,
+                    "remote_lost": c.remote_lost, "remote_latency_us": c.remote_latency_us,
                     "errors": c.errors, "last_error": c.last_error,
                 })
             })
@@ -296,7 +304,7 @@ mod with_zenoh {
                 c.latency_p50_us,
                 c.latency_p99_us,
                 c.remote_readers,
-                c.remote_skipped,
+                c.remote_lost,
                 c.remote_latency_us,
                 c.errors
             )?;

@@ -356,7 +356,10 @@ mod with_zenoh {
         let endpoint = format!("tcp/{ADDRESS_A}:7447");
         // Wait for the skin's channels and geometry.
         let deadline = Instant::now() + Duration::from_secs(120);
-        while skinware::list_channels(&dir).map(|c| c.len()).unwrap_or(0) < 8 && Instant::now() < deadline {
+        while skinware::list_channels(&dir).map(|c| c.len()).unwrap_or(0) < 8 {
+            if Instant::now() > deadline {
+                bail!("`skin run` did not create the skin's 8 channels within 120 s");
+            }
             std::thread::sleep(Duration::from_millis(200));
         }
         // The bridge's own figures, a JSON line a second: what it sent and
@@ -430,7 +433,9 @@ mod with_zenoh {
 
         // Cut the link for 3 s (longer than zenoh's 1 s lease: the session
         // closes and reconnects), with a probe reading across the cut.
-        let cut_probe = probe(&hosts.b, true, false, 3.0 + 2.0 * seconds.max(3.0)).stdout(Stdio::piped()).spawn()?;
+        // The probe reads long enough after the link returns (8 s) for a
+        // slow, loaded machine to reconnect and say so.
+        let cut_probe = probe(&hosts.b, true, false, seconds.max(3.0) + 3.0 + 8.0).stdout(Stdio::piped()).spawn()?;
         std::thread::sleep(Duration::from_secs_f64(seconds.max(3.0)));
         let offset = skinware_record::recorder::clock_offset_ns();
         let cut_at = unix_now_ns(offset);
