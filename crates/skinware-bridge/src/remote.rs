@@ -12,7 +12,8 @@
 //! let skin = RemoteSkin::connect(&link, "default", Duration::from_secs(5))?;
 //! let mut reader = skin.reader("virtual-0")?;
 //! let frame = reader.wait_newer(Duration::from_secs(1))?;
-//! println!("seq {} with {} responses, {:?}", frame.seq, frame.responses().len(), reader.state());
+//! println!("seq {} with {} responses", frame.seq, frame.responses().len());
+//! println!("the layer is {}", reader.state().name());
 //! # Ok::<(), skinware_bridge::BridgeError>(())
 //! ```
 
