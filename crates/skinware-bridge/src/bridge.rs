@@ -166,24 +166,6 @@ impl Counters {
 
 const LATENCY_WINDOW: usize = 1024;
 
-fn state_name(code: u32) -> &'static str {
-    match code {
-        1 => "running",
-        2 => "paused",
-        3 => "faulted",
-        _ => "gone",
-    }
-}
-
-fn state_code(state: WriterState) -> u32 {
-    match state {
-        WriterState::Running => 1,
-        WriterState::Paused => 2,
-        WriterState::Faulted => 3,
-        WriterState::Gone => 4,
-    }
-}
-
 struct Channel {
     info: RemoteChannel,
     counters: Counters,
@@ -581,7 +563,9 @@ impl Bridge {
                 ChannelReport {
                     channel: channel.info.name.clone(),
                     kind: skinware_record::file::kind_str(channel.info.kind).to_owned(),
-                    state: state_name(c.state.load(Ordering::Relaxed)).to_owned(),
+                    state: protocol::state_of_code(c.state.load(Ordering::Relaxed))
+                        .unwrap_or(WriterState::Gone)
+                        .to_string(),
                     sent,
                     dropped: c.dropped.load(Ordering::Relaxed),
                     ros_sent: c.ros_sent.load(Ordering::Relaxed),
@@ -752,7 +736,7 @@ fn heartbeat(shared: &Arc<Shared>) {
             let Some((publisher, reader)) = publishers.get_mut(name) else { continue };
             reader.follow_recreated();
             let state = reader.writer_state();
-            channel.counters.state.store(state_code(state), Ordering::Relaxed);
+            channel.counters.state.store(protocol::state_code(state), Ordering::Relaxed);
             channel.counters.published_seq.store(reader.published_seq(), Ordering::Relaxed);
             let message = ChannelState {
                 state,

@@ -219,13 +219,21 @@ pub struct ChannelState {
     pub period_ns: u64,
 }
 
-fn state_code(state: WriterState) -> u32 {
+/// A writer state's number on the wire (and in the bridge's counters).
+pub(crate) fn state_code(state: WriterState) -> u32 {
     match state {
         WriterState::Running => 1,
         WriterState::Paused => 2,
         WriterState::Faulted => 3,
         WriterState::Gone => 4,
     }
+}
+
+/// The writer state numbered `code` by [`state_code`].
+pub(crate) fn state_of_code(code: u32) -> Option<WriterState> {
+    [WriterState::Running, WriterState::Paused, WriterState::Faulted, WriterState::Gone]
+        .into_iter()
+        .find(|state| state_code(*state) == code)
 }
 
 impl ChannelState {
@@ -248,12 +256,9 @@ impl ChannelState {
             reason: e.to_string(),
         };
         let mut input = Decoder::new(bytes, "channel state", CHANNEL_STATE_MAGIC).map_err(malformed)?;
-        let state = match input.u32("state").map_err(malformed)? {
-            1 => WriterState::Running,
-            2 => WriterState::Paused,
-            3 => WriterState::Faulted,
-            4 => WriterState::Gone,
-            other => return Err(malformed(input.invalid("state", format!("{other} is not a writer state (1 to 4)")))),
+        let code = input.u32("state").map_err(malformed)?;
+        let Some(state) = state_of_code(code) else {
+            return Err(malformed(input.invalid("state", format!("{code} is not a writer state (1 to 4)"))));
         };
         let state = ChannelState {
             state,

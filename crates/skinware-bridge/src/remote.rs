@@ -49,10 +49,7 @@ impl RemoteState {
     /// `running`, `paused`, `faulted`, `gone` or `unreachable`.
     pub fn name(self) -> &'static str {
         match self {
-            RemoteState::Writer(WriterState::Running) => "running",
-            RemoteState::Writer(WriterState::Paused) => "paused",
-            RemoteState::Writer(WriterState::Faulted) => "faulted",
-            RemoteState::Writer(WriterState::Gone) => "gone",
+            RemoteState::Writer(state) => state.as_str(),
             RemoteState::Unreachable => "unreachable",
         }
     }
