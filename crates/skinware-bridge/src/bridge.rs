@@ -323,10 +323,6 @@ impl Shared {
             if lock(&self.channels).contains_key(&info.channel) || info.state == WriterState::Gone {
                 continue;
             }
-            if let Err(e) = protocol::check_name("channel", &info.channel) {
-                tracing::warn!("{e}");
-                continue;
-            }
             let reader = match Reader::open_with(&self.options.skin, &info.channel, &self.reader_options()) {
                 Ok(reader) => reader,
                 Err(e) => {
@@ -371,7 +367,7 @@ impl Bridge {
     /// Opens the zenoh session, starts bridging every chosen channel of the
     /// skin, and keeps picking up channels that appear later.
     pub fn start(options: BridgeOptions) -> Result<Bridge, BridgeError> {
-        protocol::check_name("skin", &options.skin)?;
+        skinware::shm::validate_name("skin", &options.skin)?;
         if let Some(hz) = options
             .max_hz
             .into_iter()
@@ -620,7 +616,8 @@ fn send_channel(shared: &Arc<Shared>, channel: &Channel, mut reader: Reader) -> 
         .priority(Priority::Data)
         .wait()
         .map_err(|e| BridgeError::Zenoh(format!("cannot declare the publisher of {name}: {e}")))?;
-    let ros_topic = |suffix: &str| format!("/skin/{}/{}/{suffix}", ros2::ros_name(skin), ros2::ros_name(name));
+    // The recorder's topic of the channel (a recording and the bridge agree).
+    let ros_topic = |suffix: &str| format!("{}/{suffix}", skinware_record::frame_topic(skin, name));
     let ros = if !shared.options.ros {
         None
     } else if channel.info.kind == ChannelKind::Layer {
@@ -860,7 +857,7 @@ fn publish_map(shared: &Arc<Shared>) -> Result<(), BridgeError> {
     let skin = &shared.options.skin;
     let geometry = SkinGeometry::open_in(&shared.dir, skin)
         .map_err(|e| BridgeError::Invalid(format!("skin {skin} publishes no geometry to draw: {e}")))?;
-    let ros = RosPublisher::declare(shared, &format!("/skin/{}/map", ros2::ros_name(skin)), ros2::IMAGE_TYPE)?;
+    let ros = RosPublisher::declare(shared, &skinware_record::map_topic(skin), ros2::IMAGE_TYPE)?;
     let mut heatmap = HeatMap::new(&geometry, shared.options.map_width);
     let (width, height) = heatmap.dimensions();
     let mut readers: Vec<Option<Reader>> = geometry.layers.iter().map(|_| None).collect();

@@ -85,7 +85,7 @@ impl RemoteSkin {
     /// Connects and asks the bridge of `skin` for its channels, trying until
     /// `timeout` (the link may take a moment to come up).
     pub fn connect(link: &LinkOptions, skin: &str, timeout: Duration) -> Result<RemoteSkin, BridgeError> {
-        protocol::check_name("skin", skin)?;
+        skinware::shm::validate_name("skin", skin)?;
         let session = link.open()?;
         let deadline = Instant::now() + timeout;
         loop {

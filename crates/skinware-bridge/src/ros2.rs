@@ -327,15 +327,7 @@ impl Attachment {
     }
 }
 
-/// A ROS 2 topic name built from skinware names: every character ROS forbids
-/// becomes `_`, and a token may not start with a digit.
-pub fn ros_name(name: &str) -> String {
-    let mut out: String = name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '_' { c } else { '_' }).collect();
-    if out.is_empty() || out.starts_with(|c: char| c.is_ascii_digit()) {
-        out.insert(0, '_');
-    }
-    out
-}
+pub use skinware_record::ros_name;
 
 #[cfg(test)]
 mod tests {

@@ -89,10 +89,12 @@ pub fn gaps_topic(skin: &str) -> String {
     format!("/skin/{}/gaps", ros_name(skin))
 }
 
-fn ros_name(name: &str) -> String {
+/// A ROS 2 name token made from a skinware name: every character ROS forbids
+/// becomes `_`, and a token may not be empty or start with a digit.
+pub fn ros_name(name: &str) -> String {
     let mut out: String = name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '_' { c } else { '_' }).collect();
     // A ROS name token cannot start with a digit.
-    if out.starts_with(|c: char| c.is_ascii_digit()) {
+    if out.is_empty() || out.starts_with(|c: char| c.is_ascii_digit()) {
         out.insert(0, '_');
     }
     out
