@@ -152,6 +152,7 @@ impl Replay {
                 access: options.access,
                 unlink_on_drop: true,
                 dir: Some(dir.clone()),
+                reader_wake: skinware::ReaderWake::default(),
             };
             let writer = Writer::create(
                 &skin,

@@ -100,4 +100,6 @@ pub use stats::{ReaderStats, WriterState, WriterStats, histogram_quantile};
 #[cfg(not(loom))]
 pub use topology::{LayerTopology, TopologyBuilder, TopologyError};
 #[cfg(not(loom))]
-pub use writer::{Access, DEFAULT_SLOTS, FrameWriter, Writer, WriterOptions, WriterStateHandle};
+pub use writer::{
+    Access, DEFAULT_SLOTS, FrameWriter, ReaderWake, WakeCounts, Writer, WriterOptions, WriterStateHandle,
+};

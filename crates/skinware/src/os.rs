@@ -1,8 +1,9 @@
 //! Thin wrappers over the operating-system primitives the exchange relies on:
 //! the monotonic clock, futexes, open-file-description locks and real-time
 //! scheduling. The protocols that use them live in `channel/` (the doorbell,
-//! liveness); this module only makes the calls. The only `unsafe` here is the two `fcntl`/`sched_setscheduler`
-//! calls that `rustix` does not wrap.
+//! liveness); this module only makes the calls. The only `unsafe` here is the
+//! libc calls that `rustix` does not wrap (`fcntl` locks, the scheduler's
+//! policy, and glibc's system-call-free `sched_getcpu`).
 
 use std::io;
 use std::num::NonZeroU32;
@@ -53,6 +54,53 @@ impl Futex for SharedFutex {
         // A failed wake can only be EFAULT on a bad address, which a mapped word is not.
         let _ = futex::wake(word.as_std(), futex::Flags::empty(), i32::MAX as u32);
     }
+}
+
+/// Process-private futexes, on words in this process's own memory: the
+/// writer's handoff to its ringer ([`crate::channel::ringer`]).
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct PrivateFutex;
+
+impl Futex for PrivateFutex {
+    fn now_ns(&self) -> u64 {
+        monotonic_ns()
+    }
+
+    fn wait(&self, word: &AtomicU32, expected: u32, timeout: Duration) -> io::Result<Wake> {
+        let timeout = timespec_from_ns(timeout.as_nanos().min(u64::MAX as u128) as u64);
+        wake_from(futex::wait(word.as_std(), futex::Flags::PRIVATE, expected, Some(&timeout)))
+    }
+
+    fn wake_all(&self, word: &AtomicU32) {
+        futex_wake_private(word);
+    }
+}
+
+/// The CPU the calling thread runs on, or `None` if the system cannot say.
+/// glibc answers from the thread's rseq area (or the vDSO), without a system
+/// call, which is why this is not rustix's `sched_getcpu` (a real `getcpu`).
+pub(crate) fn current_cpu() -> Option<u32> {
+    // SAFETY: sched_getcpu takes no arguments and touches no caller memory.
+    let cpu = unsafe { libc::sched_getcpu() };
+    u32::try_from(cpu).ok()
+}
+
+/// The calling thread's SCHED_FIFO or SCHED_RR priority, or `None` if it is
+/// in another scheduler (or the system cannot say).
+pub(crate) fn current_realtime_priority() -> Option<u8> {
+    // SAFETY: sched_getscheduler only reads the calling thread's policy.
+    let policy = unsafe { libc::sched_getscheduler(0) } & !libc::SCHED_RESET_ON_FORK;
+    if policy != libc::SCHED_FIFO && policy != libc::SCHED_RR {
+        return None;
+    }
+    let mut param = libc::sched_param { sched_priority: 0 };
+    // SAFETY: `param` is a valid, writable `sched_param`; pid 0 names the
+    // calling thread.
+    let rc = unsafe { libc::sched_getparam(0, &mut param) };
+    if rc != 0 {
+        return None;
+    }
+    u8::try_from(param.sched_priority).ok()
 }
 
 /// Sleeps while the process-private futex `word` holds `expected`, until the

@@ -76,14 +76,22 @@ pub(crate) enum WaitEnd {
 
 /// Writer, after publishing frame `seq`: wakes sleeping readers, and makes the
 /// system call only if one announced itself.
+#[cfg(loom)]
 pub(crate) fn ring(notify: &AtomicU32, seq: u64, futex: &impl Futex) {
+    if announce(notify, seq) {
+        futex.wake_all(notify);
+    }
+}
+
+/// Writer, after publishing frame `seq`: changes the word readers sleep on,
+/// and says whether one announced it sleeps. Then someone must `wake_all` the
+/// word: the writer itself or its ringer ([`super::ringer`]).
+pub(crate) fn announce(notify: &AtomicU32, seq: u64) -> bool {
     // Release: a reader that sees this value (its Acquire load in
     // `wait_for_frame`) also sees the publish before it. The swap also clears
     // the announcement, so a reader that died asleep costs one wake at most.
     let announced = notify.swap((seq as u32) << 1, Ordering::Release);
-    if announced & 1 != 0 {
-        futex.wake_all(notify);
-    }
+    announced & 1 != 0
 }
 
 /// Changes `word` and wakes everyone on it, so that a sleeper, or a thread
@@ -189,6 +197,7 @@ mod loom_tests {
 
     use super::*;
     use crate::channel::ring::{META_WORDS, Meta, Ring};
+    use crate::channel::ringer::Handoff;
     use loom::sync::atomic::AtomicBool;
     use loom::sync::{Arc, Condvar, Mutex};
 
@@ -245,6 +254,29 @@ mod loom_tests {
         payload[0].store(seq * 100, Ordering::Relaxed);
         ring.publish(&Meta { seq, acquired_ns: 0, published_ns: 0, status: 0 });
         super::ring(&channel.notify, seq, &channel.futex);
+    }
+
+    /// Publishes frame `seq` and hands the wake to a ringer, as a writer
+    /// with a ringer does; wakes the readers itself if the ringer is behind.
+    fn publish_deferred(channel: &Channel, handoff: &Handoff, seq: u64) {
+        let ring = Ring::new(&channel.published, &channel.slots, 2);
+        let payload = ring.begin(seq);
+        payload[0].store(seq * 100, Ordering::Relaxed);
+        ring.publish(&Meta { seq, acquired_ns: 0, published_ns: 0, status: 0 });
+        if super::announce(&channel.notify, seq) && !handoff.hand_off(0, &channel.futex) {
+            channel.futex.wake_all(&channel.notify);
+        }
+    }
+
+    /// The ringer thread's loop, as `crate::writer` runs it.
+    fn spawn_ringer(channel: &Arc<Channel>, handoff: &Arc<Handoff>) -> loom::thread::JoinHandle<()> {
+        let (channel, handoff) = (channel.clone(), handoff.clone());
+        loom::thread::spawn(move || {
+            while let Some((requested, _cpu)) = handoff.next(&channel.futex, Duration::MAX).unwrap() {
+                channel.futex.wake_all(&channel.notify);
+                handoff.rung(requested);
+            }
+        })
     }
 
     fn model(check: impl Fn() + Sync + Send + 'static) {
@@ -350,6 +382,52 @@ mod loom_tests {
             stopped.store(true, Ordering::Release);
             nudge(&channel.notify, &channel.futex);
             reader.join().unwrap();
+        });
+    }
+    /// A reader waits for frame 1 while the writer publishes it and hands the
+    /// wake to its ringer: the reader wakes, whichever way the three threads
+    /// interleave (and the ringer stops when the writer goes).
+    #[test]
+    fn loom_a_ringer_wakes_a_reader_the_writer_handed_it() {
+        model(|| {
+            let channel = channel();
+            let handoff = Arc::new(Handoff::default());
+            let ringer = spawn_ringer(&channel, &handoff);
+            let reader = {
+                let channel = channel.clone();
+                loom::thread::spawn(move || {
+                    let ring = Ring::new(&channel.published, &channel.slots, 2);
+                    wait_for_frame(&channel.notify, || ring.published(), 0, u64::MAX, || false, &channel.futex)
+                })
+            };
+            publish_deferred(&channel, &handoff, 1);
+            assert_eq!(reader.join().unwrap().unwrap(), WaitEnd::Ready);
+            handoff.stop(&channel.futex);
+            ringer.join().unwrap();
+        });
+    }
+
+    /// Two publishes while a reader waits for the second: whether the ringer
+    /// rang the first in time or the writer woke the readers itself, the
+    /// reader wakes for frame 2.
+    #[test]
+    fn loom_a_ringer_that_falls_behind_loses_no_wake() {
+        model(|| {
+            let channel = channel();
+            let handoff = Arc::new(Handoff::default());
+            let ringer = spawn_ringer(&channel, &handoff);
+            let reader = {
+                let channel = channel.clone();
+                loom::thread::spawn(move || {
+                    let ring = Ring::new(&channel.published, &channel.slots, 2);
+                    wait_for_frame(&channel.notify, || ring.published(), 1, u64::MAX, || false, &channel.futex)
+                })
+            };
+            publish_deferred(&channel, &handoff, 1);
+            publish_deferred(&channel, &handoff, 2);
+            assert_eq!(reader.join().unwrap().unwrap(), WaitEnd::Ready);
+            handoff.stop(&channel.futex);
+            ringer.join().unwrap();
         });
     }
 }

@@ -21,6 +21,9 @@
 //!    sleep until a publish (the writer makes a system call only when one is
 //!    asleep), sporadic writers sleep until a request, and a stop wakes both.
 //!    Model-checked with loom for lost wake-ups.
+//!    [`ringer`]: the wake handed from the writer to a thread on its CPU
+//!    one priority below it, so that the interrupt to another CPU is not on
+//!    the acquisition's time line.
 //! 5. [`liveness`]: who owns a channel name and whether its writer lives
 //!    (open-file-description locks the kernel drops when the writer dies), the
 //!    writer's state, and succession: a new writer takes a dead writer's name
@@ -40,6 +43,7 @@
 pub(crate) mod copy;
 pub(crate) mod doorbell;
 pub(crate) mod ring;
+pub(crate) mod ringer;
 
 // Under loom only the protocol above is compiled: what maps real memory or
 // makes system calls cannot run in the model.

@@ -4,7 +4,9 @@
 use std::time::{Duration, Instant};
 
 use crate::util::SegmentDir;
-use skinware::{Error, FrameStatus, Reader, ReaderOptions, Stop, Ticker, Writer, WriterOptions, WriterState};
+use skinware::{
+    Error, FrameStatus, Reader, ReaderOptions, ReaderWake, Stop, Ticker, Writer, WriterOptions, WriterState,
+};
 
 fn publish(writer: &mut Writer, value: u16) -> u64 {
     let mut frame = writer.begin();
@@ -135,6 +137,48 @@ fn as_soon_as_available_reader_wakes_on_publish() {
     assert_eq!(seq, 1);
     assert!(waited >= Duration::from_millis(90), "returned before the publish: {waited:?}");
     assert!(waited < Duration::from_secs(10), "missed the wake-up: {waited:?}");
+}
+
+/// Readers asleep for every frame get every frame whichever thread wakes
+/// them, and the writer says which did; dropping the writer stops its ringer
+/// (a drop that hung on the ringer's thread would hang the test).
+#[test]
+fn sleeping_readers_are_woken_by_the_ringer_or_by_the_writer_as_chosen() {
+    for wake in [ReaderWake::Ringer, ReaderWake::Writer] {
+        let dir = SegmentDir::new("ringer");
+        let options = WriterOptions { reader_wake: wake, ..dir.writer() };
+        let mut writer = Writer::create("skin", "layer", 8, b"", &options).unwrap();
+        let waiters: Vec<_> = (0..3)
+            .map(|_| {
+                let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+                std::thread::spawn(move || {
+                    let mut seen = Vec::new();
+                    while seen.last() != Some(&20) {
+                        seen.push(reader.wait_newer(Duration::from_secs(10)).expect("a wake went missing").seq());
+                    }
+                    seen
+                })
+            })
+            .collect();
+        std::thread::sleep(Duration::from_millis(100));
+        for value in 1..=20 {
+            publish(&mut writer, value);
+            // Long enough for the readers to copy the frame and sleep again.
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        for waiter in waiters {
+            let seen = waiter.join().unwrap();
+            assert!(seen.windows(2).all(|pair| pair[0] < pair[1]), "{wake:?}: frames out of order: {seen:?}");
+        }
+        let counts = writer.wake_counts();
+        assert!(counts.by_ringer + counts.by_writer <= 20, "{wake:?}: more wakes than frames: {counts:?}");
+        match wake {
+            ReaderWake::Ringer => assert!(counts.by_ringer >= 10, "the ringer woke few readers: {counts:?}"),
+            ReaderWake::Writer => assert!(counts.by_ringer == 0 && counts.by_writer >= 10, "{counts:?}"),
+        }
+        assert!(writer.last_published_ns() > 0);
+        drop(writer);
+    }
 }
 
 #[test]
