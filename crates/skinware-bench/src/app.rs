@@ -32,6 +32,10 @@ pub struct AppSamples {
     pub read_ns: Vec<Vec<u64>>,
     /// Per layer: the reader's rate, Hz (0 for asap).
     pub rate_hz: Vec<f64>,
+    /// Per layer: from the frame's acquisition to this process holding its
+    /// copy, ns (for a periodic reader this includes the frame's age).
+    #[serde(default)]
+    pub latency_ns: Vec<Vec<u64>>,
     /// When this process had opened every layer and started reading, and
     /// its deadline to stop (CLOCK_MONOTONIC), ns.
     pub window_ns: [u64; 2],
@@ -51,13 +55,17 @@ pub fn run(args: &AppArgs) -> Result<()> {
         let mut seed = args.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (l as u64 + 1);
         seed ^= seed >> 29;
         let rate_hz = if args.mode == "asap" { 0.0 } else { 10.0 + (seed % 9001) as f64 / 100.0 };
-        threads.push(std::thread::spawn(move || -> (Vec<u64>, f64) {
+        threads.push(std::thread::spawn(move || -> (Vec<u64>, Vec<u64>, f64) {
             let mut samples = Vec::with_capacity(8192);
+            let mut latency = Vec::with_capacity(8192);
             let mut ticker = Ticker::from_hz(rate_hz.max(1.0));
             while Instant::now() < deadline {
-                let read_ns = if rate_hz == 0.0 {
+                let (read_ns, acquired_ns) = if rate_hz == 0.0 {
                     match reader.wait_newer(Duration::from_millis(200)) {
-                        Ok(_) => reader.stats().read_ns_last,
+                        Ok(frame) => {
+                            let acquired_ns = frame.acquired_ns();
+                            (reader.stats().read_ns_last, acquired_ns)
+                        }
                         Err(_) => continue,
                     }
                 } else {
@@ -65,21 +73,23 @@ pub fn run(args: &AppArgs) -> Result<()> {
                         break;
                     }
                     let started = skinware::os::monotonic_ns();
-                    if reader.latest().is_err() {
-                        continue;
+                    match reader.latest() {
+                        Ok(frame) => (skinware::os::monotonic_ns() - started, frame.acquired_ns()),
+                        Err(_) => continue,
                     }
-                    skinware::os::monotonic_ns() - started
                 };
                 samples.push(read_ns);
+                latency.push(skinware::os::monotonic_ns().saturating_sub(acquired_ns));
             }
-            (samples, rate_hz)
+            (samples, latency, rate_hz)
         }));
     }
     let window_ns = [started_ns, started_ns + duration.as_nanos() as u64];
     let mut result = AppSamples { window_ns, ..AppSamples::default() };
     for thread in threads {
-        let (samples, rate) = thread.join().map_err(|_| anyhow::anyhow!("reader thread panicked"))?;
+        let (samples, latency, rate) = thread.join().map_err(|_| anyhow::anyhow!("reader thread panicked"))?;
         result.read_ns.push(samples);
+        result.latency_ns.push(latency);
         result.rate_hz.push(rate);
     }
     std::fs::write(&args.out, serde_json::to_vec(&result)?)

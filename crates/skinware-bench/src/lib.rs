@@ -10,6 +10,9 @@
 //!   processes through skinware and through a lock-based shared-memory
 //!   baseline, beside `memcpy` and `cyclictest`.
 //!
+//! * [`wake`]: a 1 kHz writer of the whole skin's frame with 0 or 15 readers
+//!   asleep on the futex, woken by the writer or by its ringer.
+//!
 //! Application processes are this same executable re-run with the
 //! `bench-app` role ([`app`]).
 
@@ -30,3 +33,4 @@ pub mod python;
 pub mod record;
 mod rwlock_peer;
 pub mod table1;
+pub mod wake;

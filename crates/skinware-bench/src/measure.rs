@@ -153,6 +153,11 @@ impl RunningSkin {
             .context("cannot start `skin run`")?;
         Ok(RunningSkin(child))
     }
+
+    /// The process id of `skin run`.
+    pub fn pid(&self) -> u32 {
+        self.0.id()
+    }
 }
 
 impl Drop for RunningSkin {

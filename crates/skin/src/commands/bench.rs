@@ -19,6 +19,10 @@ pub enum Which {
     Record(Common),
     /// The Python bindings beside the Rust reader on a 30,848-sensor layer of `skin run`: latest(), read_into(), wait_newer() latency ($SKINWARE_PYTHON).
     Python(Common),
+    /// A 1 kHz writer of the whole skin's frame with 0 or 15 readers asleep on the futex, woken by the writer or by its ringer: period start to visible, start jitter, missed periods, reader latency, CPU.
+    Wake(Common),
+    /// The paper's skin at 1 kHz alone, then with 15 applications, both services at 1 kHz, the viewer with 3 browsers and the recorder; then the viewer with 1 and 10 browsers: missed periods, publish times, CPU per component, latency from acquisition.
+    Kilohertz(KilohertzArgs),
     /// The paper's skin across a veth link between two network namespaces: `skin bridge` (feature `zenoh`) beside the local exchange, at 100/10/1 Mbit/s, and a cut link (needs root).
     Bridge(Common),
 }
@@ -46,6 +50,16 @@ pub struct PaperArgs {
     /// samples (default 1 with --quick, 3 for the full run).
     #[arg(long)]
     rounds: Option<u32>,
+}
+
+/// Options of `skin bench kilohertz`.
+#[derive(clap::Args)]
+pub struct KilohertzArgs {
+    #[command(flatten)]
+    common: Common,
+    /// Measure the viewer of another `skin` build (for a before/after).
+    #[arg(long, hide = true)]
+    viewer_exe: Option<PathBuf>,
 }
 
 /// Options of `skin bench table1`.
@@ -122,6 +136,15 @@ pub fn run(which: &Which) -> Result<()> {
             };
             skinware_bench::peers::run(&options).map(|_| ())
         }
+        Which::Wake(common) => {
+            let options = skinware_bench::wake::WakeOptions {
+                quick: common.quick,
+                out: common.out.clone(),
+                seconds: common.seconds,
+                exe,
+            };
+            skinware_bench::wake::run(&options).map(|_| ())
+        }
         Which::Record(common) => {
             let options = skinware_bench::record::RecordBenchOptions {
                 quick: common.quick,
@@ -130,6 +153,9 @@ pub fn run(which: &Which) -> Result<()> {
                 exe,
             };
             skinware_bench::record::run(&options).map(|_| ())
+        }
+        Which::Kilohertz(KilohertzArgs { common, viewer_exe }) => {
+            super::kilohertz::bench(common, viewer_exe.as_deref())
         }
         Which::Bridge(common) => super::bridge_bench::bench(common),
         Which::Python(common) => {

@@ -483,7 +483,7 @@ mod with_zenoh {
             mirror.channels().len(),
             listener.local_addr()?
         );
-        let served = view::serve(listener, &Site { skin: skin.to_owned(), dir: Some(dir), shutdown });
+        let served = view::serve(listener, &Site::new(skin, Some(dir), shutdown));
         drop(mirror);
         drop(cleanup);
         served

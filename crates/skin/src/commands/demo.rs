@@ -97,7 +97,7 @@ pub fn run(args: &Args) -> Result<()> {
                 last_layer_name(&config.skin).unwrap_or_else(|| "LAYER".into()),
             );
         }
-        view::serve(listener, &Site { skin: config.skin.clone(), dir: None, shutdown: shutdown.clone() })
+        view::serve(listener, &Site::new(&config.skin, None, shutdown.clone()))
     });
     shutdown.store(true, Ordering::Relaxed);
     let supervised = supervisor.join().unwrap_or_else(|_| Err(anyhow::anyhow!("the supervisor thread panicked")));

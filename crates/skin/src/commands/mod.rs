@@ -10,6 +10,7 @@ pub mod echo;
 pub mod emulate;
 pub mod geometry;
 pub mod info;
+pub mod kilohertz;
 pub mod ls;
 pub mod pull;
 pub mod record;

@@ -30,5 +30,5 @@ pub fn run(args: &Args) -> Result<()> {
     let listener = view::bind(&args.listen)?;
     let shutdown = super::run::shutdown_on_signals()?;
     println!("skin view: skin {} on http://{}/ ; Ctrl-C to stop", args.skin, listener.local_addr()?);
-    view::serve(listener, &Site { skin: args.skin.clone(), dir: None, shutdown })
+    view::serve(listener, &Site::new(&args.skin, None, shutdown))
 }

@@ -1,11 +1,13 @@
-//! Reads every layer of a skin for one browser, in the reader mode it chose,
-//! into a board that holds only the newest frame of each layer: whatever the
-//! browser does not take in time is overwritten, never queued.
+//! Reads every layer of a skin, in one reader mode, into a board that holds
+//! only the newest frame of each layer: whatever a browser does not take in
+//! time is overwritten, never queued. Every browser in the same mode shares
+//! one sampler ([`Samplers`]), so ten browsers cost the skin's writers and
+//! this process one reader per layer, not ten.
 
 #![forbid(unsafe_code)]
 
 use std::path::PathBuf;
-use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard, Weak};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -71,7 +73,56 @@ pub struct LayerToRead {
     pub sensors: usize,
 }
 
-/// The reader threads of one browser.
+/// The samplers running, one per reader mode (and set of layers), shared by
+/// every browser that reads in that mode; a sampler stops when its last
+/// browser leaves or changes mode.
+#[derive(Debug)]
+pub struct Samplers {
+    skin: String,
+    dir: Option<PathBuf>,
+    running: Mutex<Vec<RunningSampler>>,
+}
+
+#[derive(Debug)]
+struct RunningSampler {
+    mode: ReadMode,
+    layers: Vec<(String, usize)>,
+    sampler: Weak<Sampler>,
+}
+
+impl Samplers {
+    /// No sampler yet for `skin`'s layers (in segment directory `dir`).
+    pub fn new(skin: &str, dir: Option<PathBuf>) -> Samplers {
+        Samplers { skin: skin.to_owned(), dir, running: Mutex::new(Vec::new()) }
+    }
+
+    /// The sampler of `layers` in `mode`: the one already running for
+    /// another browser, or a new one.
+    pub fn subscribe(&self, layers: &[LayerToRead], mode: ReadMode) -> std::io::Result<Arc<Sampler>> {
+        let key: Vec<(String, usize)> = layers.iter().map(|layer| (layer.name.clone(), layer.sensors)).collect();
+        let mut running = self.running.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        running.retain(|entry| entry.sampler.strong_count() > 0);
+        let shared = running
+            .iter()
+            .filter(|entry| entry.mode == mode && entry.layers == key)
+            .find_map(|entry| entry.sampler.upgrade());
+        if let Some(sampler) = shared {
+            return Ok(sampler);
+        }
+        let sampler = Arc::new(Sampler::start(&self.skin, self.dir.clone(), layers, mode)?);
+        running.push(RunningSampler { mode, layers: key, sampler: Arc::downgrade(&sampler) });
+        Ok(sampler)
+    }
+
+    /// Samplers running now.
+    #[cfg(test)]
+    fn running(&self) -> usize {
+        let running = self.running.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        running.iter().filter(|entry| entry.sampler.strong_count() > 0).count()
+    }
+}
+
+/// The reader threads of one mode, shared by the browsers reading in it.
 #[derive(Debug)]
 pub struct Sampler {
     shared: Arc<Shared>,
@@ -130,15 +181,16 @@ impl Sampler {
         (board.version != seen).then(|| take(&board))
     }
 
-    /// On-request mode: asks every layer's reader for one frame.
+    /// On-request mode: asks every layer's reader for one frame (which every
+    /// browser in this mode then gets).
     pub fn request(&self) {
         lock(&self.shared).requests += 1;
         self.shared.requested.notify_all();
     }
 
     /// Stops the reader threads and waits for them; the board keeps what it
-    /// holds. Dropping the sampler does this too.
-    pub fn stop(&mut self) {
+    /// holds. Dropping the sampler does this.
+    fn stop(&mut self) {
         self.stop.stop();
         self.shared.requested.notify_all();
         for thread in self.threads.drain(..) {
@@ -286,5 +338,34 @@ impl LayerJob {
             board.version += 1;
             self.shared.changed.notify_all();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Browsers in one mode share a sampler, another mode gets its own, and a
+    /// sampler stops with its last browser.
+    #[test]
+    fn browsers_in_one_mode_share_one_sampler() {
+        let dir = std::env::temp_dir().join(format!("skin-samplers-{}", std::process::id()));
+        let samplers = Samplers::new("nosuchskin", Some(dir));
+        let layers = [LayerToRead { name: "tactile".into(), sensors: 4 }];
+        let first = samplers.subscribe(&layers, ReadMode::Asap).unwrap();
+        let second = samplers.subscribe(&layers, ReadMode::Asap).unwrap();
+        assert!(Arc::ptr_eq(&first, &second));
+        let periodic = samplers.subscribe(&layers, ReadMode::Periodic { rate_hz: 10.0 }).unwrap();
+        assert!(!Arc::ptr_eq(&first, &periodic));
+        let other_rate = samplers.subscribe(&layers, ReadMode::Periodic { rate_hz: 20.0 }).unwrap();
+        assert!(!Arc::ptr_eq(&periodic, &other_rate));
+        let other_layers = [LayerToRead { name: "tactile".into(), sensors: 8 }];
+        let resized = samplers.subscribe(&other_layers, ReadMode::Asap).unwrap();
+        assert!(!Arc::ptr_eq(&first, &resized), "a skin whose layers changed gets new readers");
+        assert_eq!(samplers.running(), 4);
+        drop((first, periodic, other_rate, resized));
+        assert_eq!(samplers.running(), 1, "the second browser still holds the shared sampler");
+        drop(second);
+        assert_eq!(samplers.running(), 0);
     }
 }

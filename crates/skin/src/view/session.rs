@@ -20,7 +20,7 @@ use tungstenite::{Message, WebSocket};
 
 use super::overlays::OverlaySource;
 use super::protocol::{self, LayerUpdate};
-use super::sampler::{LayerToRead, Sampler};
+use super::sampler::{LayerToRead, Sampler, Samplers};
 
 /// Updates the server may send ahead of the browser's acknowledgements.
 const MAX_CREDIT: u32 = 4;
@@ -41,6 +41,16 @@ pub struct Site {
     pub dir: Option<PathBuf>,
     /// Set on SIGINT/SIGTERM: connections close and the server's `serve` returns.
     pub shutdown: Arc<AtomicBool>,
+    /// The layer readers, shared by the browsers reading in the same mode.
+    pub samplers: Arc<Samplers>,
+}
+
+impl Site {
+    /// The site of `skin` (segments in `dir`, or the default directory).
+    pub fn new(skin: &str, dir: Option<PathBuf>, shutdown: Arc<AtomicBool>) -> Site {
+        let samplers = Arc::new(Samplers::new(skin, dir.clone()));
+        Site { skin: skin.to_owned(), dir, shutdown, samplers }
+    }
 }
 
 fn is_timeout(error: &tungstenite::Error) -> bool {
@@ -105,7 +115,7 @@ struct Session<'a> {
     site: &'a Site,
     layers: Vec<LayerToRead>,
     mode: ReadMode,
-    sampler: Sampler,
+    sampler: Arc<Sampler>,
     overlays: OverlaySource,
     /// Updates the browser will still accept before it acknowledges more.
     credit: u32,
@@ -124,8 +134,7 @@ struct Session<'a> {
 impl<'a> Session<'a> {
     fn start(socket: WebSocket<TcpStream>, site: &'a Site, layers: Vec<LayerToRead>) -> Result<Session<'a>> {
         let mode = INITIAL_MODE;
-        let sampler =
-            Sampler::start(&site.skin, site.dir.clone(), &layers, mode).context("cannot start the layer readers")?;
+        let sampler = site.samplers.subscribe(&layers, mode).context("cannot start the layer readers")?;
         Ok(Session {
             socket,
             site,
@@ -174,9 +183,11 @@ impl<'a> Session<'a> {
             ClientMessage::Mode(new_mode) => {
                 if new_mode != self.mode {
                     self.mode = new_mode;
-                    // The old readers stop before the new ones start.
-                    self.sampler.stop();
-                    self.sampler = Sampler::start(&self.site.skin, self.site.dir.clone(), &self.layers, self.mode)
+                    // The old sampler stops when its last browser leaves it.
+                    self.sampler = self
+                        .site
+                        .samplers
+                        .subscribe(&self.layers, self.mode)
                         .context("cannot start the layer readers")?;
                     self.seen_version = 0;
                     tracing::debug!(mode = ?self.mode, "reader mode changed");

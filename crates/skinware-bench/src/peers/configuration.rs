@@ -138,7 +138,7 @@ fn publish_frames(
 
 /// Starts the reader processes of one configuration; each writes its samples
 /// to a file in `work`.
-fn spawn_readers(
+pub(crate) fn spawn_readers(
     exe: &Path,
     work: &Path,
     system: &str,
@@ -165,7 +165,7 @@ fn spawn_readers(
 
 /// Stops the reader processes and pools their samples. Returns (latency,
 /// copy, frames or reads received).
-fn collect_readers(
+pub(crate) fn collect_readers(
     mut children: Vec<(Child, PathBuf)>,
     system: &str,
     mode: &str,

@@ -19,6 +19,7 @@ mod skinware_reader;
 
 use anyhow::{Context, Result, bail};
 
+pub(crate) use self::configuration::{collect_readers, spawn_readers};
 use self::configuration::{run_mode, run_one};
 use self::cyclictest::run_cyclictest;
 use self::futex_wake::measure_futex_wake;

@@ -1,0 +1,666 @@
+//! `skin bench kilohertz`: the paper's skin (5 layers, 30,848 taxels) at
+//! 1 kHz, first alone (the control), then with everything that reads it:
+//! 15 application processes, both services at 1 kHz, the viewer with 3
+//! browsers and the recorder. Then the viewer alone with 1 and 10 browsers,
+//! and with one slow browser among them.
+//!
+//! The figures come from where they are made: each writer's shared
+//! statistics (frames, missed periods, overruns, and its publish and
+//! lateness histograms, taken as the difference between the start and the
+//! end of the measured window), `/proc` for the CPU of every process, and
+//! the consumers themselves for the latency from acquisition. The browsers
+//! are WebSocket clients that speak the page's protocol (`docs/viewer.md`)
+//! and acknowledge what they received at a display's 60 Hz (a slow one at
+//! 5 Hz), so that the viewer's cost is measured without a browser's
+//! rendering competing for the same two cores.
+
+use std::collections::BTreeMap;
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use serde::Serialize;
+use skinware::{Reader, ReaderOptions, WriterStats, histogram_quantile};
+use skinware_bench::app::AppSamples;
+use skinware_bench::measure::{Percentiles, RunningSkin};
+
+use super::bench::Common;
+
+const PAPER_SKIN: &str = include_str!("../../../../examples/paper-virtual-skin.toml");
+const LAYERS: usize = 5;
+const APPS: usize = 15;
+/// Applications that wait for every frame; the others read periodically at
+/// random 10–100 Hz, as in the paper's experiment.
+const ASAP_APPS: usize = 5;
+const BROWSERS: usize = 3;
+const DISPLAY_HZ: f64 = 60.0;
+const SLOW_BROWSER_HZ: f64 = 5.0;
+
+/// One writer's figures over the measured window.
+#[derive(Debug, Serialize)]
+struct WriterFigures {
+    layer: String,
+    frames: u64,
+    rate_hz: f64,
+    missed_periods: u64,
+    overruns: u64,
+    /// Upper edges of the power-of-two histogram buckets, ns.
+    publish_p50_ns: u64,
+    publish_p99_ns: u64,
+    publish_max_ns: u64,
+    lateness_p99_ns: u64,
+}
+
+/// One run of the skin: the control or the loaded one.
+#[derive(Debug, Serialize)]
+struct PhaseReport {
+    phase: String,
+    seconds: f64,
+    writers: Vec<WriterFigures>,
+    /// Percent of one CPU, per component.
+    cpu_percent: BTreeMap<String, f64>,
+    /// From acquisition to each consumer holding the data, per consumer.
+    latency_us: BTreeMap<String, Percentiles>,
+    /// What the recorder said at the end (frames, lost, ...), if it ran.
+    recorder: Option<serde_json::Value>,
+    /// What the browsers received.
+    browsers: Vec<BrowserFigures>,
+}
+
+#[derive(Clone, Debug, Default, Serialize)]
+struct BrowserFigures {
+    ack_hz: f64,
+    updates_per_s: f64,
+    kb_per_update: f64,
+    /// From the acquisition of layer 0's newest frame to the update holding it, µs.
+    latency_us: Percentiles,
+}
+
+/// The viewer with N browsers at once.
+#[derive(Debug, Serialize)]
+struct ViewerRun {
+    browsers: usize,
+    viewer_cpu_percent: f64,
+    per_browser: Vec<BrowserFigures>,
+}
+
+#[derive(Debug, Serialize)]
+struct KilohertzReport {
+    rate_hz: f64,
+    taxels: usize,
+    phases: Vec<PhaseReport>,
+    viewer: Vec<ViewerRun>,
+    /// `viewer_cpu_percent` with 10 browsers over that with 1.
+    viewer_cpu_ratio_10_to_1: f64,
+}
+
+/// Runs `skin bench kilohertz`; `viewer_exe` measures another build's viewer.
+pub fn bench(common: &Common, viewer_exe: Option<&Path>) -> Result<()> {
+    let seconds = common.seconds.unwrap_or(if common.quick { 3.0 } else { 15.0 });
+    if !(seconds.is_finite() && seconds > 0.0) {
+        bail!("--seconds must be a positive number of seconds");
+    }
+    std::fs::create_dir_all(&common.out).with_context(|| format!("cannot create {}", common.out.display()))?;
+    let exe = std::env::current_exe().context("cannot find this executable")?;
+    let viewer_exe = viewer_exe.map(Path::to_path_buf).unwrap_or_else(|| exe.clone());
+    let dir = PathBuf::from("/dev/shm").join(format!("skinware-bench-khz-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir)?;
+    let result = measure(&exe, &viewer_exe, &dir, seconds, &common.out);
+    let _ = std::fs::remove_dir_all(&dir);
+    let report = result?;
+    print(&report);
+    let path = common.out.join("kilohertz.json");
+    std::fs::write(&path, serde_json::to_vec_pretty(&report)?)?;
+    println!("written: {}", path.display());
+    Ok(())
+}
+
+fn measure(exe: &Path, viewer_exe: &Path, dir: &Path, seconds: f64, out: &Path) -> Result<KilohertzReport> {
+    let control = run_phase(exe, viewer_exe, dir, seconds, false, out)?;
+    let loaded = run_phase(exe, viewer_exe, dir, seconds, true, out)?;
+    let viewer = viewer_scaling(exe, viewer_exe, dir, seconds)?;
+    let cpu = |n: usize| viewer.iter().find(|run| run.browsers == n).map_or(0.0, |run| run.viewer_cpu_percent);
+    let ratio = cpu(10) / cpu(1).max(1e-9);
+    Ok(KilohertzReport {
+        rate_hz: 1000.0,
+        taxels: 30_848,
+        phases: vec![control, loaded],
+        viewer,
+        viewer_cpu_ratio_10_to_1: ratio,
+    })
+}
+
+/// The paper's skin at 1 kHz; with its services (also at 1 kHz) or none.
+fn config(with_services: bool) -> Result<String> {
+    let layers_at = "rate_hz = { random = [30, 50] }";
+    if !PAPER_SKIN.contains(layers_at) {
+        bail!("examples/paper-virtual-skin.toml no longer sets {layers_at:?}; update the kilohertz bench");
+    }
+    let text = PAPER_SKIN.replace(layers_at, "rate_hz = 1000");
+    Ok(match text.split_once("[[service]]") {
+        Some((skin, services)) if with_services => {
+            format!("{skin}[[service]]{}", services.replace("rate_hz = 50", "rate_hz = 1000"))
+        }
+        Some((skin, _)) => skin.to_owned(),
+        None => bail!("examples/paper-virtual-skin.toml has no services; update the kilohertz bench"),
+    })
+}
+
+/// A child process killed (and reaped) when dropped.
+struct Guarded(Child);
+
+impl Drop for Guarded {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn start_skin(exe: &Path, dir: &Path, with_services: bool) -> Result<(RunningSkin, Vec<Reader>)> {
+    let path = dir.join(if with_services { "loaded.toml" } else { "control.toml" });
+    std::fs::write(&path, config(with_services)?)?;
+    let skin = RunningSkin::start(exe, &path, dir)?;
+    let options = ReaderOptions { dir: Some(dir.to_owned()), ..ReaderOptions::default() };
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let mut readers = Vec::new();
+    for layer in 0..LAYERS {
+        let name = format!("virtual-{layer}");
+        let reader = loop {
+            match Reader::open_with("default", &name, &options) {
+                Ok(reader) => break reader,
+                Err(_) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(100)),
+                Err(e) => return Err(e).context(format!("the skin's layer {name} did not appear within 30 s")),
+            }
+        };
+        readers.push(reader);
+    }
+    if with_services {
+        for service in ["contact", "motion"] {
+            while Reader::open_with("default", service, &options).is_err() {
+                if Instant::now() > deadline {
+                    bail!("the {service} service did not appear within 30 s");
+                }
+                std::thread::sleep(Duration::from_millis(100));
+            }
+        }
+    }
+    Ok((skin, readers))
+}
+
+fn run_phase(exe: &Path, viewer_exe: &Path, dir: &Path, seconds: f64, loaded: bool, out: &Path) -> Result<PhaseReport> {
+    let phase = if loaded { "loaded" } else { "control" };
+    eprintln!("kilohertz: {phase} run, {seconds} s");
+    let (skin, readers) = start_skin(exe, dir, loaded)?;
+    let skin_pid = skin.pid();
+    let stop = Arc::new(AtomicBool::new(false));
+    let clock = SeqClock::start(dir, stop.clone());
+    let mut apps = Vec::new();
+    let mut viewer = None;
+    let mut recorder = None;
+    let mut browser_threads = Vec::new();
+    let mut service_probe = None;
+    let work = out.join("kilohertz-work");
+    std::fs::create_dir_all(&work)?;
+    if loaded {
+        for app in 0..APPS {
+            let mode = if app < ASAP_APPS { "asap" } else { "periodic" };
+            let samples = work.join(format!("app-{app}.json"));
+            let layers: Vec<String> = (0..LAYERS).map(|l| format!("virtual-{l}")).collect();
+            let child = Command::new(exe)
+                .arg("bench-app")
+                .args(["--skin", "default", "--layers", &layers.join(","), "--mode", mode])
+                .args(["--seconds", &(seconds + 2.0).to_string(), "--seed", &(app as u64 + 1).to_string()])
+                .arg("--out")
+                .arg(&samples)
+                .env("SKINWARE_SHM_DIR", dir)
+                .spawn()
+                .context("cannot start an application process")?;
+            apps.push((Guarded(child), samples));
+        }
+        let (child, address) = start_viewer(viewer_exe, dir)?;
+        viewer = Some(child);
+        for _ in 0..BROWSERS {
+            let (stop, clock, address) = (stop.clone(), clock.clone(), address.clone());
+            browser_threads.push(std::thread::spawn(move || browse(&address, DISPLAY_HZ, &stop, &clock)));
+        }
+        let file = work.join("kilohertz.mcap");
+        let _ = std::fs::remove_file(&file);
+        let child = Command::new(exe)
+            .arg("record")
+            .arg(&file)
+            .args(["--services", "--json", "--seconds", &(seconds + 2.0).to_string()])
+            .env("SKINWARE_SHM_DIR", dir)
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::piped())
+            .spawn()
+            .context("cannot start the recorder")?;
+        recorder = Some(Guarded(child));
+        service_probe = Some(ServiceProbe::start(dir, stop.clone()));
+    }
+    // Every consumer attached and running before the window opens.
+    std::thread::sleep(Duration::from_secs(1));
+    let mut pids: Vec<(String, u32)> = vec![("skin run (supervisor)".into(), skin_pid)];
+    pids.extend(supervised_pids(skin_pid));
+    for (index, (app, _)) in apps.iter().enumerate() {
+        let kind = if index < ASAP_APPS { "apps (5 asap)" } else { "apps (10 periodic)" };
+        pids.push((kind.into(), app.0.id()));
+    }
+    if let Some(viewer) = &viewer {
+        pids.push(("viewer (3 browsers)".into(), viewer.0.id()));
+    }
+    if let Some(recorder) = &recorder {
+        pids.push(("recorder".into(), recorder.0.id()));
+    }
+    let before_stats: Vec<WriterStats> = readers.iter().map(Reader::writer_stats).collect();
+    let before_cpu = cpu_ticks(&pids);
+    let started = Instant::now();
+    std::thread::sleep(Duration::from_secs_f64(seconds));
+    let elapsed = started.elapsed().as_secs_f64();
+    let after_cpu = cpu_ticks(&pids);
+    let after_stats: Vec<WriterStats> = readers.iter().map(Reader::writer_stats).collect();
+    stop.store(true, Ordering::Relaxed);
+    let writers = before_stats
+        .iter()
+        .zip(&after_stats)
+        .enumerate()
+        .map(|(layer, (before, after))| writer_figures(format!("virtual-{layer}"), before, after, elapsed))
+        .collect();
+    let mut cpu_percent = BTreeMap::new();
+    for ((name, _), (before, after)) in pids.iter().zip(before_cpu.iter().zip(&after_cpu)) {
+        let ticks = after.saturating_sub(*before) as f64;
+        *cpu_percent.entry(name.clone()).or_insert(0.0) += 100.0 * ticks / clock_ticks_per_s() / elapsed;
+    }
+    let mut latency_us = BTreeMap::new();
+    let mut browsers = Vec::new();
+    for thread in browser_threads {
+        let figures = thread.join().map_err(|_| anyhow::anyhow!("a browser thread panicked"))??;
+        browsers.push(figures);
+    }
+    for (index, browser) in browsers.iter().enumerate() {
+        latency_us.insert(format!("viewer → browser {}", index + 1), browser.latency_us);
+    }
+    if let Some(probe) = service_probe {
+        for (name, mut samples) in probe.finish()? {
+            latency_us.insert(format!("{name} service (output visible)"), Percentiles::of(&mut samples));
+        }
+    }
+    let mut asap = Vec::new();
+    let mut periodic = Vec::new();
+    for (index, (app, samples)) in apps.into_iter().enumerate() {
+        let mut child = app;
+        let status = child.0.wait()?;
+        if !status.success() {
+            bail!("application process {index} failed ({status})");
+        }
+        let samples: AppSamples = serde_json::from_slice(&std::fs::read(&samples)?)?;
+        let into = if index < ASAP_APPS { &mut asap } else { &mut periodic };
+        into.extend(samples.latency_ns.into_iter().flatten().map(|ns| ns / 1_000));
+    }
+    if !asap.is_empty() {
+        latency_us.insert("apps, asap (wait_newer)".into(), Percentiles::of(&mut asap));
+        latency_us.insert("apps, periodic 10–100 Hz (frame age)".into(), Percentiles::of(&mut periodic));
+    }
+    let recorder = match recorder {
+        Some(mut child) => {
+            let mut stdout = child.0.stdout.take().context("the recorder's output")?;
+            child.0.wait()?;
+            let mut text = String::new();
+            std::io::Read::read_to_string(&mut stdout, &mut text)?;
+            serde_json::from_str(&text).ok()
+        }
+        None => None,
+    };
+    drop(viewer);
+    drop(clock);
+    drop(skin);
+    let _ = std::fs::remove_dir_all(&work);
+    Ok(PhaseReport { phase: phase.into(), seconds: elapsed, writers, cpu_percent, latency_us, recorder, browsers })
+}
+
+fn writer_figures(layer: String, before: &WriterStats, after: &WriterStats, seconds: f64) -> WriterFigures {
+    let delta = |a: &[u64; 32], b: &[u64; 32]| {
+        let mut out = [0u64; 32];
+        for (slot, (x, y)) in out.iter_mut().zip(a.iter().zip(b)) {
+            *slot = y.saturating_sub(*x);
+        }
+        out
+    };
+    let write = delta(&before.write_histogram, &after.write_histogram);
+    let lateness = delta(&before.lateness_histogram, &after.lateness_histogram);
+    let frames = after.frames - before.frames;
+    WriterFigures {
+        layer,
+        frames,
+        rate_hz: frames as f64 / seconds,
+        missed_periods: after.missed_periods - before.missed_periods,
+        overruns: after.overruns - before.overruns,
+        publish_p50_ns: histogram_quantile(&write, 0.5),
+        publish_p99_ns: histogram_quantile(&write, 0.99),
+        publish_max_ns: histogram_quantile(&write, 1.0),
+        lateness_p99_ns: histogram_quantile(&lateness, 0.99),
+    }
+}
+
+fn clock_ticks_per_s() -> f64 {
+    rustix::param::clock_ticks_per_second() as f64
+}
+
+/// utime + stime of each process, in clock ticks (0 for one that is gone).
+fn cpu_ticks(pids: &[(String, u32)]) -> Vec<u64> {
+    pids.iter()
+        .map(|(_, pid)| {
+            let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+            // Fields after the command name, which may hold spaces, in parentheses.
+            let fields: Vec<&str> = stat.rsplit_once(')').map_or(vec![], |(_, rest)| rest.split_whitespace().collect());
+            let field = |n: usize| fields.get(n).and_then(|f| f.parse::<u64>().ok()).unwrap_or(0);
+            field(11) + field(12)
+        })
+        .collect()
+}
+
+/// The driver and service processes `skin run` started, named by their
+/// command lines (`skin driver CONFIG --name virtual`: "driver virtual").
+fn supervised_pids(parent: u32) -> Vec<(String, u32)> {
+    let mut found = Vec::new();
+    let Ok(entries) = std::fs::read_dir("/proc") else { return found };
+    for entry in entries.flatten() {
+        let Some(pid) = entry.file_name().to_str().and_then(|name| name.parse::<u32>().ok()) else { continue };
+        let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+        let ppid = stat.rsplit_once(')').and_then(|(_, rest)| rest.split_whitespace().nth(1)?.parse::<u32>().ok());
+        if ppid != Some(parent) {
+            continue;
+        }
+        let cmdline = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
+        let words: Vec<String> = cmdline.split(|&b| b == 0).map(|w| String::from_utf8_lossy(w).into_owned()).collect();
+        let role = words.get(1).cloned().unwrap_or_default();
+        let name = words.iter().skip_while(|w| *w != "--name").nth(1).cloned().unwrap_or_else(|| pid.to_string());
+        found.push((format!("{role} {name}"), pid));
+    }
+    found
+}
+
+/// Acquisition times of layer 0's frames by sequence number, for the
+/// browsers to date what they receive.
+#[derive(Clone)]
+struct SeqClock(Arc<Mutex<BTreeMap<u64, u64>>>, Arc<AtomicBool>);
+
+impl SeqClock {
+    fn start(dir: &Path, stop: Arc<AtomicBool>) -> SeqClock {
+        let table = Arc::new(Mutex::new(BTreeMap::new()));
+        let clock = SeqClock(table.clone(), stop.clone());
+        let options = ReaderOptions { dir: Some(dir.to_owned()), ..ReaderOptions::default() };
+        std::thread::spawn(move || {
+            let Ok(mut reader) = Reader::open_with("default", "virtual-0", &options) else { return };
+            while !stop.load(Ordering::Relaxed) {
+                if let Ok(frame) = reader.wait_newer(Duration::from_millis(100)) {
+                    let (seq, acquired) = (frame.seq(), frame.acquired_ns());
+                    let mut table = table.lock().unwrap_or_else(|p| p.into_inner());
+                    table.insert(seq, acquired);
+                    while table.len() > 20_000 {
+                        table.pop_first();
+                    }
+                }
+            }
+        });
+        clock
+    }
+
+    fn acquired(&self, seq: u64) -> Option<u64> {
+        self.0.lock().unwrap_or_else(|p| p.into_inner()).get(&seq).copied()
+    }
+}
+
+impl Drop for SeqClock {
+    fn drop(&mut self) {
+        self.1.store(true, Ordering::Relaxed);
+    }
+}
+
+/// Reads the services' channels as soon as they publish: from their inputs'
+/// acquisition to their output being visible.
+struct ServiceProbe(Vec<(String, std::thread::JoinHandle<Vec<u64>>)>);
+
+impl ServiceProbe {
+    fn start(dir: &Path, stop: Arc<AtomicBool>) -> ServiceProbe {
+        let threads = ["contact", "motion"]
+            .into_iter()
+            .map(|service| {
+                let options = ReaderOptions { dir: Some(dir.to_owned()), ..ReaderOptions::default() };
+                let stop = stop.clone();
+                let thread = std::thread::spawn(move || {
+                    let mut samples = Vec::new();
+                    let Ok(mut reader) = Reader::open_with("default", service, &options) else { return samples };
+                    while !stop.load(Ordering::Relaxed) {
+                        if let Ok(frame) = reader.wait_newer(Duration::from_millis(100)) {
+                            samples.push(frame.published_ns().saturating_sub(frame.acquired_ns()) / 1_000);
+                        }
+                    }
+                    samples
+                });
+                (service.to_owned(), thread)
+            })
+            .collect();
+        ServiceProbe(threads)
+    }
+
+    fn finish(self) -> Result<Vec<(String, Vec<u64>)>> {
+        self.0
+            .into_iter()
+            .map(|(name, thread)| Ok((name, thread.join().map_err(|_| anyhow::anyhow!("a probe thread panicked"))?)))
+            .collect()
+    }
+}
+
+/// Starts `skin view` on a free loopback port and waits until it answers.
+fn start_viewer(exe: &Path, dir: &Path) -> Result<(Guarded, String)> {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
+    let address = format!("127.0.0.1:{port}");
+    let child = Command::new(exe)
+        .args(["view", "--listen", &address])
+        .env("SKINWARE_SHM_DIR", dir)
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .spawn()
+        .context("cannot start `skin view`")?;
+    let child = Guarded(child);
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while TcpStream::connect(&address).is_err() {
+        if Instant::now() > deadline {
+            bail!("`skin view` did not listen on {address} within 20 s");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    Ok((child, address))
+}
+
+/// One browser: takes the geometry, then acknowledges the updates it
+/// received `ack_hz` times a second, as a page does after each animation
+/// frame that drew something.
+fn browse(address: &str, ack_hz: f64, stop: &AtomicBool, clock: &SeqClock) -> Result<BrowserFigures> {
+    use tungstenite::Message;
+    let stream = TcpStream::connect(address)?;
+    let (mut socket, _) = tungstenite::client(format!("ws://{address}/ws"), stream)
+        .map_err(|e| anyhow::anyhow!("WebSocket handshake with the viewer failed: {e}"))?;
+    socket.get_mut().set_read_timeout(Some(Duration::from_millis(2)))?;
+    let period = Duration::from_secs_f64(1.0 / ack_hz);
+    let mut geometry = false;
+    let (mut updates, mut bytes, mut unacked) = (0u64, 0u64, 0u32);
+    let mut latency = Vec::new();
+    let mut last_seq = 0;
+    let started = Instant::now();
+    let mut next_ack = started + period;
+    while !stop.load(Ordering::Relaxed) {
+        match socket.read() {
+            Ok(Message::Binary(data)) if data.first() == Some(&1) && !geometry => {
+                geometry = true;
+                socket.send(Message::text(r#"{"ack":2}"#))?;
+            }
+            Ok(Message::Binary(data)) if data.first() == Some(&2) => {
+                updates += 1;
+                bytes += data.len() as u64;
+                unacked += 1;
+                if let Some(seq) = data.get(32..40).map(|b| u64::from_le_bytes(b.try_into().unwrap_or_default()))
+                    && seq != last_seq
+                {
+                    last_seq = seq;
+                    if let Some(acquired) = clock.acquired(seq) {
+                        latency.push(skinware::os::monotonic_ns().saturating_sub(acquired) / 1_000);
+                    }
+                }
+            }
+            Ok(Message::Text(text)) => bail!("the viewer refused the browser: {text}"),
+            Ok(_) => {}
+            Err(tungstenite::Error::Io(e))
+                if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {}
+            Err(e) => return Err(e.into()),
+        }
+        let now = Instant::now();
+        if now >= next_ack {
+            if unacked > 0 {
+                socket.send(Message::text(format!(r#"{{"ack":{unacked}}}"#)))?;
+                unacked = 0;
+            }
+            while next_ack <= now {
+                next_ack += period;
+            }
+        }
+    }
+    let seconds = started.elapsed().as_secs_f64();
+    let _ = socket.close(None);
+    Ok(BrowserFigures {
+        ack_hz,
+        updates_per_s: updates as f64 / seconds,
+        kb_per_update: bytes as f64 / 1e3 / updates.max(1) as f64,
+        latency_us: Percentiles::of(&mut latency),
+    })
+}
+
+/// The viewer alone on the 1 kHz skin with 1, then 10 browsers; then 9 at
+/// 60 Hz and one slow browser at 5 Hz.
+fn viewer_scaling(exe: &Path, viewer_exe: &Path, dir: &Path, seconds: f64) -> Result<Vec<ViewerRun>> {
+    let (skin, _readers) = start_skin(exe, dir, false)?;
+    let (viewer, address) = start_viewer(viewer_exe, dir)?;
+    let mut runs = Vec::new();
+    let plans: [Vec<f64>; 3] =
+        [vec![DISPLAY_HZ], vec![DISPLAY_HZ; 10], std::iter::repeat_n(DISPLAY_HZ, 9).chain([SLOW_BROWSER_HZ]).collect()];
+    for plan in plans {
+        eprintln!("kilohertz: viewer with {} browsers, {seconds} s", plan.len());
+        let stop = Arc::new(AtomicBool::new(false));
+        let clock = SeqClock::start(dir, stop.clone());
+        let threads: Vec<_> = plan
+            .iter()
+            .map(|&hz| {
+                let (stop, clock, address) = (stop.clone(), clock.clone(), address.clone());
+                std::thread::spawn(move || browse(&address, hz, &stop, &clock))
+            })
+            .collect();
+        std::thread::sleep(Duration::from_secs(1));
+        let pids = [("viewer".to_string(), viewer.0.id())];
+        let before = cpu_ticks(&pids);
+        let started = Instant::now();
+        std::thread::sleep(Duration::from_secs_f64(seconds));
+        let after = cpu_ticks(&pids);
+        let elapsed = started.elapsed().as_secs_f64();
+        stop.store(true, Ordering::Relaxed);
+        let mut per_browser = Vec::new();
+        for thread in threads {
+            per_browser.push(thread.join().map_err(|_| anyhow::anyhow!("a browser thread panicked"))??);
+        }
+        runs.push(ViewerRun {
+            browsers: plan.len(),
+            viewer_cpu_percent: 100.0 * (after[0].saturating_sub(before[0])) as f64 / clock_ticks_per_s() / elapsed,
+            per_browser,
+        });
+        // The viewer notices the closed sockets and stops the shared readers.
+        std::thread::sleep(Duration::from_millis(500));
+    }
+    drop(viewer);
+    drop(skin);
+    Ok(runs)
+}
+
+fn print(report: &KilohertzReport) {
+    println!("The paper's skin ({} taxels, 5 layers) at {} Hz.", report.taxels, report.rate_hz);
+    println!(
+        "| run | layer | frames/s | missed periods | overruns | publish p50 / p99 / max (µs, bucket edge) | lateness p99 (µs) |"
+    );
+    println!("|---|---|---|---|---|---|---|");
+    for phase in &report.phases {
+        for writer in &phase.writers {
+            println!(
+                "| {} | {} | {:.1} | {} | {} | {} / {} / {} | {} |",
+                phase.phase,
+                writer.layer,
+                writer.rate_hz,
+                writer.missed_periods,
+                writer.overruns,
+                writer.publish_p50_ns / 1_000,
+                writer.publish_p99_ns / 1_000,
+                writer.publish_max_ns / 1_000,
+                writer.lateness_p99_ns / 1_000
+            );
+        }
+    }
+    for phase in &report.phases {
+        println!("{} run, CPU (% of one core):", phase.phase);
+        for (name, percent) in &phase.cpu_percent {
+            println!("  {name}: {percent:.1} %");
+        }
+        for (name, latency) in &phase.latency_us {
+            println!(
+                "  latency from acquisition, {name}: p50 {} µs, p99 {} µs, max {} µs ({} samples)",
+                latency.p50, latency.p99, latency.max, latency.samples
+            );
+        }
+        for browser in &phase.browsers {
+            println!(
+                "  browser at {} Hz: {:.1} updates/s, {:.1} kB per update, latency p50 {} µs p99 {} µs",
+                browser.ack_hz,
+                browser.updates_per_s,
+                browser.kb_per_update,
+                browser.latency_us.p50,
+                browser.latency_us.p99
+            );
+        }
+        if let Some(recorder) = &phase.recorder {
+            println!(
+                "  recorder: {} frames, {} lost",
+                recorder.get("frames").unwrap_or(&serde_json::Value::Null),
+                recorder.get("lost").unwrap_or(&serde_json::Value::Null)
+            );
+        }
+    }
+    println!(
+        "| browsers | viewer CPU (% of one core) | updates/s per browser (min–max) | latency p50 (µs, median browser) |"
+    );
+    println!("|---|---|---|---|");
+    for run in &report.viewer {
+        let rates: Vec<f64> = run.per_browser.iter().map(|b| b.updates_per_s).collect();
+        let min = rates.iter().copied().fold(f64::INFINITY, f64::min);
+        let max = rates.iter().copied().fold(0.0, f64::max);
+        let mut p50s: Vec<u64> = run.per_browser.iter().map(|b| b.latency_us.p50).collect();
+        p50s.sort_unstable();
+        let slow = run.per_browser.iter().find(|b| b.ack_hz < DISPLAY_HZ);
+        println!(
+            "| {}{} | {:.1} | {:.1}–{:.1} | {} |",
+            run.browsers,
+            if slow.is_some() { " (one at 5 Hz)" } else { "" },
+            run.viewer_cpu_percent,
+            min,
+            max,
+            p50s.get(p50s.len() / 2).copied().unwrap_or(0)
+        );
+        if let Some(slow) = slow {
+            println!(
+                "  the slow browser: {:.1} updates/s, latency p50 {} µs p99 {} µs",
+                slow.updates_per_s, slow.latency_us.p50, slow.latency_us.p99
+            );
+        }
+    }
+    println!("viewer CPU, 10 browsers over 1: {:.2}x", report.viewer_cpu_ratio_10_to_1);
+}
