@@ -162,9 +162,17 @@ pub fn encode_update(out: &mut Vec<u8>, number: u32, mode: ReadMode, layers: &[L
         }
     }
     for responses in layers.iter().filter_map(LayerUpdate::responses) {
-        for response in responses {
-            out.extend_from_slice(&response.to_le_bytes());
-        }
+        extend_le(out, responses);
+    }
+}
+
+/// Appends `values` little-endian: one copy on a little-endian machine (an
+/// update carries up to 61,696 bytes of them, for every browser).
+fn extend_le(out: &mut Vec<u8>, values: &[u16]) {
+    if cfg!(target_endian = "little") {
+        out.extend_from_slice(bytemuck::cast_slice(values));
+    } else {
+        out.extend(values.iter().flat_map(|value| value.to_le_bytes()));
     }
 }
 

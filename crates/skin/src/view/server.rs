@@ -24,6 +24,8 @@ const MAX_HEAD_BYTES: usize = 16 * 1024;
 /// connection before it is buffered (tungstenite's default is 64 MiB): the
 /// page's messages are under [`skin::viewer_message::MAX_MESSAGE_BYTES`].
 const MAX_INCOMING_BYTES: usize = 64 * 1024;
+/// Bytes read from a browser at a time; its messages are a few dozen bytes.
+const BROWSER_READ_BYTES: usize = 4 * 1024;
 
 /// Binds the viewer's address, with an error that says what to do when it fails.
 pub fn bind(listen: &str) -> Result<TcpListener> {
@@ -181,10 +183,19 @@ fn handle_connection(mut stream: TcpStream, site: &Site) -> Result<()> {
                  Sec-WebSocket-Accept: {accept}\r\n\r\n"
             )?;
             stream.flush()?;
+            // A small read buffer: tungstenite zeroes the whole buffer before
+            // every read, and its 128 KiB default made each poll for a
+            // browser's acknowledgement cost a 128 KiB memset.
             let config = WebSocketConfig::default()
                 .max_message_size(Some(MAX_INCOMING_BYTES))
-                .max_frame_size(Some(MAX_INCOMING_BYTES));
-            let socket = WebSocket::from_partially_read(stream, leftover, Role::Server, Some(config));
+                .max_frame_size(Some(MAX_INCOMING_BYTES))
+                .read_buffer_size(BROWSER_READ_BYTES);
+            let socket = WebSocket::from_partially_read(
+                session::BrowserStream::new(stream),
+                leftover,
+                Role::Server,
+                Some(config),
+            );
             session::run(socket, site)
         }
         _ => respond(&mut stream, "404 Not Found", "text/plain", b"not found\n"),

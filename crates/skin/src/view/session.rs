@@ -11,7 +11,7 @@ use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
 use skin::viewer_message::{self, ClientMessage, ReadMode};
@@ -26,8 +26,109 @@ use super::sampler::{LayerToRead, Sampler, Samplers};
 const MAX_CREDIT: u32 = 4;
 /// How long to wait for the browser when it has no credit left.
 const IDLE_POLL: Duration = Duration::from_millis(20);
-/// How long to look at the socket between updates when there is credit.
-const BUSY_POLL: Duration = Duration::from_millis(1);
+/// A browser's frame interval until its acknowledgements tell (60 Hz).
+const DISPLAY_INTERVAL: Duration = Duration::from_micros(16_667);
+/// How long before the browser's next frame its update is sent: enough to
+/// arrive and be decoded in time, little enough to be fresh when drawn.
+const SEND_LEAD: Duration = Duration::from_millis(4);
+/// Acknowledgement intervals the frame interval is the shortest of.
+const INTERVALS_KEPT: usize = 16;
+/// Every this many acknowledgements, the next update goes at once instead of
+/// just before the expected frame, so that a browser drawing faster than we
+/// thought shows it by acknowledging sooner.
+const PROBE_EVERY: u64 = 8;
+
+/// When a browser's next update is due. A browser draws at most one update
+/// per frame of its display and acknowledges after each frame it drew, so
+/// sending more than one per frame encodes and sends updates nobody sees (at
+/// 1 kHz, most of them), and sending early makes the one drawn older. So the
+/// update goes [`SEND_LEAD`] before the browser's next frame, expected one
+/// frame interval (the shortest recent acknowledgement interval) after its
+/// last acknowledgement; and if the browser does not acknowledge (a long
+/// round trip), one per frame interval, within its credit.
+#[derive(Debug, Default)]
+struct Pacing {
+    last_ack: Option<Instant>,
+    intervals: std::collections::VecDeque<Duration>,
+    acks: u64,
+    sent_since_ack: u32,
+    last_sent: Option<Instant>,
+}
+
+impl Pacing {
+    fn frame_interval(&self) -> Duration {
+        self.intervals.iter().min().copied().unwrap_or(DISPLAY_INTERVAL)
+    }
+
+    fn acknowledged(&mut self, now: Instant) {
+        if let Some(previous) = self.last_ack.replace(now) {
+            if self.intervals.len() == INTERVALS_KEPT {
+                self.intervals.pop_front();
+            }
+            self.intervals
+                .push_back(now.duration_since(previous).clamp(Duration::from_millis(2), Duration::from_secs(2)));
+        }
+        self.acks += 1;
+        self.sent_since_ack = 0;
+    }
+
+    fn sent(&mut self, now: Instant) {
+        self.sent_since_ack += 1;
+        self.last_sent = Some(now);
+    }
+
+    /// How long until the next update is due; `None` if it is due now.
+    fn until_due(&self, now: Instant) -> Option<Duration> {
+        let interval = self.frame_interval();
+        let due = match (self.last_ack, self.last_sent) {
+            (Some(ack), _) if self.sent_since_ack == 0 && self.acks % PROBE_EVERY == 0 => ack,
+            (Some(ack), _) if self.sent_since_ack == 0 => ack + interval.saturating_sub(SEND_LEAD),
+            (_, Some(sent)) => sent + interval,
+            (_, None) => return None,
+        };
+        // Less than a millisecond is not worth a sleep.
+        due.checked_duration_since(now).filter(|left| *left >= Duration::from_millis(1))
+    }
+}
+/// A browser's TCP connection, whose reads wait (up to the socket's read
+/// timeout) only when asked to and otherwise return `WouldBlock` at once,
+/// while its writes always block: a slow browser slows only its own thread.
+#[derive(Debug)]
+pub struct BrowserStream {
+    /// The connection.
+    pub stream: TcpStream,
+    /// Whether the next reads may wait for data.
+    pub wait_for_reads: bool,
+}
+
+impl BrowserStream {
+    /// A connection whose reads wait.
+    pub fn new(stream: TcpStream) -> BrowserStream {
+        BrowserStream { stream, wait_for_reads: true }
+    }
+}
+
+impl std::io::Read for BrowserStream {
+    fn read(&mut self, buffer: &mut [u8]) -> std::io::Result<usize> {
+        if self.wait_for_reads {
+            return self.stream.read(buffer);
+        }
+        rustix::net::recv(&self.stream, buffer, rustix::net::RecvFlags::DONTWAIT)
+            .map(|(read, _)| read)
+            .map_err(std::io::Error::from)
+    }
+}
+
+impl std::io::Write for BrowserStream {
+    fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+        self.stream.write(bytes)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.stream.flush()
+    }
+}
+
 /// The mode a new browser starts in.
 const INITIAL_MODE: ReadMode = ReadMode::Asap;
 
@@ -63,7 +164,7 @@ fn is_closed(error: &tungstenite::Error) -> bool {
 }
 
 /// Serves one browser until it leaves or the viewer shuts down.
-pub fn run(mut socket: WebSocket<TcpStream>, site: &Site) -> Result<()> {
+pub fn run(mut socket: WebSocket<BrowserStream>, site: &Site) -> Result<()> {
     let layers = send_geometry(&mut socket, site)?;
     let mut session = Session::start(socket, site, layers)?;
     loop {
@@ -74,7 +175,7 @@ pub fn run(mut socket: WebSocket<TcpStream>, site: &Site) -> Result<()> {
         if session.read_browser()?.is_break() {
             return Ok(());
         }
-        if session.credit == 0 {
+        if session.credit == 0 || session.pacing.until_due(Instant::now()).is_some() {
             continue;
         }
         if session.send_update()?.is_break() {
@@ -84,14 +185,14 @@ pub fn run(mut socket: WebSocket<TcpStream>, site: &Site) -> Result<()> {
 }
 
 /// Closes the WebSocket, ignoring a browser that is already gone.
-fn close(socket: &mut WebSocket<TcpStream>) {
+fn close(socket: &mut WebSocket<BrowserStream>) {
     let _ = socket.close(None);
     let _ = socket.flush();
 }
 
 /// Sends the skin's geometry, or the error that the page shows instead of a
 /// map; returns the layers to read.
-fn send_geometry(socket: &mut WebSocket<TcpStream>, site: &Site) -> Result<Vec<LayerToRead>> {
+fn send_geometry(socket: &mut WebSocket<BrowserStream>, site: &Site) -> Result<Vec<LayerToRead>> {
     let dir = site.dir.clone().unwrap_or_else(skinware::shm::segment_dir);
     let geometry = match SkinGeometry::open_in(&dir, &site.skin) {
         Ok(geometry) => geometry,
@@ -111,7 +212,7 @@ fn send_geometry(socket: &mut WebSocket<TcpStream>, site: &Site) -> Result<Vec<L
 
 /// The state of one browser's connection after the geometry was sent.
 struct Session<'a> {
-    socket: WebSocket<TcpStream>,
+    socket: WebSocket<BrowserStream>,
     site: &'a Site,
     layers: Vec<LayerToRead>,
     mode: ReadMode,
@@ -129,10 +230,12 @@ struct Session<'a> {
     message: Vec<u8>,
     /// The read timeout the socket has now, to set it only when it changes.
     poll: Option<Duration>,
+    /// When its next update is due.
+    pacing: Pacing,
 }
 
 impl<'a> Session<'a> {
-    fn start(socket: WebSocket<TcpStream>, site: &'a Site, layers: Vec<LayerToRead>) -> Result<Session<'a>> {
+    fn start(socket: WebSocket<BrowserStream>, site: &'a Site, layers: Vec<LayerToRead>) -> Result<Session<'a>> {
         let mode = INITIAL_MODE;
         let sampler = site.samplers.subscribe(&layers, mode).context("cannot start the layer readers")?;
         Ok(Session {
@@ -147,21 +250,29 @@ impl<'a> Session<'a> {
             updates_sent: 0,
             message: Vec::new(),
             poll: None,
+            pacing: Pacing::default(),
             layers,
         })
     }
 
     /// Everything the browser said since the last update: waiting for it
-    /// only while there is no credit, and not at all once it has spoken.
-    /// Breaks when the browser left.
+    /// (at most [`IDLE_POLL`]) only while there is no credit, and never once
+    /// it has spoken. With credit the board, not the browser, is what we wait
+    /// for: a read that slept would cost a wake-up per update, which at
+    /// 1 kHz is most of what a browser costs. Breaks when the browser left.
     fn read_browser(&mut self) -> Result<ControlFlow<()>> {
-        let mut wanted = if self.credit > 0 { BUSY_POLL } else { IDLE_POLL };
+        let until_due = self.pacing.until_due(Instant::now());
+        let timeout = if self.credit == 0 { Some(IDLE_POLL) } else { until_due.map(|due| due.min(IDLE_POLL)) };
+        let mut wait = timeout.is_some();
+        if let Some(timeout) = timeout
+            && self.poll != Some(timeout)
+        {
+            self.socket.get_mut().stream.set_read_timeout(Some(timeout))?;
+            self.poll = Some(timeout);
+        }
         loop {
-            if self.poll != Some(wanted) {
-                self.socket.get_mut().set_read_timeout(Some(wanted))?;
-                self.poll = Some(wanted);
-            }
-            wanted = BUSY_POLL;
+            self.socket.get_mut().wait_for_reads = wait;
+            wait = false;
             match self.socket.read() {
                 Ok(Message::Text(text)) => match viewer_message::decode(text.as_str()) {
                     Ok(message) => self.obey(message)?,
@@ -179,7 +290,10 @@ impl<'a> Session<'a> {
     /// Acts on one message of the browser.
     fn obey(&mut self, message: ClientMessage) -> Result<()> {
         match message {
-            ClientMessage::Ack(n) => self.credit = self.credit.saturating_add(n).min(MAX_CREDIT),
+            ClientMessage::Ack(n) => {
+                self.credit = self.credit.saturating_add(n).min(MAX_CREDIT);
+                self.pacing.acknowledged(Instant::now());
+            }
             ClientMessage::Mode(new_mode) => {
                 if new_mode != self.mode {
                     self.mode = new_mode;
@@ -220,6 +334,7 @@ impl<'a> Session<'a> {
             board.version
         });
         if let Some(version) = taken {
+            self.pacing.sent(Instant::now());
             self.seen_version = version;
             self.updates_sent = self.updates_sent.wrapping_add(1);
             self.credit -= 1;
@@ -230,5 +345,47 @@ impl<'a> Session<'a> {
             }
         }
         Ok(ControlFlow::Continue(()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 60 Hz browser acknowledging after each frame gets one update per
+    /// frame, sent just before the frame; one that acknowledges every 200 ms
+    /// learns that interval; one that draws faster than assumed is found by
+    /// the probe; one that does not acknowledge still gets one per frame.
+    #[test]
+    fn updates_go_once_per_frame_just_before_it() {
+        let start = Instant::now();
+        let at = |ms: f64| start + Duration::from_secs_f64(ms / 1e3);
+        let mut pacing = Pacing::default();
+        assert_eq!(pacing.until_due(at(0.0)), None, "the first update goes at once");
+        for frame in 1..=4 {
+            pacing.acknowledged(at(16.667 * f64::from(frame)));
+        }
+        let ack = 16.667 * 4.0;
+        let wait = pacing.until_due(at(ack)).expect("not at once after an acknowledgement");
+        assert!((wait.as_secs_f64() * 1e3 - 12.667).abs() < 0.01, "{wait:?}");
+        assert_eq!(pacing.until_due(at(ack + 12.7)), None);
+        pacing.sent(at(ack + 12.7));
+        assert!(pacing.until_due(at(ack + 13.0)).is_some(), "one update per frame");
+        assert_eq!(pacing.until_due(at(ack + 12.7 + 16.7)), None, "an unacknowledged frame later, the next");
+
+        let mut slow = Pacing::default();
+        for tick in 1..=5 {
+            slow.acknowledged(at(200.0 * f64::from(tick)));
+        }
+        let wait = slow.until_due(at(1000.0)).unwrap();
+        assert!((wait.as_secs_f64() * 1e3 - 196.0).abs() < 0.01, "{wait:?}");
+
+        let mut probed = Pacing::default();
+        for tick in 1..=PROBE_EVERY {
+            probed.acknowledged(at(33.3 * tick as f64));
+        }
+        assert_eq!(probed.until_due(at(33.3 * PROBE_EVERY as f64)), None, "the probe goes at once");
+        probed.acknowledged(at(33.3 * PROBE_EVERY as f64 + 16.7));
+        assert!((probed.frame_interval().as_secs_f64() * 1e3 - 16.7).abs() < 0.01);
     }
 }
