@@ -81,7 +81,7 @@ impl Pacing {
     fn until_due(&self, now: Instant) -> Option<Duration> {
         let interval = self.frame_interval();
         let due = match (self.last_ack, self.last_sent) {
-            (Some(ack), _) if self.sent_since_ack == 0 && self.acks % PROBE_EVERY == 0 => ack,
+            (Some(ack), _) if self.sent_since_ack == 0 && self.acks.is_multiple_of(PROBE_EVERY) => ack,
             (Some(ack), _) if self.sent_since_ack == 0 => ack + interval.saturating_sub(SEND_LEAD),
             (_, Some(sent)) => sent + interval,
             (_, None) => return None,
