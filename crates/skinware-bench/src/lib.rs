@@ -9,6 +9,8 @@
 //! * [`peers`]: the whole-skin frame delivered to 1, 4 and 15 reader
 //!   processes through skinware and through a lock-based shared-memory
 //!   baseline, beside `memcpy` and `cyclictest`.
+//! * [`contact`]: the contact service's cost per frame on the paper's skin
+//!   with scripted contacts: the detector alone, and the running service.
 //!
 //! * [`wake`]: a 1 kHz writer of the whole skin's frame with 0 or 15 readers
 //!   asleep on the futex, woken by the writer or by its ringer.
@@ -22,6 +24,7 @@
 
 pub mod app;
 pub mod can;
+pub mod contact;
 #[cfg(feature = "iceoryx2")]
 mod iceoryx2_peer;
 pub mod measure;

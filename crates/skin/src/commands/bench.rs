@@ -17,6 +17,8 @@ pub enum Which {
     Peers(Common),
     /// The recorder (zstd, lz4, none) and the replay on the paper's skin: throughput, CPU, file size, timing error.
     Record(Common),
+    /// The contact service's cost per frame on the paper's skin with scripted contacts: the detector alone, and the service beside the skin's writers.
+    Contact(Common),
     /// The Python bindings beside the Rust reader on a 30,848-sensor layer of `skin run`: latest(), read_into(), wait_newer() latency ($SKINWARE_PYTHON).
     Python(Common),
     /// A 1 kHz writer of the whole skin's frame with 0 or 15 readers asleep on the futex, woken by the writer or by its ringer: period start to visible, start jitter, missed periods, reader latency, CPU.
@@ -158,6 +160,14 @@ pub fn run(which: &Which) -> Result<()> {
             super::kilohertz::bench(common, viewer_exe.as_deref())
         }
         Which::Bridge(common) => super::bridge_bench::bench(common),
+        Which::Contact(common) => {
+            let options = skinware_bench::contact::ContactBenchOptions {
+                quick: common.quick,
+                out: common.out.clone(),
+                seconds: common.seconds,
+            };
+            skinware_bench::contact::run(&options).map(|_| ())
+        }
         Which::Python(common) => {
             let options = skinware_bench::python::PythonBenchOptions {
                 quick: common.quick,

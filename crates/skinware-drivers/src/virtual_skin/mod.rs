@@ -345,9 +345,23 @@ impl PressureField {
     /// A body of `sensors` taxels, with random contacts drawn from `seed`
     /// for the next `horizon_s` seconds.
     pub fn new(sensors: usize, seed: u64, horizon_s: f64) -> PressureField {
+        PressureField::with_contacts(sensors, seed, horizon_s, &[], true)
+    }
+
+    /// A body of `sensors` taxels pressed by `scripted` contacts and, with
+    /// `random_contacts`, by random ones drawn from `seed` for the next
+    /// `horizon_s` seconds: what a [`VirtualSkin`] of the same settings
+    /// feels, before its noise, in its global sensor order.
+    pub fn with_contacts(
+        sensors: usize,
+        seed: u64,
+        horizon_s: f64,
+        scripted: &[ScriptedContact],
+        random_contacts: bool,
+    ) -> PressureField {
         let body = VirtualBody::new(sensors);
         let phases = drift_phases(&body.places);
-        PressureField { body, phases, contacts: Contacts::new(seed, horizon_s, &[], true) }
+        PressureField { body, phases, contacts: Contacts::new(seed, horizon_s, scripted, random_contacts) }
     }
 
     /// Taxels on the body.

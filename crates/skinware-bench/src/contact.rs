@@ -1,0 +1,223 @@
+//! `skin bench contact`: the contact service's cost per frame on the paper's
+//! 30,848-taxel virtual skin (5 layers at 50 Hz), pressed by the scripted
+//! contacts of the services' accuracy test (a press held on the torso, a
+//! slide over the left forearm). Two figures:
+//!
+//! * detector: `ContactDetector::update` alone, in this thread, on frames of
+//!   that skin computed between the timed calls (no skin running, no other
+//!   thread): the algorithm's own cost, repeatable from run to run.
+//! * service: the contact service beside the virtual skin's five writers in
+//!   this process, from its channel's write-time statistics (reading the
+//!   layers, detecting, publishing contacts and taxel states): the figure
+//!   `skin services` prints, with the writers competing for the cores.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use serde::Serialize;
+use skinware::{Driver, DriverHandler, HandlerOptions, Stop, WriterOptions};
+use skinware_drivers::{PressureField, Rate, ScriptedContact, VirtualSkin, VirtualSkinConfig};
+use skinware_geometry::{RegionSpec, Selector, SkinGeometry};
+use skinware_services::framework::{ServiceMode, ServiceReader};
+use skinware_services::{ContactDetector, ContactParams, ContactServiceConfig, RegionContacts, run_contact_service};
+
+use crate::measure::Percentiles;
+
+/// Options of `skin bench contact`.
+#[derive(Clone, Debug)]
+pub struct ContactBenchOptions {
+    /// CI-sized: 4 s of frames and 3 s of service instead of 20 s each.
+    pub quick: bool,
+    /// Where `contact.json` goes.
+    pub out: PathBuf,
+    /// Seconds of frames (detector) and of running (service).
+    pub seconds: Option<f64>,
+}
+
+/// What `skin bench contact` measured, per frame, ns.
+#[derive(Clone, Debug, Serialize)]
+pub struct ContactReport {
+    /// Taxels of the skin.
+    pub taxels: usize,
+    /// `ContactDetector::update` alone.
+    pub detector_ns: Percentiles,
+    /// Frames the contact service published.
+    pub service_frames: u64,
+    /// The service's mean write time (its channel's statistics).
+    pub service_ns_mean: u64,
+    /// The service's longest write time.
+    pub service_ns_max: u64,
+}
+
+const FRAME_PERIOD_S: f64 = 0.02;
+const LAYERS: usize = 5;
+
+/// The scripted contacts of the services' accuracy test
+/// (`skinware-services/tests/integration/scripted.rs`).
+fn scripted_contacts() -> Vec<ScriptedContact> {
+    let contact = |part: &str, at_s, angle_deg, height, velocity, slide_s, peak, sigma| ScriptedContact {
+        part: part.into(),
+        at_s,
+        angle_deg,
+        height,
+        velocity,
+        press_s: 0.3,
+        slide_s,
+        release_s: 0.3,
+        peak,
+        sigma,
+    };
+    vec![
+        contact("torso", 0.3, 100.0, 0.3, [0.0, 0.0], 30.0, 20_000.0, 0.015),
+        contact("left_forearm", 0.5, 30.0, 0.06, [0.03, 0.04], 4.0, 25_000.0, 0.012),
+    ]
+}
+
+fn skin_config() -> VirtualSkinConfig {
+    VirtualSkinConfig {
+        layers: LAYERS,
+        rate: Rate::Fixed(1.0 / FRAME_PERIOD_S),
+        random_contacts: false,
+        contacts: scripted_contacts(),
+        ..VirtualSkinConfig::default()
+    }
+}
+
+fn geometry_of(skin: &str, driver: &VirtualSkin) -> Result<SkinGeometry> {
+    let layers: Vec<_> = driver.layers().into_iter().map(|l| l.topology).collect();
+    let regions = ["torso", "left_forearm", "right_shin"]
+        .map(|link| RegionSpec { name: link.into(), selectors: vec![Selector::Link(link.into())] });
+    Ok(SkinGeometry::build(skin, &layers, &driver.calibration(), &regions)?)
+}
+
+/// Runs both measurements, prints them and writes `contact.json`.
+pub fn run(options: &ContactBenchOptions) -> Result<ContactReport> {
+    let seconds = options.seconds.unwrap_or(if options.quick { 4.0 } else { 20.0 });
+    if !(seconds.is_finite() && seconds > 0.0) {
+        bail!("--seconds must be a positive number of seconds");
+    }
+    std::fs::create_dir_all(&options.out).with_context(|| format!("cannot create {}", options.out.display()))?;
+    let skin = format!("bench-contact-{}", std::process::id());
+    let config = skin_config();
+    let driver = VirtualSkin::new(config.clone()).map_err(anyhow::Error::msg)?;
+    let geometry = Arc::new(geometry_of(&skin, &driver)?);
+    let taxels = geometry.sensor_count();
+
+    let mut detector_ns = time_detector(&config, &geometry, seconds);
+    let (service_frames, service_ns_mean, service_ns_max) = time_service(&skin, driver, &geometry, seconds)?;
+    let report = ContactReport {
+        taxels,
+        detector_ns: Percentiles::of(&mut detector_ns),
+        service_frames,
+        service_ns_mean,
+        service_ns_max,
+    };
+    let us = |ns: f64| ns / 1e3;
+    println!(
+        "skin bench contact: {taxels} taxels, {LAYERS} layers at {:.0} Hz, scripted contacts, {seconds} s",
+        1.0 / FRAME_PERIOD_S
+    );
+    println!("  {:<10} {:>7} {:>9} {:>9} {:>9} {:>9}", "", "frames", "mean µs", "p50 µs", "p99 µs", "max µs");
+    let d = &report.detector_ns;
+    println!(
+        "  {:<10} {:>7} {:>9.1} {:>9.1} {:>9.1} {:>9.1}",
+        "detector",
+        d.samples,
+        us(d.avg),
+        us(d.p50 as f64),
+        us(d.p99 as f64),
+        us(d.max as f64)
+    );
+    println!(
+        "  {:<10} {:>7} {:>9.1} {:>9} {:>9} {:>9.1}",
+        "service",
+        report.service_frames,
+        us(report.service_ns_mean as f64),
+        "-",
+        "-",
+        us(report.service_ns_max as f64)
+    );
+    let json = options.out.join("contact.json");
+    std::fs::write(&json, serde_json::to_vec_pretty(&report)?)?;
+    println!("wrote {}", json.display());
+    Ok(report)
+}
+
+/// Times `ContactDetector::update` on `seconds` of frames of the scripted
+/// skin, with the virtual skin's noise; returns each update's time, ns.
+fn time_detector(config: &VirtualSkinConfig, geometry: &SkinGeometry, seconds: f64) -> Vec<u64> {
+    let taxels = geometry.sensor_count();
+    let field = PressureField::with_contacts(taxels, config.seed, seconds + 1.0, &config.contacts, false);
+    let mut detector = ContactDetector::new(geometry, ContactParams::default());
+    let mut records = vec![RegionContacts::default(); detector.region_names().len()];
+    let mut responses = vec![0u16; taxels];
+    let all_layers = vec![true; geometry.layers.len()];
+    // The virtual skin's noise: uniform in -8..=8.
+    let mut noise_state = config.seed;
+    let frames = (seconds / FRAME_PERIOD_S).round() as usize;
+    let mut times = Vec::with_capacity(frames);
+    for frame in 0..frames {
+        field.responses(frame as f64 * FRAME_PERIOD_S, 0, &mut responses);
+        for response in &mut responses {
+            noise_state ^= noise_state << 13;
+            noise_state ^= noise_state >> 7;
+            noise_state ^= noise_state << 17;
+            let noise = (noise_state % 17) as i32 - 8;
+            *response = (i32::from(*response) + noise).clamp(0, i32::from(u16::MAX)) as u16;
+        }
+        let started = Instant::now();
+        detector.update(geometry, &responses, &all_layers, &all_layers, FRAME_PERIOD_S as f32, &mut records);
+        times.push(started.elapsed().as_nanos() as u64);
+        std::hint::black_box(&records);
+    }
+    times
+}
+
+/// Runs the virtual skin and the contact service for `seconds`; returns the
+/// service's frames, mean and longest write time, ns.
+fn time_service(
+    skin: &str,
+    driver: VirtualSkin,
+    geometry: &Arc<SkinGeometry>,
+    seconds: f64,
+) -> Result<(u64, u64, u64)> {
+    let handler = DriverHandler::start(skin, Box::new(driver), &HandlerOptions::default())?;
+    let stop = Stop::new();
+    let service = {
+        let (skin, geometry, stop) = (skin.to_owned(), geometry.clone(), stop.clone());
+        std::thread::spawn(move || {
+            let config = ContactServiceConfig {
+                name: "contact".into(),
+                mode: ServiceMode::Periodic { hz: 1.0 / FRAME_PERIOD_S },
+                params: ContactParams::default(),
+            };
+            run_contact_service(&skin, &config, &geometry, &WriterOptions::default(), &stop)
+        })
+    };
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let mut contacts = loop {
+        match ServiceReader::<RegionContacts>::open(skin, "contact") {
+            Ok(reader) => break reader,
+            Err(_) if Instant::now() < deadline && !service.is_finished() => {
+                std::thread::sleep(Duration::from_millis(20))
+            }
+            Err(e) => {
+                stop.stop();
+                handler.stop();
+                bail!("the contact service did not start: {e}");
+            }
+        }
+    };
+    std::thread::sleep(Duration::from_secs_f64(seconds));
+    let stats = contacts.reader().writer_stats();
+    stop.stop();
+    let outcome = service.join();
+    handler.stop();
+    match outcome {
+        Ok(Ok(())) => Ok((stats.frames, stats.write_ns_mean, stats.write_ns_max)),
+        Ok(Err(e)) => Err(anyhow::Error::new(e).context("the contact service failed")),
+        Err(_) => bail!("the contact service panicked"),
+    }
+}
