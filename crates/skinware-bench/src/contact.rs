@@ -43,6 +43,10 @@ pub struct ContactReport {
     pub taxels: usize,
     /// `ContactDetector::update` alone.
     pub detector_ns: Percentiles,
+    /// FNV-1a of every frame's region records and taxel states from the
+    /// detector: the same frames give the same digest, so a change that
+    /// should not change the outputs can be checked with it.
+    pub detector_outputs_digest: String,
     /// Frames the contact service published.
     pub service_frames: u64,
     /// The service's mean write time (its channel's statistics).
@@ -105,11 +109,12 @@ pub fn run(options: &ContactBenchOptions) -> Result<ContactReport> {
     let geometry = Arc::new(geometry_of(&skin, &driver)?);
     let taxels = geometry.sensor_count();
 
-    let mut detector_ns = time_detector(&config, &geometry, seconds);
+    let (mut detector_ns, digest) = time_detector(&config, &geometry, seconds);
     let (service_frames, service_ns_mean, service_ns_max) = time_service(&skin, driver, &geometry, seconds)?;
     let report = ContactReport {
         taxels,
         detector_ns: Percentiles::of(&mut detector_ns),
+        detector_outputs_digest: format!("{digest:016x}"),
         service_frames,
         service_ns_mean,
         service_ns_max,
@@ -139,6 +144,7 @@ pub fn run(options: &ContactBenchOptions) -> Result<ContactReport> {
         "-",
         us(report.service_ns_max as f64)
     );
+    println!("  detector outputs digest {}", report.detector_outputs_digest);
     let json = options.out.join("contact.json");
     std::fs::write(&json, serde_json::to_vec_pretty(&report)?)?;
     println!("wrote {}", json.display());
@@ -146,8 +152,9 @@ pub fn run(options: &ContactBenchOptions) -> Result<ContactReport> {
 }
 
 /// Times `ContactDetector::update` on `seconds` of frames of the scripted
-/// skin, with the virtual skin's noise; returns each update's time, ns.
-fn time_detector(config: &VirtualSkinConfig, geometry: &SkinGeometry, seconds: f64) -> Vec<u64> {
+/// skin, with the virtual skin's noise; returns each update's time, ns, and
+/// the digest of its outputs.
+fn time_detector(config: &VirtualSkinConfig, geometry: &SkinGeometry, seconds: f64) -> (Vec<u64>, u64) {
     let taxels = geometry.sensor_count();
     let field = PressureField::with_contacts(taxels, config.seed, seconds + 1.0, &config.contacts, false);
     let mut detector = ContactDetector::new(geometry, ContactParams::default());
@@ -158,6 +165,7 @@ fn time_detector(config: &VirtualSkinConfig, geometry: &SkinGeometry, seconds: f
     let mut noise_state = config.seed;
     let frames = (seconds / FRAME_PERIOD_S).round() as usize;
     let mut times = Vec::with_capacity(frames);
+    let mut digest = Fnv1a::default();
     for frame in 0..frames {
         field.responses(frame as f64 * FRAME_PERIOD_S, 0, &mut responses);
         for response in &mut responses {
@@ -170,9 +178,27 @@ fn time_detector(config: &VirtualSkinConfig, geometry: &SkinGeometry, seconds: f
         let started = Instant::now();
         detector.update(geometry, &responses, &all_layers, &all_layers, FRAME_PERIOD_S as f32, &mut records);
         times.push(started.elapsed().as_nanos() as u64);
-        std::hint::black_box(&records);
+        digest.add(bytemuck::cast_slice(&records));
+        digest.add(bytemuck::cast_slice(detector.taxel_states()));
     }
-    times
+    (times, digest.0)
+}
+
+/// The 64-bit FNV-1a hash: simple, and the same on every platform and run.
+struct Fnv1a(u64);
+
+impl Default for Fnv1a {
+    fn default() -> Self {
+        Fnv1a(0xcbf2_9ce4_8422_2325)
+    }
+}
+
+impl Fnv1a {
+    fn add(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0 ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
 }
 
 /// Runs the virtual skin and the contact service for `seconds`; returns the
