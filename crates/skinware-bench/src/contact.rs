@@ -153,30 +153,50 @@ pub fn run(options: &ContactBenchOptions) -> Result<ContactReport> {
 
 /// Times `ContactDetector::update` on `seconds` of frames of the scripted
 /// skin, with the virtual skin's noise; returns each update's time, ns, and
-/// the digest of its outputs.
+/// the digest of its outputs. So that the digest covers every path of the
+/// detector, one taxel is dead and one stuck (those of the accuracy test), the
+/// second layer has a new frame only every other update, and the last layer
+/// is down for half a second.
 fn time_detector(config: &VirtualSkinConfig, geometry: &SkinGeometry, seconds: f64) -> (Vec<u64>, u64) {
+    const DEAD_TAXEL: usize = 4;
+    const STUCK_TAXEL: usize = 16;
     let taxels = geometry.sensor_count();
     let field = PressureField::with_contacts(taxels, config.seed, seconds + 1.0, &config.contacts, false);
     let mut detector = ContactDetector::new(geometry, ContactParams::default());
     let mut records = vec![RegionContacts::default(); detector.region_names().len()];
     let mut responses = vec![0u16; taxels];
-    let all_layers = vec![true; geometry.layers.len()];
+    let mut next = vec![0u16; taxels];
+    let layers = geometry.layers.len();
+    let (mut layer_ok, mut layer_fresh) = (vec![true; layers], vec![true; layers]);
+    let slow_layer = geometry.layer_starts[1]..geometry.layer_starts[2];
     // The virtual skin's noise: uniform in -8..=8.
     let mut noise_state = config.seed;
     let frames = (seconds / FRAME_PERIOD_S).round() as usize;
+    let down = frames / 3..frames / 3 + 25;
     let mut times = Vec::with_capacity(frames);
     let mut digest = Fnv1a::default();
     for frame in 0..frames {
-        field.responses(frame as f64 * FRAME_PERIOD_S, 0, &mut responses);
-        for response in &mut responses {
+        field.responses(frame as f64 * FRAME_PERIOD_S, 0, &mut next);
+        for response in &mut next {
             noise_state ^= noise_state << 13;
             noise_state ^= noise_state >> 7;
             noise_state ^= noise_state << 17;
             let noise = (noise_state % 17) as i32 - 8;
             *response = (i32::from(*response) + noise).clamp(0, i32::from(u16::MAX)) as u16;
         }
+        if frame > 0 {
+            next[DEAD_TAXEL] = responses[DEAD_TAXEL];
+        }
+        next[STUCK_TAXEL] = u16::MAX;
+        layer_fresh[1] = frame % 2 == 0;
+        if !layer_fresh[1] {
+            next[slow_layer.clone()].copy_from_slice(&responses[slow_layer.clone()]);
+        }
+        layer_ok[layers - 1] = !down.contains(&frame);
+        layer_fresh[layers - 1] = layer_ok[layers - 1];
+        std::mem::swap(&mut responses, &mut next);
         let started = Instant::now();
-        detector.update(geometry, &responses, &all_layers, &all_layers, FRAME_PERIOD_S as f32, &mut records);
+        detector.update(geometry, &responses, &layer_ok, &layer_fresh, FRAME_PERIOD_S as f32, &mut records);
         times.push(started.elapsed().as_nanos() as u64);
         digest.add(bytemuck::cast_slice(&records));
         digest.add(bytemuck::cast_slice(detector.taxel_states()));
