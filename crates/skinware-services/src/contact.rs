@@ -4,6 +4,8 @@
 //! of touched taxels on the neighbour graph, reported per region; and taxels
 //! that never change (dead) or sit at saturation (stuck).
 
+use std::ops::Range;
+
 use crate::framework::ServicePayload;
 use skinware_geometry::SkinGeometry;
 
@@ -147,16 +149,26 @@ pub struct ContactDetector {
     member_regions: Vec<u32>,
     /// Each region's layers.
     region_layers: Vec<Vec<usize>>,
-    layer_of: Vec<u16>,
+    /// Each layer's taxels: a contiguous range of the global order.
+    layer_ranges: Vec<Range<usize>>,
+    /// Whether each layer's baselines have been set from its first frame.
+    layer_initialized: Vec<bool>,
+    // Per taxel, one vector per quantity, so that the classification reads
+    // each as a dense stream and the compiler can vectorise it.
     baseline: Vec<f32>,
     variance: Vec<f32>,
-    initialized: Vec<bool>,
     last: Vec<u16>,
     unchanged: Vec<u32>,
     saturated: Vec<u32>,
-    residual: Vec<f32>,
     states: Vec<TaxelState>,
-    component: Vec<u32>,
+    /// The touched taxels of the last frame, in global order: where the
+    /// component search starts, so that it does not scan the whole skin.
+    touched: Vec<u32>,
+    /// The dead and stuck taxels of the last frame, for the regions' counts.
+    dead_or_stuck: Vec<u32>,
+    /// One bit per taxel: already in a component this frame. A bit set
+    /// rather than a label per taxel, so that clearing it costs 4 KB, not 120.
+    visited: Vec<u64>,
     queue: Vec<u32>,
     accumulators: Vec<Accumulator>,
     touched_regions: Vec<u32>,
@@ -185,16 +197,16 @@ impl ContactDetector {
             member_regions.extend_from_slice(regions);
             member_offsets.push(member_regions.len() as u32);
         }
-        let mut layer_of = vec![0u16; n];
-        for l in 0..geometry.layers.len() {
-            for s in &mut layer_of[geometry.layer_starts[l]..geometry.layer_starts[l + 1]] {
-                *s = l as u16;
-            }
+        let layer_ranges: Vec<Range<usize>> =
+            (0..geometry.layers.len()).map(|l| geometry.layer_starts[l]..geometry.layer_starts[l + 1]).collect();
+        let mut layer_of = vec![0usize; n];
+        for (l, range) in layer_ranges.iter().enumerate() {
+            layer_of[range.clone()].fill(l);
         }
         let region_layers = sets
             .iter()
             .map(|set| {
-                let mut layers: Vec<usize> = set.iter().map(|&s| layer_of[s as usize] as usize).collect();
+                let mut layers: Vec<usize> = set.iter().map(|&s| layer_of[s as usize]).collect();
                 layers.sort_unstable();
                 layers.dedup();
                 layers
@@ -207,16 +219,17 @@ impl ContactDetector {
             member_offsets,
             member_regions,
             region_layers,
-            layer_of,
+            layer_initialized: vec![false; layer_ranges.len()],
+            layer_ranges,
             baseline: vec![0.0; n],
             variance: vec![0.0; n],
-            initialized: vec![false; n],
             last: vec![0; n],
             unchanged: vec![0; n],
             saturated: vec![0; n],
-            residual: vec![0.0; n],
             states: vec![TaxelState::IDLE; n],
-            component: vec![u32::MAX; n],
+            touched: Vec::new(),
+            dead_or_stuck: Vec::new(),
+            visited: vec![0; n.div_ceil(64)],
             queue: Vec::new(),
             accumulators: vec![Accumulator::default(); regions],
             touched_regions: Vec::new(),
@@ -249,90 +262,91 @@ impl ContactDetector {
         out: &mut [RegionContacts],
     ) {
         self.classify_taxels(responses, layer_ok, layer_fresh, dt_s);
-        self.find_contacts(geometry);
+        self.find_contacts(geometry, responses);
         self.write_region_records(layer_ok, out);
         self.count_dead_and_stuck(out);
-        // Unlabelled again, so that the next frame's search starts clean.
-        for c in self.component.iter_mut() {
-            *c = u32::MAX;
-        }
     }
 
-    /// Follows each taxel's baseline and noise, and sets its state.
+    /// Follows each taxel's baseline and noise, sets its state, and lists the
+    /// touched, dead and stuck taxels.
     fn classify_taxels(&mut self, responses: &[u16], layer_ok: &[bool], layer_fresh: &[bool], dt_s: f32) {
         let p = &self.params;
         let alpha = 1.0 - (-dt_s.max(0.0) / p.baseline_tau_s.max(1e-3)).exp();
-        // Inputs shorter than the skin (a caller's mistake) leave the rest as
-        // "no input" rather than panicking.
-        let is = |flags: &[bool], layer: u16| flags.get(usize::from(layer)).copied().unwrap_or(false);
-        self.states.fill(TaxelState::NO_INPUT);
-        for (i, &r) in responses.iter().take(self.states.len()).enumerate() {
-            if !is(layer_ok, self.layer_of[i]) {
-                self.states[i] = TaxelState::NO_INPUT;
+        let limits = Limits {
+            threshold_sigma: p.threshold_sigma,
+            min_threshold: p.min_threshold,
+            saturation: p.saturation,
+            stuck_frames: p.stuck_frames,
+            dead_frames: p.dead_frames,
+            alpha,
+        };
+        self.touched.clear();
+        self.dead_or_stuck.clear();
+        let covered_end = self.layer_ranges.last().map_or(0, |r| r.end);
+        self.states[covered_end..].fill(TaxelState::NO_INPUT);
+        for (layer, range) in self.layer_ranges.iter().enumerate() {
+            // A layer whose responses are not all there (inputs shorter than
+            // the skin: a caller's mistake) has no input, rather than a panic.
+            let (Some(input), true) = (responses.get(range.clone()), layer_ok.get(layer).copied().unwrap_or(false))
+            else {
+                self.states[range.clone()].fill(TaxelState::NO_INPUT);
                 continue;
-            }
-            let value = f32::from(r);
-            if !self.initialized[i] {
-                self.initialized[i] = true;
-                self.baseline[i] = value;
-                self.last[i] = r;
-            }
-            if is(layer_fresh, self.layer_of[i]) {
-                self.unchanged[i] = if r == self.last[i] { self.unchanged[i].saturating_add(1) } else { 0 };
-                self.last[i] = r;
-                self.saturated[i] = if r >= p.saturation { self.saturated[i].saturating_add(1) } else { 0 };
-            }
-            let residual = value - self.baseline[i];
-            let threshold = (p.threshold_sigma * self.variance[i].sqrt()).max(p.min_threshold);
-            // Saturated also means unchanged: test stuck first.
-            self.states[i] = if self.saturated[i] >= p.stuck_frames {
-                TaxelState::STUCK
-            } else if self.unchanged[i] >= p.dead_frames {
-                TaxelState::DEAD
-            } else if residual > threshold {
-                TaxelState::TOUCHED
-            } else {
-                TaxelState::IDLE
             };
-            self.residual[i] = residual;
-            if self.states[i] == TaxelState::IDLE {
-                // Drift compensation and noise estimate, only while untouched.
-                self.baseline[i] += alpha * residual;
-                self.variance[i] += alpha * (residual * residual - self.variance[i]);
+            if !self.layer_initialized[layer] {
+                self.layer_initialized[layer] = true;
+                for (baseline, &r) in self.baseline[range.clone()].iter_mut().zip(input) {
+                    *baseline = f32::from(r);
+                }
+                self.last[range.clone()].copy_from_slice(input);
             }
+            let taxels = LayerTaxels {
+                responses: input,
+                baseline: &mut self.baseline[range.clone()],
+                variance: &mut self.variance[range.clone()],
+                last: &mut self.last[range.clone()],
+                unchanged: &mut self.unchanged[range.clone()],
+                saturated: &mut self.saturated[range.clone()],
+                states: &mut self.states[range.clone()],
+            };
+            // Two copies of the loop, so that neither tests freshness per taxel.
+            if layer_fresh.get(layer).copied().unwrap_or(false) {
+                classify_layer::<true>(taxels, &limits);
+            } else {
+                classify_layer::<false>(taxels, &limits);
+            }
+            list_non_idle(&self.states[range.clone()], range.start, &mut self.touched, &mut self.dead_or_stuck);
         }
     }
 
     /// Groups the touched taxels into connected components on the neighbour
     /// graph and adds each, split by region, to `found`.
-    fn find_contacts(&mut self, geometry: &SkinGeometry) {
+    fn find_contacts(&mut self, geometry: &SkinGeometry, responses: &[u16]) {
         for found in &mut self.found {
             found.clear();
         }
-        let n = self.states.len();
-        let mut next_component = 0u32;
-        for start in 0..n {
-            if self.states[start] != TaxelState::TOUCHED || self.component[start] != u32::MAX {
+        self.visited.fill(0);
+        for k in 0..self.touched.len() {
+            let start = self.touched[k] as usize;
+            if is_set(&self.visited, start) {
                 continue;
             }
-            self.collect_component(geometry, start, next_component);
-            next_component += 1;
-            self.accumulate_component(geometry);
+            self.collect_component(geometry, start);
+            self.accumulate_component(geometry, responses);
         }
     }
 
-    /// Breadth-first search from `start` over touched taxels, labelling them
-    /// `component` and leaving them in `queue`.
-    fn collect_component(&mut self, geometry: &SkinGeometry, start: usize, component: u32) {
+    /// Breadth-first search from `start` over touched taxels not yet
+    /// visited, marking them visited and leaving them in `queue`.
+    fn collect_component(&mut self, geometry: &SkinGeometry, start: usize) {
         self.queue.clear();
         self.queue.push(start as u32);
-        self.component[start] = component;
+        set(&mut self.visited, start);
         let mut k = 0;
         while k < self.queue.len() {
             let i = self.queue[k] as usize;
             for &j in geometry.neighbours_of(i) {
-                if self.states[j as usize] == TaxelState::TOUCHED && self.component[j as usize] == u32::MAX {
-                    self.component[j as usize] = component;
+                if self.states[j as usize] == TaxelState::TOUCHED && !is_set(&self.visited, j as usize) {
+                    set(&mut self.visited, j as usize);
                     self.queue.push(j);
                 }
             }
@@ -362,28 +376,30 @@ impl ContactDetector {
 
     /// Adds the dead and stuck taxels to the counts of their regions' records.
     fn count_dead_and_stuck(&self, out: &mut [RegionContacts]) {
-        for (i, state) in self.states.iter().enumerate() {
-            if *state == TaxelState::DEAD || *state == TaxelState::STUCK {
-                let regions =
-                    &self.member_regions[self.member_offsets[i] as usize..self.member_offsets[i + 1] as usize];
-                for &r in regions {
-                    let Some(record) = out.get_mut(r as usize) else { continue };
-                    if *state == TaxelState::DEAD {
-                        record.dead += 1;
-                    } else {
-                        record.stuck += 1;
-                    }
+        for &i in &self.dead_or_stuck {
+            let i = i as usize;
+            let regions = &self.member_regions[self.member_offsets[i] as usize..self.member_offsets[i + 1] as usize];
+            for &r in regions {
+                let Some(record) = out.get_mut(r as usize) else { continue };
+                if self.states[i] == TaxelState::DEAD {
+                    record.dead += 1;
+                } else {
+                    record.stuck += 1;
                 }
             }
         }
     }
 
     /// Splits the component in `queue` by region and adds one contact to each.
-    fn accumulate_component(&mut self, geometry: &SkinGeometry) {
+    fn accumulate_component(&mut self, geometry: &SkinGeometry, responses: &[u16]) {
         self.touched_regions.clear();
+        // A touched taxel's baseline was not moved by this frame, so its
+        // residual is recomputed here rather than stored for every taxel.
+        let residual = |i: usize| f32::from(responses[i]) - self.baseline[i];
         for &i in &self.queue {
             let i = i as usize;
-            let w = f64::from(self.residual[i].max(0.0));
+            let residual = residual(i);
+            let w = f64::from(residual.max(0.0));
             let position = geometry.positions[i].map(f64::from);
             let normal = geometry.normals[i].map(f64::from);
             let radius = f64::from(geometry.radii[i]);
@@ -399,8 +415,8 @@ impl ContactDetector {
                 }
                 a.taxels += 1;
                 a.area += std::f64::consts::PI * radius * radius;
-                if self.residual[i] > a.peak || a.taxels == 1 {
-                    a.peak = self.residual[i];
+                if residual > a.peak || a.taxels == 1 {
+                    a.peak = residual;
                     a.peak_sensor = i as u32;
                 }
             }
@@ -409,7 +425,7 @@ impl ContactDetector {
         // the map keeps the taxels on the peak's side only.
         for &i in &self.queue {
             let i = i as usize;
-            let w = f64::from(self.residual[i].max(0.0));
+            let w = f64::from(residual(i).max(0.0));
             let m = geometry.map.positions[i];
             for &r in &self.member_regions[self.member_offsets[i] as usize..self.member_offsets[i + 1] as usize] {
                 let a = &mut self.accumulators[r as usize];
@@ -443,6 +459,111 @@ impl ContactDetector {
             });
         }
     }
+}
+
+/// The parameters the classification loop needs, copied out of
+/// [`ContactParams`] with the frame's baseline step `alpha`.
+struct Limits {
+    threshold_sigma: f32,
+    min_threshold: f32,
+    saturation: u16,
+    stuck_frames: u32,
+    dead_frames: u32,
+    alpha: f32,
+}
+
+/// One layer's slice of every per-taxel vector, all of the same length.
+struct LayerTaxels<'a> {
+    responses: &'a [u16],
+    baseline: &'a mut [f32],
+    variance: &'a mut [f32],
+    last: &'a mut [u16],
+    unchanged: &'a mut [u32],
+    saturated: &'a mut [u32],
+    states: &'a mut [TaxelState],
+}
+
+// `classify_layer` ranks the states by their codes.
+const _: () = assert!(
+    TaxelState::STUCK.0 > TaxelState::DEAD.0
+        && TaxelState::DEAD.0 > TaxelState::TOUCHED.0
+        && TaxelState::TOUCHED.0 > TaxelState::IDLE.0
+);
+
+/// Classifies one layer's taxels. The loop body has no branch and no early
+/// exit (every choice is a select), so that the compiler vectorises it;
+/// `FRESH`: the layer has a new frame, which counts towards dead and stuck.
+fn classify_layer<const FRESH: bool>(taxels: LayerTaxels<'_>, limits: &Limits) {
+    let n = taxels.responses.len();
+    // Equal lengths, stated once, so that the loop has no bounds checks.
+    let (baseline, variance, last) = (&mut taxels.baseline[..n], &mut taxels.variance[..n], &mut taxels.last[..n]);
+    let (unchanged, saturated, states) =
+        (&mut taxels.unchanged[..n], &mut taxels.saturated[..n], &mut taxels.states[..n]);
+    for i in 0..n {
+        let r = taxels.responses[i];
+        if FRESH {
+            // Counting up while the condition holds, to u32::MAX at most, and
+            // from 0 again when it does not: written as masks, which the
+            // compiler vectorises (it does not vectorise `saturating_add`
+            // under a condition).
+            unchanged[i] = count_while(r == last[i], unchanged[i]);
+            last[i] = r;
+            saturated[i] = count_while(r >= limits.saturation, saturated[i]);
+        }
+        let residual = f32::from(r) - baseline[i];
+        let threshold = (limits.threshold_sigma * variance[i].sqrt()).max(limits.min_threshold);
+        // Stuck before dead before touched (saturated also means unchanged):
+        // the states' codes rank them, so the largest code that applies wins.
+        let stuck = u8::from(saturated[i] >= limits.stuck_frames) * TaxelState::STUCK.0;
+        let dead = u8::from(unchanged[i] >= limits.dead_frames) * TaxelState::DEAD.0;
+        let touched = u8::from(residual > threshold) * TaxelState::TOUCHED.0;
+        let state = stuck.max(dead).max(touched);
+        states[i] = TaxelState(state);
+        // Drift compensation and noise estimate, only while untouched.
+        let step = if state == TaxelState::IDLE.0 { limits.alpha } else { 0.0 };
+        baseline[i] += step * residual;
+        variance[i] += step * (residual * residual - variance[i]);
+    }
+}
+
+/// `count` + 1 (at most `u32::MAX`) while `holds`, else 0.
+fn count_while(holds: bool, count: u32) -> u32 {
+    let incremented = count + u32::from(count != u32::MAX);
+    incremented & 0u32.wrapping_sub(u32::from(holds))
+}
+
+/// Appends the global index (`first` + position) of each touched taxel of
+/// `states` to `touched`, and of each dead or stuck one to `dead_or_stuck`.
+fn list_non_idle(states: &[TaxelState], first: usize, touched: &mut Vec<u32>, dead_or_stuck: &mut Vec<u32>) {
+    const CHUNK: usize = 16;
+    let mut chunks = states.chunks_exact(CHUNK);
+    let mut at = first;
+    for chunk in &mut chunks {
+        // Mostly idle: one test per 16 taxels.
+        if chunk.iter().any(|s| *s != TaxelState::IDLE) {
+            list_non_idle_one_by_one(chunk, at, touched, dead_or_stuck);
+        }
+        at += CHUNK;
+    }
+    list_non_idle_one_by_one(chunks.remainder(), at, touched, dead_or_stuck);
+}
+
+fn list_non_idle_one_by_one(states: &[TaxelState], first: usize, touched: &mut Vec<u32>, dead_or_stuck: &mut Vec<u32>) {
+    for (k, state) in states.iter().enumerate() {
+        match *state {
+            TaxelState::TOUCHED => touched.push((first + k) as u32),
+            TaxelState::DEAD | TaxelState::STUCK => dead_or_stuck.push((first + k) as u32),
+            _ => {}
+        }
+    }
+}
+
+fn is_set(bits: &[u64], i: usize) -> bool {
+    bits[i / 64] & (1 << (i % 64)) != 0
+}
+
+fn set(bits: &mut [u64], i: usize) {
+    bits[i / 64] |= 1 << (i % 64);
 }
 
 #[cfg(test)]
