@@ -8,6 +8,9 @@ use std::ops::Range;
 
 use crate::framework::ServicePayload;
 use skinware_geometry::SkinGeometry;
+use taxels::{Limits, TaxelTracks, list_non_idle};
+
+mod taxels;
 
 /// Contacts reported per region and frame; more are counted in `flags`.
 pub const MAX_CONTACTS: usize = 8;
@@ -153,13 +156,7 @@ pub struct ContactDetector {
     layer_ranges: Vec<Range<usize>>,
     /// Whether each layer's baselines have been set from its first frame.
     layer_initialized: Vec<bool>,
-    // Per taxel, one vector per quantity, so that the classification reads
-    // each as a dense stream and the compiler can vectorise it.
-    baseline: Vec<f32>,
-    variance: Vec<f32>,
-    last: Vec<u16>,
-    unchanged: Vec<u32>,
-    saturated: Vec<u32>,
+    tracks: TaxelTracks,
     states: Vec<TaxelState>,
     /// The touched taxels of the last frame, in global order: where the
     /// component search starts, so that it does not scan the whole skin.
@@ -213,6 +210,7 @@ impl ContactDetector {
             })
             .collect();
         let regions = names.len();
+        let tracks = TaxelTracks::new(n, params.dead_frames, params.stuck_frames);
         ContactDetector {
             params,
             names,
@@ -221,11 +219,7 @@ impl ContactDetector {
             region_layers,
             layer_initialized: vec![false; layer_ranges.len()],
             layer_ranges,
-            baseline: vec![0.0; n],
-            variance: vec![0.0; n],
-            last: vec![0; n],
-            unchanged: vec![0; n],
-            saturated: vec![0; n],
+            tracks,
             states: vec![TaxelState::IDLE; n],
             touched: Vec::new(),
             dead_or_stuck: Vec::new(),
@@ -294,26 +288,10 @@ impl ContactDetector {
             };
             if !self.layer_initialized[layer] {
                 self.layer_initialized[layer] = true;
-                for (baseline, &r) in self.baseline[range.clone()].iter_mut().zip(input) {
-                    *baseline = f32::from(r);
-                }
-                self.last[range.clone()].copy_from_slice(input);
+                self.tracks.initialize(range.clone(), input);
             }
-            let taxels = LayerTaxels {
-                responses: input,
-                baseline: &mut self.baseline[range.clone()],
-                variance: &mut self.variance[range.clone()],
-                last: &mut self.last[range.clone()],
-                unchanged: &mut self.unchanged[range.clone()],
-                saturated: &mut self.saturated[range.clone()],
-                states: &mut self.states[range.clone()],
-            };
-            // Two copies of the loop, so that neither tests freshness per taxel.
-            if layer_fresh.get(layer).copied().unwrap_or(false) {
-                classify_layer::<true>(taxels, &limits);
-            } else {
-                classify_layer::<false>(taxels, &limits);
-            }
+            let fresh = layer_fresh.get(layer).copied().unwrap_or(false);
+            self.tracks.classify(range.clone(), input, fresh, &limits, &mut self.states[range.clone()]);
             list_non_idle(&self.states[range.clone()], range.start, &mut self.touched, &mut self.dead_or_stuck);
         }
     }
@@ -395,7 +373,7 @@ impl ContactDetector {
         self.touched_regions.clear();
         // A touched taxel's baseline was not moved by this frame, so its
         // residual is recomputed here rather than stored for every taxel.
-        let residual = |i: usize| f32::from(responses[i]) - self.baseline[i];
+        let residual = |i: usize| self.tracks.residual(i, responses[i]);
         for &i in &self.queue {
             let i = i as usize;
             let residual = residual(i);
@@ -457,103 +435,6 @@ impl ContactDetector {
                 total: a.weight as f32,
                 peak: a.peak,
             });
-        }
-    }
-}
-
-/// The parameters the classification loop needs, copied out of
-/// [`ContactParams`] with the frame's baseline step `alpha`.
-struct Limits {
-    threshold_sigma: f32,
-    min_threshold: f32,
-    saturation: u16,
-    stuck_frames: u32,
-    dead_frames: u32,
-    alpha: f32,
-}
-
-/// One layer's slice of every per-taxel vector, all of the same length.
-struct LayerTaxels<'a> {
-    responses: &'a [u16],
-    baseline: &'a mut [f32],
-    variance: &'a mut [f32],
-    last: &'a mut [u16],
-    unchanged: &'a mut [u32],
-    saturated: &'a mut [u32],
-    states: &'a mut [TaxelState],
-}
-
-// `classify_layer` ranks the states by their codes.
-const _: () = assert!(
-    TaxelState::STUCK.0 > TaxelState::DEAD.0
-        && TaxelState::DEAD.0 > TaxelState::TOUCHED.0
-        && TaxelState::TOUCHED.0 > TaxelState::IDLE.0
-);
-
-/// Classifies one layer's taxels. The loop body has no branch and no early
-/// exit (every choice is a select), so that the compiler vectorises it;
-/// `FRESH`: the layer has a new frame, which counts towards dead and stuck.
-fn classify_layer<const FRESH: bool>(taxels: LayerTaxels<'_>, limits: &Limits) {
-    let n = taxels.responses.len();
-    // Equal lengths, stated once, so that the loop has no bounds checks.
-    let (baseline, variance, last) = (&mut taxels.baseline[..n], &mut taxels.variance[..n], &mut taxels.last[..n]);
-    let (unchanged, saturated, states) =
-        (&mut taxels.unchanged[..n], &mut taxels.saturated[..n], &mut taxels.states[..n]);
-    for i in 0..n {
-        let r = taxels.responses[i];
-        if FRESH {
-            // Counting up while the condition holds, to u32::MAX at most, and
-            // from 0 again when it does not: written as masks, which the
-            // compiler vectorises (it does not vectorise `saturating_add`
-            // under a condition).
-            unchanged[i] = count_while(r == last[i], unchanged[i]);
-            last[i] = r;
-            saturated[i] = count_while(r >= limits.saturation, saturated[i]);
-        }
-        let residual = f32::from(r) - baseline[i];
-        let threshold = (limits.threshold_sigma * variance[i].sqrt()).max(limits.min_threshold);
-        // Stuck before dead before touched (saturated also means unchanged):
-        // the states' codes rank them, so the largest code that applies wins.
-        let stuck = u8::from(saturated[i] >= limits.stuck_frames) * TaxelState::STUCK.0;
-        let dead = u8::from(unchanged[i] >= limits.dead_frames) * TaxelState::DEAD.0;
-        let touched = u8::from(residual > threshold) * TaxelState::TOUCHED.0;
-        let state = stuck.max(dead).max(touched);
-        states[i] = TaxelState(state);
-        // Drift compensation and noise estimate, only while untouched.
-        let step = if state == TaxelState::IDLE.0 { limits.alpha } else { 0.0 };
-        baseline[i] += step * residual;
-        variance[i] += step * (residual * residual - variance[i]);
-    }
-}
-
-/// `count` + 1 (at most `u32::MAX`) while `holds`, else 0.
-fn count_while(holds: bool, count: u32) -> u32 {
-    let incremented = count + u32::from(count != u32::MAX);
-    incremented & 0u32.wrapping_sub(u32::from(holds))
-}
-
-/// Appends the global index (`first` + position) of each touched taxel of
-/// `states` to `touched`, and of each dead or stuck one to `dead_or_stuck`.
-fn list_non_idle(states: &[TaxelState], first: usize, touched: &mut Vec<u32>, dead_or_stuck: &mut Vec<u32>) {
-    const CHUNK: usize = 16;
-    let mut chunks = states.chunks_exact(CHUNK);
-    let mut at = first;
-    for chunk in &mut chunks {
-        // Mostly idle: one test per 16 taxels.
-        if chunk.iter().any(|s| *s != TaxelState::IDLE) {
-            list_non_idle_one_by_one(chunk, at, touched, dead_or_stuck);
-        }
-        at += CHUNK;
-    }
-    list_non_idle_one_by_one(chunks.remainder(), at, touched, dead_or_stuck);
-}
-
-fn list_non_idle_one_by_one(states: &[TaxelState], first: usize, touched: &mut Vec<u32>, dead_or_stuck: &mut Vec<u32>) {
-    for (k, state) in states.iter().enumerate() {
-        match *state {
-            TaxelState::TOUCHED => touched.push((first + k) as u32),
-            TaxelState::DEAD | TaxelState::STUCK => dead_or_stuck.push((first + k) as u32),
-            _ => {}
         }
     }
 }

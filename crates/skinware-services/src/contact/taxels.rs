@@ -1,0 +1,228 @@
+//! The per-taxel half of contact detection: each taxel's baseline, noise and
+//! dead/stuck run lengths, and its state each frame.
+//!
+//! This is the loop over every taxel of the skin, so it is laid out for
+//! speed: one vector per quantity (dense streams), a loop body without
+//! branches (the compiler vectorises it), and run lengths stored in the
+//! narrowest integer that still holds the thresholds they are compared with.
+
+use std::ops::Range;
+
+use super::TaxelState;
+
+/// The parameters of one frame's classification.
+pub(super) struct Limits {
+    pub threshold_sigma: f32,
+    pub min_threshold: f32,
+    pub saturation: u16,
+    pub stuck_frames: u32,
+    pub dead_frames: u32,
+    /// The baseline and noise estimates' step towards this frame.
+    pub alpha: f32,
+}
+
+/// Every taxel's tracked quantities, in global order.
+pub(super) struct TaxelTracks {
+    baseline: Vec<f32>,
+    variance: Vec<f32>,
+    last: Vec<u16>,
+    runs: RunLengths,
+}
+
+/// How many fresh frames in a row each taxel's response has not changed
+/// (`unchanged`) and has been saturated (`saturated`). Counts stop at the
+/// integer's maximum, which is at least both thresholds, so every comparison
+/// with a threshold gives what an unbounded count would; a narrower integer
+/// is less memory to stream through every frame.
+enum RunLengths {
+    Byte { unchanged: Vec<u8>, saturated: Vec<u8> },
+    Short { unchanged: Vec<u16>, saturated: Vec<u16> },
+    Word { unchanged: Vec<u32>, saturated: Vec<u32> },
+}
+
+impl TaxelTracks {
+    /// Tracks for `taxels` taxels whose run lengths are compared with
+    /// `dead_frames` and `stuck_frames`.
+    pub fn new(taxels: usize, dead_frames: u32, stuck_frames: u32) -> TaxelTracks {
+        let longest = dead_frames.max(stuck_frames);
+        let runs = if longest <= u32::from(u8::MAX) {
+            RunLengths::Byte { unchanged: vec![0; taxels], saturated: vec![0; taxels] }
+        } else if longest <= u32::from(u16::MAX) {
+            RunLengths::Short { unchanged: vec![0; taxels], saturated: vec![0; taxels] }
+        } else {
+            RunLengths::Word { unchanged: vec![0; taxels], saturated: vec![0; taxels] }
+        };
+        TaxelTracks { baseline: vec![0.0; taxels], variance: vec![0.0; taxels], last: vec![0; taxels], runs }
+    }
+
+    /// Starts the baselines of taxels `range` at their first `responses`.
+    pub fn initialize(&mut self, range: Range<usize>, responses: &[u16]) {
+        for (baseline, &r) in self.baseline[range.clone()].iter_mut().zip(responses) {
+            *baseline = f32::from(r);
+        }
+        self.last[range].copy_from_slice(responses);
+    }
+
+    /// The response above baseline of a taxel whose baseline this frame's
+    /// [`classify`](Self::classify) did not move (a touched one).
+    pub fn residual(&self, taxel: usize, response: u16) -> f32 {
+        f32::from(response) - self.baseline[taxel]
+    }
+
+    /// Follows the baselines and noise of taxels `range`, whose `responses`
+    /// are new (`fresh`: a new frame, which counts towards dead and stuck)
+    /// or read again, and writes their `states`.
+    pub fn classify(
+        &mut self,
+        range: Range<usize>,
+        responses: &[u16],
+        fresh: bool,
+        limits: &Limits,
+        states: &mut [TaxelState],
+    ) {
+        let baseline = &mut self.baseline[range.clone()];
+        let variance = &mut self.variance[range.clone()];
+        let last = &mut self.last[range.clone()];
+        macro_rules! classify_with {
+            ($unchanged:expr, $saturated:expr) => {{
+                let layer = Layer {
+                    responses,
+                    baseline,
+                    variance,
+                    last,
+                    unchanged: &mut $unchanged[range.clone()],
+                    saturated: &mut $saturated[range.clone()],
+                    states,
+                };
+                // Two copies of the loop, so that neither tests freshness per taxel.
+                if fresh { classify_layer::<_, true>(layer, limits) } else { classify_layer::<_, false>(layer, limits) }
+            }};
+        }
+        match &mut self.runs {
+            RunLengths::Byte { unchanged, saturated } => classify_with!(unchanged, saturated),
+            RunLengths::Short { unchanged, saturated } => classify_with!(unchanged, saturated),
+            RunLengths::Word { unchanged, saturated } => classify_with!(unchanged, saturated),
+        }
+    }
+}
+
+/// A run length's integer.
+trait RunLength: Copy + PartialOrd {
+    /// `count` + 1 (at most the integer's maximum) while `holds`, else 0.
+    fn count_while(holds: bool, count: Self) -> Self;
+    /// `frames` as this integer: its maximum if larger (which the choice of
+    /// integer rules out for the thresholds).
+    fn frames(frames: u32) -> Self;
+}
+
+// Written with masks rather than `saturating_add` under a condition, which
+// the compiler does not vectorise.
+macro_rules! run_length {
+    ($t:ty) => {
+        impl RunLength for $t {
+            fn count_while(holds: bool, count: $t) -> $t {
+                let incremented = count + <$t>::from(count != <$t>::MAX);
+                incremented & <$t>::from(holds).wrapping_neg()
+            }
+
+            fn frames(frames: u32) -> $t {
+                <$t>::try_from(frames).unwrap_or(<$t>::MAX)
+            }
+        }
+    };
+}
+run_length!(u8);
+run_length!(u16);
+run_length!(u32);
+
+/// One layer's slice of every per-taxel vector, all of the same length.
+struct Layer<'a, C> {
+    responses: &'a [u16],
+    baseline: &'a mut [f32],
+    variance: &'a mut [f32],
+    last: &'a mut [u16],
+    unchanged: &'a mut [C],
+    saturated: &'a mut [C],
+    states: &'a mut [TaxelState],
+}
+
+// `classify_layer` ranks the states by their codes.
+const _: () = assert!(
+    TaxelState::IDLE.0 == 0
+        && TaxelState::STUCK.0 > TaxelState::DEAD.0
+        && TaxelState::DEAD.0 > TaxelState::TOUCHED.0
+        && TaxelState::TOUCHED.0 > TaxelState::IDLE.0
+);
+
+/// Classifies one layer's taxels. The loop body has no branch and no early
+/// exit (every choice is a select), so that the compiler vectorises it.
+fn classify_layer<C: RunLength, const FRESH: bool>(layer: Layer<'_, C>, limits: &Limits) {
+    // Compared in the run lengths' own integer: narrow lanes, no widening.
+    let (stuck_frames, dead_frames) = (C::frames(limits.stuck_frames), C::frames(limits.dead_frames));
+    let n = layer.responses.len();
+    // Equal lengths, stated once, so that the loop has no bounds checks.
+    let (baseline, variance, last) = (&mut layer.baseline[..n], &mut layer.variance[..n], &mut layer.last[..n]);
+    let (unchanged, saturated, states) = (&mut layer.unchanged[..n], &mut layer.saturated[..n], &mut layer.states[..n]);
+    for i in 0..n {
+        let r = layer.responses[i];
+        if FRESH {
+            unchanged[i] = C::count_while(r == last[i], unchanged[i]);
+            last[i] = r;
+            saturated[i] = C::count_while(r >= limits.saturation, saturated[i]);
+        }
+        let residual = f32::from(r) - baseline[i];
+        let threshold = (limits.threshold_sigma * variance[i].sqrt()).max(limits.min_threshold);
+        // Stuck before dead before touched (saturated also means unchanged):
+        // the states' codes rank them, so the largest code that applies wins.
+        let stuck = u8::from(saturated[i] >= stuck_frames) * TaxelState::STUCK.0;
+        let dead = u8::from(unchanged[i] >= dead_frames) * TaxelState::DEAD.0;
+        let touched = u8::from(residual > threshold) * TaxelState::TOUCHED.0;
+        let state = stuck.max(dead).max(touched);
+        states[i] = TaxelState(state);
+        // Drift compensation and noise estimate, only while untouched.
+        let step = if state == TaxelState::IDLE.0 { limits.alpha } else { 0.0 };
+        baseline[i] += step * residual;
+        variance[i] += step * (residual * residual - variance[i]);
+    }
+}
+
+/// Appends the global index (`first` + position) of each touched taxel of
+/// `states` to `touched`, and of each dead or stuck one to `dead_or_stuck`.
+pub(super) fn list_non_idle(states: &[TaxelState], first: usize, touched: &mut Vec<u32>, dead_or_stuck: &mut Vec<u32>) {
+    const CHUNK: usize = 16;
+    let mut chunks = states.chunks_exact(CHUNK);
+    let mut at = first;
+    for chunk in &mut chunks {
+        // Mostly idle (0): one test per 16 taxels.
+        let codes: [u8; CHUNK] = bytemuck::cast_slice(chunk).try_into().expect("chunks of CHUNK");
+        if u128::from_ne_bytes(codes) != 0 {
+            list_non_idle_one_by_one(chunk, at, touched, dead_or_stuck);
+        }
+        at += CHUNK;
+    }
+    list_non_idle_one_by_one(chunks.remainder(), at, touched, dead_or_stuck);
+}
+
+fn list_non_idle_one_by_one(states: &[TaxelState], first: usize, touched: &mut Vec<u32>, dead_or_stuck: &mut Vec<u32>) {
+    for (k, state) in states.iter().enumerate() {
+        match *state {
+            TaxelState::TOUCHED => touched.push((first + k) as u32),
+            TaxelState::DEAD | TaxelState::STUCK => dead_or_stuck.push((first + k) as u32),
+            _ => {}
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn run_lengths_count_stop_at_the_maximum_and_restart() {
+        assert_eq!(u8::count_while(true, 7), 8);
+        assert_eq!(u8::count_while(true, u8::MAX), u8::MAX);
+        assert_eq!(u16::count_while(false, 300), 0);
+        assert_eq!(u32::count_while(true, u32::MAX), u32::MAX);
+        assert_eq!(u8::frames(300), u8::MAX);
+    }
+}
