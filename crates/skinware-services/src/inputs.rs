@@ -55,12 +55,17 @@ impl SkinInputs {
                 let options = ReaderOptions { allow_gone: true, ..ReaderOptions::default() };
                 self.readers[l] = Reader::open_with(&self.skin, &self.names[l], &options).ok();
             }
-            self.layer_fresh[l] = false;
             let Some(reader) = &mut self.readers[l] else {
                 self.layer_ok[l] = false;
+                self.layer_fresh[l] = false;
                 continue;
             };
-            reader.follow_recreated();
+            // A re-created channel matters only once the old one has stopped
+            // giving new frames; asking costs a system call per layer.
+            if !self.layer_fresh[l] {
+                reader.follow_recreated();
+            }
+            self.layer_fresh[l] = false;
             let running = reader.writer_state() == WriterState::Running;
             let range = self.starts[l]..self.starts[l + 1];
             self.layer_ok[l] = match reader.latest() {
