@@ -81,6 +81,36 @@ for key in ("rust_latest", "rust_latest_to_vec", "python_latest", "python_read_i
     need(stats.get("samples", 0) > 0 and is_count(stats.get("p50")) and is_count(stats.get("p99")), f"python.json: {key} incomplete")
 need(is_count(python.get("python_newer_skipped")), "python.json: skipped frames not counted")
 
+wake = json.loads((out / "wake.json").read_text())
+need({(r.get("wake"), r.get("readers")) for r in wake.get("records", [])} == {(w, n) for w in ("writer", "ringer") for n in (0, 15)},
+     "wake.json: configurations")
+for r in wake.get("records", []):
+    label = f"wake.json: {r.get('wake')}/{r.get('readers')}"
+    need(r.get("frames", 0) > 0 and is_count(r.get("missed_periods")), f"{label}: no frames")
+    for key in ("visible_ns", "start_late_ns", "publish_ns"):
+        need(is_count(r.get(key, {}).get("p99")), f"{label}: {key} missing")
+    if r.get("readers"):
+        need(r.get("frames_received", 0) > 0, f"{label}: the readers received nothing")
+        need(r.get("woken_by_ringer" if r.get("wake") == "ringer" else "woken_by_writer", 0) > 0, f"{label}: no wake went the chosen way")
+
+khz = json.loads((out / "kilohertz.json").read_text())
+need([p.get("phase") for p in khz.get("phases", [])] == ["control", "loaded"], "kilohertz.json: phases")
+for phase in khz.get("phases", []):
+    need(len(phase.get("writers", [])) == 5 and all(w.get("frames", 0) > 0 and is_count(w.get("missed_periods")) for w in phase["writers"]),
+         f"kilohertz.json: {phase.get('phase')} writers incomplete")
+    need(len(phase.get("cpu_percent", {})) >= 2, f"kilohertz.json: {phase.get('phase')} CPU per component missing")
+loaded = (khz.get("phases") or [{}, {}])[-1]
+for consumer in ("apps, asap (wait_newer)", "contact service (output visible)", "viewer → browser 1"):
+    need(loaded.get("latency_us", {}).get(consumer, {}).get("samples", 0) > 0, f"kilohertz.json: no latency for {consumer}")
+need(isinstance(loaded.get("recorder"), dict) and is_count(loaded["recorder"].get("lost")), "kilohertz.json: the recorder's summary")
+need([v.get("browsers") for v in khz.get("viewer", [])] == [1, 10, 10], "kilohertz.json: viewer runs")
+need(all(b.get("updates_per_s", 0) > 0 for v in khz.get("viewer", []) for b in v.get("per_browser", [])), "kilohertz.json: a browser got no update")
+need(khz.get("viewer_cpu_ratio_10_to_1", 0) > 0, "kilohertz.json: viewer CPU ratio")
+
+contact = json.loads((out / "contact.json").read_text())
+need(contact.get("taxels") == 30848 and contact.get("detector_ns", {}).get("samples", 0) > 0, "contact.json: detector incomplete")
+need(contact.get("service_frames", 0) > 0 and contact.get("service_ns_mean", 0) > 0, "contact.json: service incomplete")
+
 if problems:
     print("benchmark JSON problems:\n  " + "\n  ".join(problems))
     sys.exit(1)

@@ -66,18 +66,23 @@ impl SkinInputs {
                 reader.follow_recreated();
             }
             self.layer_fresh[l] = false;
-            let running = reader.writer_state() == WriterState::Running;
             let range = self.starts[l]..self.starts[l + 1];
-            self.layer_ok[l] = match reader.latest() {
+            let period = reader.writer_period();
+            let current = match reader.latest() {
                 Ok(frame) if !frame.status().is_fault() && frame.responses().len() == range.len() => {
                     self.responses[range].copy_from_slice(frame.responses());
                     self.layer_fresh[l] = frame.seq() != self.last_seq[l];
                     self.last_seq[l] = frame.seq();
                     self.acquired_ns = self.acquired_ns.max(frame.acquired_ns());
-                    running && !crate::is_stale(frame.published_ns(), reader.writer_period())
+                    !crate::is_stale(frame.published_ns(), period)
                 }
                 _ => false,
             };
+            // A writer whose new frame just came was alive a period ago: the
+            // state it stored will do. Otherwise ask the kernel whether it
+            // lives (a system call per layer).
+            let state = if self.layer_fresh[l] { reader.stored_writer_state() } else { reader.writer_state() };
+            self.layer_ok[l] = current && state == WriterState::Running;
         }
         self.layer_ok.iter().all(|&ok| ok)
     }

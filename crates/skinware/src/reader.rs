@@ -255,6 +255,14 @@ impl Reader {
         self.shared.writer_state()
     }
 
+    /// The state the writer last stored, without asking the kernel whether
+    /// it still lives (which [`writer_state`](Self::writer_state) does, with
+    /// a system call): enough while new frames keep coming, since a writer
+    /// that just published was alive a period ago.
+    pub fn stored_writer_state(&self) -> WriterState {
+        self.shared.stored_state()
+    }
+
     /// The process id of the current (or last) writer.
     pub fn writer_pid(&self) -> u32 {
         self.shared.header().writer_pid.load(Ordering::Relaxed)
