@@ -140,8 +140,10 @@ pub const DEFAULT_SLOTS: usize = 3;
 /// The single writer of a channel.
 ///
 /// Publishing is wait-free: it never takes a lock, never waits for a reader and
-/// reads nothing readers write; the only syscall it may make is one futex wake,
-/// and only when a reader is sleeping on the channel.
+/// reads nothing readers write; the only syscall it may make is one futex wake
+/// (of its ringer on its own CPU, or of the readers: [`ReaderWake`]), and only
+/// when a reader is sleeping on the channel. The ringer thread starts at the
+/// first frame.
 pub struct Writer {
     shared: Arc<Shared>,
     publishing: Publishing,
