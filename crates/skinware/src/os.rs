@@ -2,8 +2,8 @@
 //! the monotonic clock, futexes, open-file-description locks and real-time
 //! scheduling. The protocols that use them live in `channel/` (the doorbell,
 //! liveness); this module only makes the calls. The only `unsafe` here is the
-//! libc calls that `rustix` does not wrap (`fcntl` locks, the scheduler's
-//! policy, and glibc's system-call-free `sched_getcpu`).
+//! libc calls that `rustix` does not wrap (`fcntl` locks and the scheduler's
+//! policy).
 
 use std::io;
 use std::num::NonZeroU32;
@@ -76,13 +76,10 @@ impl Futex for PrivateFutex {
     }
 }
 
-/// The CPU the calling thread runs on, or `None` if the system cannot say.
-/// glibc answers from the thread's rseq area (or the vDSO), without a system
-/// call, which is why this is not rustix's `sched_getcpu` (a real `getcpu`).
+/// The CPU the calling thread runs on (rustix answers from the vDSO where
+/// the kernel offers one, x86-64 among them, without a system call).
 pub(crate) fn current_cpu() -> Option<u32> {
-    // SAFETY: sched_getcpu takes no arguments and touches no caller memory.
-    let cpu = unsafe { libc::sched_getcpu() };
-    u32::try_from(cpu).ok()
+    u32::try_from(rustix::thread::sched_getcpu()).ok()
 }
 
 /// The calling thread's SCHED_FIFO or SCHED_RR priority, or `None` if it is

@@ -59,10 +59,12 @@ pub enum ReaderWake {
     /// writer onto its CPU one real-time priority below it and so runs as
     /// soon as the writer sleeps. The writer pays a wake on its own CPU
     /// (about 2 µs on a 2-vCPU VM) instead of an interrupt to another CPU
-    /// (14–60 µs there), and readers wake a few µs later. If the ringer has
-    /// not rung the previous publish when the writer publishes again, the
-    /// writer wakes the readers itself, so a reader is never more than one
-    /// frame late. Started at the writer's first frame, from its thread.
+    /// (14–60 µs there), and readers wake later (about 14 µs at p50 there).
+    /// If the ringer has not rung the previous publish when the writer
+    /// publishes again, the writer wakes the readers itself, so a reader is
+    /// never more than one frame late. Started at the writer's first frame,
+    /// from its thread, and only if that thread is real-time (SCHED_FIFO or
+    /// SCHED_RR): a writer in the normal scheduler wakes its readers itself.
     #[default]
     Ringer,
     /// The writer's own thread, right after the publish: readers wake
@@ -227,6 +229,7 @@ impl Writer {
                 next_seq: 1,
                 last_published_ns: 0,
                 woken_by_writer: 0,
+                handed_to_ringer: 0,
                 reader_wake: options.reader_wake,
                 ringer: None,
             },
@@ -272,10 +275,7 @@ impl Writer {
 
     /// Which thread woke the readers asleep for this writer's frames, so far.
     pub fn wake_counts(&self) -> WakeCounts {
-        WakeCounts {
-            by_ringer: self.publishing.ringer.as_ref().map_or(0, |ringer| ringer.handoff.handed_off()),
-            by_writer: self.publishing.woken_by_writer,
-        }
+        WakeCounts { by_ringer: self.publishing.handed_to_ringer, by_writer: self.publishing.woken_by_writer }
     }
 
     /// Opens the next frame for filling, in place in shared memory. It is
@@ -286,10 +286,11 @@ impl Writer {
     /// The buffer still holds an older frame (K frames back): write every
     /// response, or readers get a mix of new and old values.
     pub fn begin(&mut self) -> FrameWriter<'_> {
-        let started_ns = os::monotonic_ns();
+        // Before the frame's time starts: the first frame starts a thread.
         if self.publishing.reader_wake == ReaderWake::Ringer && self.publishing.ringer.is_none() {
             self.start_ringer();
         }
+        let started_ns = os::monotonic_ns();
         let Writer { shared, publishing, .. } = self;
         let ring = shared.ring();
         let payload = ring.begin(publishing.next_seq);
@@ -413,10 +414,16 @@ impl Writer {
     }
 
     /// Starts the ringer from the writer's thread, which it copies the
-    /// real-time priority of; if the system refuses a thread, the writer
-    /// wakes its readers itself.
+    /// real-time priority of. A writer in the normal scheduler wakes its
+    /// readers itself: a ringer there could preempt it as soon as it is woken,
+    /// and the writer would pay for both. So does one whose system refuses a
+    /// thread.
     fn start_ringer(&mut self) {
-        match Ringer::start(&self.shared) {
+        let Some(priority) = os::current_realtime_priority() else {
+            self.publishing.reader_wake = ReaderWake::Writer;
+            return;
+        };
+        match Ringer::start(&self.shared, priority) {
             Ok(ringer) => self.publishing.ringer = Some(ringer),
             Err(error) => {
                 tracing::warn!(channel = %self.shared.label, %error, "cannot start the ringer thread; the writer wakes its readers itself");
@@ -611,15 +618,26 @@ impl FrameWriter<'_> {
         publishing.next_seq += 1;
         publishing.last_published_ns = published_ns;
         let notify = &self.shared.doorbell().notify;
-        if doorbell::announce(notify, seq) {
-            let handed = publishing
-                .ringer
-                .as_ref()
-                .is_some_and(|ringer| ringer.handoff.hand_off(os::current_cpu().unwrap_or(u32::MAX), &PrivateFutex));
-            if !handed {
+        let announced = doorbell::announce(notify, seq);
+        let handoff = publishing.ringer.as_ref().map(|ringer| &*ringer.handoff);
+        // A ringer still behind on the last handoff leaves readers asleep
+        // since then, who announce themselves no more: wake them here.
+        let ringer_behind = handoff.is_some_and(Handoff::behind);
+        if announced || ringer_behind {
+            let handed = !ringer_behind
+                && handoff
+                    .is_some_and(|handoff| handoff.hand_off(os::current_cpu().unwrap_or(u32::MAX), &PrivateFutex));
+            if handed {
+                publishing.handed_to_ringer += 1;
+            } else {
                 publishing.woken_by_writer += 1;
                 SharedFutex.wake_all(notify);
             }
+        }
+        if handoff.is_some_and(Handoff::ringer_gone) {
+            tracing::warn!(channel = %self.shared.label, "the ringer thread ended; the writer wakes its readers itself");
+            publishing.ringer = None;
+            publishing.reader_wake = ReaderWake::Writer;
         }
         let header = self.shared.header();
         stats::record_write(&header.stats, os::monotonic_ns() - self.started_ns, self.status.is_fault());
@@ -633,6 +651,7 @@ struct Publishing {
     next_seq: u64,
     last_published_ns: u64,
     woken_by_writer: u64,
+    handed_to_ringer: u64,
     reader_wake: ReaderWake,
     /// Started at the first frame with [`ReaderWake::Ringer`].
     ringer: Option<Ringer>,
@@ -643,24 +662,39 @@ struct Publishing {
 struct Ringer {
     handoff: Arc<Handoff>,
     thread: Option<std::thread::JoinHandle<()>>,
+    /// The process that started the thread: a child made by `fork` has a
+    /// copy of this struct but not the thread.
+    pid: u32,
 }
 
 impl Ringer {
-    fn start(shared: &Arc<Shared>) -> std::io::Result<Ringer> {
+    fn start(shared: &Arc<Shared>, writer_priority: u8) -> std::io::Result<Ringer> {
         let handoff = Arc::new(Handoff::default());
-        let writer_priority = os::current_realtime_priority();
         let (ringer_shared, ringer_handoff) = (shared.clone(), handoff.clone());
-        let thread = std::thread::Builder::new()
-            .name("skinware-ringer".into())
-            .spawn(move || ring_for(&ringer_shared, &ringer_handoff, writer_priority))?;
-        Ok(Ringer { handoff, thread: Some(thread) })
+        let thread = std::thread::Builder::new().name("skinware-ringer".into()).spawn(move || {
+            // Said however the thread ends, a panic included.
+            let _ended = RingerEnded(&ringer_handoff);
+            ring_for(&ringer_shared, &ringer_handoff, writer_priority);
+        })?;
+        Ok(Ringer { handoff, thread: Some(thread), pid: std::process::id() })
+    }
+}
+
+/// Tells the writer, when dropped, that its ringer's thread has ended.
+struct RingerEnded<'a>(&'a Handoff);
+
+impl Drop for RingerEnded<'_> {
+    fn drop(&mut self) {
+        self.0.ringer_ended();
     }
 }
 
 impl Drop for Ringer {
     fn drop(&mut self) {
         self.handoff.stop(&PrivateFutex);
-        if let Some(thread) = self.thread.take() {
+        if let Some(thread) = self.thread.take()
+            && self.pid == std::process::id()
+        {
             let _ = thread.join();
         }
     }
@@ -669,11 +703,12 @@ impl Drop for Ringer {
 /// The ringer's loop: wakes the channel's sleeping readers for every handoff,
 /// then moves to the CPU the writer ran on, so that the next handoff is a
 /// wake on the writer's own CPU.
-fn ring_for(shared: &Shared, handoff: &Handoff, writer_priority: Option<u8>) {
-    // One below the writer: it runs as soon as the writer sleeps and never
-    // preempts it. (A writer in the normal scheduler has a ringer there too.)
-    if let Some(priority) = writer_priority {
-        let _ = os::set_fifo_priority(priority.saturating_sub(1).max(1));
+fn ring_for(shared: &Shared, handoff: &Handoff, writer_priority: u8) {
+    // One below the writer (at priority 1, the same): it runs as soon as the
+    // writer sleeps and never preempts it.
+    if let Err(error) = os::set_fifo_priority(writer_priority.saturating_sub(1).max(1)) {
+        tracing::warn!(channel = %shared.label, %error, "the ringer cannot take a real-time priority; the writer wakes its readers itself");
+        return;
     }
     let mut on_cpu = None;
     loop {

@@ -84,6 +84,8 @@ struct BrowserFigures {
 #[derive(Debug, Serialize)]
 struct ViewerRun {
     browsers: usize,
+    /// Whether one of them is the slow browser.
+    with_slow_browser: bool,
     viewer_cpu_percent: f64,
     per_browser: Vec<BrowserFigures>,
 }
@@ -124,7 +126,10 @@ fn measure(exe: &Path, viewer_exe: &Path, dir: &Path, seconds: f64, out: &Path) 
     let control = run_phase(exe, viewer_exe, dir, seconds, false, out)?;
     let loaded = run_phase(exe, viewer_exe, dir, seconds, true, out)?;
     let viewer = viewer_scaling(exe, viewer_exe, dir, seconds)?;
-    let cpu = |n: usize| viewer.iter().find(|run| run.browsers == n).map_or(0.0, |run| run.viewer_cpu_percent);
+    let cpu = |n: usize| {
+        let run = viewer.iter().find(|run| run.browsers == n && !run.with_slow_browser);
+        run.map_or(0.0, |run| run.viewer_cpu_percent)
+    };
     let ratio = cpu(10) / cpu(1).max(1e-9);
     Ok(KilohertzReport {
         rate_hz: 1000.0,
@@ -573,6 +578,7 @@ fn viewer_scaling(exe: &Path, viewer_exe: &Path, dir: &Path, seconds: f64) -> Re
         }
         runs.push(ViewerRun {
             browsers: plan.len(),
+            with_slow_browser: plan.contains(&SLOW_BROWSER_HZ),
             viewer_cpu_percent: 100.0 * (after[0].saturating_sub(before[0])) as f64 / clock_ticks_per_s() / elapsed,
             per_browser,
         });

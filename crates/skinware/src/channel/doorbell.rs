@@ -236,6 +236,9 @@ mod loom_tests {
         notify: AtomicU32,
         requests: AtomicU32,
         futex: ModelFutex,
+        /// The writer's and its ringer's own futex (a process-private one):
+        /// apart, so that waking the ringer never wakes a reader by accident.
+        handoff_futex: ModelFutex,
     }
 
     fn channel() -> Arc<Channel> {
@@ -245,6 +248,7 @@ mod loom_tests {
             notify: AtomicU32::new(0),
             requests: AtomicU32::new(0),
             futex: ModelFutex::new(),
+            handoff_futex: ModelFutex::new(),
         })
     }
 
@@ -263,7 +267,9 @@ mod loom_tests {
         let payload = ring.begin(seq);
         payload[0].store(seq * 100, Ordering::Relaxed);
         ring.publish(&Meta { seq, acquired_ns: 0, published_ns: 0, status: 0 });
-        if super::announce(&channel.notify, seq) && !handoff.hand_off(0, &channel.futex) {
+        let announced = super::announce(&channel.notify, seq);
+        let behind = handoff.behind();
+        if (announced || behind) && (behind || !handoff.hand_off(0, &channel.handoff_futex)) {
             channel.futex.wake_all(&channel.notify);
         }
     }
@@ -272,7 +278,7 @@ mod loom_tests {
     fn spawn_ringer(channel: &Arc<Channel>, handoff: &Arc<Handoff>) -> loom::thread::JoinHandle<()> {
         let (channel, handoff) = (channel.clone(), handoff.clone());
         loom::thread::spawn(move || {
-            while let Some((requested, _cpu)) = handoff.next(&channel.futex, Duration::MAX).unwrap() {
+            while let Some((requested, _cpu)) = handoff.next(&channel.handoff_futex, Duration::MAX).unwrap() {
                 channel.futex.wake_all(&channel.notify);
                 handoff.rung(requested);
             }
@@ -402,8 +408,29 @@ mod loom_tests {
             };
             publish_deferred(&channel, &handoff, 1);
             assert_eq!(reader.join().unwrap().unwrap(), WaitEnd::Ready);
-            handoff.stop(&channel.futex);
+            handoff.stop(&channel.handoff_futex);
             ringer.join().unwrap();
+        });
+    }
+
+    /// A ringer that never runs (starved for good, or dead) loses no wake: a
+    /// reader asleep since the handoff of frame 1, which announces itself no
+    /// more, is woken by the writer at frame 2.
+    #[test]
+    fn loom_a_ringer_that_never_runs_loses_no_wake() {
+        model(|| {
+            let channel = channel();
+            let handoff = Arc::new(Handoff::default());
+            let reader = {
+                let channel = channel.clone();
+                loom::thread::spawn(move || {
+                    let ring = Ring::new(&channel.published, &channel.slots, 2);
+                    wait_for_frame(&channel.notify, || ring.published(), 0, u64::MAX, || false, &channel.futex)
+                })
+            };
+            publish_deferred(&channel, &handoff, 1);
+            publish_deferred(&channel, &handoff, 2);
+            assert_eq!(reader.join().unwrap().unwrap(), WaitEnd::Ready);
         });
     }
 
@@ -426,7 +453,7 @@ mod loom_tests {
             publish_deferred(&channel, &handoff, 1);
             publish_deferred(&channel, &handoff, 2);
             assert_eq!(reader.join().unwrap().unwrap(), WaitEnd::Ready);
-            handoff.stop(&channel.futex);
+            handoff.stop(&channel.handoff_futex);
             ringer.join().unwrap();
         });
     }

@@ -13,9 +13,13 @@
 //! readers before either wake: a reader that polls, or is about to sleep,
 //! never waits for the ringer.
 //!
-//! The handoff delays a sleeping reader by at most one publish: if the ringer
-//! has not rung the previous handoff when the writer publishes again (it was
-//! starved, or the writer never sleeps), the writer wakes the readers itself.
+//! The handoff delays a sleeping reader by at most one publish: whenever the
+//! ringer has not rung the previous handoff when the writer publishes again
+//! (it was starved, or the writer never sleeps), the writer wakes the readers
+//! itself, whether or not a reader announced itself since: a reader asleep
+//! since the previous frame does not announce itself again. A ringer that
+//! stops (a failed system call, a panic) says so, and its writer wakes its
+//! readers itself from then on.
 //!
 //! This module is the protocol between the two threads, model-checked with
 //! loom below; the thread itself lives in `crate::writer`.
@@ -24,7 +28,7 @@ use std::io;
 use std::time::Duration;
 
 use super::doorbell::Futex;
-use crate::sync::{AtomicU32, AtomicU64, Ordering};
+use crate::sync::{AtomicU32, Ordering};
 
 /// What a writer and its ringer share (process-private memory).
 #[derive(Debug, Default)]
@@ -39,8 +43,8 @@ pub(crate) struct Handoff {
     writer_cpu: AtomicU32,
     /// Set once, when the writer goes away.
     stopping: AtomicU32,
-    /// Wakes the writer handed to the ringer.
-    handed_off: AtomicU64,
+    /// Set once, when the ringer's thread ends for any reason.
+    ringer_gone: AtomicU32,
 }
 
 impl Handoff {
@@ -59,9 +63,26 @@ impl Handoff {
         // also sees the writer's swap of the doorbell word before it, so its
         // wake comes after the change the sleepers are waiting for.
         self.requested.store(requested.wrapping_add(1), Ordering::Release);
-        self.handed_off.fetch_add(1, Ordering::Relaxed);
         futex.wake_all(&self.requested);
         true
+    }
+
+    /// Writer: whether the ringer has not yet rung the last handoff. The
+    /// writer then wakes the readers itself at its next publish, even if none
+    /// announced itself since (one asleep since the previous frame does not).
+    pub(crate) fn behind(&self) -> bool {
+        // Acquire: pairs with the ringer's Release in `rung`.
+        self.rung.load(Ordering::Acquire) != self.requested.load(Ordering::Relaxed)
+    }
+
+    /// Writer: whether the ringer's thread has ended (see [`Handoff::ringer_ended`]).
+    pub(crate) fn ringer_gone(&self) -> bool {
+        self.ringer_gone.load(Ordering::Acquire) != 0
+    }
+
+    /// Ringer: its thread is ending and will ring nothing more.
+    pub(crate) fn ringer_ended(&self) {
+        self.ringer_gone.store(1, Ordering::Release);
     }
 
     /// Ringer: sleeps until there is a handoff to ring, and returns it with
@@ -92,10 +113,5 @@ impl Handoff {
         // Changing the word reaches a ringer between its check and its sleep.
         self.requested.fetch_add(1, Ordering::Release);
         futex.wake_all(&self.requested);
-    }
-
-    /// How many wakes the writer handed to the ringer so far.
-    pub(crate) fn handed_off(&self) -> u64 {
-        self.handed_off.load(Ordering::Relaxed)
     }
 }
