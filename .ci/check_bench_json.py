@@ -71,8 +71,15 @@ for run in record.get("runs", []):
     # Frames lost are measured (docs/benchmarks.md), not asserted: a CI machine may stall the recorder.
     need(run.get("frames_per_s", 0) > 0 and run.get("file_mb_per_min", 0) > 0 and is_count(run.get("lost")),
          f"record.json: {run.get('compression')} incomplete")
-need(record.get("replayed_frames", 0) > 0 and record.get("identical_frames", 0) > 0, "record.json: no replay")
-need(record.get("timing_error_us", {}).get("samples", 0) > 0, "record.json: no timing samples")
+for key, latency in (("replay", 0), ("replay_without_wake_latency", None)):
+    round_ = record.get(key, {})
+    need(round_.get("cpu_wake_latency_us") == latency, f"record.json: {key}: the wake latency requested")
+    need(round_.get("replayed_frames", 0) > 0 and round_.get("identical_frames", 0) > 0, f"record.json: {key}: no replay")
+    # Every frame the second recorder got is identical (the bench fails otherwise).
+    need(round_.get("identical_frames") + round_.get("recording_lost", -1) == round_.get("replayed_frames"),
+         f"record.json: {key}: frames neither identical nor counted lost")
+    for measure in ("timing_error_us", "late_us"):
+        need(round_.get(measure, {}).get("samples", 0) > 0, f"record.json: {key}: no {measure} samples")
 
 python = json.loads((out / "python.json").read_text())
 need(python.get("sensors") == 30848, "python.json: not the paper's whole-skin frame")

@@ -139,10 +139,18 @@ impl SkinFrame {
     /// little-endian bytes (the exchange's own layout on this machine), or a
     /// service's bytes.
     pub fn channel_bytes(&self) -> Vec<u8> {
+        let mut bytes = Vec::new();
+        self.channel_bytes_into(&mut bytes);
+        bytes
+    }
+
+    /// [`SkinFrame::channel_bytes`] into `out` (cleared first), reusing its allocation.
+    pub fn channel_bytes_into(&self, out: &mut Vec<u8>) {
+        out.clear();
         if self.payload.is_empty() {
-            self.responses.iter().flat_map(|r| r.to_ne_bytes()).collect()
+            out.extend(self.responses.iter().flat_map(|r| r.to_ne_bytes()));
         } else {
-            self.payload.clone()
+            out.extend_from_slice(&self.payload);
         }
     }
 }

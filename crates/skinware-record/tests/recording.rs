@@ -66,15 +66,23 @@ fn options(dir: &Path, skin: &str) -> RecordOptions {
     }
 }
 
-/// Every frame of `path`, per channel: (payload bytes, status, sequence number).
-fn frames(path: &Path) -> BTreeMap<String, Vec<(Vec<u8>, u64, u64)>> {
+/// A recorded frame: payload bytes, status, sequence number, publication time.
+type Frame = (Vec<u8>, u64, u64, u64);
+
+/// Every frame of `path`, per channel.
+fn frames(path: &Path) -> BTreeMap<String, Vec<Frame>> {
     let mut stream = RecordStream::open(path).unwrap();
     let (header, first) = read_header(&mut stream).unwrap();
     let mut out: BTreeMap<String, Vec<_>> = BTreeMap::new();
     let mut add = |message: mcap::records::MessageHeader, data: &[u8]| {
         if let Some(channel) = header.channels.get(&message.channel_id) {
             let frame: SkinFrame = msgs::decode(data, msgs::SKIN_FRAME).unwrap();
-            out.entry(channel.channel.clone()).or_default().push((frame.channel_bytes(), frame.status, frame.seq));
+            out.entry(channel.channel.clone()).or_default().push((
+                frame.channel_bytes(),
+                frame.status,
+                frame.seq,
+                message.publish_time,
+            ));
         }
     };
     if let Some((message, data)) = first {
@@ -201,6 +209,137 @@ fn a_reader_of_a_replay_sees_the_recorded_description_and_schema() {
     assert_eq!(layer.topology().unwrap().sensors.len(), 40);
     assert_eq!(layer.writer_period(), Some(Duration::from_millis(5)));
     drop(replay);
+}
+
+/// A recording of `count` frames of the layer `touch` of skin `skin`, one every `period`.
+fn paced_recording(dir: &Path, skin: &str, count: u64, period: Duration) -> PathBuf {
+    let (mut layer, _service) = channels(dir, skin, 50);
+    let path = dir.join(format!("{skin}.mcap"));
+    let recorder = Recorder::start(&path, options(dir, skin)).unwrap();
+    std::thread::sleep(Duration::from_millis(50));
+    for k in 1..=count {
+        let mut frame = layer.begin();
+        frame.write_responses(0, &layer_frame(k, 50)).unwrap();
+        frame.publish();
+        std::thread::sleep(period);
+    }
+    std::thread::sleep(Duration::from_millis(50));
+    let summary = recorder.finish().unwrap();
+    assert_eq!(summary.channels["touch"].frames, count, "a recorder at 10 ms per frame misses none: {summary:?}");
+    path
+}
+
+/// Replays `path` under skin `as_skin` with `options`, recording the replay;
+/// returns the replay's report and the frames of layer `touch` recorded, each
+/// with its replayed sequence number (every frame published is either among
+/// them or counted lost by the second recorder).
+fn replay_and_record(
+    dir: &Path,
+    path: &Path,
+    as_skin: &str,
+    options: ReplayOptions,
+    stop_after: Option<Duration>,
+) -> (skinware_record::ReplayReport, Vec<Frame>) {
+    let replay_options = ReplayOptions {
+        skin: Some(as_skin.into()),
+        start_delay: Duration::from_millis(200),
+        dir: Some(dir.to_owned()),
+        ..options
+    };
+    let mut replay = Replay::open(path, replay_options).unwrap();
+    let again = dir.join(format!("{as_skin}.mcap"));
+    let recorder = Recorder::start(&again, options_for_replay(dir, as_skin)).unwrap();
+    let stop = replay.stop_signal().clone();
+    let running = std::thread::spawn(move || replay.run().unwrap());
+    if let Some(after) = stop_after {
+        std::thread::sleep(after);
+        stop.stop();
+    }
+    let report = running.join().unwrap();
+    std::thread::sleep(Duration::from_millis(100));
+    let summary = recorder.finish().unwrap();
+    let mut recorded = frames(&again).remove("touch").unwrap();
+    assert_eq!(
+        recorded.len() as u64 + summary.channels["touch"].lost,
+        report.channels["touch"],
+        "the second recorder saw or counted every frame replayed: {summary:?}"
+    );
+    recorded.sort_by_key(|f| f.2);
+    (report, recorded)
+}
+
+fn options_for_replay(dir: &Path, skin: &str) -> RecordOptions {
+    RecordOptions { services: ServiceChoice::None, ..options(dir, skin) }
+}
+
+#[test]
+fn from_and_to_replay_exactly_the_frames_between_them() {
+    let dir = TempDir::new("window");
+    let path = paced_recording(&dir.0, "win", 60, Duration::from_millis(10));
+    let original = &frames(&path)["touch"];
+    let first = original[0].3;
+    let (from_s, to_s) = (0.2, 0.4);
+    let expected: Vec<_> = original
+        .iter()
+        .filter(|f| {
+            let offset = (f.3 - first) as f64 / 1e9;
+            (from_s..=to_s).contains(&offset)
+        })
+        .collect();
+    assert!(expected.len() >= 10 && expected.len() < 60, "{} frames in the window", expected.len());
+    let options = ReplayOptions { from_s: Some(from_s), to_s: Some(to_s), ..ReplayOptions::default() };
+    let (report, replayed) = replay_and_record(&dir.0, &path, "win2", options, None);
+    assert_eq!(report.frames, expected.len() as u64, "the frames between --from and --to, and only those");
+    for f in &replayed {
+        let of = expected[f.2 as usize - 1];
+        assert_eq!((&f.0, f.1), (&of.0, of.1), "replayed frame {} is recorded frame {}", f.2, of.2);
+    }
+    // The window's first frame is published at the replay's start, not 0.2 s after it.
+    let replayed_span = replayed.last().unwrap().3 - replayed[0].3;
+    let recorded_span = expected[replayed.last().unwrap().2 as usize - 1].3 - expected[replayed[0].2 as usize - 1].3;
+    assert!(replayed_span + 1_000_000 >= recorded_span, "{replayed_span} ns against {recorded_span} ns recorded");
+}
+
+#[test]
+fn a_faster_replay_keeps_every_frame_and_compresses_the_time_between_them() {
+    let dir = TempDir::new("speed");
+    let path = paced_recording(&dir.0, "fast", 60, Duration::from_millis(10));
+    let original = &frames(&path)["touch"];
+    let speed = 4.0;
+    let options = ReplayOptions { speed, ..ReplayOptions::default() };
+    let (report, replayed) = replay_and_record(&dir.0, &path, "fast2", options, None);
+    assert_eq!(report.frames, 60);
+    for f in &replayed {
+        let of = &original[f.2 as usize - 1];
+        assert_eq!(&f.0, &of.0, "frame {}", f.2);
+    }
+    let (a, b) = (&replayed[0], replayed.last().unwrap());
+    let recorded_span = (original[b.2 as usize - 1].3 - original[a.2 as usize - 1].3) as f64;
+    let replayed_span = (b.3 - a.3) as f64;
+    // Never early (each frame waits for its time, the recorded time over the
+    // speed); and far from the recorded pace (that would be 4 times this).
+    assert!(replayed_span + 1e6 >= recorded_span / speed, "{replayed_span} ns for {recorded_span} ns recorded");
+    assert!(replayed_span < recorded_span / 2.0, "{replayed_span} ns for {recorded_span} ns recorded at speed {speed}");
+}
+
+#[test]
+fn a_looping_replay_starts_again_from_the_first_frame_until_stopped() {
+    let dir = TempDir::new("loop");
+    let count = 20;
+    let path = paced_recording(&dir.0, "lp", count, Duration::from_millis(10));
+    let original = &frames(&path)["touch"];
+    let options = ReplayOptions { at_end: AtEnd::Loop, ..ReplayOptions::default() };
+    // A pass takes about 0.2 s.
+    let (report, replayed) = replay_and_record(&dir.0, &path, "lp2", options, Some(Duration::from_millis(1000)));
+    assert!(report.passes >= 3, "{report:?}");
+    assert!(report.frames >= 2 * count, "{report:?}");
+    let mut after_the_first_pass = 0;
+    for f in &replayed {
+        let at = (f.2 - 1) % count;
+        assert_eq!(&f.0, &original[at as usize].0, "replayed frame {} is recorded frame {}", f.2, at + 1);
+        after_the_first_pass += u64::from(f.2 > count);
+    }
+    assert!(after_the_first_pass >= count / 2, "frames recorded after the first pass: {after_the_first_pass}");
 }
 
 /// A finished recording's bytes, for the bad-file tests.

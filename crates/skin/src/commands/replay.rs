@@ -42,6 +42,11 @@ pub struct Args {
     /// SCHED_FIFO priority of the publishing thread (needs root or CAP_SYS_NICE).
     #[arg(long)]
     fifo_priority: Option<u8>,
+    /// Keep idle CPUs able to wake within this many µs while replaying (0:
+    /// polling; needs root). In a virtual machine a halted vCPU can wake
+    /// milliseconds late; this keeps frames on time at the cost of idle CPUs spinning.
+    #[arg(long)]
+    cpu_wake_latency_us: Option<u32>,
     /// Print the report as JSON.
     #[arg(long)]
     json: bool,
@@ -73,7 +78,11 @@ pub fn run(args: &Args) -> Result<()> {
         services: !args.no_services,
         start_delay: Duration::from_secs_f64(args.start_delay.clamp(0.0, 3600.0)),
         access,
-        rt: skinware::RtOptions { fifo_priority: args.fifo_priority, ..Default::default() },
+        rt: skinware::RtOptions {
+            fifo_priority: args.fifo_priority,
+            cpu_wake_latency_us: args.cpu_wake_latency_us,
+            ..Default::default()
+        },
         ..ReplayOptions::default()
     };
     let mut replay = match Replay::open(&args.file, options) {

@@ -16,6 +16,9 @@ pub struct RtConfig {
     /// CPUs the threads may run on; any if empty.
     #[serde(default)]
     pub cpus: Vec<usize>,
+    /// Keep idle CPUs able to wake within this many µs while the process
+    /// runs (0: polling); see `skinware::RtOptions::cpu_wake_latency_us`.
+    pub cpu_wake_latency_us: Option<u32>,
 }
 
 impl RtConfig {
@@ -25,6 +28,7 @@ impl RtConfig {
             fifo_priority: self.fifo_priority,
             lock_memory: self.lock_memory,
             cpus: self.cpus.clone(),
+            cpu_wake_latency_us: self.cpu_wake_latency_us,
         }
     }
 }
