@@ -73,10 +73,12 @@ for run in record.get("runs", []):
          f"record.json: {run.get('compression')} incomplete")
 for key, latency in (("replay", 0), ("replay_without_wake_latency", None)):
     round_ = record.get(key, {})
-    need(round_.get("cpu_wake_latency_us") == latency, f"record.json: {key}: the wake latency requested")
+    need(round_.get("requested_cpu_wake_latency_us") == latency, f"record.json: {key}: the wake latency requested")
+    # CI runs as root, where the kernel grants the request.
+    need(round_.get("cpu_wake_latency_us") == latency, f"record.json: {key}: the wake latency held")
     need(round_.get("replayed_frames", 0) > 0 and round_.get("identical_frames", 0) > 0, f"record.json: {key}: no replay")
     # Every frame the second recorder got is identical (the bench fails otherwise).
-    need(round_.get("identical_frames") + round_.get("recording_lost", -1) == round_.get("replayed_frames"),
+    need(round_.get("identical_frames", -1) + round_.get("recording_lost", -1) == round_.get("replayed_frames"),
          f"record.json: {key}: frames neither identical nor counted lost")
     for measure in ("timing_error_us", "late_us"):
         need(round_.get(measure, {}).get("samples", 0) > 0, f"record.json: {key}: no {measure} samples")

@@ -74,6 +74,8 @@ pub struct RecordReport {
 #[derive(Clone, Debug, Serialize)]
 pub struct ReplayRound {
     /// The CPU wake latency requested, µs.
+    pub requested_cpu_wake_latency_us: Option<u32>,
+    /// The CPU wake latency this process held during the replay, µs.
     pub cpu_wake_latency_us: Option<u32>,
     /// Frames replayed.
     pub replayed_frames: u64,
@@ -199,14 +201,24 @@ fn replay_round(original: &Path, replayed: &Path, dir: &Path, cpu_wake_latency_u
     }
     let reference = deltas.iter().min().map_or(0, |d| d.1);
     let mut errors: Vec<u64> = deltas.iter().map(|d| (d.1 - reference).unsigned_abs() / 1000).collect();
-    let mut late: Vec<u64> = replay_report.lateness_ns.iter().map(|ns| ns / 1000).collect();
+    let late_us = Percentiles {
+        p50: replay_report.late_p50_ns / 1000,
+        p99: replay_report.late_p99_ns / 1000,
+        p999: replay_report.late_p999_ns / 1000,
+        max: replay_report.late_max_ns / 1000,
+        avg: replay_report.late_mean_ns / 1000.0,
+        std: replay_report.late_std_ns / 1000.0,
+        samples: replay_report.frames as usize,
+    };
     Ok(ReplayRound {
-        cpu_wake_latency_us,
+        requested_cpu_wake_latency_us: cpu_wake_latency_us,
+        // What the kernel granted: a refused request (no root) is only warned about.
+        cpu_wake_latency_us: skinware::rt::held_cpu_wake_latency_us(),
         replayed_frames: replay_report.frames,
         identical_frames: identical,
         recording_lost: second.lost,
         timing_error_us: Percentiles::of(&mut errors),
-        late_us: Percentiles::of(&mut late),
+        late_us,
     })
 }
 
@@ -301,7 +313,11 @@ fn print(report: &RecordReport, seconds: f64) {
         let (t, l) = (&round.timing_error_us, &round.late_us);
         println!(
             "  {:<16}  {:>4}/{:<4}  {:>4}  {:>9}  {:>3}  {:>5}  {:>5}  {:>8}  {:>3}  {:>5}  {:>5}  {}",
-            if round.cpu_wake_latency_us.is_some() { "polling (0 µs)" } else { "halt (default)" },
+            match (round.requested_cpu_wake_latency_us, round.cpu_wake_latency_us) {
+                (_, Some(_)) => "polling (0 µs)",
+                (Some(_), None) => "halt (refused)",
+                (None, None) => "halt (default)",
+            },
             round.identical_frames,
             round.replayed_frames,
             round.recording_lost,

@@ -100,12 +100,77 @@ pub struct ReplayReport {
     pub late_p99_ns: u64,
     /// Worst, ns.
     pub late_max_ns: u64,
+    /// p99.9, ns.
+    pub late_p999_ns: u64,
+    /// Mean, ns.
+    pub late_mean_ns: f64,
+    /// Standard deviation, ns.
+    pub late_std_ns: f64,
     /// Replay time, seconds.
     pub seconds: f64,
-    /// Every frame's lateness after its scheduled time, ns, sorted (for
-    /// statistics beyond the percentiles above; not printed).
-    #[serde(skip)]
-    pub lateness_ns: Vec<u64>,
+}
+
+/// Lateness of each frame after its schedule, in 1 µs buckets up to
+/// [`LATENESS_BUCKETS`] µs: a fixed size, however long the replay loops, and
+/// allocated (and its pages touched) before the first frame, so that the
+/// publishing thread neither allocates nor faults to record a sample.
+struct Lateness {
+    /// Bucket `i` counts lateness in `[i, i+1)` µs; the last, anything longer.
+    counts: Vec<u64>,
+    samples: u64,
+    max_ns: u64,
+    sum_ns: f64,
+    sum_squares_ns: f64,
+}
+
+/// 1 µs buckets: 10 ms of lateness, then one overflow bucket.
+const LATENESS_BUCKETS: usize = 10_000;
+
+impl Lateness {
+    fn new() -> Lateness {
+        let mut counts = vec![0u64; LATENESS_BUCKETS + 1];
+        // Zeroed memory may be mapped lazily: a write to each page maps it here.
+        for count in counts.iter_mut().step_by(512) {
+            *count = std::hint::black_box(0);
+        }
+        Lateness { counts, samples: 0, max_ns: 0, sum_ns: 0.0, sum_squares_ns: 0.0 }
+    }
+
+    fn add(&mut self, ns: u64) {
+        let bucket = usize::try_from(ns / 1000).unwrap_or(usize::MAX).min(LATENESS_BUCKETS);
+        self.counts[bucket] += 1;
+        self.samples += 1;
+        self.max_ns = self.max_ns.max(ns);
+        self.sum_ns += ns as f64;
+        self.sum_squares_ns += (ns as f64) * (ns as f64);
+    }
+
+    /// The upper edge of the 1 µs bucket holding the `q`-quantile, ns (the
+    /// worst sample's for a quantile beyond the buckets).
+    fn quantile_ns(&self, q: f64) -> u64 {
+        let rank = ((q * self.samples as f64).ceil() as u64).clamp(1, self.samples.max(1));
+        let mut seen = 0;
+        for (bucket, &count) in self.counts.iter().enumerate() {
+            seen += count;
+            if seen >= rank {
+                return if bucket == LATENESS_BUCKETS { self.max_ns } else { (bucket as u64 + 1) * 1000 };
+            }
+        }
+        0
+    }
+
+    fn fill(&self, report: &mut ReplayReport) {
+        if self.samples == 0 {
+            return;
+        }
+        report.late_p50_ns = self.quantile_ns(0.5);
+        report.late_p99_ns = self.quantile_ns(0.99);
+        report.late_p999_ns = self.quantile_ns(0.999);
+        report.late_max_ns = self.max_ns;
+        let n = self.samples as f64;
+        report.late_mean_ns = self.sum_ns / n;
+        report.late_std_ns = (self.sum_squares_ns / n - report.late_mean_ns.powi(2)).max(0.0).sqrt();
+    }
 }
 
 struct Target {
@@ -235,7 +300,7 @@ impl Replay {
         let started = skinware::os::monotonic_ns();
         let mut report = ReplayReport::default();
         // Reserved, so that the publishing thread does not reallocate it mid-pass.
-        let mut lateness: Vec<u64> = Vec::with_capacity(1 << 16);
+        let mut lateness = Lateness::new();
         let mut pass_start = started + self.options.start_delay.as_nanos() as u64;
         let mut result = Ok(());
         while !self.stop.is_stopped() {
@@ -260,14 +325,8 @@ impl Replay {
         }
         report.channels =
             self.targets.values().map(|t| (t.recorded.channel.clone(), t.published)).filter(|c| c.1 > 0).collect();
-        lateness.sort_unstable();
-        let quantile =
-            |q: f64| lateness.get(((lateness.len() as f64 - 1.0) * q).round() as usize).copied().unwrap_or(0);
-        report.late_p50_ns = quantile(0.5);
-        report.late_p99_ns = quantile(0.99);
-        report.late_max_ns = lateness.last().copied().unwrap_or(0);
+        lateness.fill(&mut report);
         report.seconds = (skinware::os::monotonic_ns() - started) as f64 / 1e9;
-        report.lateness_ns = lateness;
         result.map(|()| report)
     }
 
@@ -281,16 +340,15 @@ impl Replay {
     /// A loader thread reads, decompresses and decodes the file ahead of time
     /// (a chunk takes milliseconds to decompress); this thread only sleeps until
     /// each frame is due and copies it into its channel. It neither allocates
-    /// nor frees: each frame's buffer goes back to the loader to be filled
-    /// again. (Freeing a buffer that another thread allocated takes that
-    /// thread's malloc arena lock, which the loader, in the normal scheduler,
-    /// may hold while preempted: the replay's p99 lateness was 2.7 ms with the
-    /// frees here, against a p99 wake-up latency of 65 µs on the same machine.)
+    /// nor frees: each frame's buffer goes back to the loader, to be filled
+    /// again or freed there. (Freeing a buffer that another thread allocated
+    /// takes that thread's malloc arena lock, which the loader, in the normal
+    /// scheduler, may hold while preempted.)
     fn pass(
         &mut self,
         start_ns: u64,
         report: &mut ReplayReport,
-        lateness: &mut Vec<u64>,
+        lateness: &mut Lateness,
     ) -> Result<Option<u64>, RecordError> {
         let (sender, receiver) = std::sync::mpsc::sync_channel::<Result<Due, RecordError>>(LOAD_AHEAD);
         // Bounded, so its slots exist before the first frame: a send never allocates.
@@ -309,7 +367,7 @@ impl Replay {
         };
         let loading = std::thread::Builder::new()
             .name("replay-load".into())
-            .spawn(move || loader.run(&sender))
+            .spawn(move || loader.run(sender))
             .map_err(|e| RecordError::Nothing(format!("cannot start the replay's loader thread: {e}")))?;
         let speed = self.options.speed;
         let mut outcome = Ok(Some(start_ns));
@@ -340,7 +398,10 @@ impl Replay {
                 outcome = Ok(None);
                 break;
             }
-            let Some(target) = self.targets.get_mut(&due.channel_id) else { continue };
+            let Some(target) = self.targets.get_mut(&due.channel_id) else {
+                let _ = recycle.try_send(due.bytes);
+                continue;
+            };
             let status = FrameStatus(due.status);
             let state = if status.contains(FrameStatus::FAULT) { WriterState::Faulted } else { WriterState::Running };
             if state != target.state {
@@ -352,17 +413,17 @@ impl Replay {
             out.set_acquired_ns(at.saturating_sub(due.latency_ns));
             out.set_status(status);
             out.publish();
-            lateness.push(skinware::os::monotonic_ns().saturating_sub(at));
+            lateness.add(skinware::os::monotonic_ns().saturating_sub(at));
             report.frames += 1;
             target.published += 1;
             outcome = Ok(Some(at));
-            // The loader always has room for a buffer it sent (it sent at most
-            // LOAD_AHEAD + 1 unreturned); if it is gone, the buffer is freed here,
-            // at the end of the pass.
+            // The loader takes the buffer back until the pass ends, and always
+            // has room for it: it sent at most LOAD_AHEAD + 1 not yet returned.
             let _ = recycle.try_send(due.bytes);
         }
-        // Unblocks a loader still sending, then waits for it.
+        // Unblocks a loader still sending, ends its wait for buffers to free, then waits for it.
         drop(receiver);
+        drop(recycle);
         if loading.join().is_err() && outcome.is_ok() {
             return Err(RecordError::Mismatch {
                 context: format!(
@@ -406,10 +467,15 @@ struct Loader {
 }
 
 impl Loader {
-    fn run(self, sender: &std::sync::mpsc::SyncSender<Result<Due, RecordError>>) {
-        if let Err(e) = self.load(sender) {
+    fn run(self, sender: std::sync::mpsc::SyncSender<Result<Due, RecordError>>) {
+        if let Err(e) = self.load(&sender) {
             let _ = sender.send(Err(e));
         }
+        // The publisher sees the end of the pass only once this is gone.
+        drop(sender);
+        // The buffers of the last frames still come back: they are freed
+        // here, not on the publishing thread, until it ends the pass.
+        while self.recycled.recv().is_ok() {}
     }
 
     fn load(&self, sender: &std::sync::mpsc::SyncSender<Result<Due, RecordError>>) -> Result<(), RecordError> {
@@ -500,5 +566,30 @@ impl Drop for Replay {
         if let Some(path) = &self.geometry {
             let _ = std::fs::remove_file(path);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lateness_quantiles_are_the_upper_edges_of_microsecond_buckets() {
+        let mut lateness = Lateness::new();
+        // 1..=1000 µs, each once, and one sample past the buckets.
+        for us in 1..=1000u64 {
+            lateness.add(us * 1000 - 1);
+        }
+        lateness.add(25_000_000);
+        let mut report = ReplayReport::default();
+        lateness.fill(&mut report);
+        assert_eq!(report.late_p50_ns, 501_000);
+        assert_eq!(report.late_p99_ns, 991_000);
+        assert_eq!(report.late_p999_ns, 1_000_000);
+        assert_eq!(report.late_max_ns, 25_000_000);
+        let mean = (500_500_000.0 - 1000.0 + 25_000_000.0) / 1001.0;
+        assert!((report.late_mean_ns - mean).abs() < 1.0, "{}", report.late_mean_ns);
+        // Past the buckets, a quantile is the worst sample.
+        assert_eq!(lateness.quantile_ns(1.0), 25_000_000);
     }
 }

@@ -167,18 +167,23 @@ pub struct RtOptions {
     ///
     /// A sleeping real-time thread is only as punctual as its CPU's way out
     /// of idle. In a virtual machine an idle vCPU halts, and the host may
-    /// take milliseconds to run it again when its timer fires: on the 2-vCPU
-    /// development VM, a replay thread at SCHED_FIFO published its frames with
-    /// a p99 lateness of 0.3–1.5 ms and a worst of 9 ms, and 119 µs and
-    /// 1.2 ms with this at 0 (see `docs/recording.md`). The cost: idle CPUs
-    /// spin instead of sleeping, which uses power (or the host's CPU time).
+    /// take milliseconds to run it again when its timer fires. On the 2-vCPU
+    /// development VM, a replay thread at SCHED_FIFO published its frames
+    /// with a p99 lateness of 2.4 ms without this, and 172 µs with it at 0,
+    /// side by side in one run (`docs/bench/record/record.json`). The cost:
+    /// idle CPUs spin instead of sleeping, which uses power (or the host's
+    /// CPU time). The request is for every CPU, and it lasts as long as
+    /// the process.
     pub cpu_wake_latency_us: Option<u32>,
 }
 
 impl RtOptions {
-    /// Applies the settings to the calling thread. Settings the system refuses
-    /// (no privilege, no such CPU) are skipped; each refusal is returned as a
-    /// message, so the caller can warn once and carry on.
+    /// Applies the settings. The priority and the CPUs apply to the calling
+    /// thread. `mlockall` applies to the whole process, and the CPU wake
+    /// latency to every CPU of the machine while the process lives. Settings
+    /// the system refuses (no privilege, no such CPU) are skipped. Each
+    /// refusal comes back as a message, so the caller can warn once and
+    /// carry on.
     pub fn apply(&self) -> Vec<String> {
         let mut refused = Vec::new();
         if let Some(priority) = self.fifo_priority
