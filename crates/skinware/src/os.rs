@@ -35,44 +35,45 @@ fn wake_from(result: rustix::io::Result<()>) -> io::Result<Wake> {
     }
 }
 
+/// Futexes through the kernel, with the flags of one kind of word.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct KernelFutex {
+    flags: futex::Flags,
+}
+
 /// Process-shared futexes on words in shared memory: what the doorbell
 /// protocol ([`crate::channel::doorbell`]) sleeps and wakes with.
-#[derive(Clone, Copy, Debug, Default)]
-pub(crate) struct SharedFutex;
+pub(crate) const SHARED_FUTEX: KernelFutex = KernelFutex { flags: futex::Flags::empty() };
 
-impl Futex for SharedFutex {
+/// Process-private futexes, on words in this process's own memory: the
+/// writer's handoff to its ringer ([`crate::channel::ringer`]) and the stop
+/// signal ([`crate::rt::Stop`]). The kernel finds their waiters without
+/// looking up a shared mapping.
+pub(crate) const PRIVATE_FUTEX: KernelFutex = KernelFutex { flags: futex::Flags::PRIVATE };
+
+impl Futex for KernelFutex {
     fn now_ns(&self) -> u64 {
         monotonic_ns()
     }
 
     fn wait(&self, word: &AtomicU32, expected: u32, timeout: Duration) -> io::Result<Wake> {
         let timeout = timespec_from_ns(timeout.as_nanos().min(u64::MAX as u128) as u64);
-        wake_from(futex::wait(word.as_std(), futex::Flags::empty(), expected, Some(&timeout)))
+        wake_from(futex::wait(word.as_std(), self.flags, expected, Some(&timeout)))
     }
 
     fn wake_all(&self, word: &AtomicU32) {
         // A failed wake can only be EFAULT on a bad address, which a mapped word is not.
-        let _ = futex::wake(word.as_std(), futex::Flags::empty(), i32::MAX as u32);
+        let _ = futex::wake(word.as_std(), self.flags, i32::MAX as u32);
     }
 }
 
-/// Process-private futexes, on words in this process's own memory: the
-/// writer's handoff to its ringer ([`crate::channel::ringer`]).
-#[derive(Clone, Copy, Debug, Default)]
-pub(crate) struct PrivateFutex;
-
-impl Futex for PrivateFutex {
-    fn now_ns(&self) -> u64 {
-        monotonic_ns()
-    }
-
-    fn wait(&self, word: &AtomicU32, expected: u32, timeout: Duration) -> io::Result<Wake> {
-        let timeout = timespec_from_ns(timeout.as_nanos().min(u64::MAX as u128) as u64);
-        wake_from(futex::wait(word.as_std(), futex::Flags::PRIVATE, expected, Some(&timeout)))
-    }
-
-    fn wake_all(&self, word: &AtomicU32) {
-        futex_wake_private(word);
+impl KernelFutex {
+    /// Sleeps while `word` holds `expected`, until the absolute
+    /// CLOCK_MONOTONIC `deadline_ns`.
+    pub(crate) fn wait_until(&self, word: &AtomicU32, expected: u32, deadline_ns: u64) -> io::Result<Wake> {
+        let deadline = timespec_from_ns(deadline_ns);
+        let any = NonZeroU32::new(u32::MAX).unwrap_or(NonZeroU32::MIN);
+        wake_from(futex::wait_bitset(word.as_std(), self.flags, expected, Some(&deadline), any))
     }
 }
 
@@ -98,19 +99,6 @@ pub(crate) fn current_realtime_priority() -> Option<u8> {
         return None;
     }
     u8::try_from(param.sched_priority).ok()
-}
-
-/// Sleeps while the process-private futex `word` holds `expected`, until the
-/// absolute CLOCK_MONOTONIC `deadline_ns`.
-pub(crate) fn futex_wait_private_until(word: &AtomicU32, expected: u32, deadline_ns: u64) -> io::Result<Wake> {
-    let deadline = timespec_from_ns(deadline_ns);
-    let any = NonZeroU32::new(u32::MAX).unwrap_or(NonZeroU32::MIN);
-    wake_from(futex::wait_bitset(word.as_std(), futex::Flags::PRIVATE, expected, Some(&deadline), any))
-}
-
-/// Wakes every thread of this process sleeping on the private futex `word`.
-pub(crate) fn futex_wake_private(word: &AtomicU32) {
-    let _ = futex::wake(word.as_std(), futex::Flags::PRIVATE, i32::MAX as u32);
 }
 
 fn ofd_lock_request(kind: libc::c_short, byte: libc::off_t) -> libc::flock {

@@ -17,7 +17,7 @@ use crate::channel::ring::{Meta, ReadFailure};
 use crate::channel::segment::{self, Opened, Shared};
 use crate::error::{Error, Result};
 use crate::frame::Frame;
-use crate::os::{self, SharedFutex};
+use crate::os::{self, SHARED_FUTEX};
 use crate::rt::{Stop, Ticker};
 use crate::shm;
 use crate::stats::{ReaderStats, WriterState, WriterStats};
@@ -387,7 +387,7 @@ impl Reader {
         loop {
             let after = self.published_seq();
             if self.writer_period().is_none() {
-                doorbell::request(&self.shared.doorbell().requests, &SharedFutex);
+                doorbell::request(&self.shared.doorbell().requests, &SHARED_FUTEX);
             }
             match self.wait_slices(after, deadline, timeout) {
                 Ok(Waited::Frame) => return self.latest(),
@@ -483,7 +483,7 @@ impl Reader {
         let ring = self.shared.ring();
         let stop = &self.stop;
         let notify = &self.shared.doorbell().notify;
-        match doorbell::wait_for_frame(notify, || ring.published(), after, deadline, || stop.is_stopped(), &SharedFutex)
+        match doorbell::wait_for_frame(notify, || ring.published(), after, deadline, || stop.is_stopped(), &SHARED_FUTEX)
         {
             Ok(WaitEnd::Ready) => Ok(()),
             Ok(WaitEnd::TimedOut) => Err(Error::Timeout { channel: self.shared.label.clone(), timeout }),

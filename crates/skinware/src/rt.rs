@@ -6,9 +6,9 @@
 use std::sync::{Arc, Mutex, Weak};
 use std::time::Duration;
 
-use crate::channel::doorbell::{self, Wake};
+use crate::channel::doorbell::{self, Futex as _, Wake};
 use crate::channel::segment::Shared;
-use crate::os::{self, SharedFutex};
+use crate::os::{self, PRIVATE_FUTEX, SHARED_FUTEX};
 use crate::sync::{AtomicU32, Ordering};
 
 /// A cloneable signal that stops blocking calls: [`Ticker::wait`],
@@ -44,12 +44,12 @@ impl Stop {
     /// Stops every blocking call that watches this signal, now and later.
     pub fn stop(&self) {
         self.inner.word.store(1, Ordering::Release);
-        os::futex_wake_private(&self.inner.word);
+        PRIVATE_FUTEX.wake_all(&self.inner.word);
         let channels = self.inner.channels.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
         for shared in channels.iter().filter_map(Weak::upgrade) {
             let doorbell = shared.doorbell();
-            doorbell::nudge(&doorbell.notify, &SharedFutex);
-            doorbell::nudge(&doorbell.requests, &SharedFutex);
+            doorbell::nudge(&doorbell.notify, &SHARED_FUTEX);
+            doorbell::nudge(&doorbell.requests, &SHARED_FUTEX);
         }
     }
 
@@ -74,7 +74,7 @@ impl Stop {
             if os::monotonic_ns() >= deadline_ns {
                 return true;
             }
-            match os::futex_wait_private_until(&self.inner.word, 0, deadline_ns) {
+            match PRIVATE_FUTEX.wait_until(&self.inner.word, 0, deadline_ns) {
                 Ok(Wake::TimedOut) => return !self.is_stopped(),
                 Ok(Wake::Recheck) => {}
                 // Only EFAULT/EINVAL are possible, neither with a valid word and

@@ -17,7 +17,7 @@ use crate::channel::segment::{self, SegmentInit, Shared};
 use crate::channel::{self, ChannelKind};
 use crate::error::{Error, Result};
 use crate::frame::FrameStatus;
-use crate::os::{self, PrivateFutex, SharedFutex};
+use crate::os::{self, PRIVATE_FUTEX, SHARED_FUTEX};
 use crate::rt::{Stop, Ticker};
 use crate::shm;
 use crate::stats::{self, WriterState, WriterStats};
@@ -369,7 +369,7 @@ impl Writer {
             &mut self.served_requests,
             deadline,
             || stop.is_stopped(),
-            &SharedFutex,
+            &SHARED_FUTEX,
         ) {
             Ok(WaitEnd::Ready) => Ok(true),
             Ok(WaitEnd::TimedOut) => Ok(false),
@@ -485,7 +485,7 @@ impl Drop for Writer {
     fn drop(&mut self) {
         liveness::retire_writer(self.shared.header());
         // Readers asleep re-check, see no new frame, and `writer_state` tells them why.
-        doorbell::nudge(&self.shared.doorbell().notify, &SharedFutex);
+        doorbell::nudge(&self.shared.doorbell().notify, &SHARED_FUTEX);
         // No new reader from here on; then the name goes, or stays for a successor.
         let name = self.server.take().and_then(Server::stop);
         if let Some(name) = name
@@ -626,12 +626,12 @@ impl FrameWriter<'_> {
         if announced || ringer_behind {
             let handed = !ringer_behind
                 && handoff
-                    .is_some_and(|handoff| handoff.hand_off(os::current_cpu().unwrap_or(u32::MAX), &PrivateFutex));
+                    .is_some_and(|handoff| handoff.hand_off(os::current_cpu().unwrap_or(u32::MAX), &PRIVATE_FUTEX));
             if handed {
                 publishing.handed_to_ringer += 1;
             } else {
                 publishing.woken_by_writer += 1;
-                SharedFutex.wake_all(notify);
+                SHARED_FUTEX.wake_all(notify);
             }
         }
         if handoff.is_some_and(Handoff::ringer_gone) {
@@ -691,7 +691,7 @@ impl Drop for RingerEnded<'_> {
 
 impl Drop for Ringer {
     fn drop(&mut self) {
-        self.handoff.stop(&PrivateFutex);
+        self.handoff.stop(&PRIVATE_FUTEX);
         if let Some(thread) = self.thread.take()
             && self.pid == std::process::id()
         {
@@ -712,9 +712,9 @@ fn ring_for(shared: &Shared, handoff: &Handoff, writer_priority: u8) {
     }
     let mut on_cpu = None;
     loop {
-        match handoff.next(&PrivateFutex, Duration::from_secs(1)) {
+        match handoff.next(&PRIVATE_FUTEX, Duration::from_secs(1)) {
             Ok(Some((requested, writer_cpu))) => {
-                SharedFutex.wake_all(&shared.doorbell().notify);
+                SHARED_FUTEX.wake_all(&shared.doorbell().notify);
                 handoff.rung(requested);
                 // After the wake: the move costs this thread, not the readers.
                 if writer_cpu != u32::MAX && on_cpu != Some(writer_cpu) {

@@ -51,7 +51,7 @@ pub(crate) enum Wake {
 }
 
 /// The futex operations the doorbell needs, on process-shared words. The OS
-/// provides them with real futexes ([`crate::os::SharedFutex`]); the loom
+/// provides them with real futexes ([`crate::os::SHARED_FUTEX`]); the loom
 /// model with a mutex and a condition variable.
 pub(crate) trait Futex {
     /// Now, in CLOCK_MONOTONIC nanoseconds.
