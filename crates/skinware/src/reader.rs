@@ -483,8 +483,14 @@ impl Reader {
         let ring = self.shared.ring();
         let stop = &self.stop;
         let notify = &self.shared.doorbell().notify;
-        match doorbell::wait_for_frame(notify, || ring.published(), after, deadline, || stop.is_stopped(), &SHARED_FUTEX)
-        {
+        match doorbell::wait_for_frame(
+            notify,
+            || ring.published(),
+            after,
+            deadline,
+            || stop.is_stopped(),
+            &SHARED_FUTEX,
+        ) {
             Ok(WaitEnd::Ready) => Ok(()),
             Ok(WaitEnd::TimedOut) => Err(Error::Timeout { channel: self.shared.label.clone(), timeout }),
             Ok(WaitEnd::Stopped) => Err(Error::Stopped { channel: self.shared.label.clone() }),
