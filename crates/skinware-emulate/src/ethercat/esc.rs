@@ -717,7 +717,7 @@ impl TactileSubDevice {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ethercat::wire::{FrameBuilder, check_frame, datagrams};
+    use crate::ethercat::wire::{DatagramContents, FrameBuilder, check_frame, datagrams};
 
     fn device(taxels: usize) -> TactileSubDevice {
         TactileSubDevice::new(TactileConfig::new(taxels, 1), |sample: u64, taxels: &mut [u16]| {
@@ -729,7 +729,7 @@ mod tests {
     }
 
     /// Runs one frame through one device and returns its datagrams.
-    fn run(device: &mut TactileSubDevice, frame: FrameBuilder) -> Vec<(Command, u32, Vec<u8>, u16)> {
+    fn run(device: &mut TactileSubDevice, frame: FrameBuilder) -> Vec<DatagramContents> {
         let mut frame = frame.build();
         let layout = check_frame(&frame).unwrap();
         let mut offset = layout.payload_start;
@@ -746,7 +746,7 @@ mod tests {
 
     fn fpwr(device: &mut TactileSubDevice, register: u16, data: &[u8]) -> u16 {
         let address = u32::from(device.station_address()) | u32::from(register) << 16;
-        run(device, FrameBuilder::new().datagram(Command::Fpwr, 0, address, data))[0].3
+        run(device, FrameBuilder::new().datagram(Command::Fpwr, 0, address, data))[0].working_counter
     }
 
     #[test]
@@ -754,11 +754,11 @@ mod tests {
         let mut d = device(4);
         // APWR to position 1 (0xFFFF): not this device; the position counts on.
         let out = run(&mut d, FrameBuilder::new().datagram(Command::Apwr, 0, 0x0010_FFFF, &[0x34, 0x12]));
-        assert_eq!(out[0].1 as u16, 0x0000);
-        assert_eq!(out[0].3, 0);
+        assert_eq!(out[0].address as u16, 0x0000);
+        assert_eq!(out[0].working_counter, 0);
         assert_eq!(d.station_address(), 0);
         let out = run(&mut d, FrameBuilder::new().datagram(Command::Apwr, 0, 0x0010_0000, &[0x34, 0x12]));
-        assert_eq!((out[0].1 as u16, out[0].3), (1, 1));
+        assert_eq!((out[0].address as u16, out[0].working_counter), (1, 1));
         assert_eq!(d.station_address(), 0x1234);
     }
 
@@ -767,12 +767,12 @@ mod tests {
         let mut d = device(4);
         fpwr(&mut d, 0x0010, &[0x01, 0x10]);
         let out = run(&mut d, FrameBuilder::new().datagram(Command::Fprw, 0, 0x0400_1001, &[0xAA, 0x00]));
-        assert_eq!(out[0].2, [0, 0]);
-        assert_eq!(out[0].3, 3);
+        assert_eq!(out[0].data, [0, 0]);
+        assert_eq!(out[0].working_counter, 3);
         assert_eq!(d.memory(0x0400, 2).unwrap(), [0xAA, 0]);
         // A read-only register is still counted, but keeps its value.
         let out = run(&mut d, FrameBuilder::new().datagram(Command::Fprw, 0, 0x0000_1001, &[0xFF]));
-        assert_eq!((out[0].2.as_slice(), out[0].3), (&[0x11][..], 3));
+        assert_eq!((out[0].data.as_slice(), out[0].working_counter), (&[0x11][..], 3));
         assert_eq!(d.memory(0, 1).unwrap(), [0x11]);
     }
 
@@ -780,9 +780,9 @@ mod tests {
     fn no_dc_registers_means_no_working_counter() {
         let mut d = device(4);
         let out = run(&mut d, FrameBuilder::new().datagram(Command::Bwr, 0, 0x0900_0000, &[0; 4]));
-        assert_eq!(out[0].3, 0);
+        assert_eq!(out[0].working_counter, 0);
         let out = run(&mut d, FrameBuilder::new().datagram(Command::Brd, 0, 0x0008_0000, &[0; 2]));
-        assert_eq!(out[0].2[0] & 0x04, 0, "the feature register says: no DC");
+        assert_eq!(out[0].data[0] & 0x04, 0, "the feature register says: no DC");
     }
 
     #[test]

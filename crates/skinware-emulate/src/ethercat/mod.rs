@@ -23,7 +23,7 @@
 //! // Count the SubDevices, as a MainDevice does first: a broadcast read.
 //! let mut frame = FrameBuilder::new().datagram(Command::Brd, 0, 0, &[0]).build();
 //! assert_eq!(ring.process(&mut frame).unwrap(), Fate::Returned);
-//! assert_eq!(datagrams(&frame).unwrap()[0].3, 1);
+//! assert_eq!(datagrams(&frame).unwrap()[0].working_counter, 1);
 //! ```
 
 mod esc;
@@ -37,6 +37,6 @@ pub use segment::{Fate, Segment, SegmentFaults, SegmentStats};
 pub use sii::{Identity, RXPDO_INDEX, TAXELS_PER_PDO, TXPDO_HEADER_INDEX, TXPDO_TAXELS_INDEX, checksum, tactile_image};
 pub use tactile::TaxelSource;
 pub use wire::{
-    Command, DATAGRAM_HEADER_LEN, Datagram, ETHERCAT_HEADER_LEN, ETHERNET_HEADER_LEN, ETHERTYPE_ETHERCAT, FrameBuilder,
-    FrameError, FrameLayout, WORKING_COUNTER_LEN, check_frame, datagrams,
+    Command, DATAGRAM_HEADER_LEN, Datagram, DatagramContents, ETHERCAT_HEADER_LEN, ETHERNET_HEADER_LEN,
+    ETHERTYPE_ETHERCAT, FrameBuilder, FrameError, FrameLayout, WORKING_COUNTER_LEN, check_frame, datagrams,
 };

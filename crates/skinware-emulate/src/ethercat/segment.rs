@@ -136,7 +136,7 @@ impl Segment {
 mod tests {
     use super::*;
     use crate::ethercat::esc::{AlState, TactileConfig};
-    use crate::ethercat::wire::{Command, FrameBuilder, datagrams};
+    use crate::ethercat::wire::{Command, DatagramContents, FrameBuilder, datagrams};
     use proptest::prelude::*;
 
     fn segment(count: usize, taxels: usize) -> Segment {
@@ -152,7 +152,7 @@ mod tests {
         )
     }
 
-    fn round(segment: &mut Segment, frame: FrameBuilder) -> Vec<(Command, u32, Vec<u8>, u16)> {
+    fn round(segment: &mut Segment, frame: FrameBuilder) -> Vec<DatagramContents> {
         let mut frame = frame.build();
         assert_eq!(segment.process(&mut frame).unwrap(), Fate::Returned);
         assert_eq!(frame[6], 0x12, "source address marked by the first ESC");
@@ -163,20 +163,23 @@ mod tests {
     fn broadcast_read_counts_every_subdevice_and_ors_their_data() {
         let mut s = segment(3, 4);
         let out = round(&mut s, FrameBuilder::new().datagram(Command::Brd, 0, 0x0000_0000, &[0]));
-        assert_eq!(out[0].3, 3);
-        assert_eq!(out[0].2, [0x11]);
-        assert_eq!(out[0].1 as u16, 3, "each SubDevice counted itself in the position");
+        assert_eq!(out[0].working_counter, 3);
+        assert_eq!(out[0].data, [0x11]);
+        assert_eq!(out[0].address as u16, 3, "each SubDevice counted itself in the position");
         // Station addresses by position, then AL status ORed (INIT | PRE-OP).
         for position in 0..3u16 {
             let address = u32::from(0u16.wrapping_sub(position)) | 0x0010 << 16;
             let data = (0x1000 + position).to_le_bytes();
-            assert_eq!(round(&mut s, FrameBuilder::new().datagram(Command::Apwr, 0, address, &data))[0].3, 1);
+            assert_eq!(
+                round(&mut s, FrameBuilder::new().datagram(Command::Apwr, 0, address, &data))[0].working_counter,
+                1
+            );
         }
         let to_preop = FrameBuilder::new().datagram(Command::Fpwr, 0, 0x0120_1001, &[2, 0]);
-        assert_eq!(round(&mut s, to_preop)[0].3, 1);
+        assert_eq!(round(&mut s, to_preop)[0].working_counter, 1);
         assert_eq!(s.subdevices()[1].state(), AlState::PreOp);
         let out = round(&mut s, FrameBuilder::new().datagram(Command::Brd, 0, 0x0130_0000, &[0, 0]));
-        assert_eq!((out[0].2[0], out[0].3), (0x03, 3));
+        assert_eq!((out[0].data[0], out[0].working_counter), (0x03, 3));
     }
 
     #[test]
@@ -283,7 +286,7 @@ mod tests {
             let mut s = segment(subdevices, 8);
             let mut frame = frame;
             prop_assert_eq!(s.process(&mut frame).unwrap(), Fate::Returned);
-            for (command, _, _, wkc) in datagrams(&frame).unwrap() {
+            for DatagramContents { command, working_counter: wkc, .. } in datagrams(&frame).unwrap() {
                 let most = match command {
                     Command::Nop => 0,
                     // One SubDevice only sees position 0.

@@ -330,20 +330,34 @@ impl FrameBuilder {
     }
 }
 
-/// Reads the datagrams of a processed frame back: `(command, address, data,
-/// working counter)` for each, or `None` if the frame is malformed.
-pub fn datagrams(frame: &[u8]) -> Option<Vec<(Command, u32, Vec<u8>, u16)>> {
+/// One datagram of a frame, copied out.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct DatagramContents {
+    /// The command.
+    pub command: Command,
+    /// The address field (position or station address and register, or
+    /// logical address).
+    pub address: u32,
+    /// The data.
+    pub data: Vec<u8>,
+    /// The working counter.
+    pub working_counter: u16,
+}
+
+/// Reads the datagrams of a processed frame back, or `None` if the frame is
+/// malformed.
+pub fn datagrams(frame: &[u8]) -> Option<Vec<DatagramContents>> {
     let layout = check_frame(frame).ok()?;
     let mut out = Vec::new();
     let mut offset = layout.payload_start;
     loop {
         let datagram = Datagram::at(frame, offset, layout.payload_end)?;
-        out.push((
-            datagram.command(frame),
-            datagram.address(frame),
-            frame[datagram.data_range()].to_vec(),
-            datagram.working_counter(frame),
-        ));
+        out.push(DatagramContents {
+            command: datagram.command(frame),
+            address: datagram.address(frame),
+            data: frame[datagram.data_range()].to_vec(),
+            working_counter: datagram.working_counter(frame),
+        });
         if !datagram.more_follows {
             return Some(out);
         }
