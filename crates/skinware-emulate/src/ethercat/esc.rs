@@ -522,43 +522,84 @@ impl TactileSubDevice {
         })
     }
 
-    /// Whether the EtherCAT side can access process memory at `address`
-    /// this way, given the SyncManagers and the state.
-    fn process_memory_accessible(&self, address: u32, access: Access) -> bool {
-        let Some((n, _, _, master_writes)) = self.sync_manager_at(address) else {
-            return true;
-        };
+    /// Whether the EtherCAT side can access the area of SyncManager `n`
+    /// (which `master_writes` or not) this way, given its mode and the state.
+    fn sync_manager_accessible(&self, n: usize, master_writes: bool, access: Access) -> bool {
         let base = usize::from(SYNC_MANAGER_BASE) + n * 8;
         let buffered = self.memory[base + 4] & 0x03 == 0x00;
         let active = matches!(self.state, AlState::SafeOp | AlState::Op);
         buffered && active && master_writes == (access == Access::Write)
     }
 
+    /// The run of process memory from `address` (up to `end`) that one rule
+    /// covers, so that accesses copy whole runs instead of deciding byte by
+    /// byte: `(run end, accessible, the covering SyncManager's area and
+    /// whether the master writes it)`. A run stops where a SyncManager's area
+    /// ends or another's starts, which gives every byte the rule a byte-wise
+    /// lookup (the lowest-numbered SyncManager covering it) would.
+    fn process_run(&self, address: u32, end: u32, access: Access) -> (u32, bool, Option<(u32, u32, bool)>) {
+        let memory_end = PROCESS_MEMORY_START + PROCESS_MEMORY_BYTES as u32;
+        if address >= memory_end {
+            return (end, false, None);
+        }
+        let mut run_end = end.min(memory_end);
+        for n in 0..SYNC_MANAGERS {
+            let base = usize::from(SYNC_MANAGER_BASE) + n * 8;
+            let register = &self.memory[base..base + 8];
+            let sm_start = u32::from(u16::from_le_bytes([register[0], register[1]]));
+            if register[6] & 0x01 != 0 && register[2..4] != [0, 0] && sm_start > address {
+                run_end = run_end.min(sm_start);
+            }
+        }
+        match self.sync_manager_at(address) {
+            Some((n, sm_start, sm_length, master_writes)) => {
+                run_end = run_end.min(sm_start + sm_length);
+                let accessible = self.sync_manager_accessible(n, master_writes, access);
+                (run_end, accessible, Some((sm_start, sm_length, master_writes)))
+            }
+            None => (run_end, true, None),
+        }
+    }
+
     /// Reads `out.len()` bytes from `start`; returns whether any byte was
     /// accessible. Starting at an input SyncManager's first byte takes a new
     /// sample.
     fn read(&mut self, start: u32, out: &mut [u8], or: bool) -> bool {
-        if let Some((_, sm_start, sm_length, false)) = self.sync_manager_at(start)
+        if let Some((n, sm_start, sm_length, false)) = self.sync_manager_at(start)
             && sm_start == start
-            && self.process_memory_accessible(start, Access::Read)
+            && self.sync_manager_accessible(n, false, Access::Read)
         {
             let range = sm_start as usize..(sm_start + sm_length) as usize;
             if range.end <= self.memory.len() && self.is_inputs(sm_start, sm_length) {
                 self.firmware.inputs_opened(&mut self.memory[range]);
             }
         }
+        let end = start + out.len() as u32;
+        let mut address = start;
         let mut any = false;
-        for (k, byte) in out.iter_mut().enumerate() {
-            let address = start + k as u32;
-            if !Self::present(address) {
+        while address < end {
+            let index = (address - start) as usize;
+            if address < PROCESS_MEMORY_START {
+                if Self::present(address) {
+                    let value = self.memory[address as usize];
+                    out[index] = if or { out[index] | value } else { value };
+                    any = true;
+                }
+                address += 1;
                 continue;
             }
-            if address >= PROCESS_MEMORY_START && !self.process_memory_accessible(address, Access::Read) {
-                continue;
+            let (run_end, accessible, _) = self.process_run(address, end, Access::Read);
+            if accessible {
+                let source = &self.memory[address as usize..run_end as usize];
+                let target = &mut out[index..(run_end - start) as usize];
+                if or {
+                    target.iter_mut().zip(source).for_each(|(t, s)| *t |= s);
+                } else {
+                    target.copy_from_slice(source);
+                }
+                any = true;
             }
-            let value = self.memory[address as usize];
-            *byte = if or { *byte | value } else { value };
-            any = true;
+            address = run_end;
         }
         any
     }
@@ -576,27 +617,34 @@ impl TactileSubDevice {
         let mut touched_al_control = false;
         let mut touched_sii_control = false;
         let mut completed_outputs = None;
-        for (k, &value) in data.iter().enumerate() {
-            let address = start + k as u32;
-            if !Self::present(address) {
+        let end = start + data.len() as u32;
+        let mut address = start;
+        while address < end {
+            let index = (address - start) as usize;
+            if address < PROCESS_MEMORY_START {
+                if Self::present(address) {
+                    if Self::register_writable(address) {
+                        self.memory[address as usize] = data[index];
+                        touched_al_control |= address == REG_AL_CONTROL as u32;
+                        touched_sii_control |= (REG_SII_CONTROL as u32..REG_SII_CONTROL as u32 + 2).contains(&address);
+                    }
+                    any = true;
+                }
+                address += 1;
                 continue;
             }
-            if address >= PROCESS_MEMORY_START {
-                if !self.process_memory_accessible(address, Access::Write) {
-                    continue;
-                }
-                if let Some((_, sm_start, sm_length, true)) = self.sync_manager_at(address)
-                    && address == sm_start + sm_length - 1
+            let (run_end, accessible, sync_manager) = self.process_run(address, end, Access::Write);
+            if accessible {
+                self.memory[address as usize..run_end as usize]
+                    .copy_from_slice(&data[index..(run_end - start) as usize]);
+                if let Some((sm_start, sm_length, true)) = sync_manager
+                    && run_end == sm_start + sm_length
                 {
                     completed_outputs = Some((sm_start, sm_length));
                 }
-                self.memory[address as usize] = value;
-            } else if Self::register_writable(address) {
-                self.memory[address as usize] = value;
-                touched_al_control |= address == REG_AL_CONTROL as u32;
-                touched_sii_control |= (REG_SII_CONTROL as u32..REG_SII_CONTROL as u32 + 2).contains(&address);
+                any = true;
             }
-            any = true;
+            address = run_end;
         }
         if touched_al_control {
             self.al_control(self.memory[REG_AL_CONTROL]);
@@ -811,6 +859,51 @@ mod tests {
         assert_eq!(d.state(), AlState::Op);
         fpwr(&mut d, 0x0120, &[0x05, 0]);
         assert_eq!(d.error(), Some(al_status_code::UNKNOWN_STATE));
+    }
+
+    #[test]
+    fn sync_manager_areas_answer_by_direction_and_state() {
+        let mut d = device(4);
+        fpwr(&mut d, 0x0010, &[0x01, 0x10]);
+        let read = |d: &mut TactileSubDevice, address: u16, len: usize| {
+            let address = 0x1001 | u32::from(address) << 16;
+            let out = run(d, FrameBuilder::new().datagram(Command::Fprd, 0, address, &vec![0xEE; len]));
+            (out[0].data.clone(), out[0].working_counter)
+        };
+        // Plain process memory around the SyncManagers reads and writes.
+        assert_eq!(fpwr(&mut d, 0x1200, &[1, 2, 3]), 1);
+        assert_eq!(read(&mut d, 0x1200, 3), (vec![1, 2, 3], 1));
+        fpwr(&mut d, 0x0810, &[0x00, 0x10, 4, 0, 0x64, 0, 1, 0]);
+        fpwr(&mut d, 0x0818, &[0x00, 0x11, 12, 0, 0x20, 0, 1, 0]);
+        // PRE-OP: the firmware keeps buffered SyncManagers deactivated.
+        fpwr(&mut d, 0x0120, &[2, 0]);
+        assert_eq!(read(&mut d, 0x1100, 12), (vec![0xEE; 12], 0));
+        fpwr(&mut d, 0x0120, &[4, 0]);
+        assert_eq!(d.state(), AlState::SafeOp);
+        // SAFE-OP: inputs read (a fresh sample each time the read starts at
+        // the first byte); the MainDevice may not write them, nor read SM2.
+        let (inputs, wkc) = read(&mut d, 0x1100, 12);
+        assert_eq!(wkc, 1);
+        assert_eq!(&inputs[..4], [0, 0, 0, 0], "not acquiring yet: counter 0, status 0");
+        assert_eq!(fpwr(&mut d, 0x1100, &[9; 12]), 0);
+        assert_eq!(read(&mut d, 0x1000, 4), (vec![0xEE; 4], 0));
+        // A read across SM2, the gap and SM3 gets the bytes it may see.
+        let (bytes, wkc) = read(&mut d, 0x0FFE, 0x110);
+        assert_eq!(wkc, 1);
+        assert_eq!(&bytes[..6], [0, 0, 0xEE, 0xEE, 0xEE, 0xEE]);
+        assert_eq!(&bytes[6..0x102], vec![0; 0xFC].as_slice());
+        // Outputs apply in OP only, when the write reaches SM2's last byte.
+        assert_eq!(fpwr(&mut d, 0x1000, &[1, 0, 0]), 1);
+        assert_eq!(d.command_and_config(), (0, 0));
+        fpwr(&mut d, 0x0120, &[8, 0]);
+        fpwr(&mut d, 0x1003, &[0]);
+        assert_eq!(d.command_and_config(), (1, 0));
+        let (inputs, _) = read(&mut d, 0x1100, 12);
+        assert_eq!(&inputs[..4], [1, 0, 1, 0], "sample 1, acquiring");
+        assert_eq!(u16::from_le_bytes([inputs[6], inputs[7]]), 7 + 1);
+        // A read that does not start at SM3's first byte sees the same sample.
+        assert_eq!(read(&mut d, 0x1102, 2).0, [1, 0]);
+        assert_eq!(d.samples(), 1);
     }
 
     #[test]
