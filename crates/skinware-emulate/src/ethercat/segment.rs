@@ -132,6 +132,14 @@ impl Segment {
     }
 }
 
+/// The segment as the EtherCAT driver's in-process bus: a frame that does
+/// not come back (lost, link down, malformed) is `false`.
+impl skinware_drivers::ethercat::FrameExchange for Segment {
+    fn exchange(&mut self, frame: &mut Vec<u8>) -> bool {
+        matches!(self.process(frame), Ok(Fate::Returned))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
