@@ -180,7 +180,7 @@ fn a_wrong_identity_or_taxel_count_is_refused_with_its_reason() {
 fn segments_show_their_identity_and_state() {
     let mut rig = Rig::start("status", &[24, 36], vec![segment_config(0, 24), segment_config(1, 36)]);
     rig.wait_all(WriterState::Running, Duration::from_secs(10));
-    assert_eq!(rig.status.bus_fault(), None);
+    assert_eq!(rig.status.bus_fault(), None, "{:?}", rig.status.segments());
     for (position, status) in rig.status.segments().into_iter().enumerate() {
         assert_eq!(status.identity, Some([EMULATED_VENDOR_ID, EMULATED_PRODUCT_CODE, 1, position as u32 + 1]));
         assert_eq!(status.name, format!("SKIN-T{}", [24, 36][position]));

@@ -14,7 +14,7 @@
 
 use std::cell::Cell;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -85,6 +85,9 @@ struct SegmentImage {
 /// What the bus thread shares with the layers.
 struct Shared {
     segments: Vec<Mutex<SegmentImage>>,
+    /// One per segment: notified when its image has a new cycle or a new
+    /// fault, or the bus a new fault.
+    news: Vec<Condvar>,
     /// Why the whole bus is down, while it is.
     bus_fault: Mutex<Option<String>>,
 }
@@ -101,8 +104,10 @@ impl Shared {
                 Some(why) => tracing::warn!(error = %why, "EtherCAT bus down"),
                 None => tracing::info!("EtherCAT bus up"),
             }
+            *bus = fault;
+            drop(bus);
+            self.news.iter().for_each(Condvar::notify_all);
         }
-        *bus = fault;
     }
 
     fn set_fault(&self, position: usize, fault: Option<String>) {
@@ -113,6 +118,8 @@ impl Shared {
                 None => tracing::info!(segment = position, "segment running"),
             }
             image.status.fault = fault;
+            drop(image);
+            self.news[position].notify_all();
         }
     }
 }
@@ -145,6 +152,7 @@ impl EthercatDriver {
                     })
                 })
                 .collect(),
+            news: config.segments.iter().map(|_| Condvar::new()).collect(),
             bus_fault: Mutex::new(Some("not started".into())),
         });
         Ok(EthercatDriver { config, link, topologies, shared, stop: Arc::new(AtomicBool::new(false)), thread: None })
@@ -204,7 +212,8 @@ impl Driver for EthercatDriver {
         let stale_after = self.config.period() * STALE_PERIODS;
         Ok((0..self.config.segments.len())
             .map(|position| {
-                Box::new(SegmentLayer { shared: self.shared.clone(), position, stale_after }) as Box<dyn LayerSource>
+                Box::new(SegmentLayer { shared: self.shared.clone(), position, stale_after, last_cycle: 0 })
+                    as Box<dyn LayerSource>
             })
             .collect())
     }
@@ -217,29 +226,41 @@ impl Driver for EthercatDriver {
     }
 }
 
-/// A layer's acquisition: its segment's newest inputs.
+/// A layer's acquisition: its segment's inputs of the next cycle, so that
+/// every frame is a new sample (the writer's ticks and the bus cycles run at
+/// the same rate but not in step).
 struct SegmentLayer {
     shared: Arc<Shared>,
     position: usize,
     stale_after: Duration,
+    /// The bus cycle whose data the last frame carried.
+    last_cycle: u64,
 }
 
 impl LayerSource for SegmentLayer {
     fn acquire(&mut self, frame: &mut FrameWriter<'_>) -> Result<(), DriverError> {
-        if let Some(why) = self.shared.bus_fault.lock().unwrap_or_else(|p| p.into_inner()).as_ref() {
-            return Err(why.clone().into());
+        let deadline = Instant::now() + self.stale_after;
+        let mut image = self.shared.segment(self.position);
+        loop {
+            if let Some(why) = self.shared.bus_fault.lock().unwrap_or_else(|p| p.into_inner()).as_ref() {
+                return Err(why.clone().into());
+            }
+            if let Some(why) = &image.status.fault {
+                return Err(format!("segment {}: {why}", self.position).into());
+            }
+            if image.status.cycles > self.last_cycle && image.acquired_ns != 0 {
+                break;
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                let what = if image.acquired_ns == 0 { "no data yet".to_string() } else { "no new data".to_string() };
+                return Err(
+                    format!("segment {}: {what} within {} ms", self.position, self.stale_after.as_millis()).into()
+                );
+            }
+            image = self.shared.news[self.position].wait_timeout(image, left).unwrap_or_else(|p| p.into_inner()).0;
         }
-        let image = self.shared.segment(self.position);
-        if let Some(why) = &image.status.fault {
-            return Err(format!("segment {}: {why}", self.position).into());
-        }
-        if image.acquired_ns == 0 {
-            return Err(format!("segment {}: no data yet", self.position).into());
-        }
-        let age = skinware::os::monotonic_ns().saturating_sub(image.acquired_ns);
-        if age > self.stale_after.as_nanos() as u64 {
-            return Err(format!("segment {}: no new data for {} ms", self.position, age / 1_000_000).into());
-        }
+        self.last_cycle = image.status.cycles;
         frame.write_responses(0, &image.values)?;
         frame.set_acquired_ns(image.acquired_ns);
         Ok(())
@@ -424,6 +445,7 @@ impl Bus {
                     image.status.counter = counter;
                 }
                 self.shared.set_fault(position, fault);
+                self.shared.news[position].notify_all();
             }
             if lost == groups.len() {
                 let since = *every_frame_lost_since.get_or_insert_with(Instant::now);

@@ -35,6 +35,9 @@ pub enum InterfaceError {
     },
 }
 
+/// Sees each frame as it came in and, if answered, as it went back.
+pub type FrameObserver<'a> = dyn FnMut(&[u8], Option<&[u8]>) + 'a;
+
 /// What the segment did on the interface.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct InterfaceStats {
@@ -52,7 +55,7 @@ pub fn serve_interface(
     segment: &Mutex<Segment>,
     interface: &str,
     stop: &dyn Fn() -> bool,
-    mut on_frame: Option<&mut dyn FnMut(&[u8], Option<&[u8]>)>,
+    mut on_frame: Option<&mut FrameObserver<'_>>,
 ) -> Result<InterfaceStats, InterfaceError> {
     let socket_error = |source| InterfaceError::Socket { name: interface.to_string(), source };
     let mut stats = InterfaceStats::default();
@@ -112,10 +115,9 @@ pub fn serve_interface(
                 on_frame(received, answered.then_some(frame.as_slice()));
             }
             if answered {
-                match tx.send_to(&frame, None) {
-                    Some(Ok(())) => stats.answered += 1,
-                    // The answer is lost with the link, as on a cable.
-                    Some(Err(_)) | None => {}
+                // An answer that cannot go is lost with the link, as on a cable.
+                if let Some(Ok(())) = tx.send_to(&frame, None) {
+                    stats.answered += 1;
                 }
             }
         }

@@ -34,7 +34,7 @@ pub mod tactile;
 mod wire;
 
 pub use esc::{AlState, ConfigError, LeaveOp, SubDeviceFaults, TactileConfig, TactileSubDevice, al_status_code};
-pub use interface::{InterfaceError, InterfaceStats, serve_interface};
+pub use interface::{FrameObserver, InterfaceError, InterfaceStats, serve_interface};
 pub use segment::{Fate, Segment, SegmentFaults, SegmentStats};
 pub use sii::{Identity, RXPDO_INDEX, TAXELS_PER_PDO, TXPDO_HEADER_INDEX, TXPDO_TAXELS_INDEX, checksum, tactile_image};
 pub use tactile::TaxelSource;
