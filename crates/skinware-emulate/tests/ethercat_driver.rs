@@ -259,3 +259,42 @@ fn detection_ms(reader: &mut Reader, within: Duration) -> f64 {
     let last_good = reader.latest().map(|f| f.published_ns()).unwrap_or(seen);
     (seen - last_good) as f64 / 1e6
 }
+
+/// `skin emulate ethercat`'s segments, whose taxels feel the virtual body,
+/// through the driver: every response is a virtual-skin response (about
+/// BASELINE untouched), not a blank.
+#[test]
+fn the_emulated_skin_reaches_readers_with_the_virtual_bodys_responses() {
+    let emulation = skinware_emulate::ethercat::EthercatEmulation {
+        segments: 2,
+        taxels: 60,
+        interface: String::new(),
+        seed: 7,
+        faults: Default::default(),
+        fifo_priority: None,
+    };
+    let segment = Arc::new(Mutex::new(emulation.segment().unwrap()));
+    let bus: Arc<Mutex<dyn FrameExchange>> = segment.clone();
+    let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-{}-body", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = EthercatDriverConfig {
+        name: "body".into(),
+        segments: vec![segment_config(0, 60), segment_config(1, 60)],
+        rate_hz: RATE_HZ,
+        frame_timeout: Some(Duration::from_millis(50)),
+        rt: Default::default(),
+    };
+    let driver = EthercatDriver::new(config, FrameLink::InProcess(bus)).unwrap();
+    let options = HandlerOptions { dir: Some(dir.clone()), ..HandlerOptions::default() };
+    let handler = DriverHandler::start("body", Box::new(driver), &options).unwrap();
+    for layer in ["seg0", "seg1"] {
+        let mut reader =
+            Reader::open_with("body", layer, &ReaderOptions { dir: Some(dir.clone()), ..Default::default() }).unwrap();
+        wait_for(&mut reader, WriterState::Running, Duration::from_secs(10));
+        let frame = reader.wait_newer(Duration::from_secs(1)).unwrap();
+        let baseline = skinware_drivers::virtual_skin::BASELINE;
+        assert!(frame.responses().iter().all(|&r| r >= baseline / 2), "{layer}: {:?}", frame.responses());
+    }
+    handler.stop();
+    let _ = std::fs::remove_dir_all(&dir);
+}

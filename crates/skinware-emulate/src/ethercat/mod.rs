@@ -26,6 +26,7 @@
 //! assert_eq!(datagrams(&frame).unwrap()[0].working_counter, 1);
 //! ```
 
+mod emulation;
 mod esc;
 mod interface;
 mod segment;
@@ -33,6 +34,7 @@ mod sii;
 pub mod tactile;
 mod wire;
 
+pub use emulation::{EmulationError, EmulationFaults, EthercatEmulation};
 pub use esc::{AlState, ConfigError, LeaveOp, SubDeviceFaults, TactileConfig, TactileSubDevice, al_status_code};
 pub use interface::{FrameObserver, InterfaceError, InterfaceStats, serve_interface};
 pub use segment::{Fate, Segment, SegmentFaults, SegmentStats};
