@@ -211,3 +211,124 @@ fn driver_and_segments_over_veth() {
     assert_eq!(stats.frames, *frames.lock().unwrap());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The golden capture: a veth run of one 12-taxel segment, bring-up and
+/// cycles, recorded on the segment's end (regenerate it by running
+/// `the_veth_run_is_captured_and_replays_through_the_model` with
+/// `SKINWARE_ETHERCAT_CAPTURE` set to this path).
+const GOLDEN: &str = "tests/data/ethercat-veth-1x12.pcapng";
+
+/// Replays a capture through a fresh segment: it must answer every request
+/// byte for byte as captured. Returns (requests, process-data requests).
+fn replay_capture(path: &std::path::Path) -> (usize, usize) {
+    let capture = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let frames = skinware_emulate::ethercat::pcapng::read_frames(&capture).unwrap();
+    let requests = skinware_emulate::ethercat::pcapng::replay(&frames, &mut emulated(&[12]))
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    // LRW (command 0x0C) as the first datagram: a cycle's process data.
+    let cycles = frames.iter().filter(|f| f.len() > 16 && f[6] & 0x02 == 0 && f[16] == 0x0C).count();
+    (requests, cycles)
+}
+
+#[test]
+fn golden_capture_replays_through_the_model() {
+    let (requests, cycles) = replay_capture(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(GOLDEN));
+    println!("golden capture: {requests} requests answered as captured, {cycles} of them process data");
+    assert!(requests > 100 && cycles >= 50, "{requests} requests, {cycles} cycles");
+}
+
+/// The golden capture reads the same with pcap-file (what ethercrab's own
+/// replay tests use) as with our reader: what we write is pcapng.
+#[test]
+fn golden_capture_is_pcapng_to_an_independent_reader() {
+    let bytes = std::fs::read(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(GOLDEN)).unwrap();
+    let ours = skinware_emulate::ethercat::pcapng::read_frames(&bytes).unwrap();
+    let mut reader = pcap_file::pcapng::PcapNgReader::new(&bytes[..]).unwrap();
+    let mut theirs = Vec::new();
+    let mut interfaces = 0;
+    while let Some(block) = reader.next_block() {
+        match block.unwrap() {
+            pcap_file::pcapng::Block::EnhancedPacket(packet) => theirs.push(packet.data.to_vec()),
+            pcap_file::pcapng::Block::InterfaceDescription(interface) => {
+                assert_eq!(interface.linktype, pcap_file::DataLink::ETHERNET);
+                interfaces += 1;
+            }
+            other => panic!("unexpected block {other:?}"),
+        }
+    }
+    assert_eq!(interfaces, 1);
+    assert_eq!(theirs, ours);
+}
+
+#[test]
+fn the_veth_run_is_captured_and_replays_through_the_model() {
+    if !in_own_namespace("the_veth_run_is_captured_and_replays_through_the_model") {
+        return;
+    }
+    let veth = ip(&["link", "add", DRIVER_END, "type", "veth", "peer", "name", SEGMENT_END])
+        .and_then(|()| ip(&["link", "set", DRIVER_END, "up"]))
+        .and_then(|()| ip(&["link", "set", SEGMENT_END, "up"]));
+    if let Err(why) = veth {
+        println!("skipped: no veth pair: {why}");
+        return;
+    }
+    let path = std::env::var_os("SKINWARE_ETHERCAT_CAPTURE")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| std::env::temp_dir().join(format!("skinware-ethercat-{}.pcapng", std::process::id())));
+    let segment = Arc::new(Mutex::new(emulated(&[12])));
+    let stop = Arc::new(AtomicBool::new(false));
+    let emulator = {
+        let (segment, stop, path) = (segment.clone(), stop.clone(), path.clone());
+        std::thread::spawn(move || {
+            let file = std::io::BufWriter::new(std::fs::File::create(&path).unwrap());
+            let mut capture = skinware_emulate::ethercat::pcapng::PcapngWriter::new(file).unwrap();
+            let started = Instant::now();
+            let mut record = |request: &[u8], answer: Option<&[u8]>| {
+                let at = started.elapsed().as_nanos() as u64;
+                capture.write_frame(at, request).unwrap();
+                if let Some(answer) = answer {
+                    capture.write_frame(at, answer).unwrap();
+                }
+            };
+            let stats = serve_interface(&segment, SEGMENT_END, &|| stop.load(Ordering::Relaxed), Some(&mut record));
+            capture.finish().unwrap();
+            stats
+        })
+    };
+    let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-capture-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = EthercatDriverConfig {
+        name: "ecat".into(),
+        segments: vec![SegmentConfig {
+            layer: "seg0".into(),
+            vendor_id: EMULATED_VENDOR_ID,
+            product_code: EMULATED_PRODUCT_CODE,
+            taxels: 12,
+            modules: vec![12],
+            patch: 1,
+            baseline: false,
+        }],
+        rate_hz: 200.0,
+        frame_timeout: Some(Duration::from_millis(20)),
+        rt: Default::default(),
+    };
+    let driver = EthercatDriver::new(config, FrameLink::Interface(DRIVER_END.into())).unwrap();
+    let options = HandlerOptions { dir: Some(dir.clone()), ..HandlerOptions::default() };
+    let handler = DriverHandler::start("ecat", Box::new(driver), &options).unwrap();
+    let mut reader =
+        Reader::open_with("ecat", "seg0", &ReaderOptions { dir: Some(dir.clone()), ..Default::default() }).unwrap();
+    wait_for(&mut reader, WriterState::Running, Duration::from_secs(10));
+    for _ in 0..60 {
+        reader.wait_newer(Duration::from_secs(1)).unwrap();
+    }
+    handler.stop();
+    stop.store(true, Ordering::Relaxed);
+    emulator.join().unwrap().unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    let (requests, cycles) = replay_capture(&path);
+    println!(
+        "veth capture {}: {requests} requests answered as captured, {cycles} of them process data",
+        path.display()
+    );
+    assert!(cycles >= 50, "{cycles} cycles captured");
+}

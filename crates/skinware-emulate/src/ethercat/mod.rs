@@ -29,6 +29,7 @@
 mod emulation;
 mod esc;
 mod interface;
+pub mod pcapng;
 mod segment;
 mod sii;
 pub mod tactile;
