@@ -204,8 +204,22 @@ pub fn run_configured(config_path: &std::path::Path, name: &str) -> Result<()> {
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(signal, stop.clone()).context("cannot install signal handlers")?;
     }
-    emulation
-        .run(|url| tracing::info!(emulator = name, %url, "emulated boards ready"), &|| stop.load(Ordering::Relaxed))
-        .with_context(|| format!("emulator {name} failed"))?;
+    match emulation {
+        skin::config::Emulation::Mtb(emulation) => {
+            emulation
+                .run(|url| tracing::info!(emulator = name, %url, "emulated boards ready"), &|| {
+                    stop.load(Ordering::Relaxed)
+                })
+                .with_context(|| format!("emulator {name} failed"))?;
+        }
+        skin::config::Emulation::Ethercat(emulation) => {
+            emulation
+                .run(
+                    |interface| tracing::info!(emulator = name, %interface, "emulated EtherCAT segments answering"),
+                    &|| stop.load(Ordering::Relaxed),
+                )
+                .with_context(|| format!("emulator {name} failed"))?;
+        }
+    }
     Ok(())
 }

@@ -239,6 +239,29 @@ fn emulators_are_checked() {
 }
 
 #[test]
+fn ethercat_emulators_are_checked() {
+    let emulator = "[[emulator]]\nname = \"segs\"\nkind = \"ethercat\"\ninterface = \"ecat-b\"\nsegments = 2\n";
+    let config = load(&format!("{emulator}{ETHERCAT}")).unwrap();
+    match config.emulators[0].emulation() {
+        super::Emulation::Ethercat(e) => assert_eq!((e.segments, e.taxels, e.interface.as_str()), (2, 708, "ecat-b")),
+        super::Emulation::Mtb(_) => panic!("an EtherCAT table built MTB boards"),
+    }
+    for (from, to, problem) in [
+        ("interface = \"ecat-b\"\n", "", "needs `interface`"),
+        ("segments = 2", "segments = 17", "1 to 16"),
+        ("segments = 2", "segments = 2\nfault_segment = 2", "0 to 1"),
+        ("segments = 2", "segments = 2\nboards = 2", "setting of kind = \"icub-mtb\""),
+        ("segments = 2", "segments = 2\nleave_op_after_s = -1", "0 or more seconds"),
+    ] {
+        let err = load(&format!("{}{ETHERCAT}", emulator.replace(from, to))).unwrap_err();
+        assert!(format!("{err:#}").contains(problem), "{from} -> {to}: {err:#}");
+    }
+    let mtb = "[[emulator]]\nname = \"bus0\"\nkind = \"icub-mtb\"\nlink = \"/tmp/x\"\ntaxels = 5\n";
+    let err = load(&format!("{mtb}{CAN}")).unwrap_err();
+    assert!(format!("{err:#}").contains("setting of kind = \"ethercat\""), "{err:#}");
+}
+
+#[test]
 fn replay_drivers_are_checked_without_reading_their_file() {
     let base = "[[driver]]\nname = \"r\"\nkind = \"replay\"\n";
     let message = |text: &str| format!("{:#}", load(text).unwrap_err());

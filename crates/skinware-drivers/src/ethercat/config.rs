@@ -36,8 +36,10 @@ pub struct EthercatDriverConfig {
     pub segments: Vec<SegmentConfig>,
     /// Cycles (and frames per layer) per second.
     pub rate_hz: f64,
-    /// How long a frame may take to come back before it counts as lost;
-    /// `None`: one period, at least 1 ms.
+    /// How long a frame may take to come back before it counts as lost
+    /// (and how long each step of the bring-up may take); `None`: 2 periods,
+    /// at least 10 ms. A lost frame stalls only its own segment's cycles,
+    /// and its layer faults after 2 periods without new data whatever this is.
     pub frame_timeout: Option<Duration>,
     /// Real-time settings of the writer threads and of the bus thread.
     pub rt: RtOptions,
@@ -86,7 +88,7 @@ impl EthercatDriverConfig {
 
     /// How long a frame may take before it counts as lost.
     pub fn frame_timeout(&self) -> Duration {
-        self.frame_timeout.unwrap_or_else(|| self.period().max(Duration::from_millis(1)))
+        self.frame_timeout.unwrap_or_else(|| (self.period() * 2).max(Duration::from_millis(10)))
     }
 
     /// The topology of segment `position`'s layer: one patch, its modules,

@@ -13,8 +13,11 @@
 //!   scratch, with backoff.
 
 use std::cell::Cell;
+use std::future::Future;
+use std::pin::Pin;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
+use std::task::Poll;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -239,7 +242,7 @@ struct SegmentLayer {
 
 impl LayerSource for SegmentLayer {
     fn acquire(&mut self, frame: &mut FrameWriter<'_>) -> Result<(), DriverError> {
-        let deadline = Instant::now() + self.stale_after;
+        let started = Instant::now();
         let mut image = self.shared.segment(self.position);
         loop {
             if let Some(why) = self.shared.bus_fault.lock().unwrap_or_else(|p| p.into_inner()).as_ref() {
@@ -251,7 +254,15 @@ impl LayerSource for SegmentLayer {
             if image.status.cycles > self.last_cycle && image.acquired_ns != 0 {
                 break;
             }
-            let left = deadline.saturating_duration_since(Instant::now());
+            // The layer fails once its newest data is 2 periods old (from
+            // when this acquisition started if there is none yet), not 2
+            // periods after this acquisition began waiting.
+            let left = if image.acquired_ns == 0 {
+                self.stale_after.saturating_sub(started.elapsed())
+            } else {
+                let age = skinware::os::monotonic_ns().saturating_sub(image.acquired_ns);
+                Duration::from_nanos((self.stale_after.as_nanos() as u64).saturating_sub(age))
+            };
             if left.is_zero() {
                 let what = if image.acquired_ns == 0 { "no data yet".to_string() } else { "no new data".to_string() };
                 return Err(
@@ -341,122 +352,97 @@ impl Bus {
         })
     }
 
-    /// Brings the bus up, then cycles.
+    /// Brings the bus up, then cycles each segment in a loop of its own (all
+    /// on this thread), so that a segment's lost frame stalls only its own
+    /// cycles; a watcher ends the session when no segment answers any more.
     async fn control(&self, maindevice: &MainDevice<'_>, io_ended: &AtomicBool) -> Result<(), String> {
         let groups = self.bring_up(maindevice).await?;
         self.shared.set_bus_fault(None);
-        let segments = &self.config.segments;
-        let expected: Vec<u16> =
-            segments.iter().map(|s| expected_working_counter(s.taxels, FRAME_PROCESS_DATA)).collect();
+        let answered: Vec<Cell<Instant>> = groups.iter().map(|_| Cell::new(Instant::now())).collect();
+        let mut tasks: Vec<Task<'_>> = groups
+            .iter()
+            .enumerate()
+            .map(|(position, group)| {
+                Box::pin(self.cycle_segment(maindevice, position, group, &answered[position])) as Pin<Box<_>>
+            })
+            .collect();
+        tasks.push(Box::pin(self.watch_link(io_ended, &answered)));
+        first_error(tasks).await
+    }
+
+    /// The cycles of one segment until stopped: outputs out, inputs in, its
+    /// faults judged; `answered` is when its frame last came back.
+    async fn cycle_segment(
+        &self,
+        maindevice: &MainDevice<'_>,
+        position: usize,
+        group: &OpGroup,
+        answered: &Cell<Instant>,
+    ) -> Result<(), String> {
+        let segment = &self.config.segments[position];
+        let expected = expected_working_counter(segment.taxels, FRAME_PROCESS_DATA);
         let period = self.config.period();
-        let link_down_after = (period * LINK_DOWN_PERIODS).max(LINK_DOWN_MIN);
-        let mut every_frame_lost_since: Option<Instant> = None;
-        let mut acknowledged_at: Vec<Option<Instant>> = vec![None; groups.len()];
-        let mut last_state = vec![SubDeviceState::Op; groups.len()];
+        let mut acknowledged_at: Option<Instant> = None;
+        let mut last_state = SubDeviceState::Op;
         let mut next = Instant::now();
+        let subdevice = group.subdevice(maindevice, 0).map_err(|e| format!("segment {position}: {e}"))?;
         loop {
             if self.stop.load(Ordering::Relaxed) {
-                self.farewell(maindevice, &groups).await;
+                // Farewell: stop acquiring, and back to INIT.
+                subdevice.outputs_raw_mut()[..2].copy_from_slice(&0u16.to_le_bytes());
+                let _ = group.tx_rx(maindevice).await;
+                let _ = subdevice.register_write(0x0120u16, 0x0001u16).await;
                 return Ok(());
             }
-            if io_ended.load(Ordering::Acquire) {
-                return Err("the frame I/O ended".into());
+            {
+                let mut outputs = subdevice.outputs_raw_mut();
+                let config = if segment.baseline { CONFIG_BASELINE } else { 0 };
+                outputs[..2].copy_from_slice(&COMMAND_ACQUIRE.to_le_bytes());
+                outputs[2..4].copy_from_slice(&config.to_le_bytes());
             }
-            let mut lost = 0;
-            for (position, group) in groups.iter().enumerate() {
-                let Ok(subdevice) = group.subdevice(maindevice, 0) else { continue };
-                {
-                    let segment = &segments[position];
-                    let mut outputs = subdevice.outputs_raw_mut();
-                    let config = if segment.baseline { CONFIG_BASELINE } else { 0 };
-                    outputs[..2].copy_from_slice(&COMMAND_ACQUIRE.to_le_bytes());
-                    outputs[2..4].copy_from_slice(&config.to_le_bytes());
+            let response = group.tx_rx(maindevice).await;
+            let now_ns = skinware::os::monotonic_ns();
+            match response {
+                Err(EthercrabError::Timeout(_)) => {
+                    let timeout = self.config.frame_timeout().as_secs_f64() * 1e3;
+                    self.shared.set_fault(position, Some(format!("frame lost (no answer in {timeout:.1} ms)")));
                 }
-                let response = group.tx_rx(maindevice).await;
-                let now_ns = skinware::os::monotonic_ns();
-                let response = match response {
-                    Ok(response) => response,
-                    Err(EthercrabError::Timeout(_)) => {
-                        lost += 1;
-                        let timeout = self.config.frame_timeout().as_secs_f64() * 1e3;
-                        self.shared.set_fault(position, Some(format!("frame lost (no answer in {timeout:.1} ms)")));
-                        continue;
+                Err(e) => self.shared.set_fault(position, Some(format!("process data exchange failed: {e}"))),
+                Ok(response) => {
+                    answered.set(Instant::now());
+                    let state = response.subdevice_states.first().copied().unwrap_or(SubDeviceState::None);
+                    if state != last_state {
+                        // Only on a change: the cycle allocates nothing otherwise.
+                        last_state = state;
+                        self.shared.segment(position).status.state = state_name(state);
                     }
-                    Err(e) => {
-                        self.shared.set_fault(position, Some(format!("process data exchange failed: {e}")));
-                        continue;
-                    }
-                };
-                let state = response.subdevice_states.first().copied().unwrap_or(SubDeviceState::None);
-                if state != last_state[position] {
-                    // Only on a change: the cycle allocates nothing otherwise.
-                    last_state[position] = state;
-                    self.shared.segment(position).status.state = state_name(state);
-                }
-                if state != SubDeviceState::Op {
-                    self.shared.set_fault(position, Some(format!("in {} instead of OP", state_name(state))));
-                    match state {
-                        SubDeviceState::SafeOp => {
-                            let due = acknowledged_at[position].is_none_or(|at| at.elapsed() >= ACKNOWLEDGE_EVERY);
-                            if due {
-                                acknowledged_at[position] = Some(Instant::now());
-                                // OP, with the error acknowledged (bit 4).
-                                let _ = subdevice.register_write(0x0120u16, 0x0018u16).await;
-                            }
+                    if state == SubDeviceState::Op {
+                        if response.working_counter == expected {
+                            self.take_inputs(position, &subdevice.inputs_raw(), now_ns);
+                        } else {
+                            self.shared.set_fault(
+                                position,
+                                Some(format!(
+                                    "working counter {} instead of {expected}: the segment did not exchange its process data",
+                                    response.working_counter
+                                )),
+                            );
                         }
-                        _ => {
+                    } else {
+                        self.shared.set_fault(position, Some(format!("in {} instead of OP", state_name(state))));
+                        if state != SubDeviceState::SafeOp {
                             return Err(format!(
                                 "segment {position} fell back to {}: configuring the bus again",
                                 state_name(state)
                             ));
                         }
-                    }
-                    continue;
-                }
-                if response.working_counter != expected[position] {
-                    self.shared.set_fault(
-                        position,
-                        Some(format!(
-                            "working counter {} instead of {}: the segment did not exchange its process data",
-                            response.working_counter, expected[position]
-                        )),
-                    );
-                    continue;
-                }
-                let inputs = subdevice.inputs_raw();
-                let word = |k: usize| u16::from_le_bytes([inputs[2 * k], inputs[2 * k + 1]]);
-                let (counter, status) = (word(0), word(1));
-                let fault = if status & STATUS_UNKNOWN_COMMAND != 0 {
-                    Some(format!("the segment refused its command (status {status:#06x})"))
-                } else if status & STATUS_ACQUIRING == 0 {
-                    Some("the segment is not acquiring (yet)".to_string())
-                } else {
-                    None
-                };
-                {
-                    let mut image = self.shared.segment(position);
-                    if fault.is_none() {
-                        for (k, value) in image.values.iter_mut().enumerate() {
-                            *value = word(2 + k);
+                        if acknowledged_at.is_none_or(|at| at.elapsed() >= ACKNOWLEDGE_EVERY) {
+                            acknowledged_at = Some(Instant::now());
+                            // OP, with the error acknowledged (bit 4).
+                            let _ = subdevice.register_write(0x0120u16, 0x0018u16).await;
                         }
-                        image.acquired_ns = now_ns;
-                        image.status.cycles += 1;
                     }
-                    image.status.counter = counter;
                 }
-                self.shared.set_fault(position, fault);
-                self.shared.news[position].notify_all();
-            }
-            if lost == groups.len() {
-                let since = *every_frame_lost_since.get_or_insert_with(Instant::now);
-                if since.elapsed() >= link_down_after {
-                    return Err(format!(
-                        "no frame came back for {} ms: link down or cable pulled",
-                        since.elapsed().as_millis()
-                    ));
-                }
-            } else {
-                every_frame_lost_since = None;
             }
             next += period;
             let now = Instant::now();
@@ -465,6 +451,53 @@ impl Bus {
                 next = now;
             }
             async_io::Timer::at(next).await;
+        }
+    }
+
+    /// Takes one cycle's inputs of segment `position` into its image, or
+    /// faults it if the segment says they are not good.
+    fn take_inputs(&self, position: usize, inputs: &[u8], now_ns: u64) {
+        let word = |k: usize| u16::from_le_bytes([inputs[2 * k], inputs[2 * k + 1]]);
+        let (counter, status) = (word(0), word(1));
+        let fault = if status & STATUS_UNKNOWN_COMMAND != 0 {
+            Some(format!("the segment refused its command (status {status:#06x})"))
+        } else if status & STATUS_ACQUIRING == 0 {
+            Some("the segment is not acquiring (yet)".to_string())
+        } else {
+            None
+        };
+        {
+            let mut image = self.shared.segment(position);
+            if fault.is_none() {
+                for (k, value) in image.values.iter_mut().enumerate() {
+                    *value = word(2 + k);
+                }
+                image.acquired_ns = now_ns;
+                image.status.cycles += 1;
+            }
+            image.status.counter = counter;
+        }
+        self.shared.set_fault(position, fault);
+        self.shared.news[position].notify_all();
+    }
+
+    /// Ends the session when no segment has answered for a while (a pulled
+    /// cable) or the frame I/O ended.
+    async fn watch_link(&self, io_ended: &AtomicBool, answered: &[Cell<Instant>]) -> Result<(), String> {
+        let period = self.config.period();
+        let link_down_after = (period * LINK_DOWN_PERIODS).max(LINK_DOWN_MIN).max(self.config.frame_timeout() * 2);
+        loop {
+            if self.stop.load(Ordering::Relaxed) {
+                return Ok(());
+            }
+            if io_ended.load(Ordering::Acquire) {
+                return Err("the frame I/O ended".into());
+            }
+            let quiet = answered.iter().map(|at| at.get().elapsed()).min().unwrap_or_default();
+            if quiet >= link_down_after {
+                return Err(format!("no frame came back for {} ms: link down or cable pulled", quiet.as_millis()));
+            }
+            async_io::Timer::after(period.max(Duration::from_millis(1))).await;
         }
     }
 
@@ -549,17 +582,6 @@ impl Bus {
         }
         Ok(operational)
     }
-
-    /// On stop: tell the segments to stop acquiring, and send them to INIT.
-    async fn farewell(&self, maindevice: &MainDevice<'_>, groups: &[OpGroup]) {
-        for group in groups {
-            if let Ok(subdevice) = group.subdevice(maindevice, 0) {
-                subdevice.outputs_raw_mut()[..2].copy_from_slice(&0u16.to_le_bytes());
-                let _ = group.tx_rx(maindevice).await;
-                let _ = subdevice.register_write(0x0120u16, 0x0001u16).await;
-            }
-        }
-    }
 }
 
 fn state_name(state: SubDeviceState) -> String {
@@ -572,4 +594,27 @@ fn state_name(state: SubDeviceState) -> String {
         SubDeviceState::None => "no state".into(),
         SubDeviceState::Other(code) => format!("state {code:#04x}"),
     }
+}
+
+/// One of the bus thread's concurrent loops.
+type Task<'a> = Pin<Box<dyn Future<Output = Result<(), String>> + 'a>>;
+
+/// Runs `tasks` together; ends with the first error, or when all are done.
+async fn first_error(mut tasks: Vec<Task<'_>>) -> Result<(), String> {
+    let mut done = vec![false; tasks.len()];
+    std::future::poll_fn(|context| {
+        let mut pending = false;
+        for (task, done) in tasks.iter_mut().zip(done.iter_mut()) {
+            if *done {
+                continue;
+            }
+            match task.as_mut().poll(context) {
+                Poll::Ready(Err(e)) => return Poll::Ready(Err(e)),
+                Poll::Ready(Ok(())) => *done = true,
+                Poll::Pending => pending = true,
+            }
+        }
+        if pending { Poll::Pending } else { Poll::Ready(Ok(())) }
+    })
+    .await
 }
