@@ -7,10 +7,14 @@
 //!
 //! * [`can`]: CAN frames and the codecs of the transports real skins use
 //!   (SLCAN, cannelloni, `candump` logs).
+//!
+//! * [`ethercat`]: tactile segments on EtherCAT, one SubDevice each, through
+//!   the ethercrab MainDevice.
 
 #![forbid(unsafe_code)]
 
 pub mod can;
+pub mod ethercat;
 pub mod virtual_skin;
 
 pub use virtual_skin::{

@@ -9,11 +9,14 @@
 //!   error nibble, silence after a while);
 //! * [`run_mtb`]: boards on a link until stopped, optionally logging what
 //!   they sent in `candump -l` format;
-//! * [`MtbEmulation`]: all of it as `skin emulate` runs it.
+//! * [`MtbEmulation`]: all of it as `skin emulate` runs it;
+//! * [`ethercat`]: EtherCAT tactile segments (an ESC model per segment) that
+//!   answer raw EtherCAT frames, with fault switches.
 
 #![forbid(unsafe_code)]
 
 mod emulation;
+pub mod ethercat;
 mod mtb;
 mod slcan_device;
 

@@ -14,6 +14,45 @@ use skinware_emulate::{MtbEmulation, MtbFaults, Transport};
 pub enum Which {
     /// iCub MTB skin boards: B boards of T triangles (12 taxels each).
     IcubMtb(MtbArgs),
+    /// EtherCAT tactile segments (one SubDevice each) answering raw frames on
+    /// a network interface (needs CAP_NET_RAW, or a network namespace of
+    /// one's own: `unshare -rn`).
+    Ethercat(EthercatArgs),
+}
+
+/// Options of `skin emulate ethercat`.
+#[derive(clap::Args)]
+pub struct EthercatArgs {
+    /// The network interface to answer on (one end of a veth pair, say).
+    #[arg(long)]
+    interface: String,
+    /// Segments (SubDevices) in the line.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=16))]
+    segments: u16,
+    /// Taxels per segment.
+    #[arg(long, default_value_t = 708, value_parser = clap::value_parser!(u16).range(1..=2048))]
+    taxels: u16,
+    /// Fault: lose every Nth frame.
+    #[arg(long)]
+    drop_every: Option<std::num::NonZeroU64>,
+    /// The segment the per-segment faults hit (from 0).
+    #[arg(long, default_value_t = 0)]
+    fault_segment: usize,
+    /// Fault: that segment leaves the process data's working counter alone.
+    #[arg(long)]
+    wrong_wkc: bool,
+    /// Fault: that segment drops out of OP this many seconds after entering it.
+    #[arg(long)]
+    leave_op_after: Option<f64>,
+    /// Fault: every segment stops answering (a pulled cable) this many seconds after the start.
+    #[arg(long)]
+    link_down_after: Option<f64>,
+    /// Seed of the virtual body's moving contacts.
+    #[arg(long, default_value_t = 7)]
+    seed: u64,
+    /// SCHED_FIFO priority of the emulator's thread.
+    #[arg(long, default_value = "70")]
+    fifo_priority: Option<u8>,
 }
 
 /// Options of `skin emulate icub-mtb`.
@@ -63,7 +102,10 @@ pub struct MtbArgs {
 /// Runs `skin emulate`: prints the URL a host opens on the first line of
 /// stdout, then streams until SIGINT or SIGTERM.
 pub fn run(which: &Which) -> Result<()> {
-    let Which::IcubMtb(args) = which;
+    let args = match which {
+        Which::IcubMtb(args) => args,
+        Which::Ethercat(args) => return run_ethercat(args),
+    };
     if args.boards == 0 || args.boards > 15 || args.triangles == 0 || args.triangles > 16 {
         bail!("--boards must be 1 to 15 and --triangles 1 to 16 (an MTB bus addresses 15 boards of 16 triangles)");
     }
@@ -109,6 +151,49 @@ pub fn run(which: &Which) -> Result<()> {
     Ok(())
 }
 
+/// Runs `skin emulate ethercat`: prints the interface on the first line of
+/// stdout once it answers, then answers until SIGINT or SIGTERM.
+fn run_ethercat(args: &EthercatArgs) -> Result<()> {
+    let seconds = |name: &str, value: Option<f64>| -> Result<Option<Duration>> {
+        match value {
+            None => Ok(None),
+            Some(s) if s.is_finite() && s >= 0.0 => Ok(Some(Duration::from_secs_f64(s))),
+            Some(s) => bail!("--{name} {s}: give a number of seconds, 0 or more"),
+        }
+    };
+    let emulation = skinware_emulate::ethercat::EthercatEmulation {
+        segments: usize::from(args.segments),
+        taxels: usize::from(args.taxels),
+        interface: args.interface.clone(),
+        seed: args.seed,
+        faults: skinware_emulate::ethercat::EmulationFaults {
+            drop_every_nth_frame: args.drop_every,
+            segment: args.fault_segment,
+            wrong_working_counter: args.wrong_wkc,
+            leave_op_after: seconds("leave-op-after", args.leave_op_after)?,
+            link_down_after: seconds("link-down-after", args.link_down_after)?,
+        },
+        fifo_priority: args.fifo_priority,
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, stop.clone()).context("cannot install signal handlers")?;
+    }
+    let stats = emulation
+        .run(
+            |interface| {
+                println!("{interface}");
+                use std::io::Write;
+                let _ = std::io::stdout().flush();
+                tracing::info!(%interface, segments = args.segments, taxels = args.taxels, "emulated EtherCAT segments answering");
+            },
+            &|| stop.load(Ordering::Relaxed),
+        )
+        .context("the emulated EtherCAT segments failed")?;
+    tracing::info!(frames = stats.frames, answered = stats.answered, "emulated EtherCAT segments stopped");
+    Ok(())
+}
+
 /// Runs the `[[emulator]]` table `name` of a configuration (what `skin run`
 /// starts for it), until SIGINT, SIGTERM or the supervisor's death.
 pub fn run_configured(config_path: &std::path::Path, name: &str) -> Result<()> {
@@ -119,8 +204,22 @@ pub fn run_configured(config_path: &std::path::Path, name: &str) -> Result<()> {
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(signal, stop.clone()).context("cannot install signal handlers")?;
     }
-    emulation
-        .run(|url| tracing::info!(emulator = name, %url, "emulated boards ready"), &|| stop.load(Ordering::Relaxed))
-        .with_context(|| format!("emulator {name} failed"))?;
+    match emulation {
+        skin::config::Emulation::Mtb(emulation) => {
+            emulation
+                .run(|url| tracing::info!(emulator = name, %url, "emulated boards ready"), &|| {
+                    stop.load(Ordering::Relaxed)
+                })
+                .with_context(|| format!("emulator {name} failed"))?;
+        }
+        skin::config::Emulation::Ethercat(emulation) => {
+            emulation
+                .run(
+                    |interface| tracing::info!(emulator = name, %interface, "emulated EtherCAT segments answering"),
+                    &|| stop.load(Ordering::Relaxed),
+                )
+                .with_context(|| format!("emulator {name} failed"))?;
+        }
+    }
     Ok(())
 }

@@ -1,13 +1,14 @@
-//! `[[driver]]` tables: the virtual skin's and the CAN driver's parameters,
-//! and the driver they build.
+//! `[[driver]]` tables: the virtual skin's, the CAN driver's and the EtherCAT
+//! driver's parameters, and the driver they build.
 
 use std::path::PathBuf;
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use serde::Deserialize;
 use skinware::driver::{Driver, LayerSpec};
 use skinware_drivers::can::driver::{CanDriver, CanDriverConfig, Protocol};
 use skinware_drivers::can::icub_mtb::{Board, BoardSettings};
+use skinware_drivers::ethercat::{EthercatDriver, EthercatDriverConfig, FrameLink, SegmentConfig};
 use skinware_drivers::{CablePull, Rate, ScriptedContact, VirtualSkin, VirtualSkinConfig};
 use skinware_geometry::{Calibration, SensorCalibration};
 
@@ -24,6 +25,8 @@ pub enum DriverKind {
     Can,
     /// A recording (`skin record`), replayed at its recorded times.
     Replay,
+    /// Tactile segments on EtherCAT (one SubDevice each).
+    Ethercat,
 }
 
 /// The protocols of `kind = "can"`.
@@ -56,6 +59,30 @@ pub struct BoardConfig {
     pub address: u8,
     /// Its triangles.
     pub triangles: Triangles,
+}
+
+/// One `[[driver.segment]]` table (EtherCAT): a tactile segment, at its
+/// position in ring order.
+#[derive(Debug, Deserialize, Clone)]
+#[serde(deny_unknown_fields)]
+pub struct SegmentTable {
+    /// The layer it publishes (default: `DRIVER-POSITION`).
+    pub layer: Option<String>,
+    /// The vendor ID it must report.
+    pub vendor_id: u32,
+    /// The product code it must report.
+    pub product_code: u32,
+    /// Its taxels.
+    pub taxels: usize,
+    /// Taxels per module, all modules alike (the last may have fewer).
+    pub sensors_per_module: Option<usize>,
+    /// Taxels of each module, in order (instead of `sensors_per_module`).
+    pub modules: Option<Vec<usize>>,
+    /// Its patch id (default: position + 1).
+    pub patch: Option<u32>,
+    /// Ask for baseline-subtracted taxels instead of raw ones.
+    #[serde(default)]
+    pub baseline: bool,
 }
 
 /// One `[[driver]]` table.
@@ -130,6 +157,12 @@ pub struct DriverConfig {
     pub address: Option<u8>,
     /// XELA: its taxels.
     pub taxels: Option<usize>,
+    // EtherCAT driver parameters (`interface` is the network interface).
+    /// The segments in ring order (`[[driver.segment]]`).
+    #[serde(default, rename = "segment")]
+    pub segments: Vec<SegmentTable>,
+    /// How long a frame may take to come back before it counts as lost (default: one period, at least 1 ms).
+    pub frame_timeout_ms: Option<f64>,
     // Replay parameters.
     /// The recording (relative to the config's directory).
     pub file: Option<PathBuf>,
@@ -165,6 +198,8 @@ pub enum BuiltDriver {
     Can(CanDriver),
     /// A replayed recording.
     Replay(Box<ReplayDriver>),
+    /// An EtherCAT skin.
+    Ethercat(EthercatDriver),
 }
 
 impl BuiltDriver {
@@ -173,6 +208,7 @@ impl BuiltDriver {
         match self {
             BuiltDriver::Virtual(driver) => driver.layers(),
             BuiltDriver::Can(driver) => driver.layers(),
+            BuiltDriver::Ethercat(driver) => driver.layers(),
             BuiltDriver::Replay(replay) => replay
                 .header
                 .channels
@@ -184,17 +220,17 @@ impl BuiltDriver {
         }
     }
 
-    /// Its own calibration: the virtual skin's body; for a CAN skin without a
-    /// calibration file, a flat layout (modules in rows of 16, taxels on a
-    /// 4 mm grid), the driver's `index`-th 0.5 m apart, so that the viewer
-    /// shows every taxel.
+    /// Its own calibration: the virtual skin's body; for a CAN or EtherCAT
+    /// skin without a calibration file, a flat layout (modules in rows of 16,
+    /// taxels on a 4 mm grid), the driver's `index`-th 0.5 m apart, so that
+    /// the viewer shows every taxel.
     pub fn calibration(&self, index: usize) -> Calibration {
         match self {
             BuiltDriver::Virtual(driver) => driver.calibration(),
             BuiltDriver::Replay(replay) => replay_calibration(replay),
-            BuiltDriver::Can(driver) => {
+            BuiltDriver::Can(_) | BuiltDriver::Ethercat(_) => {
                 let mut calibration = Calibration::new();
-                for spec in driver.layers() {
+                for spec in self.layers() {
                     let topology = spec.topology;
                     for (m, module) in topology.modules.iter().enumerate() {
                         let (column, row) = ((m % 16) as f64, (m / 16) as f64);
@@ -222,6 +258,7 @@ impl BuiltDriver {
         match self {
             BuiltDriver::Virtual(driver) => Some(Box::new(driver)),
             BuiltDriver::Can(driver) => Some(Box::new(driver)),
+            BuiltDriver::Ethercat(driver) => Some(Box::new(driver)),
             BuiltDriver::Replay(_) => None,
         }
     }
@@ -286,8 +323,17 @@ impl DriverConfig {
                 bail!("`{key}` is a setting of kind = \"replay\", not of this driver");
             }
         }
+        if self.kind != DriverKind::Ethercat {
+            if !self.segments.is_empty() {
+                bail!("`[[driver.segment]]` is a setting of kind = \"ethercat\", not of this driver");
+            }
+            if self.frame_timeout_ms.is_some() {
+                bail!("`frame_timeout_ms` is a setting of kind = \"ethercat\", not of this driver");
+            }
+        }
         match self.kind {
             DriverKind::Can => self.build_can().map(BuiltDriver::Can),
+            DriverKind::Ethercat => self.build_ethercat().map(BuiltDriver::Ethercat),
             DriverKind::Replay => self.build_replay().map(|r| BuiltDriver::Replay(Box::new(r))),
             DriverKind::Virtual => {
                 let can_keys = [
@@ -297,7 +343,7 @@ impl DriverConfig {
                     ("base_ids", !self.base_ids.is_empty()),
                 ];
                 if let Some((key, _)) = can_keys.iter().find(|(_, given)| *given) {
-                    bail!("`{key}` is a setting of kind = \"can\", not of the virtual skin");
+                    bail!("`{key}` is a setting of kind = \"can\" (or \"ethercat\"), not of the virtual skin");
                 }
                 let defaults = VirtualSkinConfig::default();
                 let layers = self.layers.unwrap_or(defaults.layers);
@@ -353,6 +399,7 @@ impl DriverConfig {
             ("interface", self.interface.is_some()),
             ("protocol", self.protocol.is_some()),
             ("[[driver.layer]]", !self.explicit_layers.is_empty()),
+            ("[[driver.segment]]", !self.segments.is_empty()),
         ];
         if let Some((key, _)) = others.iter().find(|(_, given)| *given) {
             bail!("`{key}` is not a setting of kind = \"replay\" (it replays the skin it recorded)");
@@ -468,5 +515,79 @@ impl DriverConfig {
             rt: self.rt.options(),
         })
         .map_err(anyhow::Error::msg)
+    }
+
+    /// The EtherCAT driver of a `kind = "ethercat"` table.
+    fn build_ethercat(&self) -> Result<EthercatDriver> {
+        let foreign_keys = [
+            ("sensors", self.sensors.is_some()),
+            ("layers", self.layers.is_some()),
+            ("[[driver.layer]]", !self.explicit_layers.is_empty()),
+            ("[[driver.contact]]", !self.contacts.is_empty()),
+            ("protocol", self.protocol.is_some()),
+            ("[[driver.board]]", !self.boards.is_empty()),
+            ("base_ids", !self.base_ids.is_empty()),
+            ("layer_name", self.layer_name.is_some()),
+        ];
+        if let Some((key, _)) = foreign_keys.iter().find(|(_, given)| *given) {
+            bail!("`{key}` is not a setting of kind = \"ethercat\" (its layers come from `[[driver.segment]]`)");
+        }
+        let Some(interface) = self.interface.clone() else {
+            bail!("kind = \"ethercat\" needs `interface`, the network interface of the EtherCAT port, e.g. \"eth0\"");
+        };
+        // Linux interface names: 1 to 15 bytes, no slash or white space.
+        if interface.is_empty() || interface.len() > 15 || interface.contains(['/', ' ', '\t']) {
+            bail!("interface = {interface:?} is not a network interface name (1 to 15 characters, no '/' or spaces)");
+        }
+        if self.segments.is_empty() {
+            bail!(
+                "kind = \"ethercat\" needs `[[driver.segment]]` tables, one per SubDevice in ring order, \
+                 each with `vendor_id`, `product_code` and `taxels`"
+            );
+        }
+        let rate_hz = match &self.rate_hz {
+            None => 1000.0,
+            Some(Rate::Fixed(hz)) => *hz,
+            Some(Rate::Random { .. }) => bail!("an EtherCAT driver's `rate_hz` is one number"),
+        };
+        let frame_timeout = match self.frame_timeout_ms {
+            None => None,
+            Some(ms) if ms.is_finite() && ms > 0.0 && ms <= 10_000.0 => {
+                Some(std::time::Duration::from_secs_f64(ms / 1e3))
+            }
+            Some(ms) => bail!("frame_timeout_ms = {ms} must be above 0 and at most 10000"),
+        };
+        let mut segments = Vec::new();
+        for (position, table) in self.segments.iter().enumerate() {
+            let layer = table.layer.clone().unwrap_or_else(|| format!("{}-{position}", self.name));
+            skinware::shm::validate_name("layer", &layer).with_context(|| format!("segment {position}"))?;
+            let modules = match (&table.modules, table.sensors_per_module) {
+                (Some(_), Some(_)) => {
+                    bail!("segment {position}: give `modules` or `sensors_per_module`, not both")
+                }
+                (Some(modules), None) => modules.clone(),
+                (None, Some(0)) => bail!("segment {position}: sensors_per_module = 0; give 1 or more"),
+                (None, Some(size)) => {
+                    let mut modules = vec![size; table.taxels / size];
+                    if !table.taxels.is_multiple_of(size) {
+                        modules.push(table.taxels % size);
+                    }
+                    modules
+                }
+                (None, None) => Vec::new(),
+            };
+            segments.push(SegmentConfig {
+                layer,
+                vendor_id: table.vendor_id,
+                product_code: table.product_code,
+                taxels: table.taxels,
+                modules,
+                patch: table.patch.unwrap_or(position as u32 + 1),
+                baseline: table.baseline,
+            });
+        }
+        let config =
+            EthercatDriverConfig { name: self.name.clone(), segments, rate_hz, frame_timeout, rt: self.rt.options() };
+        EthercatDriver::new(config, FrameLink::Interface(interface)).map_err(anyhow::Error::msg)
     }
 }

@@ -7,6 +7,7 @@ use std::time::Duration;
 
 use anyhow::{Result, bail};
 use serde::Deserialize;
+use skinware_emulate::ethercat::{EmulationFaults, EthercatEmulation};
 use skinware_emulate::{MtbEmulation, MtbFaults, Transport};
 
 use super::process::RestartConfig;
@@ -17,6 +18,16 @@ use super::process::RestartConfig;
 pub enum EmulatorKind {
     /// iCub MTB boards.
     IcubMtb,
+    /// EtherCAT tactile segments on a network interface.
+    Ethercat,
+}
+
+/// What `skin emulator` runs for a table.
+pub enum Emulation {
+    /// MTB boards.
+    Mtb(MtbEmulation),
+    /// EtherCAT segments.
+    Ethercat(EthercatEmulation),
 }
 
 /// One `[[emulator]]` table.
@@ -27,15 +38,29 @@ pub struct EmulatorConfig {
     pub name: String,
     /// Which boards.
     pub kind: EmulatorKind,
-    /// Boards on the bus, addresses 1..=boards.
-    #[serde(default = "default_boards")]
-    pub boards: u8,
-    /// Triangles per board.
-    #[serde(default = "default_triangles")]
-    pub triangles: u8,
-    /// Streaming rate until the host configures a period.
-    #[serde(default = "default_rate")]
-    pub rate_hz: f64,
+    /// MTB: boards on the bus, addresses 1..=boards (default 4).
+    pub boards: Option<u8>,
+    /// MTB: triangles per board (default 16).
+    pub triangles: Option<u8>,
+    /// MTB: streaming rate until the host configures a period (default 50).
+    pub rate_hz: Option<f64>,
+    /// EtherCAT: the network interface to answer on.
+    pub interface: Option<String>,
+    /// EtherCAT: segments (SubDevices) in the line (default 1).
+    pub segments: Option<u16>,
+    /// EtherCAT: taxels per segment (default 708).
+    pub taxels: Option<u16>,
+    /// EtherCAT fault: lose every Nth frame.
+    pub drop_every: Option<std::num::NonZeroU64>,
+    /// EtherCAT: the segment the per-segment faults hit (default 0).
+    pub fault_segment: Option<usize>,
+    /// EtherCAT fault: that segment leaves the process data's working counter alone.
+    #[serde(default)]
+    pub wrong_wkc: bool,
+    /// EtherCAT fault: that segment drops out of OP this many seconds after entering it.
+    pub leave_op_after_s: Option<f64>,
+    /// EtherCAT fault: no segment answers this many seconds after the start (a pulled cable).
+    pub link_down_after_s: Option<f64>,
     /// SLCAN: the symbolic link to its pseudo-terminal that drivers open.
     pub link: Option<PathBuf>,
     /// cannelloni: the emulator's own address ...
@@ -62,17 +87,11 @@ pub struct EmulatorConfig {
     pub restart: RestartConfig,
 }
 
-fn default_boards() -> u8 {
-    4
-}
-
-fn default_triangles() -> u8 {
-    16
-}
-
-fn default_rate() -> f64 {
-    50.0
-}
+const DEFAULT_BOARDS: u8 = 4;
+const DEFAULT_TRIANGLES: u8 = 16;
+const DEFAULT_RATE_HZ: f64 = 50.0;
+const DEFAULT_SEGMENTS: u16 = 1;
+const DEFAULT_TAXELS: u16 = 708;
 
 fn default_seed() -> u64 {
     7
@@ -83,53 +102,130 @@ fn default_priority() -> u8 {
 }
 
 impl EmulatorConfig {
-    /// Refuses values no MTB bus has, and a table without exactly one link.
+    /// Refuses values no bus of its kind has, settings of the other kind,
+    /// and an MTB table without exactly one link.
     pub(super) fn check(&self) -> Result<()> {
         skinware::shm::validate_name("emulator", &self.name)?;
-        if !(1..=15).contains(&self.boards) || !(1..=16).contains(&self.triangles) {
-            bail!("`boards` must be 1 to 15 and `triangles` 1 to 16 (an MTB bus addresses 15 boards of 16 triangles)");
-        }
-        if !(self.rate_hz.is_finite() && self.rate_hz > 0.0 && self.rate_hz <= 1000.0) {
-            bail!("`rate_hz` {} must be above 0 and at most 1000", self.rate_hz);
-        }
         if self.fifo_priority > 99 {
             bail!("`fifo_priority` is 0 (normal scheduler) or 1 to 99");
         }
-        if self.error_nibble.is_some_and(|e| e > 15) {
-            bail!("`error_nibble` is 0 to 15");
-        }
-        if self.silence_after_s.is_some_and(|s| !(s.is_finite() && s >= 0.0)) {
-            bail!("`silence_after_s` must be 0 or more seconds");
-        }
-        match (&self.link, &self.cannelloni, &self.peer) {
-            (Some(_), None, None) | (None, Some(_), Some(_)) => {}
-            _ => bail!(
-                "give either `link` (SLCAN on a pseudo-terminal, e.g. \"/tmp/skinware-bus0\") or both `cannelloni` and `peer` (UDP addresses)"
-            ),
+        let seconds = |key: &str, value: Option<f64>| -> Result<()> {
+            match value {
+                Some(s) if !(s.is_finite() && s >= 0.0) => bail!("`{key}` must be 0 or more seconds"),
+                _ => Ok(()),
+            }
+        };
+        match self.kind {
+            EmulatorKind::IcubMtb => {
+                let ethercat_keys = [
+                    ("interface", self.interface.is_some()),
+                    ("segments", self.segments.is_some()),
+                    ("taxels", self.taxels.is_some()),
+                    ("drop_every", self.drop_every.is_some()),
+                    ("fault_segment", self.fault_segment.is_some()),
+                    ("wrong_wkc", self.wrong_wkc),
+                    ("leave_op_after_s", self.leave_op_after_s.is_some()),
+                    ("link_down_after_s", self.link_down_after_s.is_some()),
+                ];
+                if let Some((key, _)) = ethercat_keys.iter().find(|(_, given)| *given) {
+                    bail!("`{key}` is a setting of kind = \"ethercat\", not of \"icub-mtb\"");
+                }
+                let boards = self.boards.unwrap_or(DEFAULT_BOARDS);
+                let triangles = self.triangles.unwrap_or(DEFAULT_TRIANGLES);
+                if !(1..=15).contains(&boards) || !(1..=16).contains(&triangles) {
+                    bail!(
+                        "`boards` must be 1 to 15 and `triangles` 1 to 16 (an MTB bus addresses 15 boards of 16 triangles)"
+                    );
+                }
+                let rate_hz = self.rate_hz.unwrap_or(DEFAULT_RATE_HZ);
+                if !(rate_hz.is_finite() && rate_hz > 0.0 && rate_hz <= 1000.0) {
+                    bail!("`rate_hz` {rate_hz} must be above 0 and at most 1000");
+                }
+                if self.error_nibble.is_some_and(|e| e > 15) {
+                    bail!("`error_nibble` is 0 to 15");
+                }
+                seconds("silence_after_s", self.silence_after_s)?;
+                match (&self.link, &self.cannelloni, &self.peer) {
+                    (Some(_), None, None) | (None, Some(_), Some(_)) => {}
+                    _ => bail!(
+                        "give either `link` (SLCAN on a pseudo-terminal, e.g. \"/tmp/skinware-bus0\") or both `cannelloni` and `peer` (UDP addresses)"
+                    ),
+                }
+            }
+            EmulatorKind::Ethercat => {
+                let mtb_keys = [
+                    ("boards", self.boards.is_some()),
+                    ("triangles", self.triangles.is_some()),
+                    ("rate_hz", self.rate_hz.is_some()),
+                    ("link", self.link.is_some()),
+                    ("cannelloni", self.cannelloni.is_some()),
+                    ("peer", self.peer.is_some()),
+                    ("candump", self.candump.is_some()),
+                    ("drop_tails", self.drop_tails),
+                    ("error_nibble", self.error_nibble.is_some()),
+                    ("silence_after_s", self.silence_after_s.is_some()),
+                ];
+                if let Some((key, _)) = mtb_keys.iter().find(|(_, given)| *given) {
+                    bail!("`{key}` is a setting of kind = \"icub-mtb\", not of \"ethercat\"");
+                }
+                if self.interface.as_deref().is_none_or(str::is_empty) {
+                    bail!(
+                        "kind = \"ethercat\" needs `interface`, the network interface to answer on (one end of a veth pair)"
+                    );
+                }
+                let segments = self.segments.unwrap_or(DEFAULT_SEGMENTS);
+                let taxels = self.taxels.unwrap_or(DEFAULT_TAXELS);
+                if !(1..=16).contains(&segments) || !(1..=2048).contains(&taxels) {
+                    bail!("`segments` must be 1 to 16 and `taxels` 1 to 2048");
+                }
+                if self.fault_segment.is_some_and(|k| k >= usize::from(segments)) {
+                    bail!("`fault_segment` must be one of the {segments} segments (0 to {})", segments - 1);
+                }
+                seconds("leave_op_after_s", self.leave_op_after_s)?;
+                seconds("link_down_after_s", self.link_down_after_s)?;
+            }
         }
         self.restart.check()
     }
 
-    /// What `skin emulator` runs for this table.
-    pub fn emulation(&self) -> MtbEmulation {
-        let EmulatorKind::IcubMtb = self.kind;
-        let transport = match (&self.cannelloni, &self.peer) {
-            (Some(local), Some(peer)) => Transport::Cannelloni { local: local.clone(), peer: peer.clone() },
-            _ => Transport::Slcan { link: self.link.clone() },
-        };
-        MtbEmulation {
-            boards: self.boards,
-            triangles: self.triangles,
-            rate_hz: self.rate_hz,
-            transport,
-            candump: self.candump.clone(),
-            faults: MtbFaults {
-                drop_tails: self.drop_tails,
-                error_nibble: self.error_nibble,
-                silence_after: self.silence_after_s.map(Duration::from_secs_f64),
-            },
-            seed: self.seed,
-            fifo_priority: (self.fifo_priority > 0).then_some(self.fifo_priority),
+    /// What `skin emulator` runs for this table (checked by [`Self::check`]).
+    pub fn emulation(&self) -> Emulation {
+        let fifo_priority = (self.fifo_priority > 0).then_some(self.fifo_priority);
+        match self.kind {
+            EmulatorKind::IcubMtb => {
+                let transport = match (&self.cannelloni, &self.peer) {
+                    (Some(local), Some(peer)) => Transport::Cannelloni { local: local.clone(), peer: peer.clone() },
+                    _ => Transport::Slcan { link: self.link.clone() },
+                };
+                Emulation::Mtb(MtbEmulation {
+                    boards: self.boards.unwrap_or(DEFAULT_BOARDS),
+                    triangles: self.triangles.unwrap_or(DEFAULT_TRIANGLES),
+                    rate_hz: self.rate_hz.unwrap_or(DEFAULT_RATE_HZ),
+                    transport,
+                    candump: self.candump.clone(),
+                    faults: MtbFaults {
+                        drop_tails: self.drop_tails,
+                        error_nibble: self.error_nibble,
+                        silence_after: self.silence_after_s.map(Duration::from_secs_f64),
+                    },
+                    seed: self.seed,
+                    fifo_priority,
+                })
+            }
+            EmulatorKind::Ethercat => Emulation::Ethercat(EthercatEmulation {
+                segments: usize::from(self.segments.unwrap_or(DEFAULT_SEGMENTS)),
+                taxels: usize::from(self.taxels.unwrap_or(DEFAULT_TAXELS)),
+                interface: self.interface.clone().unwrap_or_default(),
+                seed: self.seed,
+                faults: EmulationFaults {
+                    drop_every_nth_frame: self.drop_every,
+                    segment: self.fault_segment.unwrap_or(0),
+                    wrong_working_counter: self.wrong_wkc,
+                    leave_op_after: self.leave_op_after_s.map(Duration::from_secs_f64),
+                    link_down_after: self.link_down_after_s.map(Duration::from_secs_f64),
+                },
+                fifo_priority,
+            }),
         }
     }
 }

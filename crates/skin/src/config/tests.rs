@@ -187,6 +187,38 @@ fn can_drivers_are_checked() {
     assert!(format!("{err:#}").contains("setting of kind = \"can\""), "{err:#}");
 }
 
+const ETHERCAT: &str = "[[driver]]\nname = \"arm\"\nkind = \"ethercat\"\ninterface = \"eth0\"\nrate_hz = 1000\n[[driver.segment]]\nlayer = \"forearm\"\nvendor_id = 0x00534B4E\nproduct_code = 0x7AC7\ntaxels = 708\nsensors_per_module = 12\n[[driver.segment]]\nvendor_id = 0x00534B4E\nproduct_code = 0x7AC7\ntaxels = 30\nsensors_per_module = 12\n";
+
+#[test]
+fn ethercat_drivers_are_checked() {
+    let config = load(ETHERCAT).unwrap();
+    let layers = config.drivers[0].build("s").unwrap().layers();
+    let shape: Vec<(&str, usize, usize)> =
+        layers.iter().map(|l| (l.topology.name.as_str(), l.topology.sensors.len(), l.topology.modules.len())).collect();
+    // 708 = 59 modules of 12; 30 = 12 + 12 + 6; the second layer is named after the driver.
+    assert_eq!(shape, [("forearm", 708, 59), ("arm-1", 30, 3)]);
+    assert_eq!(layers[0].topology.rate_hz, 1000.0);
+    for (from, to, problem) in [
+        ("interface = \"eth0\"\n", "", "needs `interface`"),
+        ("interface = \"eth0\"", "interface = \"/dev/eth0\"", "not a network interface name"),
+        ("taxels = 30\n", "taxels = 30\nmodules = [12, 18]\n", "not both"),
+        ("taxels = 708", "taxels = 0", "1 to 2048"),
+        ("sensors_per_module = 12\n[[driver.segment]]", "modules = [12, 12]\n[[driver.segment]]", "add up"),
+        ("layer = \"forearm\"", "layer = \"arm-1\"", "its own layer"),
+        ("rate_hz = 1000", "rate_hz = 1000\nframe_timeout_ms = 0", "frame_timeout_ms = 0"),
+        ("rate_hz = 1000", "rate_hz = 1000\nprotocol = \"xela\"", "not a setting of kind = \"ethercat\""),
+        ("product_code = 0x7AC7\ntaxels = 708", "taxels = 708", "missing field `product_code`"),
+    ] {
+        let err = load(&ETHERCAT.replace(from, to)).unwrap_err();
+        assert!(format!("{err:#}").contains(problem), "{from} -> {to}: {err:#}");
+    }
+    let segments = ETHERCAT.split_once("[[driver.segment]]").unwrap().1;
+    let err = load(&format!("{CAN}[[driver.segment]]{segments}")).unwrap_err();
+    assert!(format!("{err:#}").contains("setting of kind = \"ethercat\""), "{err:#}");
+    let err = load(&ETHERCAT.replace("[[driver.segment]]", "[[driver.segmentz]]")).unwrap_err();
+    assert!(format!("{err:#}").contains("segmentz"), "{err:#}");
+}
+
 #[test]
 fn emulators_are_checked() {
     let emulator = "[[emulator]]\nname = \"bus0\"\nkind = \"icub-mtb\"\nlink = \"/tmp/x\"\n";
@@ -204,6 +236,29 @@ fn emulators_are_checked() {
         let err = load(&format!("{}{CAN}", emulator.replace(from, to))).unwrap_err();
         assert!(format!("{err:#}").contains(problem), "{from} -> {to}: {err:#}");
     }
+}
+
+#[test]
+fn ethercat_emulators_are_checked() {
+    let emulator = "[[emulator]]\nname = \"segs\"\nkind = \"ethercat\"\ninterface = \"ecat-b\"\nsegments = 2\n";
+    let config = load(&format!("{emulator}{ETHERCAT}")).unwrap();
+    match config.emulators[0].emulation() {
+        super::Emulation::Ethercat(e) => assert_eq!((e.segments, e.taxels, e.interface.as_str()), (2, 708, "ecat-b")),
+        super::Emulation::Mtb(_) => panic!("an EtherCAT table built MTB boards"),
+    }
+    for (from, to, problem) in [
+        ("interface = \"ecat-b\"\n", "", "needs `interface`"),
+        ("segments = 2", "segments = 17", "1 to 16"),
+        ("segments = 2", "segments = 2\nfault_segment = 2", "0 to 1"),
+        ("segments = 2", "segments = 2\nboards = 2", "setting of kind = \"icub-mtb\""),
+        ("segments = 2", "segments = 2\nleave_op_after_s = -1", "0 or more seconds"),
+    ] {
+        let err = load(&format!("{}{ETHERCAT}", emulator.replace(from, to))).unwrap_err();
+        assert!(format!("{err:#}").contains(problem), "{from} -> {to}: {err:#}");
+    }
+    let mtb = "[[emulator]]\nname = \"bus0\"\nkind = \"icub-mtb\"\nlink = \"/tmp/x\"\ntaxels = 5\n";
+    let err = load(&format!("{mtb}{CAN}")).unwrap_err();
+    assert!(format!("{err:#}").contains("setting of kind = \"ethercat\""), "{err:#}");
 }
 
 #[test]

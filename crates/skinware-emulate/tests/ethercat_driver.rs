@@ -1,0 +1,300 @@
+//! The EtherCAT skin driver end to end, in one process and without
+//! privileges: simulated tactile segments (the ESC model) as the bus →
+//! ethercrab → the driver → the exchange → readers, one layer per segment.
+//! Every taxel of what readers get is checked, then each fault switch's
+//! effect on the layers: only the faulty segment's layer for a segment fault,
+//! every layer for a pulled cable, and recovery with the same readers.
+
+use std::num::NonZeroU64;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use skinware::driver::DriverHandler;
+use skinware::{HandlerOptions, Reader, ReaderOptions, WriterState};
+use skinware_drivers::ethercat::{
+    EthercatDriver, EthercatDriverConfig, EthercatStatus, FrameExchange, FrameLink, SegmentConfig,
+};
+use skinware_emulate::ethercat::tactile::{EMULATED_PRODUCT_CODE, EMULATED_VENDOR_ID};
+use skinware_emulate::ethercat::{LeaveOp, Segment, TactileConfig, TactileSubDevice};
+
+const RATE_HZ: f64 = 200.0;
+
+/// Taxel `k` of segment `segment` in sample `sample`: the first taxel gives
+/// the sample away, so a reader can check that a frame is one whole sample.
+fn taxel_value(segment: usize, sample: u64, k: usize) -> u16 {
+    (sample as u16).wrapping_add(3 * k as u16).wrapping_add(1000 * segment as u16)
+}
+
+struct Rig {
+    segment: Arc<Mutex<Segment>>,
+    status: EthercatStatus,
+    handler: Option<DriverHandler>,
+    readers: Vec<Reader>,
+    dir: std::path::PathBuf,
+}
+
+impl Drop for Rig {
+    fn drop(&mut self) {
+        if let Some(handler) = self.handler.take() {
+            handler.stop();
+        }
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+fn layer(position: usize) -> String {
+    format!("seg{position}")
+}
+
+fn segment_config(position: usize, taxels: usize) -> SegmentConfig {
+    SegmentConfig {
+        layer: layer(position),
+        vendor_id: EMULATED_VENDOR_ID,
+        product_code: EMULATED_PRODUCT_CODE,
+        taxels,
+        modules: vec![12; taxels / 12],
+        patch: position as u32 + 1,
+        baseline: false,
+    }
+}
+
+fn emulated(taxels: &[usize]) -> Segment {
+    Segment::new(
+        taxels
+            .iter()
+            .enumerate()
+            .map(|(segment, &count)| {
+                let source = move |sample: u64, values: &mut [u16]| {
+                    for (k, value) in values.iter_mut().enumerate() {
+                        *value = taxel_value(segment, sample, k);
+                    }
+                };
+                TactileSubDevice::new(TactileConfig::new(count, segment as u32 + 1), source).unwrap()
+            })
+            .collect(),
+    )
+}
+
+impl Rig {
+    fn start(test: &str, taxels: &[usize], configured: Vec<SegmentConfig>) -> Rig {
+        let segment = Arc::new(Mutex::new(emulated(taxels)));
+        let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-{}-{test}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let bus: Arc<Mutex<dyn FrameExchange>> = segment.clone();
+        let config = EthercatDriverConfig {
+            name: "ecat".into(),
+            segments: configured.clone(),
+            rate_hz: RATE_HZ,
+            // Generous: the machine is shared; lost frames are lost on purpose.
+            frame_timeout: Some(Duration::from_millis(50)),
+            rt: Default::default(),
+        };
+        let driver = EthercatDriver::new(config, FrameLink::InProcess(bus)).unwrap();
+        let status = driver.status_handle();
+        let options = HandlerOptions { dir: Some(dir.clone()), ..HandlerOptions::default() };
+        let handler = DriverHandler::start("ecat", Box::new(driver), &options).unwrap();
+        let readers = configured
+            .iter()
+            .map(|s| {
+                Reader::open_with("ecat", &s.layer, &ReaderOptions { dir: Some(dir.clone()), ..Default::default() })
+                    .unwrap()
+            })
+            .collect();
+        Rig { segment, status, handler: Some(handler), readers, dir }
+    }
+
+    fn wait_all(&mut self, state: WriterState, within: Duration) -> Duration {
+        let started = Instant::now();
+        for reader in &mut self.readers {
+            wait_for(reader, state, within.saturating_sub(started.elapsed()));
+        }
+        started.elapsed()
+    }
+}
+
+fn wait_for(reader: &mut Reader, state: WriterState, within: Duration) -> Duration {
+    let started = Instant::now();
+    while reader.writer_state() != state {
+        assert!(started.elapsed() < within, "{} never became {state} (is {})", reader.label(), reader.writer_state());
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    started.elapsed()
+}
+
+/// Checks that a frame of segment `segment` is one whole sample, and returns
+/// the sample's number (low 16 bits).
+fn check_frame(segment: usize, responses: &[u16]) -> u16 {
+    let sample = responses[0].wrapping_sub(1000 * segment as u16);
+    for (k, &value) in responses.iter().enumerate() {
+        assert_eq!(value, taxel_value(segment, u64::from(sample), k), "segment {segment} taxel {k}");
+    }
+    sample
+}
+
+#[test]
+fn every_taxel_of_every_segment_reaches_its_readers() {
+    let taxels = [708, 240, 708];
+    let configured = taxels.iter().enumerate().map(|(p, &n)| segment_config(p, n)).collect();
+    let mut rig = Rig::start("values", &taxels, configured);
+    rig.wait_all(WriterState::Running, Duration::from_secs(10));
+    let mut last = vec![None; taxels.len()];
+    for _ in 0..50 {
+        for (segment, reader) in rig.readers.iter_mut().enumerate() {
+            let frame = reader.wait_newer(Duration::from_secs(1)).unwrap();
+            assert_eq!(frame.responses().len(), taxels[segment]);
+            let sample = check_frame(segment, frame.responses());
+            if let Some(previous) = last[segment] {
+                assert_ne!(sample, previous, "segment {segment}: a new frame is a new sample");
+            }
+            last[segment] = Some(sample);
+        }
+    }
+}
+
+#[test]
+fn a_wrong_identity_or_taxel_count_is_refused_with_its_reason() {
+    let mut wrong_product = segment_config(0, 24);
+    wrong_product.product_code = 0xDEAD;
+    let rig = Rig::start("identity", &[24], vec![wrong_product]);
+    std::thread::sleep(Duration::from_millis(500));
+    assert_eq!(rig.readers[0].writer_state(), WriterState::Faulted);
+    let why = rig.status.bus_fault().expect("the bus is down");
+    assert!(why.contains("SKIN-T24") && why.contains("expects vendor") && why.contains("0x0000dead"), "{why}");
+    // What it found is on show all the same.
+    let found = &rig.status.segments()[0];
+    assert_eq!(found.identity, Some([EMULATED_VENDOR_ID, EMULATED_PRODUCT_CODE, 1, 1]));
+    drop(rig);
+    let rig = Rig::start("taxels", &[24], vec![segment_config(0, 36)]);
+    std::thread::sleep(Duration::from_millis(500));
+    assert_eq!(rig.readers[0].writer_state(), WriterState::Faulted);
+    let why = rig.status.bus_fault().expect("the bus is down");
+    assert!(why.contains("52 bytes of inputs") && why.contains("36 taxels need 76"), "{why}");
+    drop(rig);
+    let rig = Rig::start("count", &[24], vec![segment_config(0, 24), segment_config(1, 24)]);
+    std::thread::sleep(Duration::from_millis(500));
+    let why = rig.status.bus_fault().expect("the bus is down");
+    assert!(why.contains("1 SubDevices but 2 segments"), "{why}");
+}
+
+#[test]
+fn segments_show_their_identity_and_state() {
+    let mut rig = Rig::start("status", &[24, 36], vec![segment_config(0, 24), segment_config(1, 36)]);
+    rig.wait_all(WriterState::Running, Duration::from_secs(10));
+    assert_eq!(rig.status.bus_fault(), None, "{:?}", rig.status.segments());
+    for (position, status) in rig.status.segments().into_iter().enumerate() {
+        assert_eq!(status.identity, Some([EMULATED_VENDOR_ID, EMULATED_PRODUCT_CODE, 1, position as u32 + 1]));
+        assert_eq!(status.name, format!("SKIN-T{}", [24, 36][position]));
+        assert_eq!(status.state, "OP");
+        assert_eq!(status.fault, None);
+        assert!(status.cycles > 0);
+    }
+}
+
+/// Each segment fault faults its own layer within 2 periods of the last good
+/// frame (plus the frame timeout where a frame is lost), leaves the other
+/// layers running, and is recovered from once the fault goes.
+#[test]
+fn segment_faults_fault_only_their_layer_and_recover() {
+    let taxels = [24, 24];
+    let configured = taxels.iter().enumerate().map(|(p, &n)| segment_config(p, n)).collect();
+    let mut rig = Rig::start("segment-faults", &taxels, configured);
+    rig.wait_all(WriterState::Running, Duration::from_secs(10));
+    let period_ms = 1e3 / RATE_HZ;
+
+    type Fault = fn(&mut Segment, bool);
+    let faults: [(&str, Fault); 2] = [
+        ("wrong working counter", |s, on| s.subdevice_mut(1).unwrap().faults_mut().wrong_working_counter = on),
+        ("leave OP", |s, on| s.subdevice_mut(1).unwrap().faults_mut().leave_op = on.then_some(LeaveOp::AfterCycles(1))),
+    ];
+    for (name, fault) in faults {
+        fault(&mut rig.segment.lock().unwrap(), true);
+        let detected = detection_ms(&mut rig.readers[1], Duration::from_secs(5));
+        println!("{name}: layer faulted {detected:.1} ms after its last good frame (period {period_ms} ms)");
+        assert!(detected <= 2.0 * period_ms + 25.0, "{name}: {detected} ms");
+        assert_eq!(rig.readers[0].writer_state(), WriterState::Running, "{name}: the other layer runs on");
+        fault(&mut rig.segment.lock().unwrap(), false);
+        let recovered = wait_for(&mut rig.readers[1], WriterState::Running, Duration::from_secs(5));
+        println!("{name}: running again {:.1} ms after the fault went", recovered.as_secs_f64() * 1e3);
+        let frame = rig.readers[1].wait_newer(Duration::from_secs(1)).unwrap();
+        check_frame(1, frame.responses());
+    }
+}
+
+#[test]
+fn lost_frames_fault_the_layers_they_belong_to() {
+    let taxels = [24];
+    let mut rig = Rig::start("lost", &taxels, vec![segment_config(0, 24)]);
+    rig.wait_all(WriterState::Running, Duration::from_secs(10));
+    rig.segment.lock().unwrap().faults_mut().drop_every_nth_frame = NonZeroU64::new(2);
+    // Every other cycle's frame is lost: the layer keeps faulting.
+    let detected = detection_ms(&mut rig.readers[0], Duration::from_secs(5));
+    println!("every 2nd frame lost: faulted {detected:.1} ms after the last good frame");
+    rig.segment.lock().unwrap().faults_mut().drop_every_nth_frame = None;
+    wait_for(&mut rig.readers[0], WriterState::Running, Duration::from_secs(5));
+}
+
+#[test]
+fn a_pulled_cable_faults_every_layer_and_the_bus_comes_back_on_its_own() {
+    let taxels = [24, 36];
+    let configured = taxels.iter().enumerate().map(|(p, &n)| segment_config(p, n)).collect();
+    let mut rig = Rig::start("cable", &taxels, configured);
+    rig.wait_all(WriterState::Running, Duration::from_secs(10));
+    rig.segment.lock().unwrap().faults_mut().link_down = true;
+    let faulted = rig.wait_all(WriterState::Faulted, Duration::from_secs(5));
+    println!("cable pulled: every layer faulted after {:.1} ms", faulted.as_secs_f64() * 1e3);
+    // Plugged back in, with segments that powered up again (in INIT).
+    *rig.segment.lock().unwrap() = emulated(&taxels);
+    let recovered = rig.wait_all(WriterState::Running, Duration::from_secs(10));
+    println!("cable back: every layer running after {:.0} ms", recovered.as_secs_f64() * 1e3);
+    for (segment, reader) in rig.readers.iter_mut().enumerate() {
+        let frame = reader.wait_newer(Duration::from_secs(1)).unwrap();
+        check_frame(segment, frame.responses());
+    }
+}
+
+/// Milliseconds from the newest good frame to the fault being seen.
+fn detection_ms(reader: &mut Reader, within: Duration) -> f64 {
+    wait_for(reader, WriterState::Faulted, within);
+    let seen = skinware::os::monotonic_ns();
+    let last_good = reader.latest().map(|f| f.published_ns()).unwrap_or(seen);
+    (seen - last_good) as f64 / 1e6
+}
+
+/// `skin emulate ethercat`'s segments, whose taxels feel the virtual body,
+/// through the driver: every response is a virtual-skin response (about
+/// BASELINE untouched), not a blank.
+#[test]
+fn the_emulated_skin_reaches_readers_with_the_virtual_bodys_responses() {
+    let emulation = skinware_emulate::ethercat::EthercatEmulation {
+        segments: 2,
+        taxels: 60,
+        interface: String::new(),
+        seed: 7,
+        faults: Default::default(),
+        fifo_priority: None,
+    };
+    let segment = Arc::new(Mutex::new(emulation.segment().unwrap()));
+    let bus: Arc<Mutex<dyn FrameExchange>> = segment.clone();
+    let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-{}-body", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = EthercatDriverConfig {
+        name: "body".into(),
+        segments: vec![segment_config(0, 60), segment_config(1, 60)],
+        rate_hz: RATE_HZ,
+        frame_timeout: Some(Duration::from_millis(50)),
+        rt: Default::default(),
+    };
+    let driver = EthercatDriver::new(config, FrameLink::InProcess(bus)).unwrap();
+    let options = HandlerOptions { dir: Some(dir.clone()), ..HandlerOptions::default() };
+    let handler = DriverHandler::start("body", Box::new(driver), &options).unwrap();
+    for layer in ["seg0", "seg1"] {
+        let mut reader =
+            Reader::open_with("body", layer, &ReaderOptions { dir: Some(dir.clone()), ..Default::default() }).unwrap();
+        wait_for(&mut reader, WriterState::Running, Duration::from_secs(10));
+        let frame = reader.wait_newer(Duration::from_secs(1)).unwrap();
+        let baseline = skinware_drivers::virtual_skin::BASELINE;
+        assert!(frame.responses().iter().all(|&r| r >= baseline / 2), "{layer}: {:?}", frame.responses());
+    }
+    handler.stop();
+    let _ = std::fs::remove_dir_all(&dir);
+}
