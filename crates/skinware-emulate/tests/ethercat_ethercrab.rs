@@ -429,20 +429,20 @@ fn a_segment_leaving_op_after_a_time_does_so_no_sooner() {
     let after = Duration::from_millis(150);
     bus.with_segment(|s| s.subdevice_mut(0).unwrap().faults_mut().leave_op = Some(LeaveOp::AfterTime(after)));
     block_on(async {
+        // OP is entered after this instant, so the segment must still be in
+        // OP `after` from here: a bound that holds however slow the machine.
+        let before_op = std::time::Instant::now();
         let group = bring_up(&maindevice).await;
-        // OP was entered before this instant, so leaving no sooner than
-        // `after` from here is a bound the segment must respect.
-        let in_op = std::time::Instant::now();
         assert!(group.tx_rx(&maindevice).await.unwrap().all_op());
         let left = loop {
             let response = group.tx_rx(&maindevice).await.unwrap();
             if !response.all_op() {
-                break in_op.elapsed();
+                break before_op.elapsed();
             }
-            assert!(in_op.elapsed() < after + Duration::from_secs(5), "never left OP");
+            assert!(before_op.elapsed() < after + Duration::from_secs(5), "never left OP");
             thread::sleep(Duration::from_millis(2));
         };
-        assert!(left >= after - Duration::from_millis(50), "left OP after {left:?}, asked {after:?}");
+        assert!(left >= after, "left OP {left:?} after the bring-up started, asked {after:?} in OP");
         assert_eq!(bus.with_segment(|s| s.subdevices()[0].error()), Some(0x001B));
     });
 }

@@ -157,8 +157,10 @@ fn run_ethercat(args: &EthercatArgs) -> Result<()> {
     let seconds = |name: &str, value: Option<f64>| -> Result<Option<Duration>> {
         match value {
             None => Ok(None),
-            Some(s) if s.is_finite() && s >= 0.0 => Ok(Some(Duration::from_secs_f64(s))),
-            Some(s) => bail!("--{name} {s}: give a number of seconds, 0 or more"),
+            Some(s) => match Duration::try_from_secs_f64(s) {
+                Ok(duration) => Ok(Some(duration)),
+                Err(_) => bail!("--{name} {s}: give a number of seconds, 0 or more"),
+            },
         }
     };
     let emulation = skinware_emulate::ethercat::EthercatEmulation {

@@ -561,6 +561,11 @@ impl DriverConfig {
         for (position, table) in self.segments.iter().enumerate() {
             let layer = table.layer.clone().unwrap_or_else(|| format!("{}-{position}", self.name));
             skinware::shm::validate_name("layer", &layer).with_context(|| format!("segment {position}"))?;
+            // Before anything is built from it: a count from the file sizes the modules.
+            let max = skinware_drivers::ethercat::MAX_TAXELS;
+            if table.taxels == 0 || table.taxels > max {
+                bail!("segment {position}: taxels = {}; a segment has 1 to {max}", table.taxels);
+            }
             let modules = match (&table.modules, table.sensors_per_module) {
                 (Some(_), Some(_)) => {
                     bail!("segment {position}: give `modules` or `sensors_per_module`, not both")

@@ -203,6 +203,14 @@ fn ethercat_drivers_are_checked() {
         ("interface = \"eth0\"", "interface = \"/dev/eth0\"", "not a network interface name"),
         ("taxels = 30\n", "taxels = 30\nmodules = [12, 18]\n", "not both"),
         ("taxels = 708", "taxels = 0", "1 to 2048"),
+        // Counts from the file size nothing before they are checked.
+        ("taxels = 708", "taxels = 1000000000000", "1 to 2048"),
+        ("taxels = 708", "taxels = 18446744073709551615", "1 to 2048"),
+        (
+            "taxels = 30\nsensors_per_module = 12\n",
+            "taxels = 30\nmodules = [18446744073709551615, 18446744073709551615]\n",
+            "add up",
+        ),
         ("sensors_per_module = 12\n[[driver.segment]]", "modules = [12, 12]\n[[driver.segment]]", "add up"),
         ("layer = \"forearm\"", "layer = \"arm-1\"", "its own layer"),
         ("rate_hz = 1000", "rate_hz = 1000\nframe_timeout_ms = 0", "frame_timeout_ms = 0"),

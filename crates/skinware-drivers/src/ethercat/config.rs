@@ -61,7 +61,8 @@ impl EthercatDriverConfig {
             if segment.taxels == 0 || segment.taxels > MAX_TAXELS {
                 return Err(format!("segment {position}: {} taxels; a segment has 1 to {MAX_TAXELS}", segment.taxels));
             }
-            let in_modules: usize = segment.modules.iter().sum();
+            // Saturating: module sizes come from a file, and their sum must not overflow.
+            let in_modules = segment.modules.iter().fold(0usize, |sum, &m| sum.saturating_add(m));
             if !segment.modules.is_empty() && in_modules != segment.taxels {
                 return Err(format!(
                     "segment {position}: its modules hold {in_modules} taxels but it has {}; make them add up",

@@ -348,7 +348,10 @@ impl Bus {
             io_stop.store(true, Ordering::Release);
             io.thread().unpark();
             let io_result = io.join().unwrap_or_else(|_| Err("the EtherCAT I/O thread panicked".into()));
-            result.and(io_result)
+            // The frame I/O's own error first: a socket that could not open
+            // (no CAP_NET_RAW) makes the bring-up time out, and that timeout
+            // would hide the reason the user can act on.
+            io_result.and(result)
         })
     }
 
