@@ -267,6 +267,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg_attr(miri, ignore = "Miri's isolation opens no files; the request is a write to a device file")]
     fn a_cpu_wake_latency_request_is_held_and_only_tightened() {
         let current = || -> Option<i32> {
             let bytes = std::fs::read(CPU_LATENCY_FILE).ok()?;

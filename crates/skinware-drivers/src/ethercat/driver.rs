@@ -83,6 +83,11 @@ struct SegmentImage {
     /// When they arrived, CLOCK_MONOTONIC ns (0: never).
     acquired_ns: u64,
     status: SegmentStatus,
+    /// Faults begun so far, and the newest one's reason: a fault that is
+    /// over before the layer's writer looks (one cycle long, with the writer
+    /// not scheduled in that period) is still reported, once.
+    faults_begun: u64,
+    newest_fault: String,
 }
 
 /// What the bus thread shares with the layers.
@@ -120,6 +125,10 @@ impl Shared {
                 Some(why) => tracing::warn!(segment = position, error = %why, "segment faulted"),
                 None => tracing::info!(segment = position, "segment running"),
             }
+            if let Some(why) = &fault {
+                image.faults_begun += 1;
+                image.newest_fault.clone_from(why);
+            }
             image.status.fault = fault;
             drop(image);
             self.news[position].notify_all();
@@ -152,6 +161,8 @@ impl EthercatDriver {
                         values: vec![0; s.taxels],
                         acquired_ns: 0,
                         status: SegmentStatus::default(),
+                        faults_begun: 0,
+                        newest_fault: String::new(),
                     })
                 })
                 .collect(),
@@ -215,8 +226,13 @@ impl Driver for EthercatDriver {
         let stale_after = self.config.period() * STALE_PERIODS;
         Ok((0..self.config.segments.len())
             .map(|position| {
-                Box::new(SegmentLayer { shared: self.shared.clone(), position, stale_after, last_cycle: 0 })
-                    as Box<dyn LayerSource>
+                Box::new(SegmentLayer {
+                    shared: self.shared.clone(),
+                    position,
+                    stale_after,
+                    last_cycle: 0,
+                    faults_reported: 0,
+                }) as Box<dyn LayerSource>
             })
             .collect())
     }
@@ -238,6 +254,8 @@ struct SegmentLayer {
     stale_after: Duration,
     /// The bus cycle whose data the last frame carried.
     last_cycle: u64,
+    /// The segment's faults begun that a frame of this layer reported.
+    faults_reported: u64,
 }
 
 impl LayerSource for SegmentLayer {
@@ -246,10 +264,17 @@ impl LayerSource for SegmentLayer {
         let mut image = self.shared.segment(self.position);
         loop {
             if let Some(why) = self.shared.bus_fault.lock().unwrap_or_else(|p| p.into_inner()).as_ref() {
+                // The bus fault covers the segments' faults before it.
+                self.faults_reported = image.faults_begun;
                 return Err(why.clone().into());
             }
+            let unreported = image.faults_begun > self.faults_reported;
+            self.faults_reported = image.faults_begun;
             if let Some(why) = &image.status.fault {
                 return Err(format!("segment {}: {why}", self.position).into());
+            }
+            if unreported {
+                return Err(format!("segment {}: {} (for a cycle or two)", self.position, image.newest_fault).into());
             }
             if image.status.cycles > self.last_cycle && image.acquired_ns != 0 {
                 break;
@@ -620,4 +645,59 @@ async fn first_error(mut tasks: Vec<Task<'_>>) -> Result<(), String> {
         if pending { Poll::Pending } else { Poll::Ready(Ok(())) }
     })
     .await
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn one_segment(taxels: usize) -> Arc<Shared> {
+        Arc::new(Shared {
+            segments: vec![Mutex::new(SegmentImage {
+                values: vec![7; taxels],
+                acquired_ns: 0,
+                status: SegmentStatus::default(),
+                faults_begun: 0,
+                newest_fault: String::new(),
+            })],
+            news: vec![Condvar::new()],
+            bus_fault: Mutex::new(None),
+        })
+    }
+
+    fn deliver_a_cycle(shared: &Shared) {
+        let mut image = shared.segment(0);
+        image.acquired_ns = skinware::os::monotonic_ns();
+        image.status.cycles += 1;
+    }
+
+    #[test]
+    fn a_fault_over_before_the_layer_looks_is_reported_once() {
+        let taxels = 4;
+        let shared = one_segment(taxels);
+        let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-unit-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let options = skinware::WriterOptions { dir: Some(dir.clone()), ..skinware::WriterOptions::default() };
+        let mut writer = skinware::Writer::create("unit", "seg", 2 * taxels, b"", &options).unwrap();
+        let mut layer = SegmentLayer {
+            shared: shared.clone(),
+            position: 0,
+            stale_after: Duration::from_secs(1),
+            last_cycle: 0,
+            faults_reported: 0,
+        };
+        deliver_a_cycle(&shared);
+        assert!(layer.acquire(&mut writer.begin()).is_ok());
+        // A fault for one cycle, over before the layer's writer looks.
+        shared.set_fault(0, Some("working counter 1 instead of 3".into()));
+        shared.set_fault(0, None);
+        deliver_a_cycle(&shared);
+        let reported = layer.acquire(&mut writer.begin()).unwrap_err().to_string();
+        assert!(reported.contains("working counter 1 instead of 3"), "{reported}");
+        // Once: the next cycle is a frame again.
+        deliver_a_cycle(&shared);
+        assert!(layer.acquire(&mut writer.begin()).is_ok());
+        drop(writer);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }
