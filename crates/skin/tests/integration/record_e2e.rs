@@ -15,7 +15,7 @@ use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use sha2::Digest;
-use skinware_record::file::{RecordStream, read_header};
+use skinware_record::file::{RecordStream, RecordingHeader, read_header};
 use skinware_record::mcap::records::{MessageHeader, Record};
 use skinware_record::msgs::{self, Gap, Image, LayerStats, SkinFrame};
 
@@ -205,24 +205,28 @@ fn a_stopped_recorder_writes_its_gaps(d: &Path) {
     the_python_oracle_reads_what_was_written(&g);
 }
 
-/// Every Gap message of a recording.
-fn gap_messages(path: &Path) -> Vec<Gap> {
+/// Calls `f` with each message of the recording at `path`, in file order.
+fn each_message(path: &Path, mut f: impl FnMut(&RecordingHeader, MessageHeader, &[u8])) {
     let mut stream = RecordStream::open(path).unwrap();
     let (header, first) = read_header(&mut stream).unwrap();
-    let mut out = Vec::new();
-    let mut add = |message: MessageHeader, data: &[u8]| {
-        if header.topics.get(&message.channel_id).is_some_and(|t| t.ends_with("/gaps")) {
-            out.push(msgs::decode::<Gap>(data, msgs::GAP).unwrap());
-        }
-    };
     if let Some((message, data)) = first {
-        add(message, &data);
+        f(&header, message, &data);
     }
     while let Some(record) = stream.next_record().unwrap() {
         if let Record::Message { header: message, data } = record {
-            add(message, &data);
+            f(&header, message, &data);
         }
     }
+}
+
+/// Every Gap message of a recording.
+fn gap_messages(path: &Path) -> Vec<Gap> {
+    let mut out = Vec::new();
+    each_message(path, |header, message, data| {
+        if header.topics.get(&message.channel_id).is_some_and(|t| t.ends_with("/gaps")) {
+            out.push(msgs::decode::<Gap>(data, msgs::GAP).unwrap());
+        }
+    });
     out
 }
 
@@ -230,10 +234,8 @@ fn gap_messages(path: &Path) -> Vec<Gap> {
 type Frame = (Vec<u8>, u64, u64, u64, u64);
 
 fn frames(path: &Path) -> BTreeMap<String, Vec<Frame>> {
-    let mut stream = RecordStream::open(path).unwrap();
-    let (header, first) = read_header(&mut stream).unwrap();
     let mut out: BTreeMap<String, Vec<Frame>> = BTreeMap::new();
-    let mut add = |message: MessageHeader, data: &[u8]| {
+    each_message(path, |header, message, data| {
         if let Some(channel) = header.channels.get(&message.channel_id) {
             let f: SkinFrame = msgs::decode(data, msgs::SKIN_FRAME).unwrap();
             out.entry(channel.channel.clone()).or_default().push((
@@ -244,15 +246,7 @@ fn frames(path: &Path) -> BTreeMap<String, Vec<Frame>> {
                 f.skipped,
             ));
         }
-    };
-    if let Some((message, data)) = first {
-        add(message, &data);
-    }
-    while let Some(record) = stream.next_record().unwrap() {
-        if let Record::Message { header: message, data } = record {
-            add(message, &data);
-        }
-    }
+    });
     out
 }
 
@@ -422,10 +416,8 @@ impl Canonical {
 /// What our reader finds in a file, in the oracle's terms: per topic, its
 /// message count and each message's digest.
 fn our_view(path: &Path) -> BTreeMap<String, Vec<String>> {
-    let mut stream = RecordStream::open(path).unwrap();
-    let (header, first) = read_header(&mut stream).unwrap();
     let mut topics: BTreeMap<String, Vec<String>> = BTreeMap::new();
-    let mut add = |message: MessageHeader, data: &[u8]| {
+    each_message(path, |header, message, data| {
         let topic = header.topics[&message.channel_id].clone();
         let mut c = Canonical::default();
         if header.channels.contains_key(&message.channel_id) {
@@ -445,15 +437,7 @@ fn our_view(path: &Path) -> BTreeMap<String, Vec<String>> {
             c.float(m.rate_hz).float(m.latency_ms).int(m.min_response).int(m.max_response).float(m.mean_response);
         }
         topics.entry(topic).or_default().push(c.digest());
-    };
-    if let Some((message, data)) = first {
-        add(message, &data);
-    }
-    while let Some(record) = stream.next_record().unwrap() {
-        if let Record::Message { header: message, data } = record {
-            add(message, &data);
-        }
-    }
+    });
     topics
 }
 
