@@ -15,6 +15,10 @@
 //! * [`wake`]: a 1 kHz writer of the whole skin's frame with 0 or 15 readers
 //!   asleep on the futex, woken by the writer or by its ringer.
 //!
+//! * [`ethercat`]: the EtherCAT driver on a veth pair against the ESC
+//!   model: cycle rate and jitter at 1 kHz, latency from the SubDevice to a
+//!   reader, fault detection and recovery times.
+//!
 //! Application processes are this same executable re-run with the
 //! `bench-app` role ([`app`]).
 
@@ -25,9 +29,11 @@
 pub mod app;
 pub mod can;
 pub mod contact;
+pub mod ethercat;
 #[cfg(feature = "iceoryx2")]
 mod iceoryx2_peer;
 pub mod measure;
+pub mod netns;
 pub mod paper;
 mod paper_record;
 pub mod peers;

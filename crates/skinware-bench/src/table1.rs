@@ -1,6 +1,7 @@
 //! `skin bench table1`: the paper's Table I with our figures beside it.
 
 use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
@@ -21,11 +22,12 @@ pub struct Table1Options {
     pub seconds: Option<f64>,
     /// This executable, re-run for the application process.
     pub exe: PathBuf,
-    /// How the CAN writer gets its data.
+    /// How one writer gets its data.
     pub transport: Transport,
 }
 
-/// How the CAN writer of Table I gets its data.
+/// How the writers of Table I get their data: both from memory, or one of
+/// them through its real driver.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Transport {
     /// Generated in memory, as in the paper's own measurement of the exchange.
@@ -36,6 +38,14 @@ pub enum Transport {
     /// Each write is the driver's acquisition (a copy of the newest decoded
     /// image) and the publish; the decoding runs in the driver's bus thread.
     Slcan,
+    /// The EtherCAT writer on the real driver path: ethercrab's MainDevice on
+    /// a raw socket at one end of a veth pair, the ESC model of one 708-taxel
+    /// segment at the other, in a network namespace of the bench's own (the
+    /// caller enters it: [`crate::netns`]). Each write is the driver's
+    /// acquisition (it waits for a bus cycle newer than the last frame's,
+    /// then copies that cycle's taxels) and the publish; the bus cycles run
+    /// in the driver's bus thread at the layer's 50 Hz.
+    Ethercat,
 }
 
 impl Transport {
@@ -44,6 +54,7 @@ impl Transport {
         match self {
             Transport::Memory => "memory",
             Transport::Slcan => "slcan",
+            Transport::Ethercat => "ethercat",
         }
     }
 }
@@ -63,9 +74,15 @@ pub struct Table1Row {
     pub samples: usize,
     /// The paper's (average, worst case, std), ns (Core 2 Duo, RTAI).
     pub paper: [f64; 3],
-    /// For a writer, where its data came from: `memory` or `slcan`.
+    /// For a writer, where its data came from: `memory`, `slcan` or `ethercat`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub transport: Option<&'static str>,
+    /// For the EtherCAT writer on its driver: the part of each write from
+    /// the moment its bus cycle's data was there (the bus thread's receipt
+    /// of the answer, or `begin` if later) to the end of `publish`, ns: the
+    /// row without the wait for the bus cycle.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub after_bus_data_ns: Option<Percentiles>,
 }
 
 const PAPER: [(&str, [f64; 3]); 4] = [
@@ -104,8 +121,23 @@ pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
     debug_assert_eq!((topologies[0].sensors.len(), topologies[1].sensors.len()), (708, 180));
     let stop = Stop::new();
     let mut emulator = None;
+    let mut ethercat_bus = None;
+    let after_bus_data = Arc::new(Mutex::new(Vec::new()));
     let writers = match options.transport {
         Transport::Memory => measure::run_writers(&skin, &topologies, &stop, None)?,
+        Transport::Ethercat => {
+            if !crate::netns::inside() {
+                bail!(
+                    "the ethercat transport runs in a network namespace of its own: start it as \
+                     `skin bench table1 --transport ethercat`, which enters one"
+                );
+            }
+            crate::netns::make_veth_pair()?;
+            ethercat_bus = Some(crate::netns::EmulatedBus::start(ecat::segment()?, Some(75))?);
+            let mut writers = vec![ecat::run_ec_writer(&skin, &stop, after_bus_data.clone())?];
+            writers.extend(measure::run_writers(&skin, &topologies[1..], &stop, None)?);
+            writers
+        }
         Transport::Slcan => {
             let mut writers = measure::run_writers(&skin, &topologies[..1], &stop, None)?;
             let (device, thread) = slcan::start_emulator()?;
@@ -128,6 +160,10 @@ pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
         stop_emulator.store(true, std::sync::atomic::Ordering::Relaxed);
         let _ = thread.join();
     }
+    if let Some(bus) = ethercat_bus {
+        let served = bus.stop()?;
+        println!("emulated EtherCAT segment: {} frames taken, {} answered", served.frames, served.answered);
+    }
     if !status.success() {
         bail!("the application process failed ({status})");
     }
@@ -145,18 +181,40 @@ pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
         .zip(all.iter_mut())
         .map(|(&(name, paper), samples)| {
             let p = Percentiles::of(samples);
+            let driven = |t: Transport| if options.transport == t { t.name() } else { Transport::Memory.name() };
             let transport = match name {
-                "writer_CAN" => Some(options.transport.name()),
-                "writer_EC" => Some(Transport::Memory.name()),
+                "writer_CAN" => Some(driven(Transport::Slcan)),
+                "writer_EC" => Some(driven(Transport::Ethercat)),
                 _ => None,
             };
-            Table1Row { name, avg_ns: p.avg, worst_ns: p.max, std_ns: p.std, samples: p.samples, paper, transport }
+            Table1Row {
+                name,
+                avg_ns: p.avg,
+                worst_ns: p.max,
+                std_ns: p.std,
+                samples: p.samples,
+                paper,
+                transport,
+                after_bus_data_ns: None,
+            }
         })
         .collect();
+    let mut rows = rows;
+    if options.transport == Transport::Ethercat {
+        let samples = after_bus_data.lock().unwrap_or_else(|p| p.into_inner());
+        rows[0].after_bus_data_ns = Some(Percentiles::of(&mut measure::steady_state(&samples, &window)?));
+    }
     println!(
         "skin bench table1: EtherCAT layer 708 sensors, CAN layer 180 sensors ({} transport), writers at 50 Hz, aperiodic readers",
         options.transport.name()
     );
+    if let Some(p) = &rows[0].after_bus_data_ns {
+        println!(
+            "writer_EC on the EtherCAT driver waits in its acquisition for a bus cycle newer than its last frame; \
+             from that cycle's data to the end of publish: avg {:.0} ns, p99 {} ns, worst {} ns, std {:.0} ns",
+            p.avg, p.p99, p.max, p.std
+        );
+    }
     println!("{seconds} s of measurement; ours on this machine, the paper's on a Core 2 Duo E8200 with RTAI\n");
     println!(
         "{:<12} {:>12} {:>12} {:>10} | {:>12} {:>12} {:>10}",
@@ -172,6 +230,98 @@ pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
     std::fs::write(&json, serde_json::to_vec_pretty(&rows)?)?;
     println!("\nwrote {}", json.display());
     Ok(rows)
+}
+
+/// The EtherCAT writer on the real driver path: ESC model → veth → ethercrab.
+mod ecat {
+    use std::sync::{Arc, Mutex};
+    use std::time::Duration;
+
+    use anyhow::{Context, Result};
+    use skinware::driver::Driver;
+    use skinware::{RtOptions, Stop, Ticker, Writer, WriterOptions};
+    use skinware_emulate::ethercat::{Segment, TactileConfig, TactileSubDevice};
+
+    use crate::measure::WriterSample;
+
+    /// The paper's EtherCAT sensors: 59 modules of 12.
+    const TAXELS: usize = 708;
+
+    /// One emulated segment of 708 taxels feeling a slowly moving press.
+    pub(super) fn segment() -> Result<Segment> {
+        let press = |sample: u64, taxels: &mut [u16]| {
+            let t = sample as f64 / 50.0;
+            for (i, taxel) in taxels.iter_mut().enumerate() {
+                let phase = (t * 2.0 + i as f64 * 0.1).sin().max(0.0);
+                *taxel = skinware_drivers::virtual_skin::BASELINE + (phase * 20_000.0) as u16;
+            }
+        };
+        let subdevice = TactileSubDevice::new(TactileConfig::new(TAXELS, 1), press)
+            .context("cannot build the emulated EtherCAT segment")?;
+        Ok(Segment::new(vec![subdevice]))
+    }
+
+    /// The EtherCAT layer's writer: at 50 Hz, the driver's acquisition and
+    /// the publish. Returns the whole spans; `after_bus_data` gets the
+    /// spans from the cycle's data (or `begin`, if later) to the publish.
+    pub(super) fn run_ec_writer(
+        skin: &str,
+        stop: &Stop,
+        after_bus_data: Arc<Mutex<Vec<WriterSample>>>,
+    ) -> Result<std::thread::JoinHandle<Vec<WriterSample>>> {
+        // The bus thread paces the acquisition: at the writer's priority.
+        let rt = RtOptions { fifo_priority: Some(80), ..RtOptions::default() };
+        let mut driver = crate::netns::driver("ethercat", 2, TAXELS, 50.0, rt)?;
+        let status = driver.status_handle();
+        let topology = driver.layers().remove(0).topology;
+        let mut sources = driver.start().map_err(|e| anyhow::anyhow!("the EtherCAT driver did not start: {e}"))?;
+        let mut source = sources.remove(0);
+        let period = Duration::from_millis(20);
+        let options = WriterOptions { period: Some(period), ..WriterOptions::default() };
+        let mut writer = Writer::create(skin, "ethercat", topology.frame_bytes(), &topology.encode(), &options)
+            .context("creating layer ethercat")?;
+        writer.set_stop(stop);
+        // Bring-up to OP.
+        if !crate::netns::wait_until(Duration::from_secs(10), || {
+            status.bus_fault().is_none() && status.segments().iter().all(|s| s.state == "OP")
+        }) {
+            driver.stop();
+            anyhow::bail!(
+                "the EtherCAT driver did not bring the emulated segment to OP within 10 s: bus {:?}, segments {:?}",
+                status.bus_fault(),
+                status.segments()
+            );
+        }
+        Ok(std::thread::spawn(move || {
+            for refused in (RtOptions { fifo_priority: Some(80), ..RtOptions::default() }).apply() {
+                eprintln!("warning: writer_EC: {refused}");
+            }
+            let mut samples = Vec::with_capacity(4096);
+            let mut after = Vec::with_capacity(4096);
+            let mut ticker = Ticker::new(period);
+            let stop = writer.stop_signal().clone();
+            while ticker.wait(&stop).is_some() {
+                let started = skinware::os::monotonic_ns();
+                let mut frame = writer.begin();
+                let acquired = source.acquire(&mut frame).is_ok();
+                let data_ns = frame.acquired_ns().unwrap_or(started);
+                if acquired {
+                    frame.publish();
+                } else {
+                    frame.discard();
+                }
+                let ended = skinware::os::monotonic_ns();
+                samples.push(WriterSample { started_ns: started, took_ns: ended - started });
+                if acquired {
+                    let from = data_ns.max(started);
+                    after.push(WriterSample { started_ns: started, took_ns: ended.saturating_sub(from) });
+                }
+            }
+            driver.stop();
+            *after_bus_data.lock().unwrap_or_else(|p| p.into_inner()) = after;
+            samples
+        }))
+    }
 }
 
 /// The CAN writer on the real driver path: emulated boards → SLCAN → decoder.

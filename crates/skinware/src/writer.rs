@@ -591,6 +591,12 @@ impl FrameWriter<'_> {
         self.acquired_ns = Some(ns);
     }
 
+    /// The acquisition time a driver set with
+    /// [`set_acquired_ns`](FrameWriter::set_acquired_ns), if it did.
+    pub fn acquired_ns(&self) -> Option<u64> {
+        self.acquired_ns
+    }
+
     /// Sets the frame's status flags.
     pub fn set_status(&mut self, status: FrameStatus) {
         self.status = status;

@@ -11,6 +11,8 @@ pub enum Which {
     Paper(PaperArgs),
     /// The paper's Table I: a 180-sensor CAN layer and a 708-sensor EtherCAT layer.
     Table1(Table1Args),
+    /// The EtherCAT driver on a veth pair against the ESC model (in a network namespace of its own): cycle rate and jitter at 1 kHz, latency from the SubDevice to a reader, fault detection and recovery.
+    Ethercat(Common),
     /// A CAN skin on the real driver path: emulated MTB boards over SLCAN, frames/s and latency to a reader.
     Can(Common),
     /// The whole-skin frame to 1, 4 and 15 waiting readers: skinware, iceoryx2 (feature), a lock-based baseline, memcpy, cyclictest.
@@ -69,10 +71,12 @@ pub struct KilohertzArgs {
 pub struct Table1Args {
     #[command(flatten)]
     common: Common,
-    /// Where the CAN writer's data comes from: `memory`, or `slcan` (emulated
-    /// MTB boards on a pseudo-terminal, through the SLCAN codec and the
-    /// icub-mtb decoder).
-    #[arg(long, default_value = "memory", value_parser = ["memory", "slcan"])]
+    /// Where one writer's data comes from: `memory` (both), `slcan` (the CAN
+    /// writer: emulated MTB boards on a pseudo-terminal, through the SLCAN
+    /// codec and the icub-mtb decoder) or `ethercat` (the EtherCAT writer:
+    /// ethercrab on a veth pair against the ESC model, in a network
+    /// namespace of the bench's own).
+    #[arg(long, default_value = "memory", value_parser = ["memory", "slcan", "ethercat"])]
     transport: String,
 }
 
@@ -110,6 +114,10 @@ pub fn run(which: &Which) -> Result<()> {
         Which::Table1(Table1Args { common, transport }) => {
             let transport = match transport.as_str() {
                 "slcan" => skinware_bench::table1::Transport::Slcan,
+                "ethercat" => {
+                    enter_own_network_namespace()?;
+                    skinware_bench::table1::Transport::Ethercat
+                }
                 _ => skinware_bench::table1::Transport::Memory,
             };
             let options = skinware_bench::table1::Table1Options {
@@ -120,6 +128,15 @@ pub fn run(which: &Which) -> Result<()> {
                 transport,
             };
             skinware_bench::table1::run(&options).map(|_| ())
+        }
+        Which::Ethercat(common) => {
+            enter_own_network_namespace()?;
+            let options = skinware_bench::ethercat::EthercatOptions {
+                quick: common.quick,
+                out: common.out.clone(),
+                seconds: common.seconds,
+            };
+            skinware_bench::ethercat::run(&options).map(|_| ())
         }
         Which::Can(common) => {
             let options = skinware_bench::can::CanOptions {
@@ -179,6 +196,15 @@ pub fn run(which: &Which) -> Result<()> {
             skinware_bench::python::run(&options).map(|_| ())
         }
     }
+}
+
+/// Runs this command again in a network namespace of its own (for the
+/// EtherCAT bus's veth pair), unless this is already that copy.
+fn enter_own_network_namespace() -> Result<()> {
+    if skinware_bench::netns::inside() {
+        return Ok(());
+    }
+    match skinware_bench::netns::reexec_in_own_namespace()? {}
 }
 
 /// Arguments of the hidden `bench-peer-reader` role.

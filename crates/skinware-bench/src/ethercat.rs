@@ -1,0 +1,511 @@
+//! `skin bench ethercat`: the EtherCAT driver on its real path, measured.
+//! ethercrab's MainDevice on a raw socket at one end of a veth pair, the ESC
+//! model of one 708-taxel segment at the other, in a network namespace of
+//! the bench's own ([`crate::netns`]); the layer published by the driver
+//! handler, as `skin run` does, at 1 kHz.
+//!
+//! * Cycles: the emulated SubDevice notes the CLOCK_MONOTONIC time at which
+//!   it fills each cycle's inputs; from those, the achieved rate, the period
+//!   and its jitter (|period − 1 ms|), and the cycles missed.
+//! * Latency: the SubDevice writes that time into its first 4 taxels; a
+//!   reader thread of this process waits for each new frame (`wait_newer`,
+//!   a futex wake), and its copy in hand, takes now − that time. The span
+//!   holds the frame's trip back over the veth pair, ethercrab, the driver's
+//!   bus thread, the writer thread's acquisition and publish, and the
+//!   reader's wake and copy.
+//! * Faults: each of the emulator's fault switches, thrown while the layer
+//!   runs: the time from throwing it to the layer's writer state turning
+//!   `Faulted` (as a reader sees it), and from its end to a stretch of
+//!   `Running` of at least [`STABLE`].
+
+use std::num::NonZeroU64;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use serde::Serialize;
+use skinware::driver::DriverHandler;
+use skinware::{HandlerOptions, Reader, ReaderOptions, RtOptions, WriterState};
+use skinware_emulate::ethercat::{LeaveOp, Segment, TactileConfig, TactileSubDevice};
+
+use crate::measure::Percentiles;
+use crate::netns::{self, EmulatedBus};
+
+/// Taxels of the segment: the paper's EtherCAT sensors.
+const TAXELS: usize = 708;
+/// The bus and the layer, Hz.
+const RATE_HZ: f64 = 1000.0;
+/// SCHED_FIFO priority of the driver's threads (bus, frame I/O, writer).
+const DRIVER_PRIORITY: u8 = 80;
+/// … of the emulated SubDevice's thread and of the reader.
+const PEER_PRIORITY: u8 = 70;
+/// Idle CPUs asked to wake within this many µs (0: they poll).
+const CPU_WAKE_LATENCY_US: u32 = 0;
+/// A recovery counts once the layer has been running this long.
+pub const STABLE: Duration = Duration::from_millis(50);
+
+/// Options of `skin bench ethercat`.
+#[derive(Clone, Debug)]
+pub struct EthercatOptions {
+    /// CI-sized: 2 s of cycles, one repetition of each fault.
+    pub quick: bool,
+    /// Where `ethercat.json` goes.
+    pub out: PathBuf,
+    /// Seconds of cycles (overrides 2 s quick, 30 s full).
+    pub seconds: Option<f64>,
+}
+
+/// The bus cycles, as the SubDevice saw them.
+#[derive(Debug, Serialize)]
+pub struct CycleReport {
+    /// Cycles seen.
+    pub cycles: usize,
+    /// Cycles per second achieved.
+    pub achieved_hz: f64,
+    /// From one cycle's inputs to the next's, ns.
+    pub period_ns: Percentiles,
+    /// |period − 1 ms|, ns.
+    pub jitter_ns: Percentiles,
+    /// Slots of the 1 ms schedule, from the first cycle to the last, with
+    /// no cycle in them (the driver skips a cycle it is too late for).
+    pub missed_cycles: u64,
+    /// Periods longer than 1.5 ms (a late cycle; the next one keeps to the
+    /// schedule, so a late cycle need not be a missed one).
+    pub late_periods: usize,
+    /// Frames the layer's writer published per second.
+    pub layer_frames_per_s: f64,
+}
+
+/// The SubDevice's inputs to a reader's copy.
+#[derive(Debug, Serialize)]
+pub struct LatencyReport {
+    /// Who reads: a thread of the bench's process, waiting on the futex.
+    pub reader: &'static str,
+    /// The SubDevice's filling of a cycle's inputs to the reader holding
+    /// the frame's copy, ns.
+    pub latency_ns: Percentiles,
+    /// Frames the reader missed.
+    pub skipped: u64,
+}
+
+/// One fault's detection and recovery.
+#[derive(Debug, Serialize)]
+pub struct FaultReport {
+    /// The fault.
+    pub fault: &'static str,
+    /// How it was thrown and ended.
+    pub how: &'static str,
+    /// Whether recovery counts from the detection (a fault the SubDevice
+    /// ends itself once the driver repairs it) rather than from its end.
+    pub recovery_from_detection: bool,
+    /// Each repetition: throwing it to the layer faulted, ms.
+    pub detect_ms: Vec<f64>,
+    /// Each repetition: its end to a stretch of running, ms.
+    pub recover_ms: Vec<f64>,
+    /// Repetitions in which the layer never turned faulted (within 5 s).
+    pub undetected: u32,
+    /// Repetitions in which it never ran again (within 20 s).
+    pub unrecovered: u32,
+}
+
+/// What `skin bench ethercat` measured.
+#[derive(Debug, Serialize)]
+pub struct EthercatReport {
+    /// Taxels of the segment.
+    pub taxels: usize,
+    /// The bus and layer rate asked for, Hz.
+    pub rate_hz: f64,
+    /// Seconds of cycles measured.
+    pub seconds: f64,
+    /// The driver's threads' SCHED_FIFO priority asked for.
+    pub fifo_priority: u8,
+    /// What the system refused of the real-time settings.
+    pub rt_refused: Vec<String>,
+    /// The CPU wake latency asked for, µs.
+    pub requested_cpu_wake_latency_us: Option<u32>,
+    /// The CPU wake latency this process held, µs.
+    pub cpu_wake_latency_us: Option<u32>,
+    /// How long a frame may take before it counts as lost, ms.
+    pub frame_timeout_ms: f64,
+    /// The cycles.
+    pub cycles: CycleReport,
+    /// The latency to a reader.
+    pub latency: LatencyReport,
+    /// Each fault.
+    pub faults: Vec<FaultReport>,
+}
+
+/// Times at which the SubDevice filled its inputs, while recording.
+#[derive(Default)]
+struct Stamps {
+    recording: AtomicBool,
+    at_ns: Mutex<Vec<u64>>,
+}
+
+/// The segment: taxels 0..4 carry the CLOCK_MONOTONIC time (ns, u16 words,
+/// low first) at which it filled them; the rest follow the sample number.
+fn stamped_segment(stamps: Arc<Stamps>) -> Result<Segment> {
+    let source = move |sample: u64, taxels: &mut [u16]| {
+        for (k, taxel) in taxels.iter_mut().enumerate().skip(4) {
+            *taxel = (sample as u16).wrapping_add(k as u16);
+        }
+        let now = skinware::os::monotonic_ns();
+        for (k, taxel) in taxels.iter_mut().take(4).enumerate() {
+            *taxel = (now >> (16 * k)) as u16;
+        }
+        if stamps.recording.load(Ordering::Relaxed) {
+            stamps.at_ns.lock().unwrap_or_else(|p| p.into_inner()).push(now);
+        }
+    };
+    let subdevice = TactileSubDevice::new(TactileConfig::new(TAXELS, 1), source)
+        .context("cannot build the emulated EtherCAT segment")?;
+    Ok(Segment::new(vec![subdevice]))
+}
+
+/// The time a frame's first 4 taxels carry.
+fn stamp_of(responses: &[u16]) -> u64 {
+    responses.iter().take(4).enumerate().fold(0, |at, (k, &word)| at | u64::from(word) << (16 * k))
+}
+
+/// Runs the measurement (inside the bench's own network namespace), prints
+/// it and writes `ethercat.json`.
+pub fn run(options: &EthercatOptions) -> Result<EthercatReport> {
+    let seconds = options.seconds.unwrap_or(if options.quick { 2.0 } else { 30.0 });
+    if !(seconds.is_finite() && seconds > 0.0) {
+        bail!("--seconds must be a positive number of seconds");
+    }
+    if !netns::inside() {
+        bail!("skin bench ethercat runs in a network namespace of its own: start it as `skin bench ethercat`");
+    }
+    std::fs::create_dir_all(&options.out).with_context(|| format!("cannot create {}", options.out.display()))?;
+    netns::make_veth_pair()?;
+    let rt = RtOptions {
+        fifo_priority: Some(DRIVER_PRIORITY),
+        cpu_wake_latency_us: Some(CPU_WAKE_LATENCY_US),
+        ..RtOptions::default()
+    };
+    // What the system refuses, found once (the wake latency is held for the
+    // process's life from here on; the driver's threads apply the rest).
+    let rt_refused = {
+        let rt = rt.clone();
+        std::thread::spawn(move || rt.apply()).join().map_err(|_| anyhow::anyhow!("probe thread panicked"))?
+    };
+    for refused in &rt_refused {
+        eprintln!("warning: {refused}");
+    }
+    let stamps = Arc::new(Stamps::default());
+    let bus = EmulatedBus::start(stamped_segment(stamps.clone())?, Some(PEER_PRIORITY))?;
+
+    let dir = PathBuf::from("/dev/shm").join(format!("skinware-bench-ecat-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let driver = netns::driver("skin", 1, TAXELS, RATE_HZ, rt)?;
+    let status = driver.status_handle();
+    let frame_timeout_ms = (2.0 / RATE_HZ * 1e3).max(10.0);
+    let handler = DriverHandler::start(
+        "bench-ecat",
+        Box::new(driver),
+        &HandlerOptions { dir: Some(dir.clone()), ..HandlerOptions::default() },
+    )?;
+    let open =
+        || Reader::open_with("bench-ecat", "skin", &ReaderOptions { dir: Some(dir.clone()), ..Default::default() });
+    let mut watcher = open()?;
+    let result = (|| -> Result<EthercatReport> {
+        if !netns::wait_until(Duration::from_secs(10), || watcher.writer_state() == WriterState::Running) {
+            bail!(
+                "the EtherCAT layer was not running 10 s after start: bus {:?}, segments {:?}",
+                status.bus_fault(),
+                status.segments()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(500));
+
+        // Cycles and latency, together.
+        let mut reader = open()?;
+        let frames_before = watcher.writer_stats().frames;
+        stamps.at_ns.lock().unwrap_or_else(|p| p.into_inner()).reserve((seconds * RATE_HZ * 1.2) as usize);
+        stamps.recording.store(true, Ordering::Relaxed);
+        let started = Instant::now();
+        let reading = std::thread::spawn(move || {
+            let _ = RtOptions { fifo_priority: Some(PEER_PRIORITY), ..RtOptions::default() }.apply();
+            let mut latency = Vec::with_capacity((seconds * RATE_HZ * 1.2) as usize);
+            let mut skipped = 0;
+            let deadline = Instant::now() + Duration::from_secs_f64(seconds);
+            while Instant::now() < deadline {
+                let Ok(frame) = reader.wait_newer(Duration::from_millis(100)) else { continue };
+                let copied = skinware::os::monotonic_ns();
+                skipped += frame.skipped();
+                let stamped = stamp_of(frame.responses());
+                if stamped != 0 && stamped <= copied {
+                    latency.push(copied - stamped);
+                }
+            }
+            (latency, skipped)
+        });
+        let (mut latency, skipped) = reading.join().map_err(|_| anyhow::anyhow!("reader thread panicked"))?;
+        stamps.recording.store(false, Ordering::Relaxed);
+        let elapsed = started.elapsed().as_secs_f64();
+        let layer_frames_per_s = (watcher.writer_stats().frames - frames_before) as f64 / elapsed;
+        let at = std::mem::take(&mut *stamps.at_ns.lock().unwrap_or_else(|p| p.into_inner()));
+        let cycles = cycle_report(&at, layer_frames_per_s);
+        let latency = LatencyReport {
+            reader: "a thread of the bench's process (SCHED_FIFO 70), wait_newer (futex wake)",
+            latency_ns: Percentiles::of(&mut latency),
+            skipped,
+        };
+
+        let repetitions = if options.quick { 1 } else { 5 };
+        let mut faults = Vec::new();
+        for fault in &FAULTS {
+            faults.push(measure_fault(fault, repetitions, &bus, &status, &mut watcher)?);
+        }
+        Ok(EthercatReport {
+            taxels: TAXELS,
+            rate_hz: RATE_HZ,
+            seconds,
+            fifo_priority: DRIVER_PRIORITY,
+            rt_refused,
+            requested_cpu_wake_latency_us: Some(CPU_WAKE_LATENCY_US),
+            cpu_wake_latency_us: skinware::rt::held_cpu_wake_latency_us(),
+            frame_timeout_ms,
+            cycles,
+            latency,
+            faults,
+        })
+    })();
+    handler.stop();
+    let served = bus.stop();
+    let _ = std::fs::remove_dir_all(&dir);
+    let report = result?;
+    let served = served?;
+    print(&report, served.frames, served.answered);
+    let json = options.out.join("ethercat.json");
+    std::fs::write(&json, serde_json::to_vec_pretty(&report)?)?;
+    println!("wrote {}", json.display());
+    Ok(report)
+}
+
+/// The cycles from the SubDevice's times of filling its inputs.
+fn cycle_report(at: &[u64], layer_frames_per_s: f64) -> CycleReport {
+    let period_ns = (1e9 / RATE_HZ) as u64;
+    let mut periods: Vec<u64> = at.windows(2).map(|w| w[1].saturating_sub(w[0])).collect();
+    let mut jitter: Vec<u64> = periods.iter().map(|&p| p.abs_diff(period_ns)).collect();
+    let late_periods = periods.iter().filter(|&&p| p > period_ns * 3 / 2).count();
+    let span = match (at.first(), at.last()) {
+        (Some(first), Some(last)) if last > first => (last - first) as f64 / 1e9,
+        _ => 0.0,
+    };
+    let slots = (span * 1e9 / period_ns as f64).round() as u64 + 1;
+    let missed = slots.saturating_sub(at.len() as u64);
+    CycleReport {
+        cycles: at.len(),
+        achieved_hz: if span > 0.0 { (at.len() - 1) as f64 / span } else { 0.0 },
+        period_ns: Percentiles::of(&mut periods),
+        jitter_ns: Percentiles::of(&mut jitter),
+        missed_cycles: missed,
+        late_periods,
+        layer_frames_per_s,
+    }
+}
+
+/// A fault switch of the emulator (or of the link).
+struct Fault {
+    name: &'static str,
+    how: &'static str,
+    throw: fn(&EmulatedBus) -> Result<()>,
+    end: fn(&EmulatedBus) -> Result<()>,
+    /// The fault ends once detected: the SubDevice left OP on its own, and
+    /// it is the driver that brings it back.
+    ends_at_detection: bool,
+    /// Held until the bus as a whole counts as down (then 100 ms more),
+    /// rather than 200 ms from throwing it.
+    until_bus_down: bool,
+}
+
+const FAULTS: [Fault; 5] = [
+    Fault {
+        name: "every 2nd frame lost",
+        how: "the segment's drop_every_nth_frame = 2 for 200 ms",
+        throw: |bus| {
+            bus.lock().faults_mut().drop_every_nth_frame = NonZeroU64::new(2);
+            Ok(())
+        },
+        end: |bus| {
+            bus.lock().faults_mut().drop_every_nth_frame = None;
+            Ok(())
+        },
+        ends_at_detection: false,
+        until_bus_down: false,
+    },
+    Fault {
+        name: "wrong working counter",
+        how: "the SubDevice's wrong_working_counter for 200 ms",
+        throw: |bus| set_subdevice(bus, |f| f.wrong_working_counter = true),
+        end: |bus| set_subdevice(bus, |f| f.wrong_working_counter = false),
+        ends_at_detection: false,
+        until_bus_down: false,
+    },
+    Fault {
+        name: "SubDevice leaves OP",
+        how: "leave_op = after 0 cycles (to SAFE-OP with its error flag); cleared once seen, the driver acknowledges",
+        throw: |bus| set_subdevice(bus, |f| f.leave_op = Some(LeaveOp::AfterCycles(0))),
+        end: |bus| set_subdevice(bus, |f| f.leave_op = None),
+        ends_at_detection: true,
+        until_bus_down: false,
+    },
+    Fault {
+        name: "segment silent",
+        how: "the segment's link_down switch (no answers, carrier up) until the bus counts as down, +100 ms",
+        throw: |bus| {
+            bus.lock().faults_mut().link_down = true;
+            Ok(())
+        },
+        end: |bus| {
+            bus.lock().faults_mut().link_down = false;
+            Ok(())
+        },
+        ends_at_detection: false,
+        until_bus_down: true,
+    },
+    Fault {
+        name: "cable pull",
+        how: "`ip link set ecat-emu down` until the bus counts as down, +100 ms, then `up`",
+        throw: |_| netns::ip(&["link", "set", netns::SEGMENT_END, "down"]),
+        end: |_| netns::ip(&["link", "set", netns::SEGMENT_END, "up"]),
+        ends_at_detection: false,
+        until_bus_down: true,
+    },
+];
+
+fn set_subdevice(bus: &EmulatedBus, set: impl FnOnce(&mut skinware_emulate::ethercat::SubDeviceFaults)) -> Result<()> {
+    let mut segment = bus.lock();
+    set(segment.subdevice_mut(0).context("the emulated segment has no SubDevice")?.faults_mut());
+    Ok(())
+}
+
+/// Waits for a stretch of `Running` of [`STABLE`]; returns when it began.
+fn stably_running(watcher: &Reader, within: Duration) -> Option<Instant> {
+    let started = Instant::now();
+    let mut since: Option<Instant> = None;
+    while started.elapsed() < within {
+        if watcher.writer_state() == WriterState::Running {
+            let from = *since.get_or_insert_with(Instant::now);
+            if from.elapsed() >= STABLE {
+                return Some(from);
+            }
+        } else {
+            since = None;
+        }
+        std::thread::sleep(Duration::from_micros(200));
+    }
+    None
+}
+
+fn measure_fault(
+    fault: &Fault,
+    repetitions: u32,
+    bus: &EmulatedBus,
+    status: &skinware_drivers::ethercat::EthercatStatus,
+    watcher: &mut Reader,
+) -> Result<FaultReport> {
+    let mut report = FaultReport {
+        fault: fault.name,
+        how: fault.how,
+        recovery_from_detection: fault.ends_at_detection,
+        detect_ms: Vec::new(),
+        recover_ms: Vec::new(),
+        undetected: 0,
+        unrecovered: 0,
+    };
+    for _ in 0..repetitions {
+        if stably_running(watcher, Duration::from_secs(20)).is_none() {
+            bail!("before {}: the layer is not running (bus {:?})", fault.name, status.bus_fault());
+        }
+        std::thread::sleep(Duration::from_millis(200));
+        if bus.ended() {
+            bail!("the emulated segment stopped");
+        }
+        let thrown = Instant::now();
+        (fault.throw)(bus)?;
+        let detected =
+            netns::wait_until_fine(Duration::from_secs(5), || watcher.writer_state() == WriterState::Faulted);
+        match detected {
+            true => report.detect_ms.push(thrown.elapsed().as_secs_f64() * 1e3),
+            false => report.undetected += 1,
+        }
+        let ended_at = if fault.ends_at_detection {
+            let at = Instant::now();
+            (fault.end)(bus)?;
+            at
+        } else {
+            if fault.until_bus_down {
+                netns::wait_until(Duration::from_secs(5), || status.bus_fault().is_some());
+                std::thread::sleep(Duration::from_millis(100));
+            } else {
+                std::thread::sleep(Duration::from_millis(200).saturating_sub(thrown.elapsed()));
+            }
+            (fault.end)(bus)?;
+            Instant::now()
+        };
+        match stably_running(watcher, Duration::from_secs(20)) {
+            Some(running) => report.recover_ms.push(running.saturating_duration_since(ended_at).as_secs_f64() * 1e3),
+            None => report.unrecovered += 1,
+        }
+    }
+    Ok(report)
+}
+
+fn print(report: &EthercatReport, frames: u64, answered: u64) {
+    println!(
+        "skin bench ethercat: one segment of {} taxels at {} Hz, ethercrab on a veth pair against the ESC model, {} s",
+        report.taxels, report.rate_hz, report.seconds
+    );
+    println!(
+        "  driver threads SCHED_FIFO {} ({}), CPU wake latency held: {:?} us; frame timeout {} ms",
+        report.fifo_priority,
+        if report.rt_refused.is_empty() { "granted".to_string() } else { report.rt_refused.join("; ") },
+        report.cpu_wake_latency_us,
+        report.frame_timeout_ms
+    );
+    let c = &report.cycles;
+    println!(
+        "  cycles (the SubDevice's filling of its inputs): {} cycles, {:.1} Hz, {} missed, {} periods over 1.5 ms; \
+         layer {:.1} frames/s",
+        c.cycles, c.achieved_hz, c.missed_cycles, c.late_periods, c.layer_frames_per_s
+    );
+    println!("  {:<36} {:>10} {:>10} {:>10}", "", "p50 (us)", "p99 (us)", "max (us)");
+    let us = |p: &Percentiles, label: &str| {
+        println!(
+            "  {:<36} {:>10.1} {:>10.1} {:>10.1}",
+            label,
+            p.p50 as f64 / 1e3,
+            p.p99 as f64 / 1e3,
+            p.max as f64 / 1e3
+        )
+    };
+    us(&c.period_ns, "period");
+    us(&c.jitter_ns, "jitter |period - 1 ms|");
+    us(&report.latency.latency_ns, "SubDevice's inputs -> reader's copy");
+    println!("  reader: {}; skipped {} frames", report.latency.reader, report.latency.skipped);
+    println!("\n  {:<24} {:>6} {:>22} {:>22}", "fault", "reps", "detect ms (med / max)", "recover ms (med / max)");
+    for f in &report.faults {
+        let summary = |v: &[f64]| {
+            let mut v = v.to_vec();
+            v.sort_by(f64::total_cmp);
+            match (v.get(v.len() / 2), v.last()) {
+                (Some(m), Some(x)) => format!("{m:.1} / {x:.1}"),
+                _ => "-".into(),
+            }
+        };
+        println!(
+            "  {:<24} {:>6} {:>22} {:>22}{}",
+            f.fault,
+            f.detect_ms.len() as u32 + f.undetected,
+            summary(&f.detect_ms),
+            summary(&f.recover_ms),
+            if f.recovery_from_detection { "  (recovery from detection)" } else { "" }
+        );
+    }
+    println!("  emulated segment: {frames} frames taken, {answered} answered");
+}
