@@ -53,12 +53,38 @@ for record in peers.get("busy_readers", []):
     for key in ("p50", "p99", "max"):
         need(is_count(record.get("publish_ns", {}).get(key)), f"peers.json: busy {record.get('system')}/{record.get('readers')} publish_ns.{key} missing")
 
-for name, transport in (("table1.json", "memory"), ("table1-slcan/table1.json", "slcan")):
+for name, transports in (
+    ("table1.json", ["memory", "memory"]),
+    ("table1-slcan/table1.json", ["memory", "slcan"]),
+    ("table1-ethercat/table1.json", ["ethercat", "memory"]),
+):
     table1 = json.loads((out / name).read_text())
     need([row.get("name") for row in table1] == ["writer_EC", "writer_CAN", "reader_EC", "reader_CAN"], f"{name}: rows")
     for row in table1:
         need(row.get("samples", 0) > 0 and row.get("worst_ns", 0) >= row.get("avg_ns", 0) > 0, f"{name}: {row.get('name')} incomplete")
-    need([row.get("transport") for row in table1[:2]] == ["memory", transport], f"{name}: the writers' transport is not recorded")
+    need([row.get("transport") for row in table1[:2]] == transports, f"{name}: the writers' transport is not recorded")
+    if transports[0] == "ethercat":
+        after = table1[0].get("after_bus_data_ns", {})
+        need(after.get("samples", 0) > 0 and is_count(after.get("p99")), f"{name}: writer_EC's span after the bus data missing")
+
+ecat = json.loads((out / "ethercat.json").read_text())
+need(ecat.get("taxels") == 708 and ecat.get("rate_hz") == 1000, "ethercat.json: not one 708-taxel segment at 1 kHz")
+cycles = ecat.get("cycles", {})
+need(cycles.get("cycles", 0) > 0 and cycles.get("achieved_hz", 0) > 0 and cycles.get("layer_frames_per_s", 0) > 0, "ethercat.json: no cycles")
+need(is_count(cycles.get("missed_cycles")) and is_count(cycles.get("late_periods")), "ethercat.json: missed cycles not counted")
+for key in ("period_ns", "jitter_ns"):
+    stats = cycles.get(key, {})
+    need(stats.get("samples", 0) > 0 and all(is_count(stats.get(k)) for k in ("p50", "p99", "max")), f"ethercat.json: cycles.{key} incomplete")
+latency = ecat.get("latency", {})
+need(latency.get("latency_ns", {}).get("samples", 0) > 0 and is_count(latency.get("skipped")), "ethercat.json: no latency samples")
+need(isinstance(ecat.get("rt_refused"), list) and "cpu_wake_latency_us" in ecat, "ethercat.json: real-time settings not recorded")
+faults = ecat.get("faults", [])
+need([f.get("fault") for f in faults] == ["every 2nd frame lost", "wrong working counter", "SubDevice leaves OP", "segment silent", "cable pull"],
+     f"ethercat.json: faults {[f.get('fault') for f in faults]}")
+for f in faults:
+    # Every repetition is either timed or counted as not seen.
+    need(len(f.get("detect_ms", [])) + f.get("undetected", -1) > 0 and len(f.get("recover_ms", [])) + f.get("unrecovered", -1) > 0,
+         f"ethercat.json: {f.get('fault')}: no repetitions")
 
 can = json.loads((out / "can.json").read_text())
 need(can.get("taxels") == 768 and can.get("layer_frames_per_s", 0) > 0 and can.get("bus_frames_per_s", 0) > 0, "can.json: rates missing")

@@ -86,6 +86,15 @@ pub struct LatencyReport {
     /// The SubDevice's filling of a cycle's inputs to the reader holding
     /// the frame's copy, ns.
     pub latency_ns: Percentiles,
+    /// Its first part: the SubDevice's filling of the inputs to the driver's
+    /// bus thread having the answer (the frame's `acquired_ns`): the veth
+    /// pair, the raw sockets and ethercrab, ns.
+    pub to_driver_ns: Percentiles,
+    /// Its second part: from there to the reader's copy: the wait for the
+    /// layer writer's next tick (the writer and the bus both run at 1 kHz,
+    /// not in step: 0 to 1 period, nearly fixed within a run), its
+    /// acquisition and publish, and the reader's wake and copy, ns.
+    pub driver_to_reader_ns: Percentiles,
     /// Frames the reader missed.
     pub skipped: u64,
 }
@@ -230,6 +239,8 @@ pub fn run(options: &EthercatOptions) -> Result<EthercatReport> {
         let reading = std::thread::spawn(move || {
             let _ = RtOptions { fifo_priority: Some(PEER_PRIORITY), ..RtOptions::default() }.apply();
             let mut latency = Vec::with_capacity((seconds * RATE_HZ * 1.2) as usize);
+            let mut to_driver = Vec::with_capacity(latency.capacity());
+            let mut driver_to_reader = Vec::with_capacity(latency.capacity());
             let mut skipped = 0;
             let deadline = Instant::now() + Duration::from_secs_f64(seconds);
             while Instant::now() < deadline {
@@ -237,13 +248,17 @@ pub fn run(options: &EthercatOptions) -> Result<EthercatReport> {
                 let copied = skinware::os::monotonic_ns();
                 skipped += frame.skipped();
                 let stamped = stamp_of(frame.responses());
-                if stamped != 0 && stamped <= copied {
+                let received = frame.acquired_ns();
+                if stamped != 0 && stamped <= received && received <= copied {
                     latency.push(copied - stamped);
+                    to_driver.push(received - stamped);
+                    driver_to_reader.push(copied - received);
                 }
             }
-            (latency, skipped)
+            (latency, to_driver, driver_to_reader, skipped)
         });
-        let (mut latency, skipped) = reading.join().map_err(|_| anyhow::anyhow!("reader thread panicked"))?;
+        let (mut latency, mut to_driver, mut driver_to_reader, skipped) =
+            reading.join().map_err(|_| anyhow::anyhow!("reader thread panicked"))?;
         stamps.recording.store(false, Ordering::Relaxed);
         let elapsed = started.elapsed().as_secs_f64();
         let layer_frames_per_s = (watcher.writer_stats().frames - frames_before) as f64 / elapsed;
@@ -252,6 +267,8 @@ pub fn run(options: &EthercatOptions) -> Result<EthercatReport> {
         let latency = LatencyReport {
             reader: "a thread of the bench's process (SCHED_FIFO 70), wait_newer (futex wake)",
             latency_ns: Percentiles::of(&mut latency),
+            to_driver_ns: Percentiles::of(&mut to_driver),
+            driver_to_reader_ns: Percentiles::of(&mut driver_to_reader),
             skipped,
         };
 
@@ -487,6 +504,8 @@ fn print(report: &EthercatReport, frames: u64, answered: u64) {
     us(&c.period_ns, "period");
     us(&c.jitter_ns, "jitter |period - 1 ms|");
     us(&report.latency.latency_ns, "SubDevice's inputs -> reader's copy");
+    us(&report.latency.to_driver_ns, "  of which SubDevice -> bus thread");
+    us(&report.latency.driver_to_reader_ns, "  and bus thread -> reader's copy");
     println!("  reader: {}; skipped {} frames", report.latency.reader, report.latency.skipped);
     println!("\n  {:<24} {:>6} {:>22} {:>22}", "fault", "reps", "detect ms (med / max)", "recover ms (med / max)");
     for f in &report.faults {

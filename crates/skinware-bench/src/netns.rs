@@ -10,6 +10,7 @@
 //! [`INSIDE`]. The namespace, and the veth pair in it, disappear with the
 //! last process in it: nothing is left behind, however the bench ends.
 
+use std::path::PathBuf;
 use std::process::Command;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -186,4 +187,22 @@ pub fn wait_until_fine(within: Duration, mut ready: impl FnMut() -> bool) -> boo
         std::thread::sleep(Duration::from_micros(100));
     }
     true
+}
+
+/// Removes what this process's EtherCAT benches put in the shared-memory
+/// directory (for an interrupted run): `skinware-bench-ecat-<pid>` and the
+/// channels of skin `table1-<pid>`.
+pub fn remove_channels_of_this_process() {
+    let pid = std::process::id();
+    let dir = skinware::shm::segment_dir();
+    let _ = std::fs::remove_dir_all(PathBuf::from("/dev/shm").join(format!("skinware-bench-ecat-{pid}")));
+    let table1 = format!("table1-{pid}.");
+    if let Ok(entries) = std::fs::read_dir(&dir) {
+        for entry in entries.flatten() {
+            let name = entry.file_name().to_string_lossy().into_owned();
+            if name.contains(&table1) {
+                let _ = std::fs::remove_file(entry.path());
+            }
+        }
+    }
 }

@@ -200,11 +200,22 @@ pub fn run(which: &Which) -> Result<()> {
 
 /// Runs this command again in a network namespace of its own (for the
 /// EtherCAT bus's veth pair), unless this is already that copy.
+/// Inside, Ctrl-C or SIGTERM removes this process's channels before it
+/// exits (the namespace and its veth pair go with the last process in it).
 fn enter_own_network_namespace() -> Result<()> {
-    if skinware_bench::netns::inside() {
-        return Ok(());
+    if !skinware_bench::netns::inside() {
+        match skinware_bench::netns::reexec_in_own_namespace()? {}
     }
-    match skinware_bench::netns::reexec_in_own_namespace()? {}
+    let mut signals = signal_hook::iterator::Signals::new([signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM])
+        .context("cannot install signal handlers")?;
+    std::thread::spawn(move || {
+        if let Some(signal) = signals.forever().next() {
+            skinware_bench::netns::remove_channels_of_this_process();
+            eprintln!("skin bench: interrupted; channels removed");
+            std::process::exit(128 + signal);
+        }
+    });
+    Ok(())
 }
 
 /// Arguments of the hidden `bench-peer-reader` role.
