@@ -28,7 +28,7 @@ use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use skinware::driver::DriverHandler;
 use skinware::{HandlerOptions, Reader, ReaderOptions, RtOptions, WriterState};
-use skinware_emulate::ethercat::{LeaveOp, Segment, TactileConfig, TactileSubDevice};
+use skinware_emulate::ethercat::{AlState, LeaveOp, Segment, TactileConfig, TactileSubDevice};
 
 use crate::measure::Percentiles;
 use crate::netns::{self, EmulatedBus};
@@ -41,6 +41,8 @@ const RATE_HZ: f64 = 1000.0;
 const DRIVER_PRIORITY: u8 = 80;
 /// … of the emulated SubDevice's thread and of the reader.
 const PEER_PRIORITY: u8 = 70;
+/// … of the thread that throws the faults and watches the layer's state.
+const WATCHER_PRIORITY: u8 = 90;
 /// Idle CPUs asked to wake within this many µs (0: they poll).
 const CPU_WAKE_LATENCY_US: u32 = 0;
 /// A recovery counts once the layer has been running this long.
@@ -274,8 +276,14 @@ pub fn run(options: &EthercatOptions) -> Result<EthercatReport> {
 
         let repetitions = if options.quick { 1 } else { 5 };
         let mut faults = Vec::new();
+        // Above the driver, so that the polls of the layer's state (every
+        // 100 µs) are on time: they take microseconds each.
+        let watcher_fifo = skinware::os::set_fifo_priority(WATCHER_PRIORITY).is_ok();
         for fault in &FAULTS {
             faults.push(measure_fault(fault, repetitions, &bus, &status, &mut watcher)?);
+        }
+        if watcher_fifo {
+            let _ = skinware::os::set_normal_scheduling();
         }
         Ok(EthercatReport {
             taxels: TAXELS,
@@ -365,9 +373,32 @@ const FAULTS: [Fault; 5] = [
     },
     Fault {
         name: "SubDevice leaves OP",
-        how: "leave_op = after 0 cycles (to SAFE-OP with its error flag); cleared once seen, the driver acknowledges",
-        throw: |bus| set_subdevice(bus, |f| f.leave_op = Some(LeaveOp::AfterCycles(0))),
-        end: |bus| set_subdevice(bus, |f| f.leave_op = None),
+        how: "leave_op = after 0 cycles (to SAFE-OP with its error flag), cleared as soon as it left OP (it would \
+              leave again on every entry into OP); the driver acknowledges the error and asks for OP",
+        throw: |bus| {
+            set_subdevice(bus, |f| f.leave_op = Some(LeaveOp::AfterCycles(0)))?;
+            // Spun for, not slept on: the driver acknowledges within a frame
+            // or two, and a switch still set then would take the SubDevice
+            // out of OP again (and the driver's next acknowledgement is 100
+            // ms later). This thread is at SCHED_FIFO 90 here.
+            let started = Instant::now();
+            let mut left = false;
+            while !left && started.elapsed() < Duration::from_secs(1) {
+                let mut segment = bus.lock();
+                left = segment.subdevices().first().is_some_and(|s| s.state() != AlState::Op);
+                if left && let Some(subdevice) = segment.subdevice_mut(0) {
+                    subdevice.faults_mut().leave_op = None;
+                }
+                drop(segment);
+                std::hint::spin_loop();
+            }
+            set_subdevice(bus, |f| f.leave_op = None)?;
+            if !left {
+                bail!("the emulated SubDevice did not leave OP within 1 s of its leave_op switch");
+            }
+            Ok(())
+        },
+        end: |_| Ok(()),
         ends_at_detection: true,
         until_bus_down: false,
     },
