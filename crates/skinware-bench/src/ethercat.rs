@@ -45,6 +45,10 @@ const PEER_PRIORITY: u8 = 70;
 const WATCHER_PRIORITY: u8 = 90;
 /// Idle CPUs asked to wake within this many µs (0: they poll).
 const CPU_WAKE_LATENCY_US: u32 = 0;
+/// Before a fault that takes the bus down (full run), the layer has run at
+/// least this long: longer than the driver's 8 s after which its reconnect
+/// backoff starts again from 100 ms.
+const BUS_SETTLE: Duration = Duration::from_millis(8500);
 /// A recovery counts once the layer has been running this long.
 pub const STABLE: Duration = Duration::from_millis(50);
 
@@ -115,6 +119,9 @@ pub struct FaultReport {
     pub detect_ms: Vec<f64>,
     /// Each repetition: its end to a stretch of running, ms.
     pub recover_ms: Vec<f64>,
+    /// Each repetition: how long the layer had been running before the
+    /// fault was thrown, ms.
+    pub up_before_ms: Vec<f64>,
     /// Repetitions in which the layer never turned faulted (within 5 s).
     pub undetected: u32,
     /// Repetitions in which it never ran again (within 20 s).
@@ -280,7 +287,7 @@ pub fn run(options: &EthercatOptions) -> Result<EthercatReport> {
         // 100 µs) are on time: they take microseconds each.
         let watcher_fifo = skinware::os::set_fifo_priority(WATCHER_PRIORITY).is_ok();
         for fault in &FAULTS {
-            faults.push(measure_fault(fault, repetitions, &bus, &status, &mut watcher)?);
+            faults.push(measure_fault(fault, repetitions, !options.quick, &bus, &status, &mut watcher)?);
         }
         if watcher_fifo {
             let _ = skinware::os::set_normal_scheduling();
@@ -377,10 +384,10 @@ const FAULTS: [Fault; 5] = [
               leave again on every entry into OP); the driver acknowledges the error and asks for OP",
         throw: |bus| {
             set_subdevice(bus, |f| f.leave_op = Some(LeaveOp::AfterCycles(0)))?;
-            // Spun for, not slept on: the driver acknowledges within a frame
-            // or two, and a switch still set then would take the SubDevice
-            // out of OP again (and the driver's next acknowledgement is 100
-            // ms later). This thread is at SCHED_FIFO 90 here.
+            // Polled every 20 µs at SCHED_FIFO 90 (this thread's priority
+            // here): the driver acknowledges within a frame or two, and a
+            // switch still set then would take the SubDevice out of OP again
+            // (and the driver's next acknowledgement is 100 ms later).
             let started = Instant::now();
             let mut left = false;
             while !left && started.elapsed() < Duration::from_secs(1) {
@@ -390,7 +397,9 @@ const FAULTS: [Fault; 5] = [
                     subdevice.faults_mut().leave_op = None;
                 }
                 drop(segment);
-                std::hint::spin_loop();
+                // Slept on briefly, not spun: a spin at this priority would
+                // keep the emulator from the segment's lock.
+                std::thread::sleep(Duration::from_micros(20));
             }
             set_subdevice(bus, |f| f.leave_op = None)?;
             if !left {
@@ -453,6 +462,7 @@ fn stably_running(watcher: &Reader, within: Duration) -> Option<Instant> {
 fn measure_fault(
     fault: &Fault,
     repetitions: u32,
+    settle_bus: bool,
     bus: &EmulatedBus,
     status: &skinware_drivers::ethercat::EthercatStatus,
     watcher: &mut Reader,
@@ -463,14 +473,20 @@ fn measure_fault(
         recovery_from_detection: fault.ends_at_detection,
         detect_ms: Vec::new(),
         recover_ms: Vec::new(),
+        up_before_ms: Vec::new(),
         undetected: 0,
         unrecovered: 0,
     };
     for _ in 0..repetitions {
-        if stably_running(watcher, Duration::from_secs(20)).is_none() {
+        let Some(running) = stably_running(watcher, Duration::from_secs(20)) else {
             bail!("before {}: the layer is not running (bus {:?})", fault.name, status.bus_fault());
-        }
-        std::thread::sleep(Duration::from_millis(200));
+        };
+        // The driver's reconnect backoff (100 ms, doubling to 2 s) starts
+        // again only after a session of 8 s: a bus fault thrown sooner would
+        // measure the backoff the previous one left.
+        let settle = if fault.until_bus_down && settle_bus { BUS_SETTLE } else { Duration::from_millis(200) };
+        std::thread::sleep(settle.saturating_sub(running.elapsed()).max(Duration::from_millis(200)));
+        report.up_before_ms.push(running.elapsed().as_secs_f64() * 1e3);
         if bus.ended() {
             bail!("the emulated segment stopped");
         }
