@@ -575,3 +575,28 @@ fn print(report: &EthercatReport, frames: u64, answered: u64) {
     }
     println!("  emulated segment: {frames} frames taken, {answered} answered");
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_stamp_in_four_taxels_reads_back() {
+        let at = 0x0123_4567_89AB_CDEFu64;
+        let taxels: Vec<u16> = (0..4).map(|k| (at >> (16 * k)) as u16).chain([7, 7]).collect();
+        assert_eq!(stamp_of(&taxels), at);
+    }
+
+    #[test]
+    fn cycles_count_the_empty_slots_of_the_schedule() {
+        // 1 ms cycles with one late by 0.6 ms (kept to the schedule after
+        // it) and two missing.
+        let at: Vec<u64> = [0u64, 1, 2, 3, 5, 6, 8, 9].iter().map(|ms| ms * 1_000_000).collect();
+        let mut late = at.clone();
+        late[2] += 600_000;
+        let report = cycle_report(&late, 1000.0);
+        assert_eq!((report.cycles, report.missed_cycles, report.late_periods), (8, 2, 3));
+        assert_eq!(report.period_ns.max, 2_000_000);
+        assert!((report.achieved_hz - 7.0 / 0.009).abs() < 1e-6);
+    }
+}
