@@ -161,7 +161,7 @@ mod tests {
             devices: vec![DeviceStatus {
                 position: 0,
                 layer: "forearm".into(),
-                name: "SKW-TACTILE-708".into(),
+                name: "SKIN-T708".into(),
                 vendor_id: Some(0x0053_4B4E),
                 product_code: Some(0x7AC7),
                 revision: Some(1),
