@@ -15,7 +15,7 @@
 use std::cell::Cell;
 use std::future::Future;
 use std::pin::Pin;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::task::Poll;
 use std::thread::JoinHandle;
@@ -98,6 +98,10 @@ struct Shared {
     news: Vec<Condvar>,
     /// Why the whole bus is down, while it is.
     bus_fault: Mutex<Option<String>>,
+    /// One per segment: the period deadline (CLOCK_MONOTONIC ns) of its
+    /// layer writer's newest acquisition, 0 before the first. The segment's
+    /// cycles are scheduled from it to end just before the writer's next.
+    writer_deadlines: Vec<AtomicU64>,
 }
 
 impl Shared {
@@ -168,6 +172,7 @@ impl EthercatDriver {
                 .collect(),
             news: config.segments.iter().map(|_| Condvar::new()).collect(),
             bus_fault: Mutex::new(Some("not started".into())),
+            writer_deadlines: config.segments.iter().map(|_| AtomicU64::new(0)).collect(),
         });
         Ok(EthercatDriver { config, link, topologies, shared, stop: Arc::new(AtomicBool::new(false)), thread: None })
     }
@@ -261,6 +266,9 @@ struct SegmentLayer {
 impl LayerSource for SegmentLayer {
     fn acquire(&mut self, frame: &mut FrameWriter<'_>) -> Result<(), DriverError> {
         let started = Instant::now();
+        if let Some(deadline) = frame.period_deadline_ns() {
+            self.shared.writer_deadlines[self.position].store(deadline, Ordering::Relaxed);
+        }
         let mut image = self.shared.segment(self.position);
         loop {
             if let Some(why) = self.shared.bus_fault.lock().unwrap_or_else(|p| p.into_inner()).as_ref() {
@@ -300,6 +308,59 @@ impl LayerSource for SegmentLayer {
         frame.write_responses(0, &image.values)?;
         frame.set_acquired_ns(image.acquired_ns);
         Ok(())
+    }
+}
+
+/// Lead of a cycle over the writer's deadline beyond twice the exchange's
+/// own time: the bus thread's wake-up from its timer (a halted vCPU of a VM
+/// takes 90-150 µs to run again).
+const CYCLE_LEAD_MARGIN_NS: u64 = 150_000;
+
+/// When a segment's cycles start: each one ends just before its layer
+/// writer's next period deadline, so that the acquisition finds a new sample
+/// waiting instead of waiting for the bus (and the sample is as young as the
+/// bus allows). Without a periodic writer to follow, `None`: the caller
+/// cycles on its own.
+#[derive(Debug)]
+struct CycleSchedule {
+    period_ns: u64,
+    /// Smoothed duration of one exchange (frame out and back), ns.
+    exchange_ns: u64,
+}
+
+impl CycleSchedule {
+    fn new(period: Duration) -> CycleSchedule {
+        CycleSchedule { period_ns: (period.as_nanos() as u64).max(1), exchange_ns: 0 }
+    }
+
+    /// How far ahead of the writer's deadline a cycle starts.
+    fn lead_ns(&self) -> u64 {
+        (2 * self.exchange_ns + CYCLE_LEAD_MARGIN_NS).min(self.period_ns / 2)
+    }
+
+    /// The start of the cycle after the one that started at `started_ns` and
+    /// ended at `now_ns`, given the writer's newest period deadline
+    /// `writer_deadline_ns` (0: none yet).
+    fn next_start_ns(&mut self, started_ns: u64, now_ns: u64, writer_deadline_ns: u64) -> Option<u64> {
+        let took = now_ns.saturating_sub(started_ns);
+        // A lost frame's timeout is not the bus's usual time.
+        if took < self.period_ns {
+            self.exchange_ns = if self.exchange_ns == 0 { took } else { (7 * self.exchange_ns + took) / 8 };
+        }
+        // A writer not seen for a few periods (faulted, stopped, not started) is not followed.
+        if writer_deadline_ns == 0 || now_ns.saturating_sub(writer_deadline_ns) > 4 * self.period_ns {
+            return None;
+        }
+        // The writer's deadlines are `writer_deadline_ns + k * period`: the
+        // first whose lead is still ahead, and never two cycles closer than
+        // half a period (when the writer's phase moves).
+        let lead = self.lead_ns();
+        let earliest = now_ns.max(started_ns + self.period_ns / 2);
+        let mut start = (writer_deadline_ns + self.period_ns).saturating_sub(lead);
+        if start < earliest {
+            start += (earliest - start).div_ceil(self.period_ns) * self.period_ns;
+        }
+        Some(start)
     }
 }
 
@@ -413,6 +474,7 @@ impl Bus {
         let mut acknowledged_at: Option<Instant> = None;
         let mut last_state = SubDeviceState::Op;
         let mut next = Instant::now();
+        let mut schedule = CycleSchedule::new(period);
         let subdevice = group.subdevice(maindevice, 0).map_err(|e| format!("segment {position}: {e}"))?;
         loop {
             if self.stop.load(Ordering::Relaxed) {
@@ -428,6 +490,7 @@ impl Bus {
                 outputs[..2].copy_from_slice(&COMMAND_ACQUIRE.to_le_bytes());
                 outputs[2..4].copy_from_slice(&config.to_le_bytes());
             }
+            let cycle_started_ns = skinware::os::monotonic_ns();
             let response = group.tx_rx(maindevice).await;
             let now_ns = skinware::os::monotonic_ns();
             match response {
@@ -472,12 +535,18 @@ impl Bus {
                     }
                 }
             }
-            next += period;
-            let now = Instant::now();
-            if next < now {
-                // Late: skip the cycles missed rather than run them back to back.
-                next = now;
-            }
+            let writer_deadline = self.shared.writer_deadlines[position].load(Ordering::Relaxed);
+            let now_ns = skinware::os::monotonic_ns();
+            next = match schedule.next_start_ns(cycle_started_ns, now_ns, writer_deadline) {
+                Some(start_ns) => Instant::now() + Duration::from_nanos(start_ns.saturating_sub(now_ns)),
+                None => {
+                    // No writer to follow (yet): cycle on our own.
+                    let free = next + period;
+                    let now = Instant::now();
+                    // Late: skip the cycles missed rather than run them back to back.
+                    if free < now { now } else { free }
+                }
+            };
             async_io::Timer::at(next).await;
         }
     }
@@ -651,6 +720,45 @@ async fn first_error(mut tasks: Vec<Task<'_>>) -> Result<(), String> {
 mod tests {
     use super::*;
 
+    const MS: u64 = 1_000_000;
+
+    #[test]
+    fn cycles_end_just_before_the_writers_next_deadline() {
+        let mut schedule = CycleSchedule::new(Duration::from_millis(1));
+        // No writer yet, or one not seen for a while: cycle on our own.
+        assert_eq!(schedule.next_start_ns(100 * MS, 100 * MS + 60_000, 0), None);
+        assert_eq!(schedule.next_start_ns(100 * MS, 100 * MS + 60_000, 90 * MS), None);
+        // A 60 µs exchange: the lead is twice that and the margin.
+        let lead = 2 * 60_000 + CYCLE_LEAD_MARGIN_NS;
+        assert_eq!(schedule.lead_ns(), lead);
+        // The writer's deadline was at 100.2 ms: the next cycle ends before 101.2.
+        let start = schedule.next_start_ns(100 * MS, 100 * MS + 60_000, 100 * MS + 200_000).unwrap();
+        assert_eq!(start, 101 * MS + 200_000 - lead);
+        // Found late (the bus thread ran after that start): the next period's
+        // slot, not at once, so that one cycle is not followed by another.
+        let start = schedule.next_start_ns(101 * MS, 101 * MS + 1_100_000, 100 * MS + 200_000).unwrap();
+        assert_eq!(start, 103 * MS + 200_000 - lead);
+        // Never two cycles closer than half a period when the writer's phase moves.
+        let started = 200 * MS;
+        let start = schedule.next_start_ns(started, started + 60_000, 199 * MS + 300_000).unwrap();
+        assert!(start >= started + MS / 2, "{start} after a cycle at {started}");
+        assert_eq!((start + lead - (199 * MS + 300_000)) % MS, 0, "on the writer's grid");
+    }
+
+    #[test]
+    fn a_lost_frame_is_not_the_bus_usual_time_and_the_lead_is_at_most_half_a_period() {
+        let mut schedule = CycleSchedule::new(Duration::from_millis(1));
+        schedule.next_start_ns(0, 50_000, 0);
+        assert_eq!(schedule.exchange_ns, 50_000);
+        // A 10 ms timeout.
+        schedule.next_start_ns(MS, 11 * MS, 0);
+        assert_eq!(schedule.exchange_ns, 50_000);
+        // A slow bus: the lead stops at half a period.
+        let mut slow = CycleSchedule::new(Duration::from_millis(1));
+        slow.next_start_ns(0, 900_000, 0);
+        assert_eq!(slow.lead_ns(), MS / 2);
+    }
+
     fn one_segment(taxels: usize) -> Arc<Shared> {
         Arc::new(Shared {
             segments: vec![Mutex::new(SegmentImage {
@@ -662,6 +770,7 @@ mod tests {
             })],
             news: vec![Condvar::new()],
             bus_fault: Mutex::new(None),
+            writer_deadlines: vec![AtomicU64::new(0)],
         })
     }
 
