@@ -98,10 +98,44 @@ struct Shared {
     news: Vec<Condvar>,
     /// Why the whole bus is down, while it is.
     bus_fault: Mutex<Option<String>>,
-    /// One per segment: the period deadline (CLOCK_MONOTONIC ns) of its
-    /// layer writer's newest acquisition, 0 before the first. The segment's
-    /// cycles are scheduled from it to end just before the writer's next.
-    writer_deadlines: Vec<AtomicU64>,
+    /// One per segment: where its layer writer is, for the schedule of the
+    /// segment's cycles.
+    writers: Vec<WriterFollow>,
+}
+
+/// What a segment's layer writer tells the bus thread, so that each cycle
+/// ends just before the acquisition that takes its sample.
+#[derive(Debug, Default)]
+struct WriterFollow {
+    /// Period deadline of its newest acquisition, CLOCK_MONOTONIC ns; 0
+    /// before the first.
+    deadline_ns: AtomicU64,
+    /// Whether it is in an acquisition now.
+    acquiring: AtomicBool,
+    /// The cycle whose sample it took last.
+    taken_cycle: AtomicU64,
+}
+
+impl WriterFollow {
+    fn view(&self) -> WriterView {
+        // Acquire: pairs with the Release stores of `acquiring`, so that the
+        // deadline read is at least the one stored before it.
+        let acquiring = self.acquiring.load(Ordering::Acquire);
+        WriterView {
+            deadline_ns: self.deadline_ns.load(Ordering::Relaxed),
+            acquiring,
+            taken_cycle: self.taken_cycle.load(Ordering::Relaxed),
+        }
+    }
+}
+
+/// A look at a [`WriterFollow`] (the three may be from moments a few
+/// nanoseconds apart: a mistimed cycle is the worst that comes of it).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct WriterView {
+    deadline_ns: u64,
+    acquiring: bool,
+    taken_cycle: u64,
 }
 
 impl Shared {
@@ -172,7 +206,7 @@ impl EthercatDriver {
                 .collect(),
             news: config.segments.iter().map(|_| Condvar::new()).collect(),
             bus_fault: Mutex::new(Some("not started".into())),
-            writer_deadlines: config.segments.iter().map(|_| AtomicU64::new(0)).collect(),
+            writers: config.segments.iter().map(|_| WriterFollow::default()).collect(),
         });
         Ok(EthercatDriver { config, link, topologies, shared, stop: Arc::new(AtomicBool::new(false)), thread: None })
     }
@@ -265,10 +299,23 @@ struct SegmentLayer {
 
 impl LayerSource for SegmentLayer {
     fn acquire(&mut self, frame: &mut FrameWriter<'_>) -> Result<(), DriverError> {
-        let started = Instant::now();
+        let shared = self.shared.clone();
+        let follow = &shared.writers[self.position];
         if let Some(deadline) = frame.period_deadline_ns() {
-            self.shared.writer_deadlines[self.position].store(deadline, Ordering::Relaxed);
+            follow.deadline_ns.store(deadline, Ordering::Relaxed);
+            follow.acquiring.store(true, Ordering::Release);
         }
+        let result = self.take_sample(frame);
+        follow.acquiring.store(false, Ordering::Release);
+        result
+    }
+}
+
+impl SegmentLayer {
+    /// The acquisition: the segment's newest sample if this layer has not
+    /// published it yet, else the next one (up to the staleness limit).
+    fn take_sample(&mut self, frame: &mut FrameWriter<'_>) -> Result<(), DriverError> {
+        let started = Instant::now();
         let mut image = self.shared.segment(self.position);
         loop {
             if let Some(why) = self.shared.bus_fault.lock().unwrap_or_else(|p| p.into_inner()).as_ref() {
@@ -305,6 +352,7 @@ impl LayerSource for SegmentLayer {
             image = self.shared.news[self.position].wait_timeout(image, left).unwrap_or_else(|p| p.into_inner()).0;
         }
         self.last_cycle = image.status.cycles;
+        self.shared.writers[self.position].taken_cycle.store(self.last_cycle, Ordering::Relaxed);
         frame.write_responses(0, &image.values)?;
         frame.set_acquired_ns(image.acquired_ns);
         Ok(())
@@ -316,11 +364,11 @@ impl LayerSource for SegmentLayer {
 /// takes 90-150 µs to run again).
 const CYCLE_LEAD_MARGIN_NS: u64 = 150_000;
 
-/// When a segment's cycles start: each one ends just before its layer
-/// writer's next period deadline, so that the acquisition finds a new sample
-/// waiting instead of waiting for the bus (and the sample is as young as the
-/// bus allows). Without a periodic writer to follow, `None`: the caller
-/// cycles on its own.
+/// When a segment's cycles start: each one ends just before the layer
+/// writer's acquisition that takes its sample, so that the acquisition finds
+/// the sample waiting instead of waiting for the bus, and the sample is as
+/// young as the bus allows. Without a periodic writer to follow, `None`: the
+/// caller cycles on its own.
 #[derive(Debug)]
 struct CycleSchedule {
     period_ns: u64,
@@ -338,29 +386,38 @@ impl CycleSchedule {
         (2 * self.exchange_ns + CYCLE_LEAD_MARGIN_NS).min(self.period_ns / 2)
     }
 
-    /// The start of the cycle after the one that started at `started_ns` and
-    /// ended at `now_ns`, given the writer's newest period deadline
-    /// `writer_deadline_ns` (0: none yet).
-    fn next_start_ns(&mut self, started_ns: u64, now_ns: u64, writer_deadline_ns: u64) -> Option<u64> {
-        let took = now_ns.saturating_sub(started_ns);
+    /// The start of the next cycle, decided when the previous one, started
+    /// at `started_ns`, has ended at `now_ns` (`answered`: its frame came
+    /// back) and the segment has delivered `cycles` samples so far.
+    fn next_start_ns(
+        &mut self,
+        started_ns: u64,
+        now_ns: u64,
+        answered: bool,
+        writer: WriterView,
+        cycles: u64,
+    ) -> Option<u64> {
         // A lost frame's timeout is not the bus's usual time.
-        if took < self.period_ns {
+        if answered {
+            let took = now_ns.saturating_sub(started_ns);
             self.exchange_ns = if self.exchange_ns == 0 { took } else { (7 * self.exchange_ns + took) / 8 };
         }
-        // A writer not seen for a few periods (faulted, stopped, not started) is not followed.
-        if writer_deadline_ns == 0 || now_ns.saturating_sub(writer_deadline_ns) > 4 * self.period_ns {
+        // A writer not seen for a few periods (stopped, not started, not
+        // periodic) is not followed.
+        if writer.deadline_ns == 0 || now_ns.saturating_sub(writer.deadline_ns) > 4 * self.period_ns {
             return None;
         }
-        // The writer's deadlines are `writer_deadline_ns + k * period`: the
-        // first whose lead is still ahead, and never two cycles closer than
-        // half a period (when the writer's phase moves).
-        let lead = self.lead_ns();
-        let earliest = now_ns.max(started_ns + self.period_ns / 2);
-        let mut start = (writer_deadline_ns + self.period_ns).saturating_sub(lead);
-        if start < earliest {
-            start += (earliest - start).div_ceil(self.period_ns) * self.period_ns;
-        }
-        Some(start)
+        let sample_waiting = cycles > writer.taken_cycle;
+        // The period deadline whose acquisition the next sample is for.
+        let serves = match (writer.acquiring, sample_waiting) {
+            // It waits for a sample now: at once (a lost frame, a late bus).
+            (true, false) => return Some(now_ns),
+            // It is taking the one waiting, or took one for its deadline.
+            (true, true) | (false, false) => writer.deadline_ns + self.period_ns,
+            // The one waiting is for its next deadline.
+            (false, true) => writer.deadline_ns + 2 * self.period_ns,
+        };
+        Some(serves.saturating_sub(self.lead_ns()).max(now_ns))
     }
 }
 
@@ -493,6 +550,7 @@ impl Bus {
             let cycle_started_ns = skinware::os::monotonic_ns();
             let response = group.tx_rx(maindevice).await;
             let now_ns = skinware::os::monotonic_ns();
+            let came_back = response.is_ok();
             match response {
                 Err(EthercrabError::Timeout(_)) => {
                     let timeout = self.config.frame_timeout().as_secs_f64() * 1e3;
@@ -535,9 +593,10 @@ impl Bus {
                     }
                 }
             }
-            let writer_deadline = self.shared.writer_deadlines[position].load(Ordering::Relaxed);
+            let writer = self.shared.writers[position].view();
+            let cycles = self.shared.segment(position).status.cycles;
             let now_ns = skinware::os::monotonic_ns();
-            next = match schedule.next_start_ns(cycle_started_ns, now_ns, writer_deadline) {
+            next = match schedule.next_start_ns(cycle_started_ns, now_ns, came_back, writer, cycles) {
                 Some(start_ns) => Instant::now() + Duration::from_nanos(start_ns.saturating_sub(now_ns)),
                 None => {
                     // No writer to follow (yet): cycle on our own.
@@ -722,40 +781,100 @@ mod tests {
 
     const MS: u64 = 1_000_000;
 
+    /// A writer on time at every deadline (`deadline + lateness`), and a
+    /// bus whose exchanges take `exchange` except the cycles `stalls` names
+    /// (by index), which take that much longer; returns how long each of the
+    /// writer's acquisitions waited for its sample.
+    fn simulate(ticks: u64, lateness: u64, exchange: u64, stalls: &[(u64, u64)]) -> Vec<u64> {
+        const PERIOD: u64 = MS;
+        let mut schedule = CycleSchedule::new(Duration::from_nanos(PERIOD));
+        let mut writer = WriterView::default();
+        let (mut cycles, mut cycle_index) = (0u64, 0u64);
+        let mut cycle_start = 0u64;
+        let mut waits = Vec::new();
+        let mut waiting_since = None;
+        let mut next_tick = 10 * PERIOD;
+        while waits.len() < ticks as usize {
+            let stall = stalls.iter().find(|(k, _)| *k == cycle_index).map_or(0, |(_, s)| *s);
+            let cycle_end = cycle_start + exchange + stall;
+            if next_tick + lateness < cycle_end {
+                // The writer's acquisition, before the cycle under way ends.
+                writer.deadline_ns = next_tick;
+                if cycles > writer.taken_cycle {
+                    writer.taken_cycle = cycles;
+                    waits.push(0);
+                } else {
+                    writer.acquiring = true;
+                    waiting_since = Some(next_tick + lateness);
+                }
+                next_tick += PERIOD;
+                continue;
+            }
+            // The cycle ends: the bus decides its next one before the
+            // waiting writer wakes (as the bus thread runs on).
+            cycles += 1;
+            cycle_index += 1;
+            let start = schedule.next_start_ns(cycle_start, cycle_end, true, writer, cycles);
+            if let Some(since) = waiting_since.take() {
+                writer.taken_cycle = cycles;
+                writer.acquiring = false;
+                waits.push(cycle_end - since);
+            }
+            cycle_start = start.unwrap_or(cycle_end + PERIOD / 3).max(cycle_end);
+        }
+        waits
+    }
+
     #[test]
-    fn cycles_end_just_before_the_writers_next_deadline() {
+    fn after_a_stall_of_the_bus_the_writer_finds_its_sample_waiting_again() {
+        // 150 µs exchanges, a writer 60 µs late at each deadline: once
+        // followed, no acquisition waits.
+        let waits = simulate(400, 60_000, 150_000, &[]);
+        assert!(waits[20..].iter().all(|&w| w == 0), "{waits:?}");
+        // A cycle 1.4 ms longer, then one 0.7 ms longer: a wait or two each,
+        // then none again (a schedule that skipped a slot after a late
+        // cycle would leave every later acquisition waiting).
+        let waits = simulate(400, 60_000, 150_000, &[(100, 1_400_000), (200, 700_000)]);
+        let waited: Vec<usize> = (20..waits.len()).filter(|&k| waits[k] > 0).collect();
+        assert!(!waited.is_empty() && waited.len() <= 4, "acquisitions {waited:?} waited: {waits:?}");
+    }
+
+    #[test]
+    fn cycles_end_just_before_the_acquisition_that_takes_them() {
         let mut schedule = CycleSchedule::new(Duration::from_millis(1));
+        let writer = |deadline_ns, acquiring, taken_cycle| WriterView { deadline_ns, acquiring, taken_cycle };
         // No writer yet, or one not seen for a while: cycle on our own.
-        assert_eq!(schedule.next_start_ns(100 * MS, 100 * MS + 60_000, 0), None);
-        assert_eq!(schedule.next_start_ns(100 * MS, 100 * MS + 60_000, 90 * MS), None);
-        // A 60 µs exchange: the lead is twice that and the margin.
+        assert_eq!(schedule.next_start_ns(100 * MS, 100 * MS + 60_000, true, WriterView::default(), 1), None);
+        assert_eq!(schedule.next_start_ns(100 * MS, 100 * MS + 60_000, true, writer(90 * MS, false, 0), 1), None);
         let lead = 2 * 60_000 + CYCLE_LEAD_MARGIN_NS;
         assert_eq!(schedule.lead_ns(), lead);
-        // The writer's deadline was at 100.2 ms: the next cycle ends before 101.2.
-        let start = schedule.next_start_ns(100 * MS, 100 * MS + 60_000, 100 * MS + 200_000).unwrap();
-        assert_eq!(start, 101 * MS + 200_000 - lead);
-        // Found late (the bus thread ran after that start): the next period's
-        // slot, not at once, so that one cycle is not followed by another.
-        let start = schedule.next_start_ns(101 * MS, 101 * MS + 1_100_000, 100 * MS + 200_000).unwrap();
-        assert_eq!(start, 103 * MS + 200_000 - lead);
-        // Never two cycles closer than half a period when the writer's phase moves.
-        let started = 200 * MS;
-        let start = schedule.next_start_ns(started, started + 60_000, 199 * MS + 300_000).unwrap();
-        assert!(start >= started + MS / 2, "{start} after a cycle at {started}");
-        assert_eq!((start + lead - (199 * MS + 300_000)) % MS, 0, "on the writer's grid");
+        // The sample just delivered is for the writer's next deadline
+        // (101.2 ms): the cycle after it ends before the one after (102.2).
+        let d = 100 * MS + 200_000;
+        let start = schedule.next_start_ns(101 * MS, 101 * MS + 60_000, true, writer(d, false, 7), 8).unwrap();
+        assert_eq!(start, d + 2 * MS - lead);
+        // The writer is taking it now: the next is for its next deadline.
+        let start = schedule.next_start_ns(d - 10_000, d + 50_000, true, writer(d, true, 7), 8).unwrap();
+        assert_eq!(start, d + MS - lead);
+        // The writer waits for a sample (a lost frame, a late cycle): at once.
+        let now = 101 * MS + 60_000;
+        assert_eq!(schedule.next_start_ns(101 * MS, now, false, writer(d, true, 8), 8), Some(now));
+        // That slot already passed: at once, not a period later.
+        let late = d + MS - 10_000;
+        assert_eq!(schedule.next_start_ns(late - 60_000, late, true, writer(d, false, 8), 8), Some(late));
     }
 
     #[test]
     fn a_lost_frame_is_not_the_bus_usual_time_and_the_lead_is_at_most_half_a_period() {
         let mut schedule = CycleSchedule::new(Duration::from_millis(1));
-        schedule.next_start_ns(0, 50_000, 0);
+        schedule.next_start_ns(0, 50_000, true, WriterView::default(), 0);
         assert_eq!(schedule.exchange_ns, 50_000);
-        // A 10 ms timeout.
-        schedule.next_start_ns(MS, 11 * MS, 0);
+        // A lost frame, however short its timeout.
+        schedule.next_start_ns(MS, MS + 400_000, false, WriterView::default(), 0);
         assert_eq!(schedule.exchange_ns, 50_000);
         // A slow bus: the lead stops at half a period.
         let mut slow = CycleSchedule::new(Duration::from_millis(1));
-        slow.next_start_ns(0, 900_000, 0);
+        slow.next_start_ns(0, 900_000, true, WriterView::default(), 0);
         assert_eq!(slow.lead_ns(), MS / 2);
     }
 
@@ -770,7 +889,7 @@ mod tests {
             })],
             news: vec![Condvar::new()],
             bus_fault: Mutex::new(None),
-            writer_deadlines: vec![AtomicU64::new(0)],
+            writers: vec![WriterFollow::default()],
         })
     }
 
