@@ -30,6 +30,10 @@ pub struct LayerReport {
     pub latency_ns: u64,
     #[serde(skip)]
     pub tree: Vec<(u32, Vec<(u32, usize)>)>,
+    /// The device that feeds it, where its driver reports devices (an
+    /// EtherCAT SubDevice: identity, state, fault).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub device: Option<skin::driver_status::DeviceStatus>,
 }
 
 /// A channel with a reader on it and its writer's rate, measured.
@@ -106,7 +110,37 @@ pub fn gather(skin: Option<&str>, window: Duration) -> Result<Vec<LayerReport>> 
             write_ns_max: stats.write_ns_max,
             latency_ns,
             tree,
+            device: None,
         });
     }
     Ok(reports)
+}
+
+/// The status of every live driver that reports its devices, of `skin` or of
+/// every skin; files of drivers that are gone are left out (`skin clean`
+/// removes them), unreadable ones are warned about.
+pub fn driver_statuses(skin: Option<&str>) -> Result<Vec<skin::driver_status::DriverStatus>> {
+    let dir = skinware::shm::segment_dir();
+    let now = skin::driver_status::now_unix_ms();
+    let mut statuses = Vec::new();
+    for found in skin::driver_status::find(&dir, skin)? {
+        match found.status {
+            Ok(status) if status.is_live(now) => statuses.push(status),
+            Ok(_) => {}
+            Err(why) => eprintln!("warning: {}: {why}", found.path.display()),
+        }
+    }
+    Ok(statuses)
+}
+
+/// Attaches to each layer the device its driver reports for it.
+pub fn attach_devices(layers: &mut [LayerReport], drivers: &[skin::driver_status::DriverStatus]) {
+    for layer in layers {
+        layer.device = drivers
+            .iter()
+            .filter(|d| d.skin == layer.skin)
+            .flat_map(|d| &d.devices)
+            .find(|device| device.layer == layer.name)
+            .cloned();
+    }
 }

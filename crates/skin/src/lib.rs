@@ -4,6 +4,9 @@
 //!
 //! - [`config`]: the TOML configuration of `skin run` ([`config::Config`]),
 //!   parsed and checked from text by [`config::Config::parse`];
+//! - [`driver_status`]: what a driver process publishes of its devices (an
+//!   EtherCAT SubDevice's identity and state) for `skin ls`, read back by
+//!   [`driver_status::DriverStatus::decode`];
 //! - [`viewer_message`]: the JSON text messages that the web viewer's page
 //!   sends to `skin view`, decoded by [`viewer_message::decode`].
 //!
@@ -27,4 +30,5 @@
 #![forbid(unsafe_code)]
 
 pub mod config;
+pub mod driver_status;
 pub mod viewer_message;

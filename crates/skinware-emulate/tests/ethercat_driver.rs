@@ -325,6 +325,7 @@ fn the_emulated_skin_reaches_readers_with_the_virtual_bodys_responses() {
         seed: 7,
         faults: Default::default(),
         fifo_priority: None,
+        capture: None,
     };
     let segment = Arc::new(Mutex::new(emulation.segment().unwrap()));
     let bus: Arc<Mutex<dyn FrameExchange>> = segment.clone();

@@ -232,6 +232,7 @@ impl Writer {
                 handed_to_ringer: 0,
                 reader_wake: options.reader_wake,
                 ringer: None,
+                period_deadline_ns: None,
             },
             served_requests,
             stop,
@@ -391,7 +392,9 @@ impl Writer {
         let stop = self.stop.clone();
         while let Some(tick) = ticker.wait(&stop) {
             stats::record_tick(&self.shared.header().stats, &tick);
+            self.publishing.period_deadline_ns = Some(tick.deadline_ns);
             self.fill_once(&mut fill);
+            self.publishing.period_deadline_ns = None;
         }
         Ok(())
     }
@@ -585,6 +588,14 @@ impl FrameWriter<'_> {
         self.write_bytes(0, bytemuck::bytes_of(value))
     }
 
+    /// The deadline (CLOCK_MONOTONIC ns) of the period this frame is filled
+    /// for, when [`Writer::run_periodic`] fills it; `None` otherwise. A
+    /// driver whose bus cycles on its own can schedule them from it, so that
+    /// each cycle's data is there just before the writer looks.
+    pub fn period_deadline_ns(&self) -> Option<u64> {
+        self.publishing.period_deadline_ns
+    }
+
     /// Sets the acquisition time (CLOCK_MONOTONIC ns); by default, the moment
     /// the frame was begun.
     pub fn set_acquired_ns(&mut self, ns: u64) {
@@ -661,6 +672,9 @@ struct Publishing {
     reader_wake: ReaderWake,
     /// Started at the first frame with [`ReaderWake::Ringer`].
     ringer: Option<Ringer>,
+    /// The deadline of the period being filled, while
+    /// [`Writer::run_periodic`] fills it.
+    period_deadline_ns: Option<u64>,
 }
 
 /// The thread that wakes a writer's sleeping readers for it

@@ -33,5 +33,14 @@ pub fn run(args: &Args) -> Result<()> {
             println!("removed {} (the geometry of skin {skin}, which has no live writer)", entry.path().display());
         }
     }
+    // A driver's status file goes with its driver.
+    let now = skin::driver_status::now_unix_ms();
+    for found in skin::driver_status::find(&dir, None)? {
+        // One that cannot be read is left alone unless forced, as foreign files are.
+        let dead = found.status.as_ref().map_or(args.force, |status| !status.is_live(now));
+        if dead && std::fs::remove_file(&found.path).is_ok() {
+            println!("removed {} (the status of a driver that is gone)", found.path.display());
+        }
+    }
     Ok(())
 }

@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use skin::config::drivers::BuiltDriver;
+use skin::config::drivers::{BuiltDriver, StatusSource};
 use skinware::{DriverHandler, HandlerOptions};
 
 /// Runs one driver until SIGINT or SIGTERM (or the supervisor's death).
@@ -12,7 +12,9 @@ pub fn run(config_path: &Path, name: &str) -> Result<()> {
     super::run::watch_supervisor()?;
     let config = skin::config::Config::load(config_path)?;
     let driver_config = config.driver(name)?;
-    let driver = match driver_config.build(&config.skin)? {
+    let built = driver_config.build(&config.skin)?;
+    let status = built.status_source(&config.skin, name);
+    let driver = match built {
         BuiltDriver::Replay(replay) => return run_replay(&config, name, *replay),
         driver => driver.into_driver().context("this driver runs under a driver handler")?,
     };
@@ -21,10 +23,39 @@ pub fn run(config_path: &Path, name: &str) -> Result<()> {
         .with_context(|| format!("driver {name} could not start"))?;
     tracing::info!(driver = name, layers = ?handler.layers(), pid = std::process::id(), "driver acquiring");
     let stop = handler.stop_signal().clone();
-    stop_on_signals(move || stop.stop())?;
+    let publisher = status.map(|status| publish_status(status, stop.clone()));
+    let stop_on_signal = stop.clone();
+    stop_on_signals(move || stop_on_signal.stop())?;
     handler.run_until_stopped();
+    stop.stop();
+    if let Some(publisher) = publisher {
+        let _ = publisher.join();
+    }
     tracing::info!(driver = name, "driver stopped");
     Ok(())
+}
+
+/// Rewrites the driver's status file until `stop`, then removes it.
+fn publish_status(status: StatusSource, stop: skinware::Stop) -> std::thread::JoinHandle<()> {
+    std::thread::spawn(move || {
+        let dir = skinware::shm::segment_dir();
+        let mut warned = false;
+        let mut path = None;
+        while !stop.is_stopped() {
+            match status().publish(&dir) {
+                Ok(written) => path = Some(written),
+                Err(e) if !warned => {
+                    tracing::warn!(dir = %dir.display(), error = %e, "cannot write the driver's status for `skin ls`");
+                    warned = true;
+                }
+                Err(_) => {}
+            }
+            stop.sleep_until(skinware::os::monotonic_ns() + skin::driver_status::PUBLISH_EVERY.as_nanos() as u64);
+        }
+        if let Some(path) = path {
+            let _ = std::fs::remove_file(path);
+        }
+    })
 }
 
 /// A `kind = "replay"` driver: the recording's layers (and, if asked, its

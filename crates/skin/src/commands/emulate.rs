@@ -53,6 +53,9 @@ pub struct EthercatArgs {
     /// SCHED_FIFO priority of the emulator's thread.
     #[arg(long, default_value = "70")]
     fifo_priority: Option<u8>,
+    /// Write a pcapng capture of every frame taken and answer sent (Wireshark reads it).
+    #[arg(long)]
+    capture: Option<PathBuf>,
 }
 
 /// Options of `skin emulate icub-mtb`.
@@ -176,6 +179,7 @@ fn run_ethercat(args: &EthercatArgs) -> Result<()> {
             link_down_after: seconds("link-down-after", args.link_down_after)?,
         },
         fifo_priority: args.fifo_priority,
+        capture: args.capture.clone(),
     };
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {

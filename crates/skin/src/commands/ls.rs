@@ -32,10 +32,12 @@ pub fn run(args: &Args) -> Result<()> {
     if args.regions {
         return regions(args);
     }
-    let layers = crate::layers::gather(args.skin.as_deref(), Duration::from_millis(300))?;
+    let mut layers = crate::layers::gather(args.skin.as_deref(), Duration::from_millis(300))?;
+    let drivers = crate::layers::driver_statuses(args.skin.as_deref())?;
+    crate::layers::attach_devices(&mut layers, &drivers);
     let mut out = std::io::stdout().lock();
     if args.json {
-        serde_json::to_writer_pretty(&mut out, &serde_json::json!({ "layers": layers }))?;
+        serde_json::to_writer_pretty(&mut out, &serde_json::json!({ "layers": layers, "drivers": drivers }))?;
         writeln!(out)?;
         return Ok(());
     }
@@ -57,6 +59,9 @@ pub fn run(args: &Args) -> Result<()> {
             layer.nominal_rate_hz,
             layer.overruns
         )?;
+        if let Some(device) = &layer.device {
+            writeln!(out, "  {}", describe_device(device))?;
+        }
         for (patch, modules) in &layer.tree {
             let sensors: usize = modules.iter().map(|(_, n)| n).sum();
             writeln!(out, "  patch {patch}: {} modules, {sensors} sensors", modules.len())?;
@@ -67,7 +72,33 @@ pub fn run(args: &Args) -> Result<()> {
             }
         }
     }
+    for driver in &drivers {
+        let bus = driver.bus_fault.as_deref().map_or_else(|| "bus up".to_owned(), |why| format!("bus down: {why}"));
+        writeln!(out, "driver {}/{} ({}, pid {}): {bus}", driver.skin, driver.driver, driver.kind, driver.pid)?;
+        for device in &driver.devices {
+            writeln!(out, "  {}", describe_device(device))?;
+        }
+    }
     Ok(())
+}
+
+/// One line on a device: `SubDevice 0 "name" vendor 0x… product 0x… rev … serial …, OP, 1200 cycles`.
+fn describe_device(device: &skin::driver_status::DeviceStatus) -> String {
+    let hex = |v: Option<u32>| v.map_or_else(|| "?".to_owned(), |v| format!("{v:#010x}"));
+    let number = |v: Option<u32>| v.map_or_else(|| "?".to_owned(), |v| v.to_string());
+    let state = if device.state.is_empty() { "not seen yet" } else { &device.state };
+    let fault = device.fault.as_deref().map(|why| format!(", faulted: {why}")).unwrap_or_default();
+    format!(
+        "SubDevice {} {:?} (layer {}): vendor {} product {} rev {} serial {}, {state}, {} cycles{fault}",
+        device.position,
+        device.name,
+        device.layer,
+        hex(device.vendor_id),
+        hex(device.product_code),
+        number(device.revision),
+        number(device.serial),
+        device.cycles
+    )
 }
 
 fn regions(args: &Args) -> Result<()> {

@@ -202,6 +202,9 @@ pub enum BuiltDriver {
     Ethercat(EthercatDriver),
 }
 
+/// Reads a driver's device status now (see [`BuiltDriver::status_source`]).
+pub type StatusSource = Box<dyn Fn() -> crate::driver_status::DriverStatus + Send>;
+
 impl BuiltDriver {
     /// Its layers.
     pub fn layers(&self) -> Vec<LayerSpec> {
@@ -250,6 +253,45 @@ impl BuiltDriver {
                 calibration
             }
         }
+    }
+
+    /// What the driver process publishes of its devices for `skin ls`, as a
+    /// function that reads it now: an EtherCAT bus's SubDevices; `None` for
+    /// drivers without devices of their own to report.
+    pub fn status_source(&self, skin: &str, driver: &str) -> Option<StatusSource> {
+        let BuiltDriver::Ethercat(ethercat) = self else {
+            return None;
+        };
+        let handle = ethercat.status_handle();
+        let layers: Vec<String> = ethercat.layers().into_iter().map(|spec| spec.topology.name).collect();
+        let (skin, driver) = (skin.to_owned(), driver.to_owned());
+        Some(Box::new(move || crate::driver_status::DriverStatus {
+            skin: skin.clone(),
+            driver: driver.clone(),
+            kind: "ethercat".into(),
+            pid: std::process::id(),
+            updated_unix_ms: crate::driver_status::now_unix_ms(),
+            bus_fault: handle.bus_fault(),
+            devices: handle
+                .segments()
+                .into_iter()
+                .zip(&layers)
+                .enumerate()
+                .map(|(position, (segment, layer))| crate::driver_status::DeviceStatus {
+                    position,
+                    layer: layer.clone(),
+                    name: segment.name,
+                    vendor_id: segment.identity.map(|i| i[0]),
+                    product_code: segment.identity.map(|i| i[1]),
+                    revision: segment.identity.map(|i| i[2]),
+                    serial: segment.identity.map(|i| i[3]),
+                    state: segment.state,
+                    fault: segment.fault,
+                    cycles: segment.cycles,
+                    counter: segment.counter,
+                })
+                .collect(),
+        }))
     }
 
     /// The driver, to run under a driver handler; a replay runs on its own

@@ -61,6 +61,8 @@ pub struct EmulatorConfig {
     pub leave_op_after_s: Option<f64>,
     /// EtherCAT fault: no segment answers this many seconds after the start (a pulled cable).
     pub link_down_after_s: Option<f64>,
+    /// EtherCAT: a pcapng capture of every frame taken and answer sent.
+    pub capture: Option<PathBuf>,
     /// SLCAN: the symbolic link to its pseudo-terminal that drivers open.
     pub link: Option<PathBuf>,
     /// cannelloni: the emulator's own address ...
@@ -126,6 +128,7 @@ impl EmulatorConfig {
                     ("wrong_wkc", self.wrong_wkc),
                     ("leave_op_after_s", self.leave_op_after_s.is_some()),
                     ("link_down_after_s", self.link_down_after_s.is_some()),
+                    ("capture", self.capture.is_some()),
                 ];
                 if let Some((key, _)) = ethercat_keys.iter().find(|(_, given)| *given) {
                     bail!("`{key}` is a setting of kind = \"ethercat\", not of \"icub-mtb\"");
@@ -225,6 +228,7 @@ impl EmulatorConfig {
                     link_down_after: self.link_down_after_s.map(Duration::from_secs_f64),
                 },
                 fifo_priority,
+                capture: self.capture.clone(),
             }),
         }
     }

@@ -2,6 +2,8 @@
 //! one link instead of one per file, and one place for what they share.
 //!
 //! - [`e2e`]: `skin run` with a SIGKILLed driver and a pulled cable;
+//! - [`ethercat_e2e`]: `skin run` of an EtherCAT skin on a veth pair in a
+//!   network namespace, a reader outside it, `skin ls` showing SubDevices;
 //! - [`services_e2e`]: services, regions and geometry through the CLI;
 //! - [`record_e2e`]: `skin record`, `replay`, `info` and `--recover` on the
 //!   paper's skin, with Python's `mcap` as the independent reader;
@@ -21,6 +23,7 @@ mod bridge_e2e;
 mod browser;
 mod can_e2e;
 mod e2e;
+mod ethercat_e2e;
 mod python;
 mod record_e2e;
 mod services_e2e;

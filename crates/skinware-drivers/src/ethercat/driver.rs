@@ -15,7 +15,7 @@
 use std::cell::Cell;
 use std::future::Future;
 use std::pin::Pin;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::task::Poll;
 use std::thread::JoinHandle;
@@ -98,6 +98,44 @@ struct Shared {
     news: Vec<Condvar>,
     /// Why the whole bus is down, while it is.
     bus_fault: Mutex<Option<String>>,
+    /// One per segment: where its layer writer is, for the schedule of the
+    /// segment's cycles.
+    writers: Vec<WriterFollow>,
+}
+
+/// What a segment's layer writer tells the bus thread, so that each cycle
+/// ends just before the acquisition that takes its sample.
+#[derive(Debug, Default)]
+struct WriterFollow {
+    /// Period deadline of its newest acquisition, CLOCK_MONOTONIC ns; 0
+    /// before the first.
+    deadline_ns: AtomicU64,
+    /// Whether it is in an acquisition now.
+    acquiring: AtomicBool,
+    /// The cycle whose sample it took last.
+    taken_cycle: AtomicU64,
+}
+
+impl WriterFollow {
+    fn view(&self) -> WriterView {
+        // Acquire: pairs with the Release stores of `acquiring`, so that the
+        // deadline read is at least the one stored before it.
+        let acquiring = self.acquiring.load(Ordering::Acquire);
+        WriterView {
+            deadline_ns: self.deadline_ns.load(Ordering::Relaxed),
+            acquiring,
+            taken_cycle: self.taken_cycle.load(Ordering::Relaxed),
+        }
+    }
+}
+
+/// A look at a [`WriterFollow`] (the three may be from moments a few
+/// nanoseconds apart: a mistimed cycle is the worst that comes of it).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct WriterView {
+    deadline_ns: u64,
+    acquiring: bool,
+    taken_cycle: u64,
 }
 
 impl Shared {
@@ -168,6 +206,7 @@ impl EthercatDriver {
                 .collect(),
             news: config.segments.iter().map(|_| Condvar::new()).collect(),
             bus_fault: Mutex::new(Some("not started".into())),
+            writers: config.segments.iter().map(|_| WriterFollow::default()).collect(),
         });
         Ok(EthercatDriver { config, link, topologies, shared, stop: Arc::new(AtomicBool::new(false)), thread: None })
     }
@@ -260,6 +299,22 @@ struct SegmentLayer {
 
 impl LayerSource for SegmentLayer {
     fn acquire(&mut self, frame: &mut FrameWriter<'_>) -> Result<(), DriverError> {
+        let shared = self.shared.clone();
+        let follow = &shared.writers[self.position];
+        if let Some(deadline) = frame.period_deadline_ns() {
+            follow.deadline_ns.store(deadline, Ordering::Relaxed);
+            follow.acquiring.store(true, Ordering::Release);
+        }
+        let result = self.take_sample(frame);
+        follow.acquiring.store(false, Ordering::Release);
+        result
+    }
+}
+
+impl SegmentLayer {
+    /// The acquisition: the segment's newest sample if this layer has not
+    /// published it yet, else the next one (up to the staleness limit).
+    fn take_sample(&mut self, frame: &mut FrameWriter<'_>) -> Result<(), DriverError> {
         let started = Instant::now();
         let mut image = self.shared.segment(self.position);
         loop {
@@ -297,9 +352,72 @@ impl LayerSource for SegmentLayer {
             image = self.shared.news[self.position].wait_timeout(image, left).unwrap_or_else(|p| p.into_inner()).0;
         }
         self.last_cycle = image.status.cycles;
+        self.shared.writers[self.position].taken_cycle.store(self.last_cycle, Ordering::Relaxed);
         frame.write_responses(0, &image.values)?;
         frame.set_acquired_ns(image.acquired_ns);
         Ok(())
+    }
+}
+
+/// Lead of a cycle over the writer's deadline beyond twice the exchange's
+/// own time: the bus thread's wake-up from its timer (a halted vCPU of a VM
+/// takes 90-150 µs to run again).
+const CYCLE_LEAD_MARGIN_NS: u64 = 150_000;
+
+/// When a segment's cycles start: each one ends just before the layer
+/// writer's acquisition that takes its sample, so that the acquisition finds
+/// the sample waiting instead of waiting for the bus, and the sample is as
+/// young as the bus allows. Without a periodic writer to follow, `None`: the
+/// caller cycles on its own.
+#[derive(Debug)]
+struct CycleSchedule {
+    period_ns: u64,
+    /// Smoothed duration of one exchange (frame out and back), ns.
+    exchange_ns: u64,
+}
+
+impl CycleSchedule {
+    fn new(period: Duration) -> CycleSchedule {
+        CycleSchedule { period_ns: (period.as_nanos() as u64).max(1), exchange_ns: 0 }
+    }
+
+    /// How far ahead of the writer's deadline a cycle starts.
+    fn lead_ns(&self) -> u64 {
+        (2 * self.exchange_ns + CYCLE_LEAD_MARGIN_NS).min(self.period_ns / 2)
+    }
+
+    /// The start of the next cycle, decided when the previous one, started
+    /// at `started_ns`, has ended at `now_ns` (`answered`: its frame came
+    /// back) and the segment has delivered `cycles` samples so far.
+    fn next_start_ns(
+        &mut self,
+        started_ns: u64,
+        now_ns: u64,
+        answered: bool,
+        writer: WriterView,
+        cycles: u64,
+    ) -> Option<u64> {
+        // A lost frame's timeout is not the bus's usual time.
+        if answered {
+            let took = now_ns.saturating_sub(started_ns);
+            self.exchange_ns = if self.exchange_ns == 0 { took } else { (7 * self.exchange_ns + took) / 8 };
+        }
+        // A writer not seen for a few periods (stopped, not started, not
+        // periodic) is not followed.
+        if writer.deadline_ns == 0 || now_ns.saturating_sub(writer.deadline_ns) > 4 * self.period_ns {
+            return None;
+        }
+        let sample_waiting = cycles > writer.taken_cycle;
+        // The period deadline whose acquisition the next sample is for.
+        let serves = match (writer.acquiring, sample_waiting) {
+            // It waits for a sample now: at once (a lost frame, a late bus).
+            (true, false) => return Some(now_ns),
+            // It is taking the one waiting, or took one for its deadline.
+            (true, true) | (false, false) => writer.deadline_ns + self.period_ns,
+            // The one waiting is for its next deadline.
+            (false, true) => writer.deadline_ns + 2 * self.period_ns,
+        };
+        Some(serves.saturating_sub(self.lead_ns()).max(now_ns))
     }
 }
 
@@ -413,6 +531,7 @@ impl Bus {
         let mut acknowledged_at: Option<Instant> = None;
         let mut last_state = SubDeviceState::Op;
         let mut next = Instant::now();
+        let mut schedule = CycleSchedule::new(period);
         let subdevice = group.subdevice(maindevice, 0).map_err(|e| format!("segment {position}: {e}"))?;
         loop {
             if self.stop.load(Ordering::Relaxed) {
@@ -428,8 +547,10 @@ impl Bus {
                 outputs[..2].copy_from_slice(&COMMAND_ACQUIRE.to_le_bytes());
                 outputs[2..4].copy_from_slice(&config.to_le_bytes());
             }
+            let cycle_started_ns = skinware::os::monotonic_ns();
             let response = group.tx_rx(maindevice).await;
             let now_ns = skinware::os::monotonic_ns();
+            let came_back = response.is_ok();
             match response {
                 Err(EthercrabError::Timeout(_)) => {
                     let timeout = self.config.frame_timeout().as_secs_f64() * 1e3;
@@ -472,12 +593,19 @@ impl Bus {
                     }
                 }
             }
-            next += period;
-            let now = Instant::now();
-            if next < now {
-                // Late: skip the cycles missed rather than run them back to back.
-                next = now;
-            }
+            let writer = self.shared.writers[position].view();
+            let cycles = self.shared.segment(position).status.cycles;
+            let now_ns = skinware::os::monotonic_ns();
+            next = match schedule.next_start_ns(cycle_started_ns, now_ns, came_back, writer, cycles) {
+                Some(start_ns) => Instant::now() + Duration::from_nanos(start_ns.saturating_sub(now_ns)),
+                None => {
+                    // No writer to follow (yet): cycle on our own.
+                    let free = next + period;
+                    let now = Instant::now();
+                    // Late: skip the cycles missed rather than run them back to back.
+                    if free < now { now } else { free }
+                }
+            };
             async_io::Timer::at(next).await;
         }
     }
@@ -651,6 +779,105 @@ async fn first_error(mut tasks: Vec<Task<'_>>) -> Result<(), String> {
 mod tests {
     use super::*;
 
+    const MS: u64 = 1_000_000;
+
+    /// A writer on time at every deadline (`deadline + lateness`), and a
+    /// bus whose exchanges take `exchange` except the cycles `stalls` names
+    /// (by index), which take that much longer; returns how long each of the
+    /// writer's acquisitions waited for its sample.
+    fn simulate(ticks: u64, lateness: u64, exchange: u64, stalls: &[(u64, u64)]) -> Vec<u64> {
+        const PERIOD: u64 = MS;
+        let mut schedule = CycleSchedule::new(Duration::from_nanos(PERIOD));
+        let mut writer = WriterView::default();
+        let (mut cycles, mut cycle_index) = (0u64, 0u64);
+        let mut cycle_start = 0u64;
+        let mut waits = Vec::new();
+        let mut waiting_since = None;
+        let mut next_tick = 10 * PERIOD;
+        while waits.len() < ticks as usize {
+            let stall = stalls.iter().find(|(k, _)| *k == cycle_index).map_or(0, |(_, s)| *s);
+            let cycle_end = cycle_start + exchange + stall;
+            if next_tick + lateness < cycle_end {
+                // The writer's acquisition, before the cycle under way ends.
+                writer.deadline_ns = next_tick;
+                if cycles > writer.taken_cycle {
+                    writer.taken_cycle = cycles;
+                    waits.push(0);
+                } else {
+                    writer.acquiring = true;
+                    waiting_since = Some(next_tick + lateness);
+                }
+                next_tick += PERIOD;
+                continue;
+            }
+            // The cycle ends: the bus decides its next one before the
+            // waiting writer wakes (as the bus thread runs on).
+            cycles += 1;
+            cycle_index += 1;
+            let start = schedule.next_start_ns(cycle_start, cycle_end, true, writer, cycles);
+            if let Some(since) = waiting_since.take() {
+                writer.taken_cycle = cycles;
+                writer.acquiring = false;
+                waits.push(cycle_end - since);
+            }
+            cycle_start = start.unwrap_or(cycle_end + PERIOD / 3).max(cycle_end);
+        }
+        waits
+    }
+
+    #[test]
+    fn after_a_stall_of_the_bus_the_writer_finds_its_sample_waiting_again() {
+        // 150 µs exchanges, a writer 60 µs late at each deadline: once
+        // followed, no acquisition waits.
+        let waits = simulate(400, 60_000, 150_000, &[]);
+        assert!(waits[20..].iter().all(|&w| w == 0), "{waits:?}");
+        // A cycle 1.4 ms longer, then one 0.7 ms longer: a wait or two each,
+        // then none again (a schedule that skipped a slot after a late
+        // cycle would leave every later acquisition waiting).
+        let waits = simulate(400, 60_000, 150_000, &[(100, 1_400_000), (200, 700_000)]);
+        let waited: Vec<usize> = (20..waits.len()).filter(|&k| waits[k] > 0).collect();
+        assert!(!waited.is_empty() && waited.len() <= 4, "acquisitions {waited:?} waited: {waits:?}");
+    }
+
+    #[test]
+    fn cycles_end_just_before_the_acquisition_that_takes_them() {
+        let mut schedule = CycleSchedule::new(Duration::from_millis(1));
+        let writer = |deadline_ns, acquiring, taken_cycle| WriterView { deadline_ns, acquiring, taken_cycle };
+        // No writer yet, or one not seen for a while: cycle on our own.
+        assert_eq!(schedule.next_start_ns(100 * MS, 100 * MS + 60_000, true, WriterView::default(), 1), None);
+        assert_eq!(schedule.next_start_ns(100 * MS, 100 * MS + 60_000, true, writer(90 * MS, false, 0), 1), None);
+        let lead = 2 * 60_000 + CYCLE_LEAD_MARGIN_NS;
+        assert_eq!(schedule.lead_ns(), lead);
+        // The sample just delivered is for the writer's next deadline
+        // (101.2 ms): the cycle after it ends before the one after (102.2).
+        let d = 100 * MS + 200_000;
+        let start = schedule.next_start_ns(101 * MS, 101 * MS + 60_000, true, writer(d, false, 7), 8).unwrap();
+        assert_eq!(start, d + 2 * MS - lead);
+        // The writer is taking it now: the next is for its next deadline.
+        let start = schedule.next_start_ns(d - 10_000, d + 50_000, true, writer(d, true, 7), 8).unwrap();
+        assert_eq!(start, d + MS - lead);
+        // The writer waits for a sample (a lost frame, a late cycle): at once.
+        let now = 101 * MS + 60_000;
+        assert_eq!(schedule.next_start_ns(101 * MS, now, false, writer(d, true, 8), 8), Some(now));
+        // That slot already passed: at once, not a period later.
+        let late = d + MS - 10_000;
+        assert_eq!(schedule.next_start_ns(late - 60_000, late, true, writer(d, false, 8), 8), Some(late));
+    }
+
+    #[test]
+    fn a_lost_frame_is_not_the_bus_usual_time_and_the_lead_is_at_most_half_a_period() {
+        let mut schedule = CycleSchedule::new(Duration::from_millis(1));
+        schedule.next_start_ns(0, 50_000, true, WriterView::default(), 0);
+        assert_eq!(schedule.exchange_ns, 50_000);
+        // A lost frame, however short its timeout.
+        schedule.next_start_ns(MS, MS + 400_000, false, WriterView::default(), 0);
+        assert_eq!(schedule.exchange_ns, 50_000);
+        // A slow bus: the lead stops at half a period.
+        let mut slow = CycleSchedule::new(Duration::from_millis(1));
+        slow.next_start_ns(0, 900_000, true, WriterView::default(), 0);
+        assert_eq!(slow.lead_ns(), MS / 2);
+    }
+
     fn one_segment(taxels: usize) -> Arc<Shared> {
         Arc::new(Shared {
             segments: vec![Mutex::new(SegmentImage {
@@ -662,6 +889,7 @@ mod tests {
             })],
             news: vec![Condvar::new()],
             bus_fault: Mutex::new(None),
+            writers: vec![WriterFollow::default()],
         })
     }
 

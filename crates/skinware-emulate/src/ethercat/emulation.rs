@@ -2,14 +2,17 @@
 //! segments whose taxels feel the virtual body's moving contacts, on a
 //! network interface, with fault switches, until stopped.
 
+use std::io::BufWriter;
 use std::num::NonZeroU64;
+use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use skinware_drivers::PressureField;
 
 use super::esc::{ConfigError, LeaveOp, TactileConfig, TactileSubDevice};
-use super::interface::{InterfaceError, InterfaceStats, serve_interface};
+use super::interface::{FrameObserver, InterfaceError, InterfaceStats, serve_interface};
+use super::pcapng::PcapngWriter;
 use super::segment::Segment;
 
 /// What the emulated skin does wrong, on purpose.
@@ -44,6 +47,9 @@ pub struct EthercatEmulation {
     /// SCHED_FIFO priority of the emulator's thread (refused without the
     /// privilege: warned).
     pub fifo_priority: Option<u8>,
+    /// A pcapng capture of every frame taken and every answer sent (Wireshark
+    /// reads it), as a record of exactly what the segments answered.
+    pub capture: Option<PathBuf>,
 }
 
 /// Five minutes of contacts, repeated: drawing more would cost the start-up.
@@ -86,6 +92,31 @@ impl EthercatEmulation {
             return Err(EmulationError::FaultSegment { segment: self.faults.segment, segments: self.segments });
         }
         let segment = Mutex::new(self.segment()?);
+        let mut capture = match &self.capture {
+            Some(path) => {
+                let failed = |source| EmulationError::Capture { path: path.clone(), source };
+                let file = std::fs::File::create(path).map_err(failed)?;
+                Some(PcapngWriter::new(BufWriter::new(file)).map_err(failed)?)
+            }
+            None => None,
+        };
+        let capturing = capture.is_some();
+        let mut warned = false;
+        // Dropped when serving ends, which flushes the capture.
+        let mut record = move |request: &[u8], answer: Option<&[u8]>| {
+            let Some(writer) = capture.as_mut() else { return };
+            let now = skinware::os::monotonic_ns();
+            let written = writer.write_frame(now, request).and_then(|()| match answer {
+                Some(answer) => writer.write_frame(now, answer),
+                None => Ok(()),
+            });
+            if let Err(e) = written
+                && !warned
+            {
+                tracing::warn!(error = %e, "the capture cannot be written; the segments go on answering");
+                warned = true;
+            }
+        };
         if let Some(priority) = self.fifo_priority
             && let Err(e) = skinware::os::set_fifo_priority(priority)
         {
@@ -110,7 +141,8 @@ impl EthercatEmulation {
                     }
                 });
             }
-            let stats = serve_interface(&segment, &self.interface, stop, None);
+            let observer: Option<&mut FrameObserver<'_>> = if capturing { Some(&mut record) } else { None };
+            let stats = serve_interface(&segment, &self.interface, stop, observer);
             served.store(true, std::sync::atomic::Ordering::Relaxed);
             stats
         })?;
@@ -127,6 +159,14 @@ pub enum EmulationError {
     /// The interface cannot be served.
     #[error(transparent)]
     Interface(#[from] InterfaceError),
+    /// The capture file cannot be written.
+    #[error("cannot write the capture {}: {source} (give a path in a directory that exists and is writable)", path.display())]
+    Capture {
+        /// The capture asked for.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
     /// The faulty segment is not there.
     #[error("faults hit segment {segment}, but there are only {segments} (0 to {})", segments.saturating_sub(1))]
     FaultSegment {
@@ -157,6 +197,7 @@ mod tests {
                 ..EmulationFaults::default()
             },
             fifo_priority: None,
+            capture: None,
         };
         let mut segment = emulation.segment().unwrap();
         assert_eq!(segment.subdevices().len(), 3);

@@ -1,0 +1,211 @@
+//! What a driver process knows of its devices, for `skin ls`: each EtherCAT
+//! SubDevice's identity, AL state and fault.
+//!
+//! The driver process writes it every [`PUBLISH_EVERY`] as a small JSON file
+//! beside the channels (`skinware-driver.SKIN.DRIVER.json` in the segment
+//! directory), written to a temporary file and renamed so that a reader sees
+//! one whole version. It is removed when the driver stops; a crashed driver's
+//! file is recognised by its dead process or its age, left out of listings,
+//! and removed by `skin clean`.
+//!
+//! Status travels as a file and not as a channel because it changes a few
+//! times a second at most, is read by people and scripts, and must never
+//! cost the writers anything.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use serde::{Deserialize, Serialize};
+
+/// How often a driver process rewrites its status.
+pub const PUBLISH_EVERY: Duration = Duration::from_millis(200);
+
+/// A status not rewritten for this long belongs to a driver that is stuck or
+/// gone, even if its process id is alive (a reused id, a stopped process).
+pub const STALE_AFTER: Duration = Duration::from_secs(3);
+
+/// Most bytes a status file may have: a driver has at most a few dozen
+/// devices; anything bigger is not ours.
+pub const MAX_STATUS_BYTES: usize = 1 << 20;
+
+/// One driver's status.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DriverStatus {
+    /// The skin it belongs to.
+    pub skin: String,
+    /// The driver's name in the config.
+    pub driver: String,
+    /// Its `kind` (`ethercat`).
+    pub kind: String,
+    /// The driver process.
+    pub pid: u32,
+    /// When this was written, milliseconds since the Unix epoch.
+    pub updated_unix_ms: u64,
+    /// Why the whole bus is down, while it is.
+    pub bus_fault: Option<String>,
+    /// Its devices, in bus order.
+    pub devices: Vec<DeviceStatus>,
+}
+
+/// One device on a driver's bus (an EtherCAT SubDevice: one tactile segment).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct DeviceStatus {
+    /// Its position on the bus (0 first).
+    pub position: usize,
+    /// The layer it feeds.
+    pub layer: String,
+    /// Its name as it reports it (the SII's order code), once seen.
+    pub name: String,
+    /// Vendor ID, once seen.
+    pub vendor_id: Option<u32>,
+    /// Product code, once seen.
+    pub product_code: Option<u32>,
+    /// Revision, once seen.
+    pub revision: Option<u32>,
+    /// Serial number, once seen.
+    pub serial: Option<u32>,
+    /// Its state as last seen (`INIT`, `PRE-OP`, `SAFE-OP`, `OP`), empty before the first.
+    pub state: String,
+    /// Why its layer is faulted, if it is.
+    pub fault: Option<String>,
+    /// Cycles whose data it delivered.
+    pub cycles: u64,
+    /// Its newest sample counter.
+    pub counter: u16,
+}
+
+/// The status file of `driver` of `skin` in `dir`.
+pub fn status_path(dir: &Path, skin: &str, driver: &str) -> PathBuf {
+    dir.join(format!("skinware-driver.{skin}.{driver}.json"))
+}
+
+/// Milliseconds since the Unix epoch, now.
+pub fn now_unix_ms() -> u64 {
+    SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_millis() as u64)
+}
+
+impl DriverStatus {
+    /// Decodes a status file's bytes.
+    pub fn decode(bytes: &[u8]) -> Result<DriverStatus, String> {
+        if bytes.len() > MAX_STATUS_BYTES {
+            return Err(format!("{} bytes, more than a driver status has ({MAX_STATUS_BYTES})", bytes.len()));
+        }
+        serde_json::from_slice(bytes).map_err(|e| format!("not a driver status: {e}"))
+    }
+
+    /// Writes it to its file in `dir`, whole: a temporary file renamed over it.
+    pub fn publish(&self, dir: &Path) -> std::io::Result<PathBuf> {
+        let path = status_path(dir, &self.skin, &self.driver);
+        let temporary = path.with_extension(format!("json.{}.tmp", self.pid));
+        let bytes = serde_json::to_vec_pretty(self).map_err(std::io::Error::other)?;
+        std::fs::write(&temporary, bytes)?;
+        std::fs::rename(&temporary, &path)?;
+        Ok(path)
+    }
+
+    /// Whether its driver is alive by the file's own account: its process
+    /// exists and it was rewritten within [`STALE_AFTER`] of `now_unix_ms`.
+    pub fn is_live(&self, now_unix_ms: u64) -> bool {
+        let fresh = now_unix_ms.saturating_sub(self.updated_unix_ms) <= STALE_AFTER.as_millis() as u64;
+        fresh && Path::new("/proc").join(self.pid.to_string()).exists()
+    }
+}
+
+/// A status file found in the segment directory.
+#[derive(Debug)]
+pub struct Found {
+    /// Its path.
+    pub path: PathBuf,
+    /// What it says, or why it could not be read.
+    pub status: Result<DriverStatus, String>,
+}
+
+/// Every driver status file in `dir`, of `skin` or of every skin.
+pub fn find(dir: &Path, skin: Option<&str>) -> std::io::Result<Vec<Found>> {
+    let mut found = Vec::new();
+    let entries = match std::fs::read_dir(dir) {
+        Ok(entries) => entries,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(found),
+        Err(e) => return Err(e),
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let Some(rest) = name.strip_prefix("skinware-driver.").and_then(|r| r.strip_suffix(".json")) else {
+            continue;
+        };
+        if skin.is_some_and(|skin| !rest.starts_with(&format!("{skin}."))) {
+            continue;
+        }
+        let path = entry.path();
+        let status = std::fs::read(&path)
+            .map_err(|e| format!("cannot read it: {e}"))
+            .and_then(|bytes| DriverStatus::decode(&bytes));
+        found.push(Found { path, status });
+    }
+    found.sort_by(|a, b| a.path.cmp(&b.path));
+    Ok(found)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn example() -> DriverStatus {
+        DriverStatus {
+            skin: "arm".into(),
+            driver: "bus".into(),
+            kind: "ethercat".into(),
+            pid: std::process::id(),
+            updated_unix_ms: now_unix_ms(),
+            bus_fault: None,
+            devices: vec![DeviceStatus {
+                position: 0,
+                layer: "forearm".into(),
+                name: "SKIN-T708".into(),
+                vendor_id: Some(0x0053_4B4E),
+                product_code: Some(0x7AC7),
+                revision: Some(1),
+                serial: Some(1),
+                state: "OP".into(),
+                fault: None,
+                cycles: 12,
+                counter: 12,
+            }],
+        }
+    }
+
+    #[test]
+    #[cfg_attr(miri, ignore = "opens files, which Miri's isolation refuses")]
+    fn published_status_is_found_whole_and_live() {
+        let dir = std::env::temp_dir().join(format!("skinware-driver-status-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let status = example();
+        let path = status.publish(&dir).unwrap();
+        assert_eq!(path, status_path(&dir, "arm", "bus"));
+        let found = find(&dir, Some("arm")).unwrap();
+        assert_eq!(found.len(), 1);
+        assert_eq!(found[0].status.as_ref().unwrap(), &status);
+        assert!(status.is_live(now_unix_ms()));
+        // Nothing of the temporary file is left, and another skin sees nothing.
+        assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
+        assert!(find(&dir, Some("ar")).unwrap().is_empty());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    #[cfg_attr(miri, ignore = "looks in /proc, which Miri's isolation refuses")]
+    fn an_old_or_dead_status_is_not_live() {
+        let mut status = example();
+        assert!(!status.is_live(status.updated_unix_ms + STALE_AFTER.as_millis() as u64 + 1));
+        status.pid = u32::MAX;
+        assert!(!status.is_live(status.updated_unix_ms));
+    }
+
+    #[test]
+    fn foreign_bytes_are_an_error_not_a_panic() {
+        for bytes in [&b""[..], b"{", b"[]", b"{\"skin\":1}", &[0xff; 64]] {
+            assert!(DriverStatus::decode(bytes).is_err(), "{bytes:?}");
+        }
+        assert!(DriverStatus::decode(&vec![b' '; MAX_STATUS_BYTES + 1]).unwrap_err().contains("more than"));
+    }
+}

@@ -1,0 +1,298 @@
+//! End to end through `skin run` on the real EtherCAT path: `skin run` in a
+//! network namespace of its own (`unshare -rn`) with a veth pair; emulated
+//! tactile segments (`[[emulator]] kind = "ethercat"`, their own process)
+//! answering raw frames on one end; the EtherCAT driver (ethercrab, its own
+//! process) on the other; a reader in this process, outside the namespace,
+//! on the shared memory. Every frame the reader copies is checked against
+//! the answers the segments sent (their pcapng capture); `skin ls --json`
+//! must show each SubDevice's identity and state; a cable pull (the
+//! segments' end of the veth pair down) must fault both layers, and the
+//! readers must see them running again, without re-attaching, once it is up.
+//!
+//! Skipped, with the reason printed, where the machine forbids namespaces;
+//! under `CI=true` that is a failure, since CI's machines allow them.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command};
+use std::time::{Duration, Instant};
+
+use skinware::{Reader, ReaderOptions, WriterState};
+
+use crate::util::one_skin_at_a_time;
+
+const SKIN: &str = "ecat-e2e";
+const LAYERS: [&str; 2] = ["forearm", "upperarm"];
+const TAXELS: usize = 96;
+const VENDOR_ID: u64 = 0x0053_4B4E;
+const PRODUCT_CODE: u64 = 0x7AC7;
+const DRIVER_END: &str = "ecat-a";
+const SEGMENT_END: &str = "ecat-b";
+
+/// Why this machine cannot run the test, if it cannot.
+fn cannot_run() -> Option<String> {
+    match Command::new("unshare")
+        .args(["-rn", "ip", "link", "add", "t0", "type", "veth", "peer", "name", "t1"])
+        .output()
+    {
+        Ok(out) if out.status.success() => None,
+        Ok(out) => Some(format!(
+            "`unshare -rn ip link add … type veth` fails here ({}): no network namespaces or veth",
+            String::from_utf8_lossy(&out.stderr).trim()
+        )),
+        Err(e) => Some(format!("cannot run unshare: {e}")),
+    }
+}
+
+fn config(dir: &Path) -> String {
+    let segments: String = LAYERS
+        .iter()
+        .map(|layer| {
+            format!(
+                "[[driver.segment]]\nlayer = \"{layer}\"\nvendor_id = {VENDOR_ID:#x}\nproduct_code = {PRODUCT_CODE:#x}\ntaxels = {TAXELS}\nsensors_per_module = 12\n\n"
+            )
+        })
+        .collect();
+    format!(
+        r#"skin = "{SKIN}"
+
+[[emulator]]
+name = "segments"
+kind = "ethercat"
+interface = "{SEGMENT_END}"
+segments = {segments_count}
+taxels = {TAXELS}
+capture = "{capture}"
+
+[[driver]]
+name = "arm"
+kind = "ethercat"
+interface = "{DRIVER_END}"
+rate_hz = 250
+
+{segments}"#,
+        segments_count = LAYERS.len(),
+        capture = dir.join("segments.pcapng").display(),
+    )
+}
+
+struct Skin {
+    dir: PathBuf,
+    /// `skin run`, the first process of the namespace (`exec`ed by its shell).
+    supervisor: Option<Child>,
+}
+
+impl Skin {
+    fn start() -> Skin {
+        let dir = PathBuf::from("/dev/shm").join(format!("skin-ecat-e2e-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let config_path = dir.join("config.toml");
+        std::fs::write(&config_path, config(&dir)).unwrap();
+        let script = format!(
+            "ip link add {DRIVER_END} type veth peer name {SEGMENT_END} && ip link set {DRIVER_END} up \
+             && ip link set {SEGMENT_END} up && exec \"$1\" run \"$2\""
+        );
+        let supervisor = Command::new("unshare")
+            .args(["-rn", "sh", "-c", &script, "sh", env!("CARGO_BIN_EXE_skin")])
+            .arg(&config_path)
+            .env("SKINWARE_SHM_DIR", &dir)
+            .env("RUST_LOG", "warn")
+            .spawn()
+            .expect("start skin run under unshare");
+        Skin { dir, supervisor: Some(supervisor) }
+    }
+
+    fn reader(&self, layer: &str) -> Reader {
+        let options = ReaderOptions { dir: Some(self.dir.clone()), ..ReaderOptions::default() };
+        let started = Instant::now();
+        loop {
+            match Reader::open_with(SKIN, layer, &options) {
+                Ok(reader) => return reader,
+                Err(e) if started.elapsed() > Duration::from_secs(30) => panic!("layer {layer} never came up: {e}"),
+                Err(_) => std::thread::sleep(Duration::from_millis(20)),
+            }
+        }
+    }
+
+    /// `skin ls --json` of this skin, parsed.
+    fn ls_json(&self) -> serde_json::Value {
+        let out = Command::new(env!("CARGO_BIN_EXE_skin"))
+            .args(["ls", "--json", "--skin", SKIN])
+            .env("SKINWARE_SHM_DIR", &self.dir)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "skin ls --json: {}", String::from_utf8_lossy(&out.stderr));
+        serde_json::from_slice(&out.stdout).unwrap()
+    }
+
+    /// Runs `command` in the skin's network namespace (root may enter it).
+    fn in_namespace(&self, command: &[&str]) -> Result<(), String> {
+        let pid = self.supervisor.as_ref().unwrap().id().to_string();
+        let out = Command::new("nsenter")
+            .args(["--target", &pid, "--net"])
+            .args(command)
+            .output()
+            .map_err(|e| format!("cannot run nsenter: {e}"))?;
+        if out.status.success() {
+            Ok(())
+        } else {
+            Err(format!("nsenter {}: {}", command.join(" "), String::from_utf8_lossy(&out.stderr).trim()))
+        }
+    }
+
+    /// Stops the skin with SIGINT, as a user would (the emulator closes its capture).
+    fn stop(&mut self) {
+        if let Some(mut supervisor) = self.supervisor.take() {
+            let pid = rustix::process::Pid::from_raw(supervisor.id() as i32).unwrap();
+            let _ = rustix::process::kill_process(pid, rustix::process::Signal::INT);
+            let _ = supervisor.wait();
+        }
+    }
+}
+
+impl Drop for Skin {
+    fn drop(&mut self) {
+        if let Some(mut supervisor) = self.supervisor.take() {
+            let _ = supervisor.kill();
+            let _ = supervisor.wait();
+        }
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+fn wait_for(reader: &mut Reader, state: WriterState, within: Duration) -> Duration {
+    let started = Instant::now();
+    loop {
+        if reader.writer_state() == state {
+            return started.elapsed();
+        }
+        assert!(started.elapsed() < within, "{} never became {state} (is {})", reader.label(), reader.writer_state());
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+/// Waits until `skin ls --json` satisfies `ready`, and returns it.
+fn wait_for_ls(
+    skin: &Skin,
+    what: &str,
+    within: Duration,
+    ready: impl Fn(&serde_json::Value) -> bool,
+) -> serde_json::Value {
+    let started = Instant::now();
+    loop {
+        let listing = skin.ls_json();
+        if ready(&listing) {
+            return listing;
+        }
+        assert!(started.elapsed() < within, "skin ls --json never showed {what}: {listing:#}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+#[test]
+fn ethercat_skin_through_skin_run_reaches_a_reader_in_another_process() {
+    let _alone = one_skin_at_a_time();
+    if let Some(why) = cannot_run() {
+        assert!(std::env::var("CI").as_deref() != Ok("true"), "{why}, and CI must run this test");
+        println!("skipped: {why}");
+        return;
+    }
+    let mut skin = Skin::start();
+    let mut readers: Vec<Reader> = LAYERS.iter().map(|layer| skin.reader(layer)).collect();
+    for reader in &mut readers {
+        let took = wait_for(reader, WriterState::Running, Duration::from_secs(30));
+        println!("{} running {took:?} after its channel appeared", reader.label());
+    }
+
+    // Each SubDevice's identity and state, as `skin ls --json` shows them.
+    let listing = wait_for_ls(&skin, "both SubDevices in OP", Duration::from_secs(10), |listing| {
+        listing["drivers"][0]["devices"]
+            .as_array()
+            .is_some_and(|d| d.len() == 2 && d.iter().all(|d| d["state"] == "OP"))
+    });
+    let driver = &listing["drivers"][0];
+    assert_eq!(driver["skin"], SKIN);
+    assert_eq!(driver["driver"], "arm");
+    assert_eq!(driver["kind"], "ethercat");
+    assert!(driver["bus_fault"].is_null(), "{driver:#}");
+    for (position, device) in driver["devices"].as_array().unwrap().iter().enumerate() {
+        assert_eq!(device["position"], position);
+        assert_eq!(device["layer"], LAYERS[position]);
+        assert_eq!(device["vendor_id"], VENDOR_ID, "{device:#}");
+        assert_eq!(device["product_code"], PRODUCT_CODE, "{device:#}");
+        assert!(device["fault"].is_null(), "{device:#}");
+        assert!(device["cycles"].as_u64().unwrap() > 0, "{device:#}");
+    }
+    let layers = listing["layers"].as_array().unwrap();
+    for (position, layer) in LAYERS.iter().enumerate() {
+        let entry = layers.iter().find(|l| l["name"] == *layer).unwrap_or_else(|| panic!("no {layer} in {listing:#}"));
+        assert_eq!(entry["device"]["position"], position, "{entry:#}");
+        assert_eq!(entry["device"]["vendor_id"], VENDOR_ID);
+    }
+    let text = Command::new(env!("CARGO_BIN_EXE_skin"))
+        .args(["ls", "--skin", SKIN])
+        .env("SKINWARE_SHM_DIR", &skin.dir)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&text.stdout);
+    assert!(text.contains("vendor 0x00534b4e product 0x00007ac7"), "{text}");
+    assert!(text.contains("driver ecat-e2e/arm (ethercat"), "{text}");
+
+    // Frames as this process copies them.
+    let mut copied: Vec<Vec<Vec<u16>>> = vec![Vec::new(); LAYERS.len()];
+    for _ in 0..50 {
+        for (k, reader) in readers.iter_mut().enumerate() {
+            let frame = reader.wait_newer(Duration::from_secs(2)).unwrap();
+            assert_eq!(frame.responses().len(), TAXELS);
+            copied[k].push(frame.responses().to_vec());
+        }
+    }
+
+    // A cable pull: the segments' end of the pair down, then up again.
+    match skin.in_namespace(&["ip", "link", "set", SEGMENT_END, "down"]) {
+        Ok(()) => {
+            for reader in &mut readers {
+                let took = wait_for(reader, WriterState::Faulted, Duration::from_secs(5));
+                println!("{} faulted {took:?} after the cable pull", reader.label());
+            }
+            wait_for_ls(&skin, "the bus down", Duration::from_secs(5), |l| l["drivers"][0]["bus_fault"].is_string());
+            skin.in_namespace(&["ip", "link", "set", SEGMENT_END, "up"]).unwrap();
+            for reader in &mut readers {
+                let took = wait_for(reader, WriterState::Running, Duration::from_secs(30));
+                println!("{} running again {took:?} after the cable was back", reader.label());
+                reader.wait_newer(Duration::from_secs(2)).unwrap();
+            }
+        }
+        // Not root: the namespace is someone else's to enter.
+        Err(why) => println!("cable pull skipped: {why}"),
+    }
+
+    skin.stop();
+    assert!(
+        !skin.dir.join(format!("skinware-driver.{SKIN}.arm.json")).exists(),
+        "the driver's status file outlived the driver"
+    );
+
+    // Every copied frame is what one of the segments answered, taxel for taxel.
+    let capture = std::fs::read(skin.dir.join("segments.pcapng")).unwrap();
+    let frames = skinware_emulate::ethercat::pcapng::read_frames(&capture).unwrap();
+    // The segments mark an answer's source address as locally administered.
+    let answers: Vec<&Vec<u8>> = frames.iter().filter(|f| f.len() > 14 && f[6] & 0x02 != 0).collect();
+    assert!(answers.len() > 200, "{} answers captured", answers.len());
+    for (k, frames) in copied.iter().enumerate() {
+        for (n, values) in frames.iter().enumerate() {
+            let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+            assert!(
+                answers.iter().any(|answer| answer.windows(bytes.len()).any(|w| w == bytes.as_slice())),
+                "frame {n} of {} was never answered by a segment: {values:?}",
+                LAYERS[k]
+            );
+        }
+    }
+    let distinct: std::collections::HashSet<&Vec<u16>> = copied.iter().flatten().collect();
+    println!(
+        "{} frames per layer ({} distinct) checked against {} captured answers",
+        copied[0].len(),
+        distinct.len(),
+        answers.len()
+    );
+}
