@@ -292,32 +292,55 @@ mod ecat {
                 status.segments()
             );
         }
+        // The writer runs as the driver handler runs it (`run_periodic`,
+        // which tells the driver each period's deadline, so that its bus
+        // cycles end just before the acquisition). `run_periodic` times each
+        // frame from `begin` to the end of `publish` itself; a sampler
+        // thread reads that (write_ns_last) from the channel's statistics
+        // after each frame, outside the span.
+        let reader = skinware::Reader::open(skin, "ethercat").context("opening layer ethercat to sample its writer")?;
+        let acquisitions = Arc::new(Mutex::new(Vec::<(u64, u64)>::with_capacity(4096)));
+        let first_frame = reader.writer_stats().frames + 1;
+        let writing = {
+            let acquisitions = acquisitions.clone();
+            std::thread::spawn(move || {
+                for refused in (RtOptions { fifo_priority: Some(80), ..RtOptions::default() }).apply() {
+                    eprintln!("warning: writer_EC: {refused}");
+                }
+                let _ = writer.run_periodic(Ticker::new(period), |frame| {
+                    let started = skinware::os::monotonic_ns();
+                    let result = source.acquire(frame);
+                    if result.is_ok() {
+                        let data = frame.acquired_ns().unwrap_or(started);
+                        acquisitions.lock().unwrap_or_else(|p| p.into_inner()).push((started, data));
+                    }
+                    result
+                });
+                driver.stop();
+            })
+        };
+        let stop = stop.clone();
         Ok(std::thread::spawn(move || {
-            for refused in (RtOptions { fifo_priority: Some(80), ..RtOptions::default() }).apply() {
-                eprintln!("warning: writer_EC: {refused}");
-            }
-            let mut samples = Vec::with_capacity(4096);
-            let mut after = Vec::with_capacity(4096);
-            let mut ticker = Ticker::new(period);
-            let stop = writer.stop_signal().clone();
-            while ticker.wait(&stop).is_some() {
-                let started = skinware::os::monotonic_ns();
-                let mut frame = writer.begin();
-                let acquired = source.acquire(&mut frame).is_ok();
-                let data_ns = frame.acquired_ns().unwrap_or(started);
-                if acquired {
-                    frame.publish();
-                } else {
-                    frame.discard();
+            // Frame number → its begin-to-publish time, as the writer measured it.
+            let mut write_ns = std::collections::HashMap::with_capacity(4096);
+            while !stop.is_stopped() {
+                let a = reader.writer_stats();
+                let b = reader.writer_stats();
+                if a.frames == b.frames && a.write_ns_last == b.write_ns_last && a.frames >= first_frame {
+                    write_ns.insert(a.frames, a.write_ns_last);
                 }
-                let ended = skinware::os::monotonic_ns();
-                samples.push(WriterSample { started_ns: started, took_ns: ended - started });
-                if acquired {
-                    let from = data_ns.max(started);
-                    after.push(WriterSample { started_ns: started, took_ns: ended.saturating_sub(from) });
-                }
+                std::thread::sleep(Duration::from_millis(2));
             }
-            driver.stop();
+            let _ = writing.join();
+            let acquisitions = std::mem::take(&mut *acquisitions.lock().unwrap_or_else(|p| p.into_inner()));
+            let mut samples = Vec::with_capacity(acquisitions.len());
+            let mut after = Vec::with_capacity(acquisitions.len());
+            for (k, &(started, data)) in acquisitions.iter().enumerate() {
+                let Some(&took) = write_ns.get(&(first_frame + k as u64)) else { continue };
+                samples.push(WriterSample { started_ns: started, took_ns: took });
+                let published = started + took;
+                after.push(WriterSample { started_ns: started, took_ns: published.saturating_sub(data.max(started)) });
+            }
             *after_bus_data.lock().unwrap_or_else(|p| p.into_inner()) = after;
             samples
         }))
