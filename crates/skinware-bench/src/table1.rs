@@ -42,9 +42,10 @@ pub enum Transport {
     /// a raw socket at one end of a veth pair, the ESC model of one 708-taxel
     /// segment at the other, in a network namespace of the bench's own (the
     /// caller enters it: [`crate::netns`]). Each write is the driver's
-    /// acquisition (it waits for a bus cycle newer than the last frame's,
-    /// then copies that cycle's taxels) and the publish; the bus cycles run
-    /// in the driver's bus thread at the layer's 50 Hz.
+    /// acquisition (it waits for a bus cycle newer than the last frame's, if
+    /// none is there yet, then copies that cycle's taxels) and the publish.
+    /// The bus cycles run in the driver's bus thread at the layer's 50 Hz,
+    /// each scheduled to end just before the writer's period deadline.
     Ethercat,
 }
 
@@ -210,8 +211,8 @@ pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
     );
     if let Some(p) = &rows[0].after_bus_data_ns {
         println!(
-            "writer_EC on the EtherCAT driver waits in its acquisition for a bus cycle newer than its last frame; \
-             from that cycle's data to the end of publish: avg {:.0} ns, p99 {} ns, worst {} ns, std {:.0} ns",
+            "writer_EC's acquisition waits for a bus cycle newer than its last frame if none is there yet; \
+             from that cycle's data (or begin) to the end of publish: avg {:.0} ns, p99 {} ns, worst {} ns, std {:.0} ns",
             p.avg, p.p99, p.max, p.std
         );
     }
