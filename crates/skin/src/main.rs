@@ -73,6 +73,9 @@ enum Command {
     /// One reader process of `skin bench peers`.
     #[command(hide = true)]
     BenchPeerReader(commands::bench::PeerReaderArgs),
+    /// The reader process of `skin bench ethercat`.
+    #[command(hide = true)]
+    BenchEcatReader(commands::bench::EcatReaderArgs),
     /// One application process of a benchmark (what `skin bench` starts).
     #[command(hide = true)]
     BenchApp(commands::bench::AppArgs),
@@ -148,6 +151,7 @@ fn main() -> std::process::ExitCode {
         Command::Bridge(args) => commands::bridge::run(&args),
         Command::BridgeProbe(args) => commands::bridge_bench::probe(&args),
         Command::BenchApp(args) => commands::bench::app(&args),
+        Command::BenchEcatReader(args) => commands::bench::ecat_reader(&args),
         Command::BenchPeerReader(args) => commands::bench::peer_reader(&args),
     };
     match result {

@@ -8,8 +8,9 @@
 //!   it fills each cycle's inputs; from those, the achieved rate, the period
 //!   and its jitter (|period − 1 ms|), and the cycles missed.
 //! * Latency: the SubDevice writes that time into its first 4 taxels; a
-//!   reader thread of this process waits for each new frame (`wait_newer`,
-//!   a futex wake), and its copy in hand, takes now − that time. The span
+//!   reader in another process (this executable, `bench-ecat-reader`)
+//!   waits for each new frame (`wait_newer`, a futex wake), and its copy in
+//!   hand, takes now − that time. The span
 //!   holds the frame's trip back over the veth pair, ethercrab, the driver's
 //!   bus thread, the writer thread's acquisition and publish, and the
 //!   reader's wake and copy.
@@ -61,6 +62,60 @@ pub struct EthercatOptions {
     pub out: PathBuf,
     /// Seconds of cycles (overrides 2 s quick, 30 s full).
     pub seconds: Option<f64>,
+    /// This executable, re-run for the reader process.
+    pub exe: PathBuf,
+}
+
+/// Arguments of the reader process (`bench-ecat-reader`).
+#[derive(Clone, Debug)]
+pub struct LatencyReaderArgs {
+    /// The channels' directory.
+    pub dir: PathBuf,
+    /// How long to read.
+    pub seconds: f64,
+    /// Where to write its samples (JSON).
+    pub out: PathBuf,
+}
+
+/// What the reader process measured, ns per frame.
+#[derive(Debug, Default, Serialize, serde::Deserialize)]
+struct ReaderSamples {
+    latency: Vec<u64>,
+    to_driver: Vec<u64>,
+    driver_to_reader: Vec<u64>,
+    skipped: u64,
+}
+
+/// The reader process: waits for each new frame of the bench's layer,
+/// copies it and takes now − the SubDevice's time in its first 4 taxels.
+pub fn run_latency_reader(args: &LatencyReaderArgs) -> Result<()> {
+    for refused in (RtOptions { fifo_priority: Some(PEER_PRIORITY), ..RtOptions::default() }).apply() {
+        eprintln!("warning: reader: {refused}");
+    }
+    let mut reader =
+        Reader::open_with("bench-ecat", "skin", &ReaderOptions { dir: Some(args.dir.clone()), ..Default::default() })
+            .context("the reader process cannot open the layer")?;
+    let capacity = (args.seconds * RATE_HZ * 1.2) as usize;
+    let mut samples = ReaderSamples {
+        latency: Vec::with_capacity(capacity),
+        to_driver: Vec::with_capacity(capacity),
+        driver_to_reader: Vec::with_capacity(capacity),
+        skipped: 0,
+    };
+    let deadline = Instant::now() + Duration::from_secs_f64(args.seconds);
+    while Instant::now() < deadline {
+        let Ok(frame) = reader.wait_newer(Duration::from_millis(100)) else { continue };
+        let copied = skinware::os::monotonic_ns();
+        samples.skipped += frame.skipped();
+        let stamped = stamp_of(frame.responses());
+        let received = frame.acquired_ns();
+        if stamped != 0 && stamped <= received && received <= copied {
+            samples.latency.push(copied - stamped);
+            samples.to_driver.push(received - stamped);
+            samples.driver_to_reader.push(copied - received);
+        }
+    }
+    std::fs::write(&args.out, serde_json::to_vec(&samples)?).with_context(|| format!("writing {}", args.out.display()))
 }
 
 /// The bus cycles, as the SubDevice saw them.
@@ -87,7 +142,7 @@ pub struct CycleReport {
 /// The SubDevice's inputs to a reader's copy.
 #[derive(Debug, Serialize)]
 pub struct LatencyReport {
-    /// Who reads: a thread of the bench's process, waiting on the futex.
+    /// Who reads: another process, waiting on the futex.
     pub reader: &'static str,
     /// The SubDevice's filling of a cycle's inputs to the reader holding
     /// the frame's copy, ns.
@@ -240,41 +295,33 @@ pub fn run(options: &EthercatOptions) -> Result<EthercatReport> {
         std::thread::sleep(Duration::from_millis(500));
 
         // Cycles and latency, together.
-        let mut reader = open()?;
         let frames_before = watcher.writer_stats().frames;
         stamps.at_ns.lock().unwrap_or_else(|p| p.into_inner()).reserve((seconds * RATE_HZ * 1.2) as usize);
         stamps.recording.store(true, Ordering::Relaxed);
         let started = Instant::now();
-        let reading = std::thread::spawn(move || {
-            let _ = RtOptions { fifo_priority: Some(PEER_PRIORITY), ..RtOptions::default() }.apply();
-            let mut latency = Vec::with_capacity((seconds * RATE_HZ * 1.2) as usize);
-            let mut to_driver = Vec::with_capacity(latency.capacity());
-            let mut driver_to_reader = Vec::with_capacity(latency.capacity());
-            let mut skipped = 0;
-            let deadline = Instant::now() + Duration::from_secs_f64(seconds);
-            while Instant::now() < deadline {
-                let Ok(frame) = reader.wait_newer(Duration::from_millis(100)) else { continue };
-                let copied = skinware::os::monotonic_ns();
-                skipped += frame.skipped();
-                let stamped = stamp_of(frame.responses());
-                let received = frame.acquired_ns();
-                if stamped != 0 && stamped <= received && received <= copied {
-                    latency.push(copied - stamped);
-                    to_driver.push(received - stamped);
-                    driver_to_reader.push(copied - received);
-                }
-            }
-            (latency, to_driver, driver_to_reader, skipped)
-        });
-        let (mut latency, mut to_driver, mut driver_to_reader, skipped) =
-            reading.join().map_err(|_| anyhow::anyhow!("reader thread panicked"))?;
+        let samples_file = options.out.join("ethercat-reader.json");
+        let status_of_reader = std::process::Command::new(&options.exe)
+            .arg("bench-ecat-reader")
+            .arg("--dir")
+            .arg(&dir)
+            .args(["--seconds", &seconds.to_string()])
+            .arg("--out")
+            .arg(&samples_file)
+            .status()
+            .with_context(|| format!("cannot start the reader process {}", options.exe.display()))?;
+        if !status_of_reader.success() {
+            bail!("the reader process failed ({status_of_reader})");
+        }
+        let samples: ReaderSamples = serde_json::from_slice(&std::fs::read(&samples_file)?)?;
+        let _ = std::fs::remove_file(&samples_file);
+        let ReaderSamples { mut latency, mut to_driver, mut driver_to_reader, skipped } = samples;
         stamps.recording.store(false, Ordering::Relaxed);
         let elapsed = started.elapsed().as_secs_f64();
         let layer_frames_per_s = (watcher.writer_stats().frames - frames_before) as f64 / elapsed;
         let at = std::mem::take(&mut *stamps.at_ns.lock().unwrap_or_else(|p| p.into_inner()));
         let cycles = cycle_report(&at, layer_frames_per_s);
         let latency = LatencyReport {
-            reader: "a thread of the bench's process (SCHED_FIFO 70), wait_newer (futex wake)",
+            reader: "another process (SCHED_FIFO 70), wait_newer (futex wake)",
             latency_ns: Percentiles::of(&mut latency),
             to_driver_ns: Percentiles::of(&mut to_driver),
             driver_to_reader_ns: Percentiles::of(&mut driver_to_reader),

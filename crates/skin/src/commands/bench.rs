@@ -135,6 +135,7 @@ pub fn run(which: &Which) -> Result<()> {
                 quick: common.quick,
                 out: common.out.clone(),
                 seconds: common.seconds,
+                exe,
             };
             skinware_bench::ethercat::run(&options).map(|_| ())
         }
@@ -216,6 +217,26 @@ fn enter_own_network_namespace() -> Result<()> {
         }
     });
     Ok(())
+}
+
+/// Arguments of the hidden `bench-ecat-reader` role.
+#[derive(clap::Args)]
+pub struct EcatReaderArgs {
+    #[arg(long)]
+    dir: PathBuf,
+    #[arg(long)]
+    seconds: f64,
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// Runs the reader process of `skin bench ethercat`.
+pub fn ecat_reader(args: &EcatReaderArgs) -> Result<()> {
+    skinware_bench::ethercat::run_latency_reader(&skinware_bench::ethercat::LatencyReaderArgs {
+        dir: args.dir.clone(),
+        seconds: args.seconds,
+        out: args.out.clone(),
+    })
 }
 
 /// Arguments of the hidden `bench-peer-reader` role.
