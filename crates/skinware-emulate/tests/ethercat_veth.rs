@@ -336,3 +336,151 @@ fn the_veth_run_is_captured_and_replays_through_the_model() {
     }
     assert!(cycles >= 50, "{cycles} cycles captured");
 }
+
+/// The segment (driver's position) a process-data frame belongs to, told by
+/// its LRW's length: the segments' taxel counts differ.
+fn segment_of_lrw(frame: &[u8], taxels: &[usize]) -> Option<usize> {
+    let datagrams = skinware_emulate::ethercat::datagrams(frame)?;
+    let lrw = datagrams.iter().find(|d| d.command == skinware_emulate::ethercat::Command::Lrw)?;
+    taxels.iter().position(|&n| lrw.data.len() == 4 + 2 * n + 4)
+}
+
+/// Late answers (after the driver's frame timeout) reach ethercrab, which
+/// refuses them: the frame they answer is lost to its segment's layer for a
+/// cycle, but the link goes on. ethercrab's own `tx_rx_task` ended on the
+/// first one, and the whole bus was brought up again.
+#[test]
+fn late_answers_fault_only_their_segment_and_never_the_bus() {
+    if !in_own_namespace("late_answers_fault_only_their_segment_and_never_the_bus") {
+        return;
+    }
+    let veth = ip(&["link", "add", DRIVER_END, "type", "veth", "peer", "name", SEGMENT_END])
+        .and_then(|()| ip(&["link", "set", DRIVER_END, "up"]))
+        .and_then(|()| ip(&["link", "set", SEGMENT_END, "up"]));
+    if let Err(why) = veth {
+        println!("skipped: no veth pair: {why}");
+        return;
+    }
+    // Different sizes, so that a frame's length tells its segment.
+    let taxels = [12, 24, 36];
+    const LATE_EVERY: u64 = 10;
+    let segment = Arc::new(Mutex::new(emulated(&taxels)));
+    let stop = Arc::new(AtomicBool::new(false));
+    let late_phase = Arc::new(AtomicBool::new(false));
+    // The segments whose frames were answered late, counted as the model
+    // counts them: every LATE_EVERY-th process-data frame.
+    let hit = Arc::new(Mutex::new([0u64; 3]));
+    let emulator = {
+        let (segment, stop, late_phase, hit) = (segment.clone(), stop.clone(), late_phase.clone(), hit.clone());
+        std::thread::spawn(move || {
+            let mut process_data = 0u64;
+            let mut observe = |request: &[u8], _: Option<&[u8]>| {
+                if let Some(position) = segment_of_lrw(request, &taxels) {
+                    process_data += 1;
+                    if late_phase.load(Ordering::Relaxed) && process_data.is_multiple_of(LATE_EVERY) {
+                        hit.lock().unwrap()[position] += 1;
+                    }
+                }
+            };
+            serve_interface(&segment, SEGMENT_END, &|| stop.load(Ordering::Relaxed), Some(&mut observe))
+        })
+    };
+    let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-late-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let segments: Vec<SegmentConfig> = taxels
+        .iter()
+        .enumerate()
+        .map(|(position, &count)| SegmentConfig {
+            layer: format!("seg{position}"),
+            vendor_id: EMULATED_VENDOR_ID,
+            product_code: EMULATED_PRODUCT_CODE,
+            taxels: count,
+            modules: vec![12; count / 12],
+            patch: position as u32 + 1,
+            baseline: false,
+        })
+        .collect();
+    let frame_timeout = Duration::from_millis(20);
+    let config = EthercatDriverConfig {
+        name: "ecat".into(),
+        segments: segments.clone(),
+        rate_hz: 200.0,
+        frame_timeout: Some(frame_timeout),
+        rt: Default::default(),
+    };
+    let driver = EthercatDriver::new(config, FrameLink::Interface(DRIVER_END.into())).unwrap();
+    let status = driver.status_handle();
+    let options = HandlerOptions { dir: Some(dir.clone()), ..HandlerOptions::default() };
+    let handler = DriverHandler::start("ecat", Box::new(driver), &options).unwrap();
+    let mut readers: Vec<Reader> = segments
+        .iter()
+        .map(|s| {
+            Reader::open_with("ecat", &s.layer, &ReaderOptions { dir: Some(dir.clone()), ..Default::default() })
+                .unwrap()
+        })
+        .collect();
+    for reader in &mut readers {
+        wait_for(reader, WriterState::Running, Duration::from_secs(10));
+    }
+    // The process-data frames counted so far, the model's and the observer's
+    // alike (both count every one from the start).
+    {
+        let mut segment = segment.lock().unwrap();
+        late_phase.store(true, Ordering::Relaxed);
+        let faults = segment.faults_mut();
+        faults.late_every_nth_frame = std::num::NonZeroU64::new(LATE_EVERY);
+        faults.late_by = frame_timeout * 2;
+    }
+    let started = Instant::now();
+    // Faults begun, per segment, as seen by polling (a short one may be missed).
+    let mut faults_seen = [0u64; 3];
+    let mut faulted = [false; 3];
+    while started.elapsed() < Duration::from_secs(1) {
+        assert_eq!(status.bus_fault(), None, "late answers brought the bus down; segments {:?}", status.segments());
+        for (position, s) in status.segments().iter().enumerate() {
+            assert_eq!(s.state, "OP", "segment {position}: {:?}", status.segments());
+            if let Some(why) = &s.fault {
+                assert!(why.contains("frame lost"), "segment {position}: {why}");
+                if !faulted[position] {
+                    faults_seen[position] += 1;
+                }
+            }
+            faulted[position] = s.fault.is_some();
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let late = {
+        let mut segment = segment.lock().unwrap();
+        segment.faults_mut().late_every_nth_frame = None;
+        late_phase.store(false, Ordering::Relaxed);
+        segment.stats().late
+    };
+    let hit = *hit.lock().unwrap();
+    println!(
+        "late answers: {late} held back {:?}, by segment {hit:?}; segment faults seen {faults_seen:?}",
+        frame_timeout * 2
+    );
+    assert!(late >= 10, "{late} late answers");
+    assert!(faults_seen.iter().any(|&f| f > 0), "no segment was seen faulted by {late} late answers");
+    for position in 0..3 {
+        assert!(
+            faults_seen[position] <= hit[position],
+            "segment {position} faulted {} times, but only {} of its frames were late",
+            faults_seen[position],
+            hit[position]
+        );
+    }
+    for (position, reader) in readers.iter_mut().enumerate() {
+        wait_for(reader, WriterState::Running, Duration::from_secs(5));
+        let responses = reader.wait_newer(Duration::from_secs(1)).unwrap().responses().to_vec();
+        let sample = responses[0].wrapping_sub(1000 * position as u16);
+        for (k, &value) in responses.iter().enumerate() {
+            assert_eq!(value, taxel_value(position, u64::from(sample), k), "segment {position} taxel {k}");
+        }
+    }
+    assert_eq!(status.bus_fault(), None);
+    handler.stop();
+    stop.store(true, Ordering::Relaxed);
+    emulator.join().unwrap().unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+}

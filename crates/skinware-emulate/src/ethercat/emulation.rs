@@ -17,6 +17,11 @@ use super::segment::Segment;
 pub struct EmulationFaults {
     /// Lose every Nth frame.
     pub drop_every_nth_frame: Option<NonZeroU64>,
+    /// Answer every Nth process-data frame `late_by` late (after the
+    /// MainDevice's frame timeout, to be a late answer).
+    pub late_every_nth_frame: Option<NonZeroU64>,
+    /// How late those answers are.
+    pub late_by: Duration,
     /// The segment that the per-segment faults below hit (from 0).
     pub segment: usize,
     /// That segment leaves the working counter of process data alone.
@@ -71,7 +76,10 @@ impl EthercatEmulation {
             subdevices.push(subdevice);
         }
         let mut segment = Segment::new(subdevices);
-        segment.faults_mut().drop_every_nth_frame = self.faults.drop_every_nth_frame;
+        let faults = segment.faults_mut();
+        faults.drop_every_nth_frame = self.faults.drop_every_nth_frame;
+        faults.late_every_nth_frame = self.faults.late_every_nth_frame;
+        faults.late_by = self.faults.late_by;
         Ok(segment)
     }
 
