@@ -77,7 +77,19 @@ fn emulated(taxels: &[usize]) -> Segment {
 
 impl Rig {
     fn start(test: &str, taxels: &[usize], configured: Vec<SegmentConfig>) -> Rig {
-        let segment = Arc::new(Mutex::new(emulated(taxels)));
+        Rig::start_with(test, taxels, configured, |_| {})
+    }
+
+    /// As [`Rig::start`], with the segments' faults set before the driver starts.
+    fn start_with(
+        test: &str,
+        taxels: &[usize],
+        configured: Vec<SegmentConfig>,
+        faults: impl FnOnce(&mut Segment),
+    ) -> Rig {
+        let mut segments = emulated(taxels);
+        faults(&mut segments);
+        let segment = Arc::new(Mutex::new(segments));
         let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-{}-{test}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let bus: Arc<Mutex<dyn FrameExchange>> = segment.clone();
@@ -284,6 +296,34 @@ fn lost_frames_fault_the_layers_they_belong_to() {
     println!("every 2nd frame lost: faulted {detected:.1} ms after the last good frame");
     rig.segment.lock().unwrap().faults_mut().drop_every_nth_frame = None;
     wait_for(&mut rig.readers[0], WriterState::Running, Duration::from_secs(5));
+}
+
+/// A small N loses only process-data frames: the bring-up's all arrive, the
+/// bus reaches OP, and then every Nth cycle frame is lost.
+#[test]
+fn a_small_drop_every_still_reaches_op_then_loses_every_nth_cycle_frame() {
+    let mut rig = Rig::start_with("drop-small", &[24], vec![segment_config(0, 24)], |s| {
+        s.faults_mut().drop_every_nth_frame = NonZeroU64::new(5);
+    });
+    let started = Instant::now();
+    while rig.status.segments()[0].cycles == 0 {
+        assert!(
+            started.elapsed() < Duration::from_secs(10),
+            "never reached OP with every 5th process-data frame lost: bus {:?}, {:?}",
+            rig.status.bus_fault(),
+            rig.status.segments()
+        );
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    println!("drop every 5th: cycling {:.0} ms after start", started.elapsed().as_secs_f64() * 1e3);
+    rig.wait_for_segment_fault(0, "frame lost");
+    let frame = rig.readers[0].wait_newer(Duration::from_secs(5)).unwrap();
+    check_frame(0, frame.responses());
+    let stats = rig.segment.lock().unwrap().stats();
+    println!("drop every 5th: {stats:?}");
+    assert_eq!(stats.dropped, stats.process_data / 5, "{stats:?}");
+    assert!(stats.dropped >= 1 && stats.frames > stats.process_data, "{stats:?}");
+    assert_eq!(rig.status.segments()[0].state, "OP");
 }
 
 #[test]

@@ -343,11 +343,11 @@ fn every_nth_frame_lost_is_a_timeout_in_exactly_those_cycles() {
         let group = bring_up(&maindevice).await;
         command_all(&group, &maindevice, COMMAND_ACQUIRE, 0);
         // One small segment: one frame per cycle.
-        let before = bus.with_segment(|s| s.stats().frames);
+        let before = bus.with_segment(|s| s.stats().process_data);
         group.tx_rx(&maindevice).await.unwrap();
-        assert_eq!(bus.with_segment(|s| s.stats().frames), before + 1);
+        assert_eq!(bus.with_segment(|s| s.stats().process_data), before + 1);
         bus.with_segment(|s| s.faults_mut().drop_every_nth_frame = NonZeroU64::new(5));
-        let first = bus.with_segment(|s| s.stats().frames) + 1;
+        let first = bus.with_segment(|s| s.stats().process_data) + 1;
         let mut lost = Vec::new();
         for cycle in 0..20u64 {
             match group.tx_rx(&maindevice).await {

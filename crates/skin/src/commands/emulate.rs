@@ -32,7 +32,7 @@ pub struct EthercatArgs {
     /// Taxels per segment.
     #[arg(long, default_value_t = 708, value_parser = clap::value_parser!(u16).range(1..=2048))]
     taxels: u16,
-    /// Fault: lose every Nth frame.
+    /// Fault: lose every Nth process-data frame (the bring-up's are never lost).
     #[arg(long)]
     drop_every: Option<std::num::NonZeroU64>,
     /// Fault: answer every Nth process-data frame late (by --late-by-ms).

@@ -50,7 +50,7 @@ pub struct EmulatorConfig {
     pub segments: Option<u16>,
     /// EtherCAT: taxels per segment (default 708).
     pub taxels: Option<u16>,
-    /// EtherCAT fault: lose every Nth frame.
+    /// EtherCAT fault: lose every Nth process-data frame (never the bring-up's).
     pub drop_every: Option<std::num::NonZeroU64>,
     /// EtherCAT fault: answer every Nth process-data frame `late_by_ms` late.
     pub late_every: Option<std::num::NonZeroU64>,

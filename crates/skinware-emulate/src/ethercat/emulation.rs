@@ -15,7 +15,7 @@ use super::segment::Segment;
 /// What the emulated skin does wrong, on purpose.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct EmulationFaults {
-    /// Lose every Nth frame.
+    /// Lose every Nth process-data frame (never one of the bring-up's).
     pub drop_every_nth_frame: Option<NonZeroU64>,
     /// Answer every Nth process-data frame `late_by` late (after the
     /// MainDevice's frame timeout, to be a late answer).

@@ -10,8 +10,10 @@ use super::wire::{Command, Datagram, FrameError, FrameLayout, check_frame};
 /// What the wire does wrong, on purpose.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SegmentFaults {
-    /// Lose every Nth frame (counting every frame offered while the link is
-    /// up, from 1). The frame is lost on its way out: no SubDevice sees it.
+    /// Lose every Nth process-data frame (one with an LRD, LWR or LRW
+    /// datagram, counting those offered while the link is up, from 1); the
+    /// bring-up's frames are never lost. The frame is lost on its way out:
+    /// no SubDevice sees it.
     pub drop_every_nth_frame: Option<NonZeroU64>,
     /// The cable is pulled: no frame reaches a SubDevice or comes back.
     pub link_down: bool,
@@ -28,7 +30,7 @@ pub struct SegmentFaults {
 pub enum Fate {
     /// It went round; the buffer holds the frame as it came back.
     Returned,
-    /// Lost by the drop-every-Nth fault.
+    /// Lost by the drop-every-Nth-process-data-frame fault.
     Dropped,
     /// The link is down.
     LinkDown,
@@ -109,12 +111,6 @@ impl Segment {
             return Ok(Fate::LinkDown);
         }
         self.stats.frames += 1;
-        if let Some(n) = self.faults.drop_every_nth_frame
-            && self.stats.frames.is_multiple_of(n.get())
-        {
-            self.stats.dropped += 1;
-            return Ok(Fate::Dropped);
-        }
         let layout = match check_frame(frame) {
             Ok(layout) => layout,
             Err(error) => {
@@ -128,6 +124,14 @@ impl Segment {
         let process_data = is_process_data(frame, &layout);
         if process_data {
             self.stats.process_data += 1;
+            // Only process data: losing the bring-up's frames would keep a
+            // small N from ever reaching OP, which is not the fault asked for.
+            if let Some(n) = self.faults.drop_every_nth_frame
+                && self.stats.process_data.is_multiple_of(n.get())
+            {
+                self.stats.dropped += 1;
+                return Ok(Fate::Dropped);
+            }
         }
         let late = process_data
             && self.faults.late_every_nth_frame.is_some_and(|n| self.stats.process_data.is_multiple_of(n.get()));
@@ -239,17 +243,22 @@ mod tests {
     }
 
     #[test]
-    fn faults_lose_frames() {
+    fn faults_lose_process_data_frames_only() {
         let mut s = segment(1, 4);
         s.faults_mut().drop_every_nth_frame = NonZeroU64::new(3);
         let fates: Vec<Fate> = (0..6)
             .map(|_| {
-                let mut frame = FrameBuilder::new().datagram(Command::Brd, 0, 0, &[0]).build();
+                let mut frame = FrameBuilder::new().datagram(Command::Lrw, 0, 0, &[0; 8]).build();
                 s.process(&mut frame).unwrap()
             })
             .collect();
         use Fate::*;
         assert_eq!(fates, [Returned, Returned, Dropped, Returned, Returned, Dropped]);
+        // Register access (the bring-up's) is never lost, however many.
+        for _ in 0..6 {
+            let mut frame = FrameBuilder::new().datagram(Command::Brd, 0, 0, &[0]).build();
+            assert_eq!(s.process(&mut frame).unwrap(), Returned);
+        }
         s.faults_mut().link_down = true;
         let mut frame = FrameBuilder::new().datagram(Command::Brd, 0, 0, &[0]).build();
         assert_eq!(s.process(&mut frame).unwrap(), LinkDown);
