@@ -15,7 +15,9 @@ use skinware_drivers::ethercat::{
     EthercatDriver, EthercatDriverConfig, EthercatStatus, FrameExchange, FrameLink, SegmentConfig,
 };
 use skinware_emulate::ethercat::tactile::{EMULATED_PRODUCT_CODE, EMULATED_VENDOR_ID};
-use skinware_emulate::ethercat::{LeaveOp, Segment, TactileConfig, TactileSubDevice};
+use skinware_emulate::ethercat::{
+    Command, Datagram, LeaveOp, Segment, TactileConfig, TactileSubDevice, check_frame as check_frame_layout,
+};
 
 const RATE_HZ: f64 = 200.0;
 
@@ -343,6 +345,80 @@ fn a_pulled_cable_faults_every_layer_and_the_bus_comes_back_on_its_own() {
         let frame = reader.wait_newer(Duration::from_secs(1)).unwrap();
         check_frame(segment, frame.responses());
     }
+}
+
+/// A bus that takes every frame and answers none.
+struct Silent;
+
+impl FrameExchange for Silent {
+    fn exchange(&mut self, _frame: &mut Vec<u8>) -> bool {
+        false
+    }
+}
+
+/// Segments whose every request for SAFE-OP is turned, on the wire, into
+/// one for PRE-OP: the bring-up waits out its state-transition timeout.
+struct NeverSafeOp(Segment);
+
+impl FrameExchange for NeverSafeOp {
+    fn exchange(&mut self, frame: &mut Vec<u8>) -> bool {
+        if let Ok(layout) = check_frame_layout(frame) {
+            let mut offset = layout.payload_start;
+            while let Some(datagram) = Datagram::at(frame, offset, layout.payload_end) {
+                let writes = matches!(datagram.command(frame), Command::Fpwr | Command::Apwr | Command::Bwr);
+                // AL control, register 0x0120 (the address's high half).
+                if writes && datagram.address(frame) >> 16 == 0x0120 && datagram.data_len > 0 {
+                    let state = &mut frame[datagram.data_range().start];
+                    if *state & 0x0F == 0x04 {
+                        *state = (*state & 0xF0) | 0x02;
+                    }
+                }
+                if !datagram.more_follows {
+                    break;
+                }
+                offset = datagram.end;
+            }
+        }
+        self.0.exchange(frame)
+    }
+}
+
+/// Starts the driver on `bus`, asks it to stop 100 ms later (in the middle
+/// of its bring-up) and returns how long the stop took, and the segment's
+/// state then.
+fn stop_during_bring_up(bus: Arc<Mutex<dyn FrameExchange>>, frame_timeout: Duration) -> (Duration, String) {
+    use skinware::driver::Driver;
+    let config = EthercatDriverConfig {
+        name: "stop".into(),
+        segments: vec![segment_config(0, 24)],
+        rate_hz: RATE_HZ,
+        frame_timeout: Some(frame_timeout),
+        rt: Default::default(),
+    };
+    let mut driver = EthercatDriver::new(config, FrameLink::InProcess(bus)).unwrap();
+    let status = driver.status_handle();
+    let _layers = driver.start().unwrap();
+    std::thread::sleep(Duration::from_millis(100));
+    assert_eq!(status.bus_fault().as_deref(), Some("not started"), "the bring-up was over before the stop");
+    let state = status.segments()[0].state.clone();
+    let asked = Instant::now();
+    driver.stop();
+    (asked.elapsed(), state)
+}
+
+#[test]
+fn stop_during_the_bring_up_is_prompt() {
+    // Frames that time out after 5 s, on a bus that never answers.
+    let (silent, _) = stop_during_bring_up(Arc::new(Mutex::new(Silent)), Duration::from_secs(5));
+    println!("stop while the bring-up waits for an answer: {:.1} ms", silent.as_secs_f64() * 1e3);
+    // A segment that never reaches SAFE-OP: ethercrab waits out its 5 s
+    // state-transition timeout.
+    let (stuck, state) =
+        stop_during_bring_up(Arc::new(Mutex::new(NeverSafeOp(emulated(&[24])))), Duration::from_millis(50));
+    println!("stop while the bring-up waits for SAFE-OP (segment in {state}): {:.1} ms", stuck.as_secs_f64() * 1e3);
+    assert_eq!(state, "PRE-OP", "the bring-up had not found the segment yet");
+    // Generous: what is checked is that stop does not wait out the 5 s.
+    assert!(silent < Duration::from_secs(2) && stuck < Duration::from_secs(2), "{silent:?} {stuck:?}");
 }
 
 /// Milliseconds from the newest good frame to the fault being seen.
