@@ -12,11 +12,12 @@ use std::time::{Duration, Instant};
 use skinware::driver::DriverHandler;
 use skinware::{HandlerOptions, Reader, ReaderOptions, WriterState};
 use skinware_drivers::ethercat::{
-    EthercatDriver, EthercatDriverConfig, EthercatStatus, FrameExchange, FrameLink, SegmentConfig,
+    EthercatDriver, EthercatDriverConfig, EthercatStatus, FrameExchange, FrameLink, INPUTS_HEADER_BYTES, OUTPUTS_BYTES,
+    SegmentConfig,
 };
 use skinware_emulate::ethercat::tactile::{EMULATED_PRODUCT_CODE, EMULATED_VENDOR_ID};
 use skinware_emulate::ethercat::{
-    Command, Datagram, LeaveOp, Segment, TactileConfig, TactileSubDevice, check_frame as check_frame_layout,
+    Command, Datagram, LeaveOp, Segment, TactileConfig, TactileSubDevice, check_frame as check_frame_layout, datagrams,
 };
 
 const RATE_HZ: f64 = 200.0;
@@ -91,10 +92,29 @@ impl Rig {
     ) -> Rig {
         let mut segments = emulated(taxels);
         faults(&mut segments);
+        Rig::start_around(test, segments, configured, |segment| segment)
+    }
+
+    /// As [`Rig::start`], with the driver's bus made around the segments.
+    fn start_on(
+        test: &str,
+        taxels: &[usize],
+        configured: Vec<SegmentConfig>,
+        bus: impl FnOnce(Arc<Mutex<Segment>>) -> Arc<Mutex<dyn FrameExchange>>,
+    ) -> Rig {
+        Rig::start_around(test, emulated(taxels), configured, bus)
+    }
+
+    fn start_around(
+        test: &str,
+        segments: Segment,
+        configured: Vec<SegmentConfig>,
+        bus: impl FnOnce(Arc<Mutex<Segment>>) -> Arc<Mutex<dyn FrameExchange>>,
+    ) -> Rig {
         let segment = Arc::new(Mutex::new(segments));
         let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-{}-{test}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let bus: Arc<Mutex<dyn FrameExchange>> = segment.clone();
+        let bus = bus(segment.clone());
         let config = EthercatDriverConfig {
             name: "ecat".into(),
             segments: configured.clone(),
@@ -287,17 +307,70 @@ fn segment_faults_fault_only_their_layer_and_recover() {
     }
 }
 
+/// Loses every `every`-th process-data frame of one segment only (told by
+/// its LRW's length; the segments' sizes differ), while `every` is not 0.
+struct LoseFramesOf {
+    segment: Arc<Mutex<Segment>>,
+    lrw_len: usize,
+    every: Arc<std::sync::atomic::AtomicU64>,
+    seen: u64,
+}
+
+impl FrameExchange for LoseFramesOf {
+    fn exchange(&mut self, frame: &mut Vec<u8>) -> bool {
+        let every = self.every.load(std::sync::atomic::Ordering::Relaxed);
+        let is_victims = datagrams(frame)
+            .is_some_and(|d| d.iter().any(|d| d.command == Command::Lrw && d.data.len() == self.lrw_len));
+        if every > 0 && is_victims {
+            self.seen += 1;
+            if self.seen.is_multiple_of(every) {
+                return false;
+            }
+        }
+        self.segment.lock().unwrap().exchange(frame)
+    }
+}
+
+/// Frames lost on one segment of three fault that segment's layer only:
+/// the other two keep running with fresh frames all along.
 #[test]
 fn lost_frames_fault_the_layers_they_belong_to() {
-    let taxels = [24];
-    let mut rig = Rig::start("lost", &taxels, vec![segment_config(0, 24)]);
+    let taxels = [24, 36, 48];
+    let configured = taxels.iter().enumerate().map(|(p, &n)| segment_config(p, n)).collect();
+    let every = Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let victim = 1;
+    let mut rig = Rig::start_on("lost", &taxels, configured, |segment| {
+        // A segment's LRW carries its inputs and outputs.
+        let lrw_len = INPUTS_HEADER_BYTES + 2 * taxels[victim] + OUTPUTS_BYTES;
+        Arc::new(Mutex::new(LoseFramesOf { segment, lrw_len, every: every.clone(), seen: 0 }))
+    });
     rig.wait_all(WriterState::Running, Duration::from_secs(10));
-    rig.segment.lock().unwrap().faults_mut().drop_every_nth_frame = NonZeroU64::new(2);
-    // Every other cycle's frame is lost: the layer keeps faulting.
-    let detected = detection_ms(&mut rig.readers[0], Duration::from_secs(5));
-    println!("every 2nd frame lost: faulted {detected:.1} ms after the last good frame");
-    rig.segment.lock().unwrap().faults_mut().drop_every_nth_frame = None;
-    wait_for(&mut rig.readers[0], WriterState::Running, Duration::from_secs(5));
+    let faults_before: Vec<u64> = rig.readers.iter().map(|r| r.writer_stats().faults).collect();
+    every.store(2, std::sync::atomic::Ordering::Relaxed);
+    // Every other cycle's frame of the victim is lost: its layer keeps faulting.
+    let detected = detection_ms(&mut rig.readers[victim], Duration::from_secs(5));
+    println!("every 2nd frame of segment {victim} lost: faulted {detected:.1} ms after its last good frame");
+    rig.wait_for_segment_fault(victim, "frame lost");
+    // Meanwhile, the others deliver new samples, whole.
+    for _ in 0..40 {
+        for position in [0, 2] {
+            assert_eq!(rig.readers[position].writer_state(), WriterState::Running, "segment {position}");
+            let frame = rig.readers[position].wait_newer(Duration::from_secs(1)).unwrap();
+            check_frame(position, frame.responses());
+        }
+        let statuses = rig.status.segments();
+        for position in [0, 2] {
+            assert!(statuses[position].fault.is_none(), "segment {position}: {statuses:?}");
+        }
+    }
+    let faults_after: Vec<u64> = rig.readers.iter().map(|r| r.writer_stats().faults).collect();
+    // Printed: a stall of this loaded VM may fault a layer for a cycle.
+    println!("layer faults before {faults_before:?}, after {faults_after:?}");
+    assert!(faults_after[victim] > faults_before[victim]);
+    every.store(0, std::sync::atomic::Ordering::Relaxed);
+    wait_for(&mut rig.readers[victim], WriterState::Running, Duration::from_secs(5));
+    let frame = rig.readers[victim].wait_newer(Duration::from_secs(1)).unwrap();
+    check_frame(victim, frame.responses());
 }
 
 /// A small N loses only process-data frames: the bring-up's all arrive, the
