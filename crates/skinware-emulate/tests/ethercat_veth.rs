@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use skinware::driver::DriverHandler;
 use skinware::{HandlerOptions, Reader, ReaderOptions, WriterState};
-use skinware_drivers::ethercat::{EthercatDriver, EthercatDriverConfig, FrameLink, SegmentConfig};
+use skinware_drivers::ethercat::{EthercatDriver, EthercatDriverConfig, FrameExchange, FrameLink, SegmentConfig};
 use skinware_emulate::ethercat::tactile::{EMULATED_PRODUCT_CODE, EMULATED_VENDOR_ID};
 use skinware_emulate::ethercat::{Segment, TactileConfig, TactileSubDevice, serve_interface};
 
@@ -482,5 +482,159 @@ fn late_answers_fault_only_their_segment_and_never_the_bus() {
     handler.stop();
     stop.store(true, Ordering::Relaxed);
     emulator.join().unwrap().unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A request with its datagrams' PDU indices zeroed: how a request of the
+/// capture and one of the driver are matched (ethercrab numbers its PDUs as
+/// it sends them, so a replay's indices differ from the capture's).
+fn without_indices(frame: &[u8]) -> Vec<u8> {
+    let mut frame = frame.to_vec();
+    for start in datagram_starts(&frame) {
+        frame[start + 1] = 0;
+    }
+    frame
+}
+
+/// Where each datagram's header starts; none for a frame that is not
+/// EtherCAT.
+fn datagram_starts(frame: &[u8]) -> Vec<usize> {
+    let Ok(layout) = skinware_emulate::ethercat::check_frame(frame) else { return Vec::new() };
+    let mut starts = Vec::new();
+    let mut offset = layout.payload_start;
+    while let Some(datagram) = skinware_emulate::ethercat::Datagram::at(frame, offset, layout.payload_end) {
+        starts.push(datagram.start);
+        if !datagram.more_follows {
+            break;
+        }
+        offset = datagram.end;
+    }
+    starts
+}
+
+/// A bus made of a capture: each request the driver sends is answered with
+/// the captured answer to the equal request (equal but for PDU indices; the
+/// equal requests' answers in capture order, the last one again once they
+/// run out), its indices set to the request's. A request the capture never
+/// saw is lost.
+struct CaptureReplay {
+    answers: std::collections::HashMap<Vec<u8>, std::collections::VecDeque<Vec<u8>>>,
+    last: std::collections::HashMap<Vec<u8>, Vec<u8>>,
+    unknown: Arc<Mutex<Vec<Vec<u8>>>>,
+}
+
+impl CaptureReplay {
+    fn new(frames: &[Vec<u8>]) -> CaptureReplay {
+        let is_answer = |f: &Vec<u8>| f.len() > 6 && f[6] & 0x02 != 0;
+        let mut answers: std::collections::HashMap<_, std::collections::VecDeque<_>> = Default::default();
+        for pair in frames.windows(2) {
+            if !is_answer(&pair[0]) && is_answer(&pair[1]) {
+                answers.entry(without_indices(&pair[0])).or_default().push_back(pair[1].clone());
+            }
+        }
+        CaptureReplay { answers, last: Default::default(), unknown: Default::default() }
+    }
+}
+
+impl FrameExchange for CaptureReplay {
+    fn exchange(&mut self, frame: &mut Vec<u8>) -> bool {
+        let key = without_indices(frame);
+        let answer = match self.answers.get_mut(&key).and_then(|queue| queue.pop_front()) {
+            Some(answer) => {
+                self.last.insert(key, answer.clone());
+                answer
+            }
+            None => match self.last.get(&key) {
+                Some(answer) => answer.clone(),
+                None => {
+                    self.unknown.lock().unwrap().push(frame.clone());
+                    return false;
+                }
+            },
+        };
+        let indices: Vec<u8> = datagram_starts(frame).into_iter().map(|start| frame[start + 1]).collect();
+        *frame = answer;
+        for (start, index) in datagram_starts(frame).into_iter().zip(indices) {
+            frame[start + 1] = index;
+        }
+        true
+    }
+}
+
+/// The golden capture drives the real driver: the bring-up reaches OP on
+/// the captured answers alone, and readers get the captured taxels.
+#[test]
+fn golden_capture_drives_the_driver_to_op_and_its_taxels_to_readers() {
+    let bytes = std::fs::read(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(GOLDEN)).unwrap();
+    let frames = skinware_emulate::ethercat::pcapng::read_frames(&bytes).unwrap();
+    // Every cycle's taxels, from the captured answers' LRW inputs.
+    let taxels = 12;
+    let captured: std::collections::HashSet<Vec<u16>> = frames
+        .iter()
+        .filter(|f| f[6] & 0x02 != 0)
+        .filter_map(|f| skinware_emulate::ethercat::datagrams(f))
+        .flat_map(|d| d.into_iter())
+        .filter(|d| d.command == skinware_emulate::ethercat::Command::Lrw && d.data.len() == 4 + 2 * taxels + 4)
+        .map(|d| d.data[4..4 + 2 * taxels].chunks(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect())
+        .collect();
+    assert!(captured.len() >= 50, "{} cycles' taxels in the capture", captured.len());
+    let replay = CaptureReplay::new(&frames);
+    let unknown = replay.unknown.clone();
+    let bus: Arc<Mutex<dyn FrameExchange>> = Arc::new(Mutex::new(replay));
+
+    let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-golden-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // The capture's driver settings (see the_veth_run_is_captured_and_replays_through_the_model).
+    let config = EthercatDriverConfig {
+        name: "ecat".into(),
+        segments: vec![SegmentConfig {
+            layer: "seg0".into(),
+            vendor_id: EMULATED_VENDOR_ID,
+            product_code: EMULATED_PRODUCT_CODE,
+            taxels,
+            modules: vec![12],
+            patch: 1,
+            baseline: false,
+        }],
+        rate_hz: 200.0,
+        frame_timeout: Some(Duration::from_millis(20)),
+        rt: Default::default(),
+    };
+    let driver = EthercatDriver::new(config, FrameLink::InProcess(bus)).unwrap();
+    let status = driver.status_handle();
+    let options = HandlerOptions { dir: Some(dir.clone()), ..HandlerOptions::default() };
+    let handler = DriverHandler::start("ecat", Box::new(driver), &options).unwrap();
+    let mut reader =
+        Reader::open_with("ecat", "seg0", &ReaderOptions { dir: Some(dir.clone()), ..Default::default() }).unwrap();
+    let started = Instant::now();
+    while status.segments()[0].cycles == 0 {
+        assert!(
+            started.elapsed() < Duration::from_secs(10),
+            "the replayed bring-up never reached OP: bus {:?}, {:?}; {} requests not in the capture, the first: {:02x?}",
+            status.bus_fault(),
+            status.segments(),
+            unknown.lock().unwrap().len(),
+            unknown.lock().unwrap().first(),
+        );
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    println!("golden replay: OP, cycling {:.0} ms after start", started.elapsed().as_secs_f64() * 1e3);
+    let segment = &status.segments()[0];
+    assert_eq!(segment.identity, Some([EMULATED_VENDOR_ID, EMULATED_PRODUCT_CODE, 1, 1]));
+    assert_eq!(segment.state, "OP");
+    let mut samples = Vec::new();
+    for _ in 0..20 {
+        let frame = reader.wait_newer(Duration::from_secs(1)).unwrap();
+        let responses = frame.responses().to_vec();
+        assert!(captured.contains(&responses), "published taxels not in the capture: {responses:?}");
+        samples.push(responses[0]);
+    }
+    println!("golden replay: samples {samples:?}; {} requests not in the capture", unknown.lock().unwrap().len());
+    // The captured cycles in their order (a reader may skip some).
+    assert!(samples.windows(2).all(|w| w[1] > w[0]), "{samples:?}");
+    // Every request the driver sent was one the capture has: its bring-up
+    // and cycles are still the captured ones.
+    assert!(unknown.lock().unwrap().is_empty(), "first unknown request: {:02x?}", unknown.lock().unwrap().first());
+    handler.stop();
     let _ = std::fs::remove_dir_all(&dir);
 }
