@@ -638,3 +638,72 @@ fn golden_capture_drives_the_driver_to_op_and_its_taxels_to_readers() {
     handler.stop();
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The driver's own interface going down is a socket error, not a late or
+/// lost frame: the link ends with an error naming the interface, and the
+/// bus comes back once the interface is up again.
+#[test]
+fn the_drivers_interface_going_down_ends_the_link_naming_it() {
+    if !in_own_namespace("the_drivers_interface_going_down_ends_the_link_naming_it") {
+        return;
+    }
+    let veth = ip(&["link", "add", DRIVER_END, "type", "veth", "peer", "name", SEGMENT_END])
+        .and_then(|()| ip(&["link", "set", DRIVER_END, "up"]))
+        .and_then(|()| ip(&["link", "set", SEGMENT_END, "up"]));
+    if let Err(why) = veth {
+        println!("skipped: no veth pair: {why}");
+        return;
+    }
+    let segment = Arc::new(Mutex::new(emulated(&[12])));
+    let stop = Arc::new(AtomicBool::new(false));
+    let emulator = {
+        let (segment, stop) = (segment.clone(), stop.clone());
+        std::thread::spawn(move || serve_interface(&segment, SEGMENT_END, &|| stop.load(Ordering::Relaxed), None))
+    };
+    let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-ifdown-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = EthercatDriverConfig {
+        name: "ecat".into(),
+        segments: vec![SegmentConfig {
+            layer: "seg0".into(),
+            vendor_id: EMULATED_VENDOR_ID,
+            product_code: EMULATED_PRODUCT_CODE,
+            taxels: 12,
+            modules: vec![12],
+            patch: 1,
+            baseline: false,
+        }],
+        rate_hz: 200.0,
+        frame_timeout: Some(Duration::from_millis(20)),
+        rt: Default::default(),
+    };
+    let driver = EthercatDriver::new(config, FrameLink::Interface(DRIVER_END.into())).unwrap();
+    let status = driver.status_handle();
+    let options = HandlerOptions { dir: Some(dir.clone()), ..HandlerOptions::default() };
+    let handler = DriverHandler::start("ecat", Box::new(driver), &options).unwrap();
+    let mut reader =
+        Reader::open_with("ecat", "seg0", &ReaderOptions { dir: Some(dir.clone()), ..Default::default() }).unwrap();
+    let started = Instant::now();
+    while status.bus_fault().is_some() || status.segments()[0].cycles == 0 {
+        assert!(started.elapsed() < Duration::from_secs(10), "never up: {:?}", status.bus_fault());
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    wait_for(&mut reader, WriterState::Running, Duration::from_secs(10));
+    let down = Instant::now();
+    ip(&["link", "set", DRIVER_END, "down"]).unwrap();
+    let why = loop {
+        if let Some(why) = status.bus_fault() {
+            break why;
+        }
+        assert!(down.elapsed() < Duration::from_secs(5), "the bus never counted as down");
+        std::thread::sleep(Duration::from_millis(1));
+    };
+    println!("interface down: bus down after {:.1} ms: {why}", down.elapsed().as_secs_f64() * 1e3);
+    assert!(why.contains(DRIVER_END), "{why}");
+    ip(&["link", "set", DRIVER_END, "up"]).unwrap();
+    wait_for(&mut reader, WriterState::Running, Duration::from_secs(15));
+    handler.stop();
+    stop.store(true, Ordering::Relaxed);
+    emulator.join().unwrap().unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -216,7 +216,11 @@ fn receive_answers(
             Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
             // pnet reports a socket error pending (POLLERR: the interface
             // went down or away) as an unexpected poll event.
-            Err(e) => return Err(format!("interface {name}: receiving failed: {e} (is the interface down or gone?)")),
+            Err(e) => {
+                return Err(format!(
+                    "interface {name}: receiving failed ({e}): is it down or gone? `ip link show {name}` tells"
+                ));
+            }
         };
         if bytes.len() < 14 || u16::from_be_bytes([bytes[12], bytes[13]]) != ETHERTYPE_ETHERCAT {
             continue;
