@@ -54,6 +54,8 @@ const LINK_DOWN_PERIODS: u32 = 10;
 const LINK_DOWN_MIN: Duration = Duration::from_millis(20);
 const MIN_BACKOFF: Duration = Duration::from_millis(100);
 const MAX_BACKOFF: Duration = Duration::from_secs(2);
+/// How often a wait that stop cuts short looks at the stop flag.
+const STOP_POLL: Duration = Duration::from_millis(5);
 /// A layer whose segment has given nothing new for this many periods fails.
 const STALE_PERIODS: u32 = 2;
 
@@ -502,7 +504,17 @@ impl Bus {
     /// on this thread), so that a segment's lost frame stalls only its own
     /// cycles; a watcher ends the session when no segment answers any more.
     async fn control(&self, maindevice: &MainDevice<'_>, io_ended: &AtomicBool) -> Result<(), String> {
-        let groups = self.bring_up(maindevice).await?;
+        // Raced against stop: a step of the bring-up may wait seconds (a
+        // state transition, a frame timeout), and stop is not to wait with it.
+        let bring_up = async { Some(self.bring_up(maindevice).await) };
+        let stopped = async {
+            self.stopped().await;
+            None
+        };
+        let Some(groups) = futures_lite::future::or(bring_up, stopped).await else {
+            return Ok(());
+        };
+        let groups = groups?;
         self.shared.set_bus_fault(None);
         let answered: Vec<Cell<Instant>> = groups.iter().map(|_| Cell::new(Instant::now())).collect();
         let mut tasks: Vec<Task<'_>> = groups
@@ -514,6 +526,13 @@ impl Bus {
             .collect();
         tasks.push(Box::pin(self.watch_link(io_ended, &answered)));
         first_error(tasks).await
+    }
+
+    /// Ready once the driver is asked to stop.
+    async fn stopped(&self) {
+        while !self.stop.load(Ordering::Relaxed) {
+            async_io::Timer::after(STOP_POLL).await;
+        }
     }
 
     /// The cycles of one segment until stopped: outputs out, inputs in, its
