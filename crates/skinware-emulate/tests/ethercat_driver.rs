@@ -137,13 +137,13 @@ impl Rig {
         Rig { segment, status, handler: Some(handler), readers, dir }
     }
 
-    /// Why the bus did not come up: the first fault after "not started",
+    /// Why the bus did not come up: the first fault after "not brought up yet",
     /// however long the bring-up takes on a loaded machine.
     fn bring_up_refusal(&self) -> String {
         let started = Instant::now();
         loop {
             match self.status.bus_fault() {
-                Some(why) if why != "not started" => return why,
+                Some(why) if why != "not brought up yet" => return why,
                 None => panic!("the bus came up: {:?}", self.status.segments()),
                 Some(_) => {}
             }
@@ -472,7 +472,7 @@ fn stop_during_bring_up(bus: Arc<Mutex<dyn FrameExchange>>, frame_timeout: Durat
     let status = driver.status_handle();
     let _layers = driver.start().unwrap();
     std::thread::sleep(Duration::from_millis(100));
-    assert_eq!(status.bus_fault().as_deref(), Some("not started"), "the bring-up was over before the stop");
+    assert_eq!(status.bus_fault().as_deref(), Some("not brought up yet"), "the bring-up was over before the stop");
     let state = status.segments()[0].state.clone();
     let asked = Instant::now();
     driver.stop();
