@@ -8,6 +8,6 @@ use skin::driver_status::DriverStatus;
 
 fuzz_target!(|bytes: &[u8]| {
     if let Ok(status) = DriverStatus::decode(bytes) {
-        let _ = status.is_live(skin::driver_status::now_unix_ms());
+        let _ = status.is_live(skin::driver_status::now_ns());
     }
 });

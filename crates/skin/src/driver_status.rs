@@ -6,14 +6,15 @@
 //! directory), written to a temporary file and renamed so that a reader sees
 //! one whole version. It is removed when the driver stops; a crashed driver's
 //! file is recognised by its dead process or its age, left out of listings,
-//! and removed by `skin clean`.
+//! and removed by `skin clean` (as is a temporary file it left).
 //!
 //! Status travels as a file and not as a channel because it changes a few
-//! times a second at most, is read by people and scripts, and must never
-//! cost the writers anything.
+//! times a second at most and is read by people and scripts. It is gathered
+//! without waiting for the driver's real-time threads (see
+//! `skinware_drivers::ethercat::EthercatStatus`).
 
 use std::path::{Path, PathBuf};
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
@@ -39,8 +40,9 @@ pub struct DriverStatus {
     pub kind: String,
     /// The driver process.
     pub pid: u32,
-    /// When this was written, milliseconds since the Unix epoch.
-    pub updated_unix_ms: u64,
+    /// When this was written, CLOCK_MONOTONIC ns (the file never leaves the
+    /// machine, and this clock does not jump with the wall clock).
+    pub updated_ns: u64,
     /// Why the whole bus is down, while it is.
     pub bus_fault: Option<String>,
     /// Its devices, in bus order.
@@ -48,7 +50,7 @@ pub struct DriverStatus {
 }
 
 /// One device on a driver's bus (an EtherCAT SubDevice: one tactile segment).
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct DeviceStatus {
     /// Its position on the bus (0 first).
     pub position: usize,
@@ -72,6 +74,12 @@ pub struct DeviceStatus {
     pub cycles: u64,
     /// Its newest sample counter.
     pub counter: u16,
+    /// Faults it has had (a fault lasting several cycles counts once).
+    pub faults: u64,
+    /// Age of its newest good sample when this was written, ms; `None`
+    /// before the first. A bus that stopped cycling shows here, whatever
+    /// `state` last said.
+    pub sample_age_ms: Option<f64>,
 }
 
 /// The status file of `driver` of `skin` in `dir`.
@@ -79,9 +87,9 @@ pub fn status_path(dir: &Path, skin: &str, driver: &str) -> PathBuf {
     dir.join(format!("skinware-driver.{skin}.{driver}.json"))
 }
 
-/// Milliseconds since the Unix epoch, now.
-pub fn now_unix_ms() -> u64 {
-    SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_millis() as u64)
+/// CLOCK_MONOTONIC ns, now: the clock of [`DriverStatus::updated_ns`].
+pub fn now_ns() -> u64 {
+    skinware::os::monotonic_ns()
 }
 
 impl DriverStatus {
@@ -96,7 +104,15 @@ impl DriverStatus {
     /// Writes it to its file in `dir`, whole: a temporary file renamed over it.
     pub fn publish(&self, dir: &Path) -> std::io::Result<PathBuf> {
         let path = status_path(dir, &self.skin, &self.driver);
-        let temporary = path.with_extension(format!("json.{}.tmp", self.pid));
+        // Named as skinware's temporary files are, so that `skin clean`
+        // removes one left by a process killed between write and rename.
+        let temporary = dir.join(format!(
+            ".skinware-tmp.skinware-driver-{}-{}.{}.{}",
+            self.skin,
+            self.driver,
+            std::process::id(),
+            now_ns()
+        ));
         let bytes = serde_json::to_vec_pretty(self).map_err(std::io::Error::other)?;
         std::fs::write(&temporary, bytes)?;
         std::fs::rename(&temporary, &path)?;
@@ -104,9 +120,9 @@ impl DriverStatus {
     }
 
     /// Whether its driver is alive by the file's own account: its process
-    /// exists and it was rewritten within [`STALE_AFTER`] of `now_unix_ms`.
-    pub fn is_live(&self, now_unix_ms: u64) -> bool {
-        let fresh = now_unix_ms.saturating_sub(self.updated_unix_ms) <= STALE_AFTER.as_millis() as u64;
+    /// exists and it was rewritten within [`STALE_AFTER`] of `now_ns`.
+    pub fn is_live(&self, now_ns: u64) -> bool {
+        let fresh = now_ns.saturating_sub(self.updated_ns) <= STALE_AFTER.as_nanos() as u64;
         fresh && Path::new("/proc").join(self.pid.to_string()).exists()
     }
 }
@@ -156,7 +172,7 @@ mod tests {
             driver: "bus".into(),
             kind: "ethercat".into(),
             pid: std::process::id(),
-            updated_unix_ms: now_unix_ms(),
+            updated_ns: now_ns(),
             bus_fault: None,
             devices: vec![DeviceStatus {
                 position: 0,
@@ -170,6 +186,8 @@ mod tests {
                 fault: None,
                 cycles: 12,
                 counter: 12,
+                faults: 0,
+                sample_age_ms: Some(0.4),
             }],
         }
     }
@@ -185,7 +203,7 @@ mod tests {
         let found = find(&dir, Some("arm")).unwrap();
         assert_eq!(found.len(), 1);
         assert_eq!(found[0].status.as_ref().unwrap(), &status);
-        assert!(status.is_live(now_unix_ms()));
+        assert!(status.is_live(now_ns()));
         // Nothing of the temporary file is left, and another skin sees nothing.
         assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
         assert!(find(&dir, Some("ar")).unwrap().is_empty());
@@ -196,9 +214,9 @@ mod tests {
     #[cfg_attr(miri, ignore = "looks in /proc, which Miri's isolation refuses")]
     fn an_old_or_dead_status_is_not_live() {
         let mut status = example();
-        assert!(!status.is_live(status.updated_unix_ms + STALE_AFTER.as_millis() as u64 + 1));
+        assert!(!status.is_live(status.updated_ns + STALE_AFTER.as_nanos() as u64 + 1));
         status.pid = u32::MAX;
-        assert!(!status.is_live(status.updated_unix_ms));
+        assert!(!status.is_live(status.updated_ns));
     }
 
     #[test]

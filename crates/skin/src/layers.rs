@@ -121,7 +121,7 @@ pub fn gather(skin: Option<&str>, window: Duration) -> Result<Vec<LayerReport>> 
 /// removes them), unreadable ones are warned about.
 pub fn driver_statuses(skin: Option<&str>) -> Result<Vec<skin::driver_status::DriverStatus>> {
     let dir = skinware::shm::segment_dir();
-    let now = skin::driver_status::now_unix_ms();
+    let now = skin::driver_status::now_ns();
     let mut statuses = Vec::new();
     for found in skin::driver_status::find(&dir, skin)? {
         match found.status {

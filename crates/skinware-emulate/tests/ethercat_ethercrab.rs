@@ -288,8 +288,13 @@ fn stop_and_baseline_commands_reach_the_segment() {
             group.tx_rx(&maindevice).await.unwrap();
         }
         let (counter, ..) = inputs(&group, &maindevice)[0].clone();
-        // Stop: the counter and taxels hold.
+        // Stop: the counter and taxels hold. The frame that carries the
+        // command still brings a sample: the ESC reads the inputs out (they
+        // come first in the process image) before it takes the outputs.
         command_all(&group, &maindevice, 0, 0);
+        group.tx_rx(&maindevice).await.unwrap();
+        let (last, status, _) = inputs(&group, &maindevice)[0].clone();
+        assert_eq!((last, status & STATUS_ACQUIRING), (counter.wrapping_add(1), STATUS_ACQUIRING));
         group.tx_rx(&maindevice).await.unwrap();
         let held = inputs(&group, &maindevice)[0].clone();
         for _ in 0..3 {
@@ -297,11 +302,14 @@ fn stop_and_baseline_commands_reach_the_segment() {
             assert_eq!(inputs(&group, &maindevice)[0], held);
         }
         assert_eq!(held.1 & STATUS_ACQUIRING, 0);
-        assert!(held.0 == counter || held.0 == counter.wrapping_add(1));
+        assert_eq!(held.0, last);
         assert_eq!(bus.with_segment(|s| s.subdevices()[0].command_and_config()), (0, 0));
-        // Baseline: the first sample after the switch is the tare, so it
-        // reads zero, and later ones read their difference from it.
+        // Baseline: the first sample after the switch (in the cycle after
+        // the one carrying it) is the tare, so it reads zero, and later ones
+        // read their difference from it.
         command_all(&group, &maindevice, COMMAND_ACQUIRE, CONFIG_BASELINE);
+        group.tx_rx(&maindevice).await.unwrap();
+        assert_eq!(inputs(&group, &maindevice)[0], held, "the command's own frame reads the inputs before it");
         group.tx_rx(&maindevice).await.unwrap();
         let (tare_counter, status, values) = inputs(&group, &maindevice)[0].clone();
         assert_eq!(status, STATUS_ACQUIRING | STATUS_BASELINE);
@@ -343,11 +351,11 @@ fn every_nth_frame_lost_is_a_timeout_in_exactly_those_cycles() {
         let group = bring_up(&maindevice).await;
         command_all(&group, &maindevice, COMMAND_ACQUIRE, 0);
         // One small segment: one frame per cycle.
-        let before = bus.with_segment(|s| s.stats().frames);
+        let before = bus.with_segment(|s| s.stats().process_data);
         group.tx_rx(&maindevice).await.unwrap();
-        assert_eq!(bus.with_segment(|s| s.stats().frames), before + 1);
+        assert_eq!(bus.with_segment(|s| s.stats().process_data), before + 1);
         bus.with_segment(|s| s.faults_mut().drop_every_nth_frame = NonZeroU64::new(5));
-        let first = bus.with_segment(|s| s.stats().frames) + 1;
+        let first = bus.with_segment(|s| s.stats().process_data) + 1;
         let mut lost = Vec::new();
         for cycle in 0..20u64 {
             match group.tx_rx(&maindevice).await {

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use skinware::driver::DriverHandler;
 use skinware::{HandlerOptions, Reader, ReaderOptions, WriterState};
-use skinware_drivers::ethercat::{EthercatDriver, EthercatDriverConfig, FrameLink, SegmentConfig};
+use skinware_drivers::ethercat::{EthercatDriver, EthercatDriverConfig, FrameExchange, FrameLink, SegmentConfig};
 use skinware_emulate::ethercat::tactile::{EMULATED_PRODUCT_CODE, EMULATED_VENDOR_ID};
 use skinware_emulate::ethercat::{Segment, TactileConfig, TactileSubDevice, serve_interface};
 
@@ -335,4 +335,375 @@ fn the_veth_run_is_captured_and_replays_through_the_model() {
         let _ = std::fs::remove_file(&path);
     }
     assert!(cycles >= 50, "{cycles} cycles captured");
+}
+
+/// The segment (driver's position) a process-data frame belongs to, told by
+/// its LRW's length: the segments' taxel counts differ.
+fn segment_of_lrw(frame: &[u8], taxels: &[usize]) -> Option<usize> {
+    let datagrams = skinware_emulate::ethercat::datagrams(frame)?;
+    let lrw = datagrams.iter().find(|d| d.command == skinware_emulate::ethercat::Command::Lrw)?;
+    taxels.iter().position(|&n| lrw.data.len() == 4 + 2 * n + 4)
+}
+
+/// Late answers (after the driver's frame timeout) reach ethercrab, which
+/// refuses them: the frame they answer is lost to its segment's layer for a
+/// cycle, but the link goes on. ethercrab's own `tx_rx_task` ended on the
+/// first one, and the whole bus was brought up again.
+#[test]
+fn late_answers_fault_only_their_segment_and_never_the_bus() {
+    if !in_own_namespace("late_answers_fault_only_their_segment_and_never_the_bus") {
+        return;
+    }
+    let veth = ip(&["link", "add", DRIVER_END, "type", "veth", "peer", "name", SEGMENT_END])
+        .and_then(|()| ip(&["link", "set", DRIVER_END, "up"]))
+        .and_then(|()| ip(&["link", "set", SEGMENT_END, "up"]));
+    if let Err(why) = veth {
+        println!("skipped: no veth pair: {why}");
+        return;
+    }
+    // Different sizes, so that a frame's length tells its segment.
+    let taxels = [12, 24, 36];
+    const LATE_EVERY: u64 = 10;
+    let segment = Arc::new(Mutex::new(emulated(&taxels)));
+    let stop = Arc::new(AtomicBool::new(false));
+    let late_phase = Arc::new(AtomicBool::new(false));
+    // The segments whose frames were answered late, counted as the model
+    // counts them: every LATE_EVERY-th process-data frame.
+    let hit = Arc::new(Mutex::new([0u64; 3]));
+    let emulator = {
+        let (segment, stop, late_phase, hit) = (segment.clone(), stop.clone(), late_phase.clone(), hit.clone());
+        std::thread::spawn(move || {
+            let mut process_data = 0u64;
+            let mut observe = |request: &[u8], _: Option<&[u8]>| {
+                if let Some(position) = segment_of_lrw(request, &taxels) {
+                    process_data += 1;
+                    if late_phase.load(Ordering::Relaxed) && process_data.is_multiple_of(LATE_EVERY) {
+                        hit.lock().unwrap()[position] += 1;
+                    }
+                }
+            };
+            serve_interface(&segment, SEGMENT_END, &|| stop.load(Ordering::Relaxed), Some(&mut observe))
+        })
+    };
+    let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-late-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let segments: Vec<SegmentConfig> = taxels
+        .iter()
+        .enumerate()
+        .map(|(position, &count)| SegmentConfig {
+            layer: format!("seg{position}"),
+            vendor_id: EMULATED_VENDOR_ID,
+            product_code: EMULATED_PRODUCT_CODE,
+            taxels: count,
+            modules: vec![12; count / 12],
+            patch: position as u32 + 1,
+            baseline: false,
+        })
+        .collect();
+    let frame_timeout = Duration::from_millis(20);
+    let config = EthercatDriverConfig {
+        name: "ecat".into(),
+        segments: segments.clone(),
+        rate_hz: 200.0,
+        frame_timeout: Some(frame_timeout),
+        rt: Default::default(),
+    };
+    let driver = EthercatDriver::new(config, FrameLink::Interface(DRIVER_END.into())).unwrap();
+    let status = driver.status_handle();
+    let options = HandlerOptions { dir: Some(dir.clone()), ..HandlerOptions::default() };
+    let handler = DriverHandler::start("ecat", Box::new(driver), &options).unwrap();
+    let mut readers: Vec<Reader> = segments
+        .iter()
+        .map(|s| {
+            Reader::open_with("ecat", &s.layer, &ReaderOptions { dir: Some(dir.clone()), ..Default::default() })
+                .unwrap()
+        })
+        .collect();
+    for reader in &mut readers {
+        wait_for(reader, WriterState::Running, Duration::from_secs(10));
+    }
+    // The process-data frames counted so far, the model's and the observer's
+    // alike (both count every one from the start).
+    {
+        let mut segment = segment.lock().unwrap();
+        late_phase.store(true, Ordering::Relaxed);
+        let faults = segment.faults_mut();
+        faults.late_every_nth_frame = std::num::NonZeroU64::new(LATE_EVERY);
+        faults.late_by = frame_timeout * 2;
+    }
+    let started = Instant::now();
+    // Faults begun, per segment, as seen by polling (a short one may be missed).
+    let mut faults_seen = [0u64; 3];
+    let mut faulted = [false; 3];
+    while started.elapsed() < Duration::from_secs(1) {
+        assert_eq!(status.bus_fault(), None, "late answers brought the bus down; segments {:?}", status.segments());
+        for (position, s) in status.segments().iter().enumerate() {
+            assert_eq!(s.state, "OP", "segment {position}: {:?}", status.segments());
+            if let Some(why) = &s.fault {
+                assert!(why.contains("frame lost"), "segment {position}: {why}");
+                if !faulted[position] {
+                    faults_seen[position] += 1;
+                }
+            }
+            faulted[position] = s.fault.is_some();
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let late = {
+        let mut segment = segment.lock().unwrap();
+        segment.faults_mut().late_every_nth_frame = None;
+        late_phase.store(false, Ordering::Relaxed);
+        segment.stats().late
+    };
+    let hit = *hit.lock().unwrap();
+    println!(
+        "late answers: {late} held back {:?}, by segment {hit:?}; segment faults seen {faults_seen:?}",
+        frame_timeout * 2
+    );
+    assert!(late >= 10, "{late} late answers");
+    assert!(faults_seen.iter().any(|&f| f > 0), "no segment was seen faulted by {late} late answers");
+    for position in 0..3 {
+        assert!(
+            faults_seen[position] <= hit[position],
+            "segment {position} faulted {} times, but only {} of its frames were late",
+            faults_seen[position],
+            hit[position]
+        );
+    }
+    for (position, reader) in readers.iter_mut().enumerate() {
+        wait_for(reader, WriterState::Running, Duration::from_secs(5));
+        let responses = reader.wait_newer(Duration::from_secs(1)).unwrap().responses().to_vec();
+        let sample = responses[0].wrapping_sub(1000 * position as u16);
+        for (k, &value) in responses.iter().enumerate() {
+            assert_eq!(value, taxel_value(position, u64::from(sample), k), "segment {position} taxel {k}");
+        }
+    }
+    assert_eq!(status.bus_fault(), None);
+    handler.stop();
+    stop.store(true, Ordering::Relaxed);
+    emulator.join().unwrap().unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A request with its datagrams' PDU indices zeroed: how a request of the
+/// capture and one of the driver are matched (ethercrab numbers its PDUs as
+/// it sends them, so a replay's indices differ from the capture's).
+fn without_indices(frame: &[u8]) -> Vec<u8> {
+    let mut frame = frame.to_vec();
+    for start in datagram_starts(&frame) {
+        frame[start + 1] = 0;
+    }
+    frame
+}
+
+/// Where each datagram's header starts; none for a frame that is not
+/// EtherCAT.
+fn datagram_starts(frame: &[u8]) -> Vec<usize> {
+    let Ok(layout) = skinware_emulate::ethercat::check_frame(frame) else { return Vec::new() };
+    let mut starts = Vec::new();
+    let mut offset = layout.payload_start;
+    while let Some(datagram) = skinware_emulate::ethercat::Datagram::at(frame, offset, layout.payload_end) {
+        starts.push(datagram.start);
+        if !datagram.more_follows {
+            break;
+        }
+        offset = datagram.end;
+    }
+    starts
+}
+
+/// A bus made of a capture: each request the driver sends is answered with
+/// the captured answer to the equal request (equal but for PDU indices; the
+/// equal requests' answers in capture order, the last one again once they
+/// run out), its indices set to the request's. A request the capture never
+/// saw is lost.
+struct CaptureReplay {
+    answers: std::collections::HashMap<Vec<u8>, std::collections::VecDeque<Vec<u8>>>,
+    last: std::collections::HashMap<Vec<u8>, Vec<u8>>,
+    unknown: Arc<Mutex<Vec<Vec<u8>>>>,
+}
+
+impl CaptureReplay {
+    fn new(frames: &[Vec<u8>]) -> CaptureReplay {
+        let is_answer = |f: &Vec<u8>| f.len() > 6 && f[6] & 0x02 != 0;
+        let mut answers: std::collections::HashMap<_, std::collections::VecDeque<_>> = Default::default();
+        for pair in frames.windows(2) {
+            if !is_answer(&pair[0]) && is_answer(&pair[1]) {
+                answers.entry(without_indices(&pair[0])).or_default().push_back(pair[1].clone());
+            }
+        }
+        CaptureReplay { answers, last: Default::default(), unknown: Default::default() }
+    }
+}
+
+impl FrameExchange for CaptureReplay {
+    fn exchange(&mut self, frame: &mut Vec<u8>) -> bool {
+        let key = without_indices(frame);
+        let answer = match self.answers.get_mut(&key).and_then(|queue| queue.pop_front()) {
+            Some(answer) => {
+                self.last.insert(key, answer.clone());
+                answer
+            }
+            None => match self.last.get(&key) {
+                Some(answer) => answer.clone(),
+                None => {
+                    self.unknown.lock().unwrap().push(frame.clone());
+                    return false;
+                }
+            },
+        };
+        let indices: Vec<u8> = datagram_starts(frame).into_iter().map(|start| frame[start + 1]).collect();
+        *frame = answer;
+        for (start, index) in datagram_starts(frame).into_iter().zip(indices) {
+            frame[start + 1] = index;
+        }
+        true
+    }
+}
+
+/// The golden capture drives the real driver: the bring-up reaches OP on
+/// the captured answers alone, and readers get the captured taxels.
+#[test]
+fn golden_capture_drives_the_driver_to_op_and_its_taxels_to_readers() {
+    let bytes = std::fs::read(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(GOLDEN)).unwrap();
+    let frames = skinware_emulate::ethercat::pcapng::read_frames(&bytes).unwrap();
+    // Every cycle's taxels, from the captured answers' LRW inputs.
+    let taxels = 12;
+    let captured: std::collections::HashSet<Vec<u16>> = frames
+        .iter()
+        .filter(|f| f[6] & 0x02 != 0)
+        .filter_map(|f| skinware_emulate::ethercat::datagrams(f))
+        .flat_map(|d| d.into_iter())
+        .filter(|d| d.command == skinware_emulate::ethercat::Command::Lrw && d.data.len() == 4 + 2 * taxels + 4)
+        .map(|d| d.data[4..4 + 2 * taxels].chunks(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect())
+        .collect();
+    assert!(captured.len() >= 50, "{} cycles' taxels in the capture", captured.len());
+    let replay = CaptureReplay::new(&frames);
+    let unknown = replay.unknown.clone();
+    let bus: Arc<Mutex<dyn FrameExchange>> = Arc::new(Mutex::new(replay));
+
+    let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-golden-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // The capture's driver settings (see the_veth_run_is_captured_and_replays_through_the_model).
+    let config = EthercatDriverConfig {
+        name: "ecat".into(),
+        segments: vec![SegmentConfig {
+            layer: "seg0".into(),
+            vendor_id: EMULATED_VENDOR_ID,
+            product_code: EMULATED_PRODUCT_CODE,
+            taxels,
+            modules: vec![12],
+            patch: 1,
+            baseline: false,
+        }],
+        rate_hz: 200.0,
+        frame_timeout: Some(Duration::from_millis(20)),
+        rt: Default::default(),
+    };
+    let driver = EthercatDriver::new(config, FrameLink::InProcess(bus)).unwrap();
+    let status = driver.status_handle();
+    let options = HandlerOptions { dir: Some(dir.clone()), ..HandlerOptions::default() };
+    let handler = DriverHandler::start("ecat", Box::new(driver), &options).unwrap();
+    let mut reader =
+        Reader::open_with("ecat", "seg0", &ReaderOptions { dir: Some(dir.clone()), ..Default::default() }).unwrap();
+    let started = Instant::now();
+    while status.segments()[0].cycles == 0 {
+        assert!(
+            started.elapsed() < Duration::from_secs(10),
+            "the replayed bring-up never reached OP: bus {:?}, {:?}; {} requests not in the capture, the first: {:02x?}",
+            status.bus_fault(),
+            status.segments(),
+            unknown.lock().unwrap().len(),
+            unknown.lock().unwrap().first(),
+        );
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    println!("golden replay: OP, cycling {:.0} ms after start", started.elapsed().as_secs_f64() * 1e3);
+    let segment = &status.segments()[0];
+    assert_eq!(segment.identity, Some([EMULATED_VENDOR_ID, EMULATED_PRODUCT_CODE, 1, 1]));
+    assert_eq!(segment.state, "OP");
+    let mut samples = Vec::new();
+    for _ in 0..20 {
+        let frame = reader.wait_newer(Duration::from_secs(1)).unwrap();
+        let responses = frame.responses().to_vec();
+        assert!(captured.contains(&responses), "published taxels not in the capture: {responses:?}");
+        samples.push(responses[0]);
+    }
+    println!("golden replay: samples {samples:?}; {} requests not in the capture", unknown.lock().unwrap().len());
+    // The captured cycles in their order (a reader may skip some).
+    assert!(samples.windows(2).all(|w| w[1] > w[0]), "{samples:?}");
+    // Every request the driver sent was one the capture has: its bring-up
+    // and cycles are still the captured ones.
+    assert!(unknown.lock().unwrap().is_empty(), "first unknown request: {:02x?}", unknown.lock().unwrap().first());
+    handler.stop();
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The driver's own interface going down is a socket error, not a late or
+/// lost frame: the link ends with an error naming the interface, and the
+/// bus comes back once the interface is up again.
+#[test]
+fn the_drivers_interface_going_down_ends_the_link_naming_it() {
+    if !in_own_namespace("the_drivers_interface_going_down_ends_the_link_naming_it") {
+        return;
+    }
+    let veth = ip(&["link", "add", DRIVER_END, "type", "veth", "peer", "name", SEGMENT_END])
+        .and_then(|()| ip(&["link", "set", DRIVER_END, "up"]))
+        .and_then(|()| ip(&["link", "set", SEGMENT_END, "up"]));
+    if let Err(why) = veth {
+        println!("skipped: no veth pair: {why}");
+        return;
+    }
+    let segment = Arc::new(Mutex::new(emulated(&[12])));
+    let stop = Arc::new(AtomicBool::new(false));
+    let emulator = {
+        let (segment, stop) = (segment.clone(), stop.clone());
+        std::thread::spawn(move || serve_interface(&segment, SEGMENT_END, &|| stop.load(Ordering::Relaxed), None))
+    };
+    let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-ifdown-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = EthercatDriverConfig {
+        name: "ecat".into(),
+        segments: vec![SegmentConfig {
+            layer: "seg0".into(),
+            vendor_id: EMULATED_VENDOR_ID,
+            product_code: EMULATED_PRODUCT_CODE,
+            taxels: 12,
+            modules: vec![12],
+            patch: 1,
+            baseline: false,
+        }],
+        rate_hz: 200.0,
+        frame_timeout: Some(Duration::from_millis(20)),
+        rt: Default::default(),
+    };
+    let driver = EthercatDriver::new(config, FrameLink::Interface(DRIVER_END.into())).unwrap();
+    let status = driver.status_handle();
+    let options = HandlerOptions { dir: Some(dir.clone()), ..HandlerOptions::default() };
+    let handler = DriverHandler::start("ecat", Box::new(driver), &options).unwrap();
+    let mut reader =
+        Reader::open_with("ecat", "seg0", &ReaderOptions { dir: Some(dir.clone()), ..Default::default() }).unwrap();
+    let started = Instant::now();
+    while status.bus_fault().is_some() || status.segments()[0].cycles == 0 {
+        assert!(started.elapsed() < Duration::from_secs(10), "never up: {:?}", status.bus_fault());
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    wait_for(&mut reader, WriterState::Running, Duration::from_secs(10));
+    let down = Instant::now();
+    ip(&["link", "set", DRIVER_END, "down"]).unwrap();
+    let why = loop {
+        if let Some(why) = status.bus_fault() {
+            break why;
+        }
+        assert!(down.elapsed() < Duration::from_secs(5), "the bus never counted as down");
+        std::thread::sleep(Duration::from_millis(1));
+    };
+    println!("interface down: bus down after {:.1} ms: {why}", down.elapsed().as_secs_f64() * 1e3);
+    assert!(why.contains(DRIVER_END), "{why}");
+    ip(&["link", "set", DRIVER_END, "up"]).unwrap();
+    wait_for(&mut reader, WriterState::Running, Duration::from_secs(15));
+    handler.stop();
+    stop.store(true, Ordering::Relaxed);
+    emulator.join().unwrap().unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
 }

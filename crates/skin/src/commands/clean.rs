@@ -34,7 +34,7 @@ pub fn run(args: &Args) -> Result<()> {
         }
     }
     // A driver's status file goes with its driver.
-    let now = skin::driver_status::now_unix_ms();
+    let now = skin::driver_status::now_ns();
     for found in skin::driver_status::find(&dir, None)? {
         // One that cannot be read is left alone unless forced, as foreign files are.
         let dead = found.status.as_ref().map_or(args.force, |status| !status.is_live(now));

@@ -32,9 +32,15 @@ pub struct EthercatArgs {
     /// Taxels per segment.
     #[arg(long, default_value_t = 708, value_parser = clap::value_parser!(u16).range(1..=2048))]
     taxels: u16,
-    /// Fault: lose every Nth frame.
+    /// Fault: lose every Nth process-data frame (the bring-up's are never lost).
     #[arg(long)]
     drop_every: Option<std::num::NonZeroU64>,
+    /// Fault: answer every Nth process-data frame late (by --late-by-ms).
+    #[arg(long, requires = "late_by_ms")]
+    late_every: Option<std::num::NonZeroU64>,
+    /// How late, in milliseconds, those answers are (more than the driver's frame timeout makes them late answers).
+    #[arg(long, requires = "late_every")]
+    late_by_ms: Option<u64>,
     /// The segment the per-segment faults hit (from 0).
     #[arg(long, default_value_t = 0)]
     fault_segment: usize,
@@ -173,6 +179,8 @@ fn run_ethercat(args: &EthercatArgs) -> Result<()> {
         seed: args.seed,
         faults: skinware_emulate::ethercat::EmulationFaults {
             drop_every_nth_frame: args.drop_every,
+            late_every_nth_frame: args.late_every,
+            late_by: Duration::from_millis(args.late_by_ms.unwrap_or(0)),
             segment: args.fault_segment,
             wrong_working_counter: args.wrong_wkc,
             leave_op_after: seconds("leave-op-after", args.leave_op_after)?,

@@ -73,31 +73,47 @@ pub fn run(args: &Args) -> Result<()> {
         }
     }
     for driver in &drivers {
-        let bus = driver.bus_fault.as_deref().map_or_else(|| "bus up".to_owned(), |why| format!("bus down: {why}"));
-        writeln!(out, "driver {}/{} ({}, pid {}): {bus}", driver.skin, driver.driver, driver.kind, driver.pid)?;
+        let bus = driver.bus_fault.as_deref().map_or_else(|| "bus up".to_owned(), |why| format!("bus not up: {why}"));
+        let in_op = driver.devices.iter().filter(|d| d.state == "OP").count();
+        writeln!(
+            out,
+            "driver {}/{} ({}, pid {}): {bus}, {in_op} of {} SubDevices in OP",
+            driver.skin,
+            driver.driver,
+            driver.kind,
+            driver.pid,
+            driver.devices.len()
+        )?;
+        // A device whose layer has no channel (yet) is shown here, not under its layer.
         for device in &driver.devices {
-            writeln!(out, "  {}", describe_device(device))?;
+            if !layers.iter().any(|l| l.skin == driver.skin && l.name == device.layer) {
+                writeln!(out, "  (layer {} not published) {}", device.layer, describe_device(device))?;
+            }
         }
     }
     Ok(())
 }
 
-/// One line on a device: `SubDevice 0 "name" vendor 0x… product 0x… rev … serial …, OP, 1200 cycles`.
+/// One line on a device, e.g. `SubDevice 0 "SKIN-T708": vendor 0x00534b4e
+/// product 0x00007ac7 rev 0x00000001 serial 1, OP, newest sample 0.3 ms ago,
+/// 52311 good cycles, 0 faults`. Identities in hex, as EtherCAT tools and
+/// device descriptions (ESI) write them.
 fn describe_device(device: &skin::driver_status::DeviceStatus) -> String {
     let hex = |v: Option<u32>| v.map_or_else(|| "?".to_owned(), |v| format!("{v:#010x}"));
-    let number = |v: Option<u32>| v.map_or_else(|| "?".to_owned(), |v| v.to_string());
-    let state = if device.state.is_empty() { "not seen yet" } else { &device.state };
+    let state = if device.state.is_empty() { "state not read yet" } else { &device.state };
+    let age =
+        device.sample_age_ms.map_or_else(|| "no sample yet".to_owned(), |ms| format!("newest sample {ms:.1} ms ago"));
     let fault = device.fault.as_deref().map(|why| format!(", faulted: {why}")).unwrap_or_default();
     format!(
-        "SubDevice {} {:?} (layer {}): vendor {} product {} rev {} serial {}, {state}, {} cycles{fault}",
+        "SubDevice {} {:?}: vendor {} product {} rev {} serial {}, {state}, {age}, {} good cycles, {} faults{fault}",
         device.position,
         device.name,
-        device.layer,
         hex(device.vendor_id),
         hex(device.product_code),
-        number(device.revision),
-        number(device.serial),
-        device.cycles
+        hex(device.revision),
+        device.serial.map_or_else(|| "?".to_owned(), |v| v.to_string()),
+        device.cycles,
+        device.faults
     )
 }
 

@@ -381,14 +381,19 @@ fn log_layer_changes(channels: &[ChannelInfo], states: &mut HashMap<String, &'st
     }
 }
 
-/// Removes the channels of this skin (their writers are stopped) and its
-/// cable-pull control files.
+/// Removes the channels of this skin (their writers are stopped), its
+/// drivers' status files and its cable-pull control files.
 fn remove_skin_channels(config: &Config) -> Result<()> {
     let dir = skinware::shm::segment_dir();
     for channel in skinware::list_channels(&dir)?.into_iter().filter(|c| c.skin == config.skin) {
         if !skinware::remove_channel_if_stale(&channel.path)? {
             tracing::warn!(channel = %channel.path.display(), "still has a live writer; left in place");
         }
+    }
+    // The drivers are stopped: their status files go too (one killed at the
+    // stop deadline could not remove its own).
+    for found in skin::driver_status::find(&dir, Some(&config.skin))? {
+        let _ = std::fs::remove_file(found.path);
     }
     for driver in &config.drivers {
         if let Ok(built) = driver.build(&config.skin) {

@@ -270,7 +270,7 @@ impl BuiltDriver {
             driver: driver.clone(),
             kind: "ethercat".into(),
             pid: std::process::id(),
-            updated_unix_ms: crate::driver_status::now_unix_ms(),
+            updated_ns: crate::driver_status::now_ns(),
             bus_fault: handle.bus_fault(),
             devices: handle
                 .segments()
@@ -278,6 +278,9 @@ impl BuiltDriver {
                 .zip(&layers)
                 .enumerate()
                 .map(|(position, (segment, layer))| crate::driver_status::DeviceStatus {
+                    faults: segment.faults,
+                    sample_age_ms: (segment.newest_sample_ns != 0)
+                        .then(|| crate::driver_status::now_ns().saturating_sub(segment.newest_sample_ns) as f64 * 1e-6),
                     position,
                     layer: layer.clone(),
                     name: segment.name,

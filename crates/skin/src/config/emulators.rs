@@ -50,8 +50,12 @@ pub struct EmulatorConfig {
     pub segments: Option<u16>,
     /// EtherCAT: taxels per segment (default 708).
     pub taxels: Option<u16>,
-    /// EtherCAT fault: lose every Nth frame.
+    /// EtherCAT fault: lose every Nth process-data frame (never the bring-up's).
     pub drop_every: Option<std::num::NonZeroU64>,
+    /// EtherCAT fault: answer every Nth process-data frame `late_by_ms` late.
+    pub late_every: Option<std::num::NonZeroU64>,
+    /// EtherCAT fault: how late those answers are, in milliseconds.
+    pub late_by_ms: Option<u64>,
     /// EtherCAT: the segment the per-segment faults hit (default 0).
     pub fault_segment: Option<usize>,
     /// EtherCAT fault: that segment leaves the process data's working counter alone.
@@ -124,6 +128,8 @@ impl EmulatorConfig {
                     ("segments", self.segments.is_some()),
                     ("taxels", self.taxels.is_some()),
                     ("drop_every", self.drop_every.is_some()),
+                    ("late_every", self.late_every.is_some()),
+                    ("late_by_ms", self.late_by_ms.is_some()),
                     ("fault_segment", self.fault_segment.is_some()),
                     ("wrong_wkc", self.wrong_wkc),
                     ("leave_op_after_s", self.leave_op_after_s.is_some()),
@@ -186,6 +192,11 @@ impl EmulatorConfig {
                 }
                 seconds("leave_op_after_s", self.leave_op_after_s)?;
                 seconds("link_down_after_s", self.link_down_after_s)?;
+                if self.late_every.is_some() != self.late_by_ms.is_some() {
+                    bail!(
+                        "`late_every` and `late_by_ms` go together: every Nth process-data frame is answered that many milliseconds late"
+                    );
+                }
             }
         }
         self.restart.check()
@@ -222,6 +233,8 @@ impl EmulatorConfig {
                 seed: self.seed,
                 faults: EmulationFaults {
                     drop_every_nth_frame: self.drop_every,
+                    late_every_nth_frame: self.late_every,
+                    late_by: Duration::from_millis(self.late_by_ms.unwrap_or(0)),
                     segment: self.fault_segment.unwrap_or(0),
                     wrong_working_counter: self.wrong_wkc,
                     leave_op_after: self.leave_op_after_s.map(Duration::from_secs_f64),

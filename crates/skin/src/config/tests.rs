@@ -260,6 +260,8 @@ fn ethercat_emulators_are_checked() {
         ("segments = 2", "segments = 2\nfault_segment = 2", "0 to 1"),
         ("segments = 2", "segments = 2\nboards = 2", "setting of kind = \"icub-mtb\""),
         ("segments = 2", "segments = 2\nleave_op_after_s = -1", "0 or more seconds"),
+        ("segments = 2", "segments = 2\nlate_every = 5", "`late_every` and `late_by_ms` go together"),
+        ("segments = 2", "segments = 2\nlate_by_ms = 40", "`late_every` and `late_by_ms` go together"),
     ] {
         let err = load(&format!("{}{ETHERCAT}", emulator.replace(from, to))).unwrap_err();
         assert!(format!("{err:#}").contains(problem), "{from} -> {to}: {err:#}");
@@ -267,6 +269,17 @@ fn ethercat_emulators_are_checked() {
     let mtb = "[[emulator]]\nname = \"bus0\"\nkind = \"icub-mtb\"\nlink = \"/tmp/x\"\ntaxels = 5\n";
     let err = load(&format!("{mtb}{CAN}")).unwrap_err();
     assert!(format!("{err:#}").contains("setting of kind = \"ethercat\""), "{err:#}");
+    let late = format!("{emulator}late_every = 5\nlate_by_ms = 40\n");
+    match load(&format!("{late}{ETHERCAT}")).unwrap().emulators[0].emulation() {
+        super::Emulation::Ethercat(e) => assert_eq!(
+            (e.faults.late_every_nth_frame, e.faults.late_by),
+            (std::num::NonZeroU64::new(5), std::time::Duration::from_millis(40))
+        ),
+        super::Emulation::Mtb(_) => panic!("an EtherCAT table built MTB boards"),
+    }
+    let mtb_late = mtb.replace("taxels = 5", "late_by_ms = 40");
+    let err = load(&format!("{mtb_late}{CAN}")).unwrap_err();
+    assert!(format!("{err:#}").contains("`late_by_ms` is a setting of kind = \"ethercat\""), "{err:#}");
 }
 
 #[test]

@@ -54,6 +54,8 @@ const LINK_DOWN_PERIODS: u32 = 10;
 const LINK_DOWN_MIN: Duration = Duration::from_millis(20);
 const MIN_BACKOFF: Duration = Duration::from_millis(100);
 const MAX_BACKOFF: Duration = Duration::from_secs(2);
+/// How often a wait that stop cuts short looks at the stop flag.
+const STOP_POLL: Duration = Duration::from_millis(5);
 /// A layer whose segment has given nothing new for this many periods fails.
 const STALE_PERIODS: u32 = 2;
 
@@ -75,6 +77,13 @@ pub struct SegmentStatus {
     pub cycles: u64,
     /// Its last sample counter.
     pub counter: u16,
+    /// Faults it has had: lost frames, wrong working counters, states
+    /// other than OP (a fault lasting several cycles counts once).
+    pub faults: u64,
+    /// When its newest good sample arrived, CLOCK_MONOTONIC ns; 0 before
+    /// the first. A bus that has stopped cycling shows here, whatever the
+    /// state last seen says.
+    pub newest_sample_ns: u64,
 }
 
 /// One segment's newest inputs.
@@ -205,7 +214,7 @@ impl EthercatDriver {
                 })
                 .collect(),
             news: config.segments.iter().map(|_| Condvar::new()).collect(),
-            bus_fault: Mutex::new(Some("not started".into())),
+            bus_fault: Mutex::new(Some("not brought up yet".into())),
             writers: config.segments.iter().map(|_| WriterFollow::default()).collect(),
         });
         Ok(EthercatDriver { config, link, topologies, shared, stop: Arc::new(AtomicBool::new(false)), thread: None })
@@ -214,25 +223,64 @@ impl EthercatDriver {
     /// A handle on the segments' status that outlives handing the driver to
     /// a driver handler (for `skin ls`, for tests).
     pub fn status_handle(&self) -> EthercatStatus {
-        EthercatStatus { shared: self.shared.clone() }
+        EthercatStatus::new(self.shared.clone())
     }
 }
 
 /// What an EtherCAT driver knows of its bus, readable from any thread.
+///
+/// The bus and layer threads hold the locks it reads at real-time priority,
+/// so it never waits for them: it only tries each lock, and a segment that
+/// is busy at that moment keeps its previous snapshot.
 #[derive(Clone)]
 pub struct EthercatStatus {
     shared: Arc<Shared>,
+    snapshot: Arc<Mutex<StatusSnapshot>>,
+}
+
+/// The newest status an [`EthercatStatus`] could read.
+#[derive(Default)]
+struct StatusSnapshot {
+    segments: Vec<SegmentStatus>,
+    bus_fault: Option<String>,
 }
 
 impl EthercatStatus {
-    /// Each segment's identity, state and fault, in ring order.
+    fn new(shared: Arc<Shared>) -> EthercatStatus {
+        let snapshot = StatusSnapshot {
+            segments: vec![SegmentStatus::default(); shared.segments.len()],
+            bus_fault: Some("not brought up yet".into()),
+        };
+        EthercatStatus { shared, snapshot: Arc::new(Mutex::new(snapshot)) }
+    }
+
+    /// Each segment's identity, state, fault and newest sample, in ring order.
     pub fn segments(&self) -> Vec<SegmentStatus> {
-        (0..self.shared.segments.len()).map(|p| self.shared.segment(p).status.clone()).collect()
+        let mut snapshot = self.snapshot.lock().unwrap_or_else(|p| p.into_inner());
+        for (position, segment) in self.shared.segments.iter().enumerate() {
+            let image = match segment.try_lock() {
+                Ok(image) => image,
+                Err(std::sync::TryLockError::Poisoned(poisoned)) => poisoned.into_inner(),
+                Err(std::sync::TryLockError::WouldBlock) => continue,
+            };
+            let mut status = image.status.clone();
+            status.faults = image.faults_begun;
+            status.newest_sample_ns = image.acquired_ns;
+            drop(image);
+            snapshot.segments[position] = status;
+        }
+        snapshot.segments.clone()
     }
 
     /// Why the whole bus is down, if it is.
     pub fn bus_fault(&self) -> Option<String> {
-        self.shared.bus_fault.lock().unwrap_or_else(|p| p.into_inner()).clone()
+        let mut snapshot = self.snapshot.lock().unwrap_or_else(|p| p.into_inner());
+        match self.shared.bus_fault.try_lock() {
+            Ok(fault) => snapshot.bus_fault.clone_from(&fault),
+            Err(std::sync::TryLockError::Poisoned(poisoned)) => snapshot.bus_fault.clone_from(&poisoned.into_inner()),
+            Err(std::sync::TryLockError::WouldBlock) => {}
+        }
+        snapshot.bus_fault.clone()
     }
 }
 
@@ -502,7 +550,17 @@ impl Bus {
     /// on this thread), so that a segment's lost frame stalls only its own
     /// cycles; a watcher ends the session when no segment answers any more.
     async fn control(&self, maindevice: &MainDevice<'_>, io_ended: &AtomicBool) -> Result<(), String> {
-        let groups = self.bring_up(maindevice).await?;
+        // Raced against stop: a step of the bring-up may wait seconds (a
+        // state transition, a frame timeout), and stop is not to wait with it.
+        let bring_up = async { Some(self.bring_up(maindevice).await) };
+        let stopped = async {
+            self.stopped().await;
+            None
+        };
+        let Some(groups) = futures_lite::future::or(bring_up, stopped).await else {
+            return Ok(());
+        };
+        let groups = groups?;
         self.shared.set_bus_fault(None);
         let answered: Vec<Cell<Instant>> = groups.iter().map(|_| Cell::new(Instant::now())).collect();
         let mut tasks: Vec<Task<'_>> = groups
@@ -514,6 +572,13 @@ impl Bus {
             .collect();
         tasks.push(Box::pin(self.watch_link(io_ended, &answered)));
         first_error(tasks).await
+    }
+
+    /// Ready once the driver is asked to stop.
+    async fn stopped(&self) {
+        while !self.stop.load(Ordering::Relaxed) {
+            async_io::Timer::after(STOP_POLL).await;
+        }
     }
 
     /// The cycles of one segment until stopped: outputs out, inputs in, its

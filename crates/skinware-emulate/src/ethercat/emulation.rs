@@ -18,8 +18,13 @@ use super::segment::Segment;
 /// What the emulated skin does wrong, on purpose.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct EmulationFaults {
-    /// Lose every Nth frame.
+    /// Lose every Nth process-data frame (never one of the bring-up's).
     pub drop_every_nth_frame: Option<NonZeroU64>,
+    /// Answer every Nth process-data frame `late_by` late (after the
+    /// MainDevice's frame timeout, to be a late answer).
+    pub late_every_nth_frame: Option<NonZeroU64>,
+    /// How late those answers are.
+    pub late_by: Duration,
     /// The segment that the per-segment faults below hit (from 0).
     pub segment: usize,
     /// That segment leaves the working counter of process data alone.
@@ -77,7 +82,10 @@ impl EthercatEmulation {
             subdevices.push(subdevice);
         }
         let mut segment = Segment::new(subdevices);
-        segment.faults_mut().drop_every_nth_frame = self.faults.drop_every_nth_frame;
+        let faults = segment.faults_mut();
+        faults.drop_every_nth_frame = self.faults.drop_every_nth_frame;
+        faults.late_every_nth_frame = self.faults.late_every_nth_frame;
+        faults.late_by = self.faults.late_by;
         Ok(segment)
     }
 

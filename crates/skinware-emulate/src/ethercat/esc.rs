@@ -413,43 +413,56 @@ impl TactileSubDevice {
         let writes = matches!(command, Command::Lwr | Command::Lrw);
         let datagram_start = u64::from(address);
         let datagram_end = datagram_start + data.len() as u64;
+        // What each FMMU maps of this datagram: (where in the data, where in
+        // memory, read or write).
+        let mut accesses = [((0usize, 0usize), 0u32, Access::Read); 2 * FMMUS];
+        let mut count = 0;
+        for fmmu in 0..FMMUS {
+            let base = usize::from(FMMU_BASE) + fmmu * 16;
+            let register = &self.memory[base..base + 16];
+            if register[12] & 0x01 == 0 {
+                continue;
+            }
+            let logical_start = u64::from(u32::from_le_bytes([register[0], register[1], register[2], register[3]]));
+            let length = u64::from(u16::from_le_bytes([register[4], register[5]]));
+            let physical_start = u64::from(u16::from_le_bytes([register[8], register[9]]));
+            let from = datagram_start.max(logical_start);
+            let to = datagram_end.min(logical_start + length);
+            if from >= to {
+                continue;
+            }
+            let in_data = ((from - datagram_start) as usize, (to - datagram_start) as usize);
+            let physical = (physical_start + (from - logical_start)) as u32;
+            if reads && register[11] & 0x01 != 0 {
+                accesses[count] = (in_data, physical, Access::Read);
+                count += 1;
+            }
+            if writes && register[11] & 0x02 != 0 {
+                accesses[count] = (in_data, physical, Access::Write);
+                count += 1;
+            }
+        }
+        // A real ESC handles the datagram byte by byte as it passes: what is
+        // mapped first is done first, so inputs mapped before the outputs
+        // (as a MainDevice's process image has them) are read out before the
+        // outputs are written, and a new command shows in the next cycle's
+        // inputs, not this one's. At one byte, the read comes first.
+        let accesses = &mut accesses[..count];
+        accesses.sort_unstable_by_key(|&((start, _), _, access)| (start, access == Access::Write));
+        // Outputs written are the data as it came in, not as reads left it.
+        let incoming = if writes && reads { data.to_vec() } else { Vec::new() };
         let mut read_any = false;
         let mut wrote_any = false;
-        let mut inputs_read = false;
-        // Writes first, from the data as it came in; then reads replace the
-        // mapped bytes.
-        for pass in [Access::Write, Access::Read] {
-            for fmmu in 0..FMMUS {
-                let base = usize::from(FMMU_BASE) + fmmu * 16;
-                let register = &self.memory[base..base + 16];
-                if register[12] & 0x01 == 0 {
-                    continue;
-                }
-                let logical_start = u64::from(u32::from_le_bytes([register[0], register[1], register[2], register[3]]));
-                let length = u64::from(u16::from_le_bytes([register[4], register[5]]));
-                let physical_start = u64::from(u16::from_le_bytes([register[8], register[9]]));
-                let fmmu_reads = register[11] & 0x01 != 0;
-                let fmmu_writes = register[11] & 0x02 != 0;
-                let from = datagram_start.max(logical_start);
-                let to = datagram_end.min(logical_start + length);
-                if from >= to {
-                    continue;
-                }
-                let in_data = (from - datagram_start) as usize..(to - datagram_start) as usize;
-                let physical = (physical_start + (from - logical_start)) as u32;
-                match pass {
-                    Access::Write if writes && fmmu_writes => {
-                        wrote_any |= self.write(physical, &data[in_data]);
-                    }
-                    Access::Read if reads && fmmu_reads => {
-                        let read = self.read(physical, &mut data[in_data], false);
-                        read_any |= read;
-                        inputs_read |= read;
-                    }
-                    _ => {}
+        for &((start, end), physical, access) in accesses.iter() {
+            match access {
+                Access::Read => read_any |= self.read(physical, &mut data[start..end], false),
+                Access::Write => {
+                    let source = if incoming.is_empty() { &data[start..end] } else { &incoming[start..end] };
+                    wrote_any |= self.write(physical, source);
                 }
             }
         }
+        let inputs_read = read_any;
         if inputs_read && self.state == AlState::Op {
             self.op_cycles += 1;
             if let Some(LeaveOp::AfterCycles(cycles)) = self.faults.leave_op

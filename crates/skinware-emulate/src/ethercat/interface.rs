@@ -3,8 +3,8 @@
 //! cable), as the ring would. Needs `CAP_NET_RAW` (or a network namespace
 //! of one's own, `unshare -rn`).
 
-use std::sync::Mutex;
-use std::time::Duration;
+use std::sync::{Mutex, mpsc};
+use std::time::{Duration, Instant};
 
 use super::segment::{Fate, Segment};
 use super::wire::{ETHERNET_HEADER_LEN, ETHERTYPE_ETHERCAT};
@@ -43,7 +43,7 @@ pub type FrameObserver<'a> = dyn FnMut(&[u8], Option<&[u8]>) + 'a;
 pub struct InterfaceStats {
     /// EtherCAT frames from a MainDevice it took.
     pub frames: u64,
-    /// Answers it sent.
+    /// Answers it sent (late ones included).
     pub answered: u64,
 }
 
@@ -72,7 +72,7 @@ pub fn serve_interface(
             write_buffer_size: 65536,
             ..pnet_datalink::Config::default()
         };
-        let (mut tx, mut rx) = match pnet_datalink::channel(&nic, config) {
+        let (tx, mut rx) = match pnet_datalink::channel(&nic, config) {
             Ok(pnet_datalink::Channel::Ethernet(tx, rx)) => (tx, rx),
             Ok(_) => return Err(InterfaceError::NotEthernet { name: interface.to_string() }),
             // Opening fails outright (no permission): say so at once; later,
@@ -84,43 +84,65 @@ pub fn serve_interface(
             }
         };
         opened_once = true;
-        while !stop() {
-            let received = match rx.next() {
-                Ok(bytes) => bytes,
-                Err(e) if matches!(e.kind(), std::io::ErrorKind::TimedOut | std::io::ErrorKind::WouldBlock) => continue,
-                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-                Err(_) => {
-                    // The link went down (the socket reports an error it
-                    // never clears): a segment keeps its power and waits,
-                    // then opens the interface again.
-                    std::thread::sleep(Duration::from_millis(10));
-                    break;
+        let tx = Mutex::new(tx);
+        // Late answers go from a thread of their own, so that holding one
+        // back holds up no other frame.
+        let (late_answers, held_back) = mpsc::channel::<(Instant, Vec<u8>)>();
+        std::thread::scope(|scope| {
+            scope.spawn(|| {
+                for (due, answer) in held_back {
+                    std::thread::sleep(due.saturating_duration_since(Instant::now()));
+                    let _ = tx.lock().unwrap_or_else(|p| p.into_inner()).send_to(&answer, None);
                 }
-            };
-            if received.len() < ETHERNET_HEADER_LEN
-                || u16::from_be_bytes([received[12], received[13]]) != ETHERTYPE_ETHERCAT
-                // An answer (this segment's own, which the socket sees going
-                // out, or another ring's): the first ESC marked its source.
-                || received[6] & 0x02 != 0
-            {
-                continue;
-            }
-            stats.frames += 1;
-            frame.clear();
-            frame.extend_from_slice(received);
-            let fate = segment.lock().unwrap_or_else(|p| p.into_inner()).process(&mut frame);
-            let answered = matches!(fate, Ok(Fate::Returned));
-            if let Some(on_frame) = on_frame.as_mut() {
-                // `frame` was changed in place; `received` is still the frame as it came.
-                on_frame(received, answered.then_some(frame.as_slice()));
-            }
-            if answered {
-                // An answer that cannot go is lost with the link, as on a cable.
-                if let Some(Ok(())) = tx.send_to(&frame, None) {
-                    stats.answered += 1;
+            });
+            while !stop() {
+                let received = match rx.next() {
+                    Ok(bytes) => bytes,
+                    Err(e) if matches!(e.kind(), std::io::ErrorKind::TimedOut | std::io::ErrorKind::WouldBlock) => {
+                        continue;
+                    }
+                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                    Err(_) => {
+                        // The link went down (the socket reports an error it
+                        // never clears): a segment keeps its power and waits,
+                        // then opens the interface again.
+                        std::thread::sleep(Duration::from_millis(10));
+                        break;
+                    }
+                };
+                if received.len() < ETHERNET_HEADER_LEN
+                    || u16::from_be_bytes([received[12], received[13]]) != ETHERTYPE_ETHERCAT
+                    // An answer (this segment's own, which the socket sees going
+                    // out, or another ring's): the first ESC marked its source.
+                    || received[6] & 0x02 != 0
+                {
+                    continue;
+                }
+                stats.frames += 1;
+                frame.clear();
+                frame.extend_from_slice(received);
+                let fate = segment.lock().unwrap_or_else(|p| p.into_inner()).process(&mut frame);
+                let answered = matches!(fate, Ok(Fate::Returned | Fate::Late(_)));
+                if let Some(on_frame) = on_frame.as_mut() {
+                    // `frame` was changed in place; `received` is still the frame as it came.
+                    on_frame(received, answered.then_some(frame.as_slice()));
+                }
+                match fate {
+                    Ok(Fate::Returned) => {
+                        // An answer that cannot go is lost with the link, as on a cable.
+                        if let Some(Ok(())) = tx.lock().unwrap_or_else(|p| p.into_inner()).send_to(&frame, None) {
+                            stats.answered += 1;
+                        }
+                    }
+                    Ok(Fate::Late(by)) => {
+                        stats.answered += 1;
+                        let _ = late_answers.send((Instant::now() + by, frame.clone()));
+                    }
+                    _ => {}
                 }
             }
-        }
+            drop(late_answers);
+        });
     }
     Ok(stats)
 }

@@ -11,7 +11,8 @@
 //! `u16 counter, u16 status, u16 taxel[N]`; outputs on SM2,
 //! `u16 command, u16 config`. Taxel values come from a [`TaxelSource`].
 //!
-//! Fault switches: [`SegmentFaults`] (drop every Nth frame, link down) and
+//! Fault switches: [`SegmentFaults`] (lose, or answer late, every Nth
+//! process-data frame; link down) and
 //! [`SubDeviceFaults`] (leave OP after K cycles or S seconds, a wrong
 //! working counter).
 //!

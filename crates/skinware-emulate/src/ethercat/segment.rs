@@ -2,19 +2,27 @@
 //! pass every SubDevice in order, and come back (or not, by fault).
 
 use std::num::NonZeroU64;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use super::esc::TactileSubDevice;
-use super::wire::{Datagram, FrameError, check_frame};
+use super::wire::{Command, Datagram, FrameError, FrameLayout, check_frame};
 
 /// What the wire does wrong, on purpose.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SegmentFaults {
-    /// Lose every Nth frame (counting every frame offered while the link is
-    /// up, from 1). The frame is lost on its way out: no SubDevice sees it.
+    /// Lose every Nth process-data frame (one with an LRD, LWR or LRW
+    /// datagram, counting those offered while the link is up, from 1); the
+    /// bring-up's frames are never lost. The frame is lost on its way out:
+    /// no SubDevice sees it.
     pub drop_every_nth_frame: Option<NonZeroU64>,
     /// The cable is pulled: no frame reaches a SubDevice or comes back.
     pub link_down: bool,
+    /// Answer every Nth process-data frame (one with an LRD, LWR or LRW
+    /// datagram; counting from 1) `late_by` late: the frame goes round as
+    /// usual, but the wire holds its answer back ([`Fate::Late`]).
+    pub late_every_nth_frame: Option<NonZeroU64>,
+    /// How late those answers are.
+    pub late_by: Duration,
 }
 
 /// What became of a frame offered to the segment.
@@ -22,12 +30,15 @@ pub struct SegmentFaults {
 pub enum Fate {
     /// It went round; the buffer holds the frame as it came back.
     Returned,
-    /// Lost by the drop-every-Nth fault.
+    /// Lost by the drop-every-Nth-process-data-frame fault.
     Dropped,
     /// The link is down.
     LinkDown,
     /// There is no SubDevice to send it back.
     NoSubDevice,
+    /// It went round, as [`Fate::Returned`], but its answer is to go back
+    /// this late (the late-answer fault).
+    Late(Duration),
 }
 
 /// Counts of what the segment saw.
@@ -41,6 +52,10 @@ pub struct SegmentStats {
     pub dropped: u64,
     /// Frames refused as malformed.
     pub malformed: u64,
+    /// Process-data frames (an LRD, LWR or LRW datagram in them) offered.
+    pub process_data: u64,
+    /// Answers held back by the late-answer fault.
+    pub late: u64,
 }
 
 /// SubDevices in a line, position 0 nearest the MainDevice.
@@ -96,12 +111,6 @@ impl Segment {
             return Ok(Fate::LinkDown);
         }
         self.stats.frames += 1;
-        if let Some(n) = self.faults.drop_every_nth_frame
-            && self.stats.frames.is_multiple_of(n.get())
-        {
-            self.stats.dropped += 1;
-            return Ok(Fate::Dropped);
-        }
         let layout = match check_frame(frame) {
             Ok(layout) => layout,
             Err(error) => {
@@ -112,6 +121,20 @@ impl Segment {
         if self.subdevices.is_empty() {
             return Ok(Fate::NoSubDevice);
         }
+        let process_data = is_process_data(frame, &layout);
+        if process_data {
+            self.stats.process_data += 1;
+            // Only process data: losing the bring-up's frames would keep a
+            // small N from ever reaching OP, which is not the fault asked for.
+            if let Some(n) = self.faults.drop_every_nth_frame
+                && self.stats.process_data.is_multiple_of(n.get())
+            {
+                self.stats.dropped += 1;
+                return Ok(Fate::Dropped);
+            }
+        }
+        let late = process_data
+            && self.faults.late_every_nth_frame.is_some_and(|n| self.stats.process_data.is_multiple_of(n.get()));
         let now = Instant::now();
         let mut offset = layout.payload_start;
         while let Some(datagram) = Datagram::at(frame, offset, layout.payload_end) {
@@ -128,12 +151,34 @@ impl Segment {
         // frame from the answer.
         frame[6] |= 0x02;
         self.stats.returned += 1;
+        if late {
+            self.stats.late += 1;
+            return Ok(Fate::Late(self.faults.late_by));
+        }
         Ok(Fate::Returned)
     }
 }
 
+/// Whether the frame carries process data: a datagram addressed logically.
+fn is_process_data(frame: &[u8], layout: &FrameLayout) -> bool {
+    let mut offset = layout.payload_start;
+    while let Some(datagram) = Datagram::at(frame, offset, layout.payload_end) {
+        if matches!(datagram.command(frame), Command::Lrd | Command::Lwr | Command::Lrw) {
+            return true;
+        }
+        if !datagram.more_follows {
+            return false;
+        }
+        offset = datagram.end;
+    }
+    false
+}
+
 /// The segment as the EtherCAT driver's in-process bus: a frame that does
-/// not come back (lost, link down, malformed) is `false`.
+/// not come back (lost, link down, malformed) is `false`. So is a late one:
+/// an in-process bus carries one frame at a time, so holding an answer back
+/// would hold up every frame behind it; the frame's timeout is what the
+/// MainDevice sees of a late answer in any case.
 impl skinware_drivers::ethercat::FrameExchange for Segment {
     fn exchange(&mut self, frame: &mut Vec<u8>) -> bool {
         matches!(self.process(frame), Ok(Fate::Returned))
@@ -198,21 +243,45 @@ mod tests {
     }
 
     #[test]
-    fn faults_lose_frames() {
+    fn faults_lose_process_data_frames_only() {
         let mut s = segment(1, 4);
         s.faults_mut().drop_every_nth_frame = NonZeroU64::new(3);
         let fates: Vec<Fate> = (0..6)
             .map(|_| {
-                let mut frame = FrameBuilder::new().datagram(Command::Brd, 0, 0, &[0]).build();
+                let mut frame = FrameBuilder::new().datagram(Command::Lrw, 0, 0, &[0; 8]).build();
                 s.process(&mut frame).unwrap()
             })
             .collect();
         use Fate::*;
         assert_eq!(fates, [Returned, Returned, Dropped, Returned, Returned, Dropped]);
+        // Register access (the bring-up's) is never lost, however many.
+        for _ in 0..6 {
+            let mut frame = FrameBuilder::new().datagram(Command::Brd, 0, 0, &[0]).build();
+            assert_eq!(s.process(&mut frame).unwrap(), Returned);
+        }
         s.faults_mut().link_down = true;
         let mut frame = FrameBuilder::new().datagram(Command::Brd, 0, 0, &[0]).build();
         assert_eq!(s.process(&mut frame).unwrap(), LinkDown);
         assert_eq!(s.stats().dropped, 2);
+    }
+
+    #[test]
+    fn every_nth_process_data_frame_is_answered_late() {
+        let mut s = segment(1, 4);
+        s.faults_mut().late_every_nth_frame = NonZeroU64::new(2);
+        s.faults_mut().late_by = Duration::from_millis(40);
+        let mut fates = Vec::new();
+        for _ in 0..3 {
+            // A register read between two cycles is not process data.
+            let mut frame = FrameBuilder::new().datagram(Command::Brd, 0, 0, &[0]).build();
+            fates.push(s.process(&mut frame).unwrap());
+            let mut frame = FrameBuilder::new().datagram(Command::Lrw, 0, 0, &[0; 8]).build();
+            fates.push(s.process(&mut frame).unwrap());
+        }
+        use Fate::*;
+        let late = Late(Duration::from_millis(40));
+        assert_eq!(fates, [Returned, Returned, Returned, late, Returned, Returned]);
+        assert_eq!((s.stats().process_data, s.stats().late, s.stats().returned), (3, 1, 6));
     }
 
     #[test]
