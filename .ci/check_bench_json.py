@@ -79,7 +79,7 @@ latency = ecat.get("latency", {})
 need(latency.get("latency_ns", {}).get("samples", 0) > 0 and is_count(latency.get("skipped")), "ethercat.json: no latency samples")
 need(isinstance(ecat.get("rt_refused"), list) and "cpu_wake_latency_us" in ecat, "ethercat.json: real-time settings not recorded")
 faults = ecat.get("faults", [])
-need([f.get("fault") for f in faults] == ["every 2nd frame lost", "wrong working counter", "SubDevice leaves OP", "segment silent", "cable pull"],
+need([f.get("fault") for f in faults] == ["every 2nd frame lost", "every 2nd answer 20 ms late", "wrong working counter", "SubDevice leaves OP", "segment silent", "cable pull"],
      f"ethercat.json: faults {[f.get('fault') for f in faults]}")
 for f in faults:
     # Every repetition is either timed or counted as not seen.

@@ -402,7 +402,7 @@ struct Fault {
     until_bus_down: bool,
 }
 
-const FAULTS: [Fault; 5] = [
+const FAULTS: [Fault; 6] = [
     Fault {
         name: "every 2nd frame lost",
         how: "the segment's drop_every_nth_frame = 2 for 200 ms",
@@ -412,6 +412,22 @@ const FAULTS: [Fault; 5] = [
         },
         end: |bus| {
             bus.lock().faults_mut().drop_every_nth_frame = None;
+            Ok(())
+        },
+        ends_at_detection: false,
+        until_bus_down: false,
+    },
+    Fault {
+        name: "every 2nd answer 20 ms late",
+        how: "the segment's late_every_nth_frame = 2, late_by = 20 ms (past the 10 ms frame timeout) for 200 ms",
+        throw: |bus| {
+            let mut segment = bus.lock();
+            segment.faults_mut().late_by = Duration::from_millis(20);
+            segment.faults_mut().late_every_nth_frame = NonZeroU64::new(2);
+            Ok(())
+        },
+        end: |bus| {
+            bus.lock().faults_mut().late_every_nth_frame = None;
             Ok(())
         },
         ends_at_detection: false,
@@ -612,7 +628,7 @@ fn print(report: &EthercatReport, frames: u64, answered: u64) {
             }
         };
         println!(
-            "  {:<24} {:>6} {:>22} {:>22}{}",
+            "  {:<28} {:>6} {:>22} {:>22}{}",
             f.fault,
             f.detect_ms.len() as u32 + f.undetected,
             summary(&f.detect_ms),
