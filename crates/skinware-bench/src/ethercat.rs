@@ -617,7 +617,7 @@ fn print(report: &EthercatReport, frames: u64, answered: u64) {
     us(&report.latency.to_driver_ns, "  of which SubDevice -> bus thread");
     us(&report.latency.driver_to_reader_ns, "  and bus thread -> reader's copy");
     println!("  reader: {}; skipped {} frames", report.latency.reader, report.latency.skipped);
-    println!("\n  {:<24} {:>6} {:>22} {:>22}", "fault", "reps", "detect ms (med / max)", "recover ms (med / max)");
+    println!("\n  {:<28} {:>6} {:>22} {:>22}", "fault", "reps", "detect ms (med / max)", "recover ms (med / max)");
     for f in &report.faults {
         let summary = |v: &[f64]| {
             let mut v = v.to_vec();
