@@ -81,6 +81,24 @@ fn emulated(taxels: &[usize]) -> Segment {
     )
 }
 
+/// The driver's view of emulated segments of `taxels` each: layers `seg0`,
+/// `seg1`, ..., modules of 12.
+fn segment_configs(taxels: &[usize]) -> Vec<SegmentConfig> {
+    taxels
+        .iter()
+        .enumerate()
+        .map(|(position, &count)| SegmentConfig {
+            layer: format!("seg{position}"),
+            vendor_id: EMULATED_VENDOR_ID,
+            product_code: EMULATED_PRODUCT_CODE,
+            taxels: count,
+            modules: vec![12; count / 12],
+            patch: position as u32 + 1,
+            baseline: false,
+        })
+        .collect()
+}
+
 fn wait_for(reader: &mut Reader, state: WriterState, within: Duration) -> Duration {
     let started = Instant::now();
     while reader.writer_state() != state {
@@ -116,19 +134,7 @@ fn driver_and_segments_over_veth() {
 
     let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-veth-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let segments: Vec<SegmentConfig> = taxels
-        .iter()
-        .enumerate()
-        .map(|(position, &count)| SegmentConfig {
-            layer: format!("seg{position}"),
-            vendor_id: EMULATED_VENDOR_ID,
-            product_code: EMULATED_PRODUCT_CODE,
-            taxels: count,
-            modules: vec![12; count / 12],
-            patch: position as u32 + 1,
-            baseline: false,
-        })
-        .collect();
+    let segments = segment_configs(&taxels);
     let config = EthercatDriverConfig {
         name: "ecat".into(),
         segments: segments.clone(),
@@ -387,19 +393,7 @@ fn late_answers_fault_only_their_segment_and_never_the_bus() {
     };
     let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-late-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let segments: Vec<SegmentConfig> = taxels
-        .iter()
-        .enumerate()
-        .map(|(position, &count)| SegmentConfig {
-            layer: format!("seg{position}"),
-            vendor_id: EMULATED_VENDOR_ID,
-            product_code: EMULATED_PRODUCT_CODE,
-            taxels: count,
-            modules: vec![12; count / 12],
-            patch: position as u32 + 1,
-            baseline: false,
-        })
-        .collect();
+    let segments = segment_configs(&taxels);
     let frame_timeout = Duration::from_millis(20);
     let config = EthercatDriverConfig {
         name: "ecat".into(),
