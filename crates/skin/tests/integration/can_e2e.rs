@@ -13,7 +13,7 @@ use skinware::{Reader, ReaderOptions, WriterState};
 use skinware_drivers::can::candump;
 use skinware_drivers::can::icub_mtb::{self, Message};
 
-use crate::util::one_skin_at_a_time;
+use crate::util::{one_skin_at_a_time, wait_for};
 
 struct Skin {
     dir: PathBuf,
@@ -142,20 +142,6 @@ impl Drop for Skin {
             let _ = supervisor.wait();
         }
         let _ = std::fs::remove_dir_all(&self.dir);
-    }
-}
-
-fn wait_for(reader: &mut Reader, state: WriterState, within: Duration) -> Duration {
-    let started = Instant::now();
-    loop {
-        if state != WriterState::Gone {
-            reader.follow_recreated();
-        }
-        if reader.writer_state() == state {
-            return started.elapsed();
-        }
-        assert!(started.elapsed() < within, "{} never became {state} (is {})", reader.label(), reader.writer_state());
-        std::thread::sleep(Duration::from_millis(1));
     }
 }
 

@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 
 use skinware::{Reader, ReaderOptions, WriterState};
 
-use crate::util::one_skin_at_a_time;
+use crate::util::{one_skin_at_a_time, wait_for};
 
 const SKIN: &str = "ecat-e2e";
 const LAYERS: [&str; 2] = ["forearm", "upperarm"];
@@ -166,17 +166,6 @@ impl Drop for Skin {
             let _ = supervisor.wait();
         }
         let _ = std::fs::remove_dir_all(&self.dir);
-    }
-}
-
-fn wait_for(reader: &mut Reader, state: WriterState, within: Duration) -> Duration {
-    let started = Instant::now();
-    loop {
-        if reader.writer_state() == state {
-            return started.elapsed();
-        }
-        assert!(started.elapsed() < within, "{} never became {state} (is {})", reader.label(), reader.writer_state());
-        std::thread::sleep(Duration::from_millis(1));
     }
 }
 

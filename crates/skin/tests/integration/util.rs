@@ -1,6 +1,9 @@
 //! What the test modules share.
 
 use std::sync::{Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use skinware::{Reader, WriterState};
 
 /// Held by each test that runs a whole skin. Those tests assert on timing
 /// (no missed period, the page keeps up), and as separate test binaries they
@@ -10,4 +13,21 @@ pub fn one_skin_at_a_time() -> MutexGuard<'static, ()> {
     static LOCK: Mutex<()> = Mutex::new(());
     // A test that failed while holding it poisoned it; the others still run.
     LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// Waits until `reader`'s writer is in `state` (following a re-created
+/// channel meanwhile, unless waiting for it to be gone) and returns how long
+/// that took; fails the test after `within`.
+pub fn wait_for(reader: &mut Reader, state: WriterState, within: Duration) -> Duration {
+    let started = Instant::now();
+    loop {
+        if state != WriterState::Gone {
+            reader.follow_recreated();
+        }
+        if reader.writer_state() == state {
+            return started.elapsed();
+        }
+        assert!(started.elapsed() < within, "{} never became {state} (is {})", reader.label(), reader.writer_state());
+        std::thread::sleep(Duration::from_millis(1));
+    }
 }
