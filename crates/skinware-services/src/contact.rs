@@ -303,6 +303,7 @@ impl ContactDetector {
             found.clear();
         }
         self.visited.fill(0);
+        self.load_contact_data(geometry);
         for k in 0..self.touched.len() {
             let start = self.touched[k] as usize;
             if is_set(&self.visited, start) {
@@ -311,6 +312,32 @@ impl ContactDetector {
             self.collect_component(geometry, start);
             self.accumulate_component(geometry, responses);
         }
+    }
+
+    /// Reads, once, the memory that the search and the accumulation will
+    /// read for each touched taxel: its place, normal, radius, map position,
+    /// regions and neighbours. Between two frames of a running service these
+    /// lines leave the caches (other threads, other processes, and on a VM
+    /// the hypervisor), and the search reads them in a dependent order (each
+    /// taxel found leads to its neighbours): one cache miss after another,
+    /// about 30 µs per frame for 200 touched taxels of the paper's skin,
+    /// against 5 µs with the lines cached. Here each taxel's loads are
+    /// independent of the others', so the CPU has many misses in flight at
+    /// once; the search then took about 20 µs with this included
+    /// (`skin bench contact`, 2026-11-24).
+    fn load_contact_data(&self, geometry: &SkinGeometry) {
+        let mut bits = 0u32;
+        for &i in &self.touched {
+            let i = i as usize;
+            let first_region = self.member_offsets[i] as usize;
+            bits ^= geometry.positions[i][0].to_bits()
+                ^ geometry.normals[i][0].to_bits()
+                ^ geometry.radii[i].to_bits()
+                ^ geometry.map.positions[i][0].to_bits()
+                ^ self.member_regions.get(first_region).copied().unwrap_or(0)
+                ^ geometry.neighbours_of(i).first().copied().unwrap_or(0);
+        }
+        std::hint::black_box(bits);
     }
 
     /// Breadth-first search from `start` over touched taxels not yet

@@ -27,6 +27,8 @@ pub(super) struct TaxelTracks {
     variance: Vec<f32>,
     last: Vec<u16>,
     runs: RunLengths,
+    /// The widest vector instructions this CPU has, found once.
+    arch: pulp::Arch,
 }
 
 /// How many fresh frames in a row each taxel's response has not changed
@@ -52,7 +54,13 @@ impl TaxelTracks {
         } else {
             RunLengths::Word { unchanged: vec![0; taxels], saturated: vec![0; taxels] }
         };
-        TaxelTracks { baseline: vec![0.0; taxels], variance: vec![0.0; taxels], last: vec![0; taxels], runs }
+        TaxelTracks {
+            baseline: vec![0.0; taxels],
+            variance: vec![0.0; taxels],
+            last: vec![0; taxels],
+            runs,
+            arch: pulp::Arch::new(),
+        }
     }
 
     /// Starts the baselines of taxels `range` at their first `responses`.
@@ -94,8 +102,7 @@ impl TaxelTracks {
                     saturated: &mut $saturated[range.clone()],
                     states,
                 };
-                // Two copies of the loop, so that neither tests freshness per taxel.
-                if fresh { classify_layer::<_, true>(layer, limits) } else { classify_layer::<_, false>(layer, limits) }
+                self.arch.dispatch(ClassifyLayer { layer, limits, fresh })
             }};
         }
         match &mut self.runs {
@@ -120,11 +127,13 @@ trait RunLength: Copy + PartialOrd {
 macro_rules! run_length {
     ($t:ty) => {
         impl RunLength for $t {
+            #[inline(always)]
             fn count_while(holds: bool, count: $t) -> $t {
                 let incremented = count + <$t>::from(count != <$t>::MAX);
                 incremented & <$t>::from(holds).wrapping_neg()
             }
 
+            #[inline(always)]
             fn frames(frames: u32) -> $t {
                 <$t>::try_from(frames).unwrap_or(<$t>::MAX)
             }
@@ -154,8 +163,36 @@ const _: () = assert!(
         && TaxelState::TOUCHED.0 > TaxelState::IDLE.0
 );
 
+/// One layer's classification, compiled once for each instruction set that
+/// [`pulp::Arch`] can choose at run time (AVX2 doubles the vectors' width
+/// over the SSE2 that every x86-64 has, and this loop is bound by arithmetic,
+/// not memory). The results are the same bits on every instruction set: the
+/// compiler does not fuse or reorder floating-point operations.
+struct ClassifyLayer<'a, C> {
+    layer: Layer<'a, C>,
+    limits: &'a Limits,
+    fresh: bool,
+}
+
+impl<C: RunLength> pulp::WithSimd for ClassifyLayer<'_, C> {
+    type Output = ();
+
+    // Inlined into pulp's function for each instruction set, so that the
+    // loop is vectorised with it.
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        // Two copies of the loop, so that neither tests freshness per taxel.
+        if self.fresh {
+            classify_layer::<_, true>(self.layer, self.limits)
+        } else {
+            classify_layer::<_, false>(self.layer, self.limits)
+        }
+    }
+}
+
 /// Classifies one layer's taxels. The loop body has no branch and no early
 /// exit (every choice is a select), so that the compiler vectorises it.
+#[inline(always)]
 fn classify_layer<C: RunLength, const FRESH: bool>(layer: Layer<'_, C>, limits: &Limits) {
     // Compared in the run lengths' own integer: narrow lanes, no widening.
     let (stuck_frames, dead_frames) = (C::frames(limits.stuck_frames), C::frames(limits.dead_frames));
@@ -216,6 +253,52 @@ fn list_non_idle_one_by_one(states: &[TaxelState], first: usize, touched: &mut V
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    /// Everything a classification leaves behind, as bits.
+    fn snapshot(tracks: &TaxelTracks, states: &[TaxelState]) -> Vec<u32> {
+        let mut bits: Vec<u32> = tracks.baseline.iter().chain(&tracks.variance).map(|v| v.to_bits()).collect();
+        bits.extend(tracks.last.iter().map(|&r| u32::from(r)));
+        if let RunLengths::Byte { unchanged, saturated } = &tracks.runs {
+            bits.extend(unchanged.iter().chain(saturated).map(|&c| u32::from(c)));
+        }
+        bits.extend(states.iter().map(|s| u32::from(s.0)));
+        bits
+    }
+
+    proptest! {
+        /// The loop compiled for the widest vectors this CPU has (AVX2 where
+        /// there is one) and the baseline one give the same bits, frame after
+        /// frame: the detector's outputs do not depend on the machine.
+        #[test]
+        fn every_instruction_set_classifies_to_the_same_bits(
+            frames in proptest::collection::vec(
+                (proptest::collection::vec(prop_oneof![0u16..2000, 64_990u16..=u16::MAX, Just(1000u16)], 37), any::<bool>()),
+                1..40,
+            ),
+        ) {
+            let limits = Limits {
+                threshold_sigma: 6.0,
+                min_threshold: 60.0,
+                saturation: 65_000,
+                stuck_frames: 3,
+                dead_frames: 5,
+                alpha: 0.05,
+            };
+            let n = frames[0].0.len();
+            let mut widest = TaxelTracks::new(n, limits.dead_frames, limits.stuck_frames);
+            let mut baseline_isa = TaxelTracks::new(n, limits.dead_frames, limits.stuck_frames);
+            baseline_isa.arch = pulp::Arch::Scalar;
+            widest.initialize(0..n, &frames[0].0);
+            baseline_isa.initialize(0..n, &frames[0].0);
+            let (mut states_a, mut states_b) = (vec![TaxelState::IDLE; n], vec![TaxelState::IDLE; n]);
+            for (responses, fresh) in &frames {
+                widest.classify(0..n, responses, *fresh, &limits, &mut states_a);
+                baseline_isa.classify(0..n, responses, *fresh, &limits, &mut states_b);
+                prop_assert_eq!(snapshot(&widest, &states_a), snapshot(&baseline_isa, &states_b));
+            }
+        }
+    }
 
     #[test]
     fn run_lengths_count_stop_at_the_maximum_and_restart() {
