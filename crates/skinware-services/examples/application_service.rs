@@ -60,8 +60,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .sensors
             .iter()
             .map(|sensors| {
-                let hottest = sensors.iter().copied().max_by_key(|&s| inputs.responses[s as usize]).unwrap_or(0);
-                Hottest { sensor: hottest, response: u32::from(inputs.responses[hottest as usize]) }
+                // A sensor whose layer is down has no response: it is never the hottest.
+                let response = |s: u32| inputs.response(s as usize).unwrap_or(0);
+                let hottest = sensors.iter().copied().max_by_key(|&s| response(s)).unwrap_or(0);
+                Hottest { sensor: hottest, response: u32::from(response(hottest)) }
             })
             .collect();
         let status = if all_up { FrameStatus::OK } else { FrameStatus::INPUT_FAULTED };

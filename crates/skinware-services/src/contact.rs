@@ -255,15 +255,40 @@ impl ContactDetector {
         dt_s: f32,
         out: &mut [RegionContacts],
     ) {
-        self.classify_taxels(responses, layer_ok, layer_fresh, dt_s);
-        self.find_contacts(geometry, responses);
+        let starts = &geometry.layer_starts;
+        let layer_responses = |layer: usize| responses.get(*starts.get(layer)?..*starts.get(layer + 1)?);
+        self.update_layers(geometry, layer_responses, layer_ok, layer_fresh, dt_s, out);
+    }
+
+    /// [`update`](Self::update) with each layer's responses where they are
+    /// (for example in each layer reader's copy, [`crate::SkinInputs::layer_responses`]),
+    /// rather than gathered into one array: `layer_responses(l)` gives layer
+    /// `l`'s, or `None` for a layer without input. A layer whose responses
+    /// are not exactly its taxels has no input either.
+    pub fn update_layers<'r>(
+        &mut self,
+        geometry: &SkinGeometry,
+        layer_responses: impl Fn(usize) -> Option<&'r [u16]>,
+        layer_ok: &[bool],
+        layer_fresh: &[bool],
+        dt_s: f32,
+        out: &mut [RegionContacts],
+    ) {
+        self.classify_taxels(&layer_responses, layer_ok, layer_fresh, dt_s);
+        self.find_contacts(geometry, &layer_responses);
         self.write_region_records(layer_ok, out);
         self.count_dead_and_stuck(out);
     }
 
     /// Follows each taxel's baseline and noise, sets its state, and lists the
     /// touched, dead and stuck taxels.
-    fn classify_taxels(&mut self, responses: &[u16], layer_ok: &[bool], layer_fresh: &[bool], dt_s: f32) {
+    fn classify_taxels<'r>(
+        &mut self,
+        layer_responses: &impl Fn(usize) -> Option<&'r [u16]>,
+        layer_ok: &[bool],
+        layer_fresh: &[bool],
+        dt_s: f32,
+    ) {
         let p = &self.params;
         let alpha = 1.0 - (-dt_s.max(0.0) / p.baseline_tau_s.max(1e-3)).exp();
         let limits = Limits {
@@ -281,8 +306,8 @@ impl ContactDetector {
         for (layer, range) in self.layer_ranges.iter().enumerate() {
             // A layer whose responses are not all there (inputs shorter than
             // the skin: a caller's mistake) has no input, rather than a panic.
-            let (Some(input), true) = (responses.get(range.clone()), layer_ok.get(layer).copied().unwrap_or(false))
-            else {
+            let input = layer_responses(layer).filter(|input| input.len() == range.len());
+            let (Some(input), true) = (input, layer_ok.get(layer).copied().unwrap_or(false)) else {
                 self.states[range.clone()].fill(TaxelState::NO_INPUT);
                 continue;
             };
@@ -298,7 +323,7 @@ impl ContactDetector {
 
     /// Groups the touched taxels into connected components on the neighbour
     /// graph and adds each, split by region, to `found`.
-    fn find_contacts(&mut self, geometry: &SkinGeometry, responses: &[u16]) {
+    fn find_contacts<'r>(&mut self, geometry: &SkinGeometry, layer_responses: &impl Fn(usize) -> Option<&'r [u16]>) {
         for found in &mut self.found {
             found.clear();
         }
@@ -310,7 +335,7 @@ impl ContactDetector {
                 continue;
             }
             self.collect_component(geometry, start);
-            self.accumulate_component(geometry, responses);
+            self.accumulate_component(geometry, layer_responses);
         }
     }
 
@@ -396,11 +421,22 @@ impl ContactDetector {
     }
 
     /// Splits the component in `queue` by region and adds one contact to each.
-    fn accumulate_component(&mut self, geometry: &SkinGeometry, responses: &[u16]) {
+    fn accumulate_component<'r>(
+        &mut self,
+        geometry: &SkinGeometry,
+        layer_responses: &impl Fn(usize) -> Option<&'r [u16]>,
+    ) {
         self.touched_regions.clear();
         // A touched taxel's baseline was not moved by this frame, so its
         // residual is recomputed here rather than stored for every taxel.
-        let residual = |i: usize| self.tracks.residual(i, responses[i]);
+        // Its layer had input, or it would not be touched.
+        let ranges = &self.layer_ranges;
+        let response = |i: usize| {
+            let layer = ranges.partition_point(|range| range.end <= i);
+            let start = ranges.get(layer)?.start;
+            layer_responses(layer)?.get(i - start).copied()
+        };
+        let residual = |i: usize| response(i).map_or(0.0, |r| self.tracks.residual(i, r));
         for &i in &self.queue {
             let i = i as usize;
             let residual = residual(i);

@@ -1,6 +1,6 @@
 //! A service's view of the skin's layers: the newest responses of every
-//! layer in one global array (the geometry's sensor order), and which layers
-//! are healthy.
+//! layer (each layer a contiguous range of the geometry's sensor order), and
+//! which layers are healthy.
 
 use skinware::{Reader, ReaderOptions, WriterState};
 use skinware_geometry::SkinGeometry;
@@ -11,8 +11,6 @@ pub struct SkinInputs {
     names: Vec<String>,
     readers: Vec<Option<Reader>>,
     starts: Vec<usize>,
-    /// Every sensor's newest response, in global order.
-    pub responses: Vec<u16>,
     /// Whether each layer's responses are current (running, not faulted, not stale).
     pub layer_ok: Vec<bool>,
     /// Whether each layer published a new frame since the previous update.
@@ -32,7 +30,6 @@ impl SkinInputs {
             readers: names.iter().map(|_| None).collect(),
             names,
             starts: geometry.layer_starts.clone(),
-            responses: vec![0; geometry.sensor_count()],
             layer_ok: vec![false; geometry.layers.len()],
             layer_fresh: vec![false; geometry.layers.len()],
             last_seq: vec![0; geometry.layers.len()],
@@ -46,9 +43,15 @@ impl SkinInputs {
     }
 
     /// Reads the newest frame of every layer. A layer is down when it cannot
-    /// be opened, its writer is not running, its frame is faulted, or its
-    /// newest frame is stale; its sensors then keep their last responses,
-    /// which callers must not use as fresh. Returns whether every layer is up.
+    /// be opened, its writer is not running, its frame is faulted or of the
+    /// wrong size, or its newest frame is stale; it then has no responses
+    /// until it is up again. Returns whether every layer is up.
+    ///
+    /// Each frame stays in its reader's own copy, where
+    /// [`layer_responses`](Self::layer_responses) shows it: copying all the
+    /// layers once more into one array would cost the contact service about
+    /// 10 µs a frame on the paper's skin, most of it cache misses on an
+    /// array last written a period before.
     pub fn update(&mut self) -> bool {
         for l in 0..self.names.len() {
             if self.readers[l].is_none() {
@@ -70,7 +73,6 @@ impl SkinInputs {
             let period = reader.writer_period();
             let current = match reader.latest() {
                 Ok(frame) if !frame.status().is_fault() && frame.responses().len() == range.len() => {
-                    self.responses[range].copy_from_slice(frame.responses());
                     self.layer_fresh[l] = frame.seq() != self.last_seq[l];
                     self.last_seq[l] = frame.seq();
                     self.acquired_ns = self.acquired_ns.max(frame.acquired_ns());
@@ -90,5 +92,28 @@ impl SkinInputs {
     /// The layer of global sensor `sensor`.
     pub fn layer_of(&self, sensor: usize) -> usize {
         self.starts.partition_point(|&s| s <= sensor) - 1
+    }
+
+    /// The responses of layer `layer` from the last [`update`](Self::update)
+    /// (its sensors' global indices start at the geometry's
+    /// `layer_starts[layer]`), or `None` if the layer is down.
+    pub fn layer_responses(&self, layer: usize) -> Option<&[u16]> {
+        if !self.layer_ok.get(layer).copied().unwrap_or(false) {
+            return None;
+        }
+        let frame = self.readers.get(layer)?.as_ref()?.last_frame()?;
+        let responses = frame.responses();
+        (responses.len() == self.starts[layer + 1] - self.starts[layer]).then_some(responses)
+    }
+
+    /// The response of global sensor `sensor` from the last
+    /// [`update`](Self::update), or `None` if its layer is down (or there is
+    /// no such sensor).
+    pub fn response(&self, sensor: usize) -> Option<u16> {
+        if sensor >= *self.starts.last()? {
+            return None;
+        }
+        let layer = self.layer_of(sensor);
+        self.layer_responses(layer)?.get(sensor - self.starts[layer]).copied()
     }
 }

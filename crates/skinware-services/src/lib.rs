@@ -130,7 +130,8 @@ pub fn run_contact_service(
         let now = skinware::os::monotonic_ns();
         let dt_s = previous.map_or(0.0, |p| (now.saturating_sub(p)) as f32 * 1e-9);
         previous = Some(now);
-        detector.update(geometry, &inputs.responses, &inputs.layer_ok, &inputs.layer_fresh, dt_s, records);
+        let layer_responses = |layer| inputs.layer_responses(layer);
+        detector.update_layers(geometry, layer_responses, &inputs.layer_ok, &inputs.layer_fresh, dt_s, records);
         let status = if all_up { FrameStatus::OK } else { FrameStatus::INPUT_FAULTED };
         taxels.publish(detector.taxel_states(), status)?;
         Ok(StepOutcome { status, acquired_ns: (inputs.acquired_ns > 0).then_some(inputs.acquired_ns) })

@@ -59,6 +59,9 @@ const MAX_READ_ATTEMPTS: u32 = 1000;
 pub struct Reader {
     shared: Arc<Shared>,
     buffer: Vec<u64>,
+    /// The frame whose whole, checked copy `buffer` holds, if it holds one:
+    /// a failed read may leave it half-copied.
+    copied: Option<Meta>,
     last: Meta,
     stats: ReaderStats,
     stop: Stop,
@@ -143,6 +146,7 @@ impl Reader {
         Ok(Reader {
             shared,
             buffer: vec![0; words],
+            copied: None,
             last: Meta::default(),
             stats: ReaderStats::default(),
             stop,
@@ -196,6 +200,7 @@ impl Reader {
         tracing::info!(channel = %replacement.label, "following the re-created channel");
         self.shared = replacement;
         self.last = Meta::default();
+        self.copied = None;
         self.follows += 1;
         true
     }
@@ -310,7 +315,9 @@ impl Reader {
     /// On request: the newest complete frame, now. Lock-free; never blocks.
     pub fn latest(&mut self) -> Result<Frame<'_>> {
         let started = os::monotonic_ns();
-        match self.shared.ring().read_latest(&mut self.buffer, MAX_READ_ATTEMPTS) {
+        let read = self.shared.ring().read_latest(&mut self.buffer, MAX_READ_ATTEMPTS);
+        self.copied = read.as_ref().ok().map(|(meta, _)| *meta);
+        match read {
             Ok((meta, retries)) => {
                 // Sequence numbers only go backwards if the channel's memory
                 // was written by someone other than its writer: start counting
@@ -344,9 +351,23 @@ impl Reader {
     /// when the frame is gone (or was never published). It does not change
     /// which frame the other reads count as this reader's newest.
     pub fn read_seq(&mut self, seq: u64) -> Option<Frame<'_>> {
-        let meta = self.shared.ring().read_seq(seq, &mut self.buffer)?;
+        self.copied = self.shared.ring().read_seq(seq, &mut self.buffer);
+        let meta = self.copied?;
         let bytes: &[u8] = bytemuck::cast_slice(&self.buffer);
         Some(Frame { meta, skipped: 0, fresh: true, payload: &bytes[..self.payload_bytes()] })
+    }
+
+    /// The frame this reader copied last, again, from its own copy (the
+    /// channel is not touched): for a caller that reads several channels
+    /// first and then looks at each one's frame, without copying it again.
+    /// `None` before the first frame, and after a read that failed (which may
+    /// have left the copy incomplete) or a [`follow_recreated`](Self::follow_recreated)
+    /// that switched channels. It was obtained before: [`Frame::is_fresh`]
+    /// is false and [`Frame::skipped`] 0.
+    pub fn last_frame(&self) -> Option<Frame<'_>> {
+        let meta = self.copied?;
+        let bytes: &[u8] = bytemuck::cast_slice(&self.buffer);
+        Some(Frame { meta, skipped: 0, fresh: false, payload: &bytes[..self.payload_bytes()] })
     }
 
     fn frame(&self, skipped: u64, fresh: bool) -> Frame<'_> {

@@ -40,6 +40,27 @@ fn latest_returns_newest_with_metadata_and_skips() {
 }
 
 #[test]
+fn the_last_frame_copied_is_there_again_until_a_read_fails() {
+    let dir = SegmentDir::new("last-frame");
+    let mut writer = Writer::create("skin", "layer", 16, b"", &dir.writer()).unwrap();
+    let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+    assert!(reader.last_frame().is_none(), "nothing copied yet");
+    publish(&mut writer, 7);
+    let seq = reader.latest().unwrap().seq();
+    publish(&mut writer, 8);
+    let again = reader.last_frame().expect("the frame read before");
+    assert_eq!((again.seq(), again.is_fresh(), again.skipped()), (seq, false, 0));
+    assert_eq!(again.responses(), &[7; 8], "the copy, not the channel's newer frame");
+    for value in 9..30 {
+        publish(&mut writer, value);
+    }
+    assert!(reader.read_seq(1).is_none(), "frame 1 was overwritten long ago");
+    assert!(reader.last_frame().is_none(), "a failed read leaves no frame to look at again");
+    let newest = reader.latest().unwrap().seq();
+    assert_eq!(reader.last_frame().map(|f| f.seq()), Some(newest));
+}
+
+#[test]
 fn responses_written_one_by_one_or_from_any_offset_read_back_in_order() {
     // 75 responses: more than one 16-word block of the wide copy, an odd
     // count, so every path (wide blocks, whole words, partial words) is used.
