@@ -27,6 +27,10 @@ pub fn run(config_path: &Path, name: &str) -> Result<()> {
         });
     }
     let options = WriterOptions { access: config.access(), ..WriterOptions::default() };
+    // The service runs in this thread; its writers' ringers copy its priority.
+    for refusal in service.rt_options().apply() {
+        tracing::warn!(service = name, "{refusal}");
+    }
     tracing::info!(service = name, kind = ?service.kind, pid = std::process::id(), "service starting");
     match service.kind {
         ServiceKind::Contact => {

@@ -3,7 +3,7 @@
 use anyhow::{Result, bail};
 use serde::Deserialize;
 
-use super::process::RestartConfig;
+use super::process::{RestartConfig, RtConfig};
 
 /// The kinds of service.
 #[derive(Debug, Deserialize, Clone, Copy, PartialEq, Eq)]
@@ -40,6 +40,11 @@ pub struct ServiceConfig {
     /// How its process is restarted (`[service.restart]`).
     #[serde(default)]
     pub restart: RestartConfig,
+    /// Real-time settings of its thread (`[service.rt]`, as drivers'): a
+    /// service at 1 kHz beside real-time writers needs a priority of its own,
+    /// or any normal thread can hold it past its period.
+    #[serde(default)]
+    pub rt: RtConfig,
 }
 
 impl ServiceConfig {
@@ -49,6 +54,11 @@ impl ServiceConfig {
             Some(hz) => skinware_services::framework::ServiceMode::Periodic { hz },
             None => skinware_services::framework::ServiceMode::Sporadic,
         }
+    }
+
+    /// The library's form of its real-time settings.
+    pub fn rt_options(&self) -> skinware::RtOptions {
+        self.rt.options()
     }
 
     /// The contact service's settings.

@@ -70,6 +70,17 @@ fn services_are_checked() {
     let ok = with("[[service]]\nname = \"contact\"\nkind = \"contact\"\nrate_hz = 50\n[[service]]\nname = \"motion\"\nkind = \"motion\"\n").unwrap();
     assert_eq!(ok.services.len(), 2);
     assert_eq!(ok.services[1].mode(), skinware_services::framework::ServiceMode::Sporadic);
+    assert_eq!(ok.services[0].rt_options().fifo_priority, None, "the normal scheduler unless asked");
+    let rt = with(
+        "[[service]]\nname = \"c\"\nkind = \"contact\"\nrate_hz = 1000\n[service.rt]\nfifo_priority = 60\ncpus = [1]\n",
+    )
+    .unwrap();
+    assert_eq!((rt.services[0].rt_options().fifo_priority, rt.services[0].rt_options().cpus), (Some(60), vec![1]));
+    let err = format!(
+        "{:#}",
+        with("[[service]]\nname = \"c\"\nkind = \"contact\"\n[service.rt]\npriority = 60\n").unwrap_err()
+    );
+    assert!(err.contains("unknown field `priority`"), "{err}");
     let err = format!("{:#}", with("[[service]]\nname = \"m\"\nkind = \"motion\"\nrate_hz = 50\n").unwrap_err());
     assert!(err.contains("service \"m\"") && err.contains("input \"contact\" is not a contact service"), "{err}");
     let err = format!("{:#}", with("[[service]]\nname = \"c\"\nkind = \"contact\"\nmin_speed = 1\n").unwrap_err());
