@@ -147,8 +147,9 @@ pub struct ContactDetector {
     params: ContactParams,
     /// Region names (the geometry's, or one `skin` region for the whole skin).
     names: Vec<String>,
-    /// Each sensor's regions, compressed rows.
-    member_offsets: Vec<u32>,
+    /// What the contacts need of each taxel, in one record per taxel.
+    sites: Vec<Site>,
+    /// Each taxel's regions: `member_regions[site.regions[0]..site.regions[1]]`.
     member_regions: Vec<u32>,
     /// Each region's layers.
     region_layers: Vec<Vec<usize>>,
@@ -188,12 +189,22 @@ impl ContactDetector {
                 per_sensor[s as usize].push(r as u32);
             }
         }
-        let mut member_offsets = vec![0u32];
         let mut member_regions = Vec::new();
-        for regions in &per_sensor {
-            member_regions.extend_from_slice(regions);
-            member_offsets.push(member_regions.len() as u32);
-        }
+        let sites = per_sensor
+            .iter()
+            .enumerate()
+            .map(|(i, regions)| {
+                let first = member_regions.len() as u32;
+                member_regions.extend_from_slice(regions);
+                Site {
+                    position: geometry.positions.get(i).copied().unwrap_or_default(),
+                    normal: geometry.normals.get(i).copied().unwrap_or_default(),
+                    map: geometry.map.positions.get(i).copied().unwrap_or_default(),
+                    radius: geometry.radii.get(i).copied().unwrap_or_default(),
+                    regions: [first, member_regions.len() as u32],
+                }
+            })
+            .collect();
         let layer_ranges: Vec<Range<usize>> =
             (0..geometry.layers.len()).map(|l| geometry.layer_starts[l]..geometry.layer_starts[l + 1]).collect();
         let mut layer_of = vec![0usize; n];
@@ -214,7 +225,7 @@ impl ContactDetector {
         ContactDetector {
             params,
             names,
-            member_offsets,
+            sites,
             member_regions,
             region_layers,
             layer_initialized: vec![false; layer_ranges.len()],
@@ -335,31 +346,26 @@ impl ContactDetector {
                 continue;
             }
             self.collect_component(geometry, start);
-            self.accumulate_component(geometry, layer_responses);
+            self.accumulate_component(layer_responses);
         }
     }
 
     /// Reads, once, the memory that the search and the accumulation will
-    /// read for each touched taxel: its place, normal, radius, map position,
-    /// regions and neighbours. Between two frames of a running service these
-    /// lines leave the caches (other threads, other processes, and on a VM
-    /// the hypervisor), and the search reads them in a dependent order (each
-    /// taxel found leads to its neighbours): one cache miss after another,
-    /// about 30 µs per frame for 200 touched taxels of the paper's skin,
-    /// against 5 µs with the lines cached. Here each taxel's loads are
-    /// independent of the others', so the CPU has many misses in flight at
-    /// once; the search then took about 20 µs with this included
-    /// (`skin bench contact`, 2026-11-24).
+    /// read for each touched taxel: its site and its neighbours. Between two
+    /// frames of a running service these lines leave the caches (other
+    /// threads, other processes, and on a VM the hypervisor), and the search
+    /// reads them in a dependent order (each taxel found leads to its
+    /// neighbours): one cache miss after another, about 30 µs per frame for
+    /// 200 touched taxels of the paper's skin, against 5 µs with the lines
+    /// cached. Here each taxel's loads are independent of the others', so the
+    /// CPU has many misses in flight at once.
     fn load_contact_data(&self, geometry: &SkinGeometry) {
         let mut bits = 0u32;
         for &i in &self.touched {
             let i = i as usize;
-            let first_region = self.member_offsets[i] as usize;
-            bits ^= geometry.positions[i][0].to_bits()
-                ^ geometry.normals[i][0].to_bits()
-                ^ geometry.radii[i].to_bits()
-                ^ geometry.map.positions[i][0].to_bits()
-                ^ self.member_regions.get(first_region).copied().unwrap_or(0)
+            let site = &self.sites[i];
+            bits ^= site.position[0].to_bits()
+                ^ self.member_regions.get(site.regions[0] as usize).copied().unwrap_or(0)
                 ^ geometry.neighbours_of(i).first().copied().unwrap_or(0);
         }
         std::hint::black_box(bits);
@@ -404,12 +410,17 @@ impl ContactDetector {
         }
     }
 
+    /// The regions of taxel `i`.
+    fn regions_of(&self, i: usize) -> &[u32] {
+        let [first, end] = self.sites[i].regions;
+        &self.member_regions[first as usize..end as usize]
+    }
+
     /// Adds the dead and stuck taxels to the counts of their regions' records.
     fn count_dead_and_stuck(&self, out: &mut [RegionContacts]) {
         for &i in &self.dead_or_stuck {
             let i = i as usize;
-            let regions = &self.member_regions[self.member_offsets[i] as usize..self.member_offsets[i + 1] as usize];
-            for &r in regions {
+            for &r in self.regions_of(i) {
                 let Some(record) = out.get_mut(r as usize) else { continue };
                 if self.states[i] == TaxelState::DEAD {
                     record.dead += 1;
@@ -421,11 +432,7 @@ impl ContactDetector {
     }
 
     /// Splits the component in `queue` by region and adds one contact to each.
-    fn accumulate_component<'r>(
-        &mut self,
-        geometry: &SkinGeometry,
-        layer_responses: &impl Fn(usize) -> Option<&'r [u16]>,
-    ) {
+    fn accumulate_component<'r>(&mut self, layer_responses: &impl Fn(usize) -> Option<&'r [u16]>) {
         self.touched_regions.clear();
         // A touched taxel's baseline was not moved by this frame, so its
         // residual is recomputed here rather than stored for every taxel.
@@ -441,10 +448,12 @@ impl ContactDetector {
             let i = i as usize;
             let residual = residual(i);
             let w = f64::from(residual.max(0.0));
-            let position = geometry.positions[i].map(f64::from);
-            let normal = geometry.normals[i].map(f64::from);
-            let radius = f64::from(geometry.radii[i]);
-            for &r in &self.member_regions[self.member_offsets[i] as usize..self.member_offsets[i + 1] as usize] {
+            let site = &self.sites[i];
+            let position = site.position.map(f64::from);
+            let normal = site.normal.map(f64::from);
+            let radius = f64::from(site.radius);
+            let [first, end] = site.regions;
+            for &r in &self.member_regions[first as usize..end as usize] {
                 let a = &mut self.accumulators[r as usize];
                 if a.taxels == 0 {
                     self.touched_regions.push(r);
@@ -467,14 +476,16 @@ impl ContactDetector {
         for &i in &self.queue {
             let i = i as usize;
             let w = f64::from(residual(i).max(0.0));
-            let m = geometry.map.positions[i];
-            for &r in &self.member_regions[self.member_offsets[i] as usize..self.member_offsets[i + 1] as usize] {
+            let site = &self.sites[i];
+            let m = site.map;
+            let [first, end] = site.regions;
+            for &r in &self.member_regions[first as usize..end as usize] {
                 let a = &mut self.accumulators[r as usize];
                 let peak = a.peak_sensor as usize;
-                let pm = geometry.map.positions[peak];
+                let pm = self.sites[peak].map;
                 let map_step = ((m[0] - pm[0]).powi(2) + (m[1] - pm[1]).powi(2)).sqrt();
-                let p = geometry.positions[i];
-                let pp = geometry.positions[peak];
+                let p = site.position;
+                let pp = self.sites[peak].position;
                 let step = ((p[0] - pp[0]).powi(2) + (p[1] - pp[1]).powi(2) + (p[2] - pp[2]).powi(2)).sqrt();
                 if map_step <= 2.0 * step + 1e-3 {
                     a.map[0] += w * f64::from(m[0]);
@@ -500,6 +511,20 @@ impl ContactDetector {
             });
         }
     }
+}
+
+/// What contact accumulation needs of one taxel, from the geometry, in one
+/// place: a touched taxel costs one or two cache lines rather than one in each
+/// of the geometry's arrays.
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C, align(16))]
+struct Site {
+    position: [f32; 3],
+    normal: [f32; 3],
+    map: [f32; 2],
+    radius: f32,
+    /// Its regions' range in `member_regions`.
+    regions: [u32; 2],
 }
 
 fn is_set(bits: &[u64], i: usize) -> bool {

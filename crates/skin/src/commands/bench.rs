@@ -41,8 +41,23 @@ pub struct Common {
     #[arg(long, default_value = "target/bench")]
     pub out: PathBuf,
     /// Seconds per configuration (and round; overrides the default of --quick or the full run).
-    #[arg(long)]
+    #[arg(long, value_parser = parse_bench_seconds)]
     pub seconds: Option<f64>,
+}
+
+/// The longest `--seconds` a bench accepts: a day per configuration.
+const MAX_BENCH_SECONDS: f64 = 86_400.0;
+
+/// `--seconds`: a positive, finite number of seconds up to a day, refused
+/// here rather than as a panic deep in a bench (`1e20` seconds is no
+/// `Duration` at all).
+fn parse_bench_seconds(text: &str) -> Result<f64, String> {
+    let seconds: f64 = text.trim().parse().map_err(|_| format!("{text:?} is not a number of seconds"))?;
+    if seconds.is_finite() && seconds > 0.0 && seconds <= MAX_BENCH_SECONDS {
+        Ok(seconds)
+    } else {
+        Err(format!("{text} seconds: give more than 0 and at most {MAX_BENCH_SECONDS} (a day)"))
+    }
 }
 
 /// Options of `skin bench paper`.
@@ -89,7 +104,7 @@ pub struct AppArgs {
     layers: Vec<String>,
     #[arg(long, default_value = "periodic")]
     mode: String,
-    #[arg(long)]
+    #[arg(long, value_parser = parse_bench_seconds)]
     seconds: f64,
     #[arg(long)]
     seed: u64,
@@ -224,7 +239,7 @@ fn enter_own_network_namespace() -> Result<()> {
 pub struct EcatReaderArgs {
     #[arg(long)]
     dir: PathBuf,
-    #[arg(long)]
+    #[arg(long, value_parser = parse_bench_seconds)]
     seconds: f64,
     #[arg(long)]
     out: PathBuf,
@@ -246,7 +261,7 @@ pub struct PeerReaderArgs {
     system: String,
     #[arg(long)]
     name: String,
-    #[arg(long)]
+    #[arg(long, value_parser = parse_bench_seconds)]
     seconds: f64,
     #[arg(long, default_value = "wait")]
     mode: String,
@@ -275,4 +290,19 @@ pub fn app(args: &AppArgs) -> Result<()> {
         seed: args.seed,
         out: args.out.clone(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bench_seconds_are_a_positive_number_up_to_a_day() {
+        assert_eq!(parse_bench_seconds("2.5"), Ok(2.5));
+        assert_eq!(parse_bench_seconds("86400"), Ok(86_400.0));
+        for bad in ["0", "-1", "1e20", "inf", "NaN", "ten"] {
+            let error = parse_bench_seconds(bad).unwrap_err();
+            assert!(error.contains(bad) || error.contains("not a number"), "{bad}: {error}");
+        }
+    }
 }
