@@ -145,6 +145,8 @@ need(khz.get("viewer_cpu_ratio_10_to_1", 0) > 0, "kilohertz.json: viewer CPU rat
 contact = json.loads((out / "contact.json").read_text())
 need(contact.get("taxels") == 30848 and contact.get("detector_ns", {}).get("samples", 0) > 0, "contact.json: detector incomplete")
 need(contact.get("service_frames", 0) > 0 and contact.get("service_ns_mean", 0) > 0, "contact.json: service incomplete")
+khz = contact.get("service_at_1khz", {})
+need(khz.get("rate_hz") == 1000 and khz.get("frames", 0) > 0 and khz.get("ns_mean", 0) > 0, "contact.json: service at 1 kHz incomplete")
 
 if problems:
     print("benchmark JSON problems:\n  " + "\n  ".join(problems))

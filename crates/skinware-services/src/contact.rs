@@ -162,6 +162,8 @@ pub struct ContactDetector {
     /// The touched taxels of the last frame, in global order: where the
     /// component search starts, so that it does not scan the whole skin.
     touched: Vec<u32>,
+    /// Each touched taxel's response above its baseline, as `touched`.
+    touched_residuals: Vec<f32>,
     /// The dead and stuck taxels of the last frame, for the regions' counts.
     dead_or_stuck: Vec<u32>,
     /// One bit per taxel: already in a component this frame. A bit set
@@ -233,6 +235,7 @@ impl ContactDetector {
             tracks,
             states: vec![TaxelState::IDLE; n],
             touched: Vec::new(),
+            touched_residuals: Vec::new(),
             dead_or_stuck: Vec::new(),
             visited: vec![0; n.div_ceil(64)],
             queue: Vec::new(),
@@ -286,7 +289,7 @@ impl ContactDetector {
         out: &mut [RegionContacts],
     ) {
         self.classify_taxels(&layer_responses, layer_ok, layer_fresh, dt_s);
-        self.find_contacts(geometry, &layer_responses);
+        self.find_contacts(geometry);
         self.write_region_records(layer_ok, out);
         self.count_dead_and_stuck(out);
     }
@@ -311,6 +314,7 @@ impl ContactDetector {
             alpha,
         };
         self.touched.clear();
+        self.touched_residuals.clear();
         self.dead_or_stuck.clear();
         let covered_end = self.layer_ranges.last().map_or(0, |r| r.end);
         self.states[covered_end..].fill(TaxelState::NO_INPUT);
@@ -328,13 +332,20 @@ impl ContactDetector {
             }
             let fresh = layer_fresh.get(layer).copied().unwrap_or(false);
             self.tracks.classify(range.clone(), input, fresh, &limits, &mut self.states[range.clone()]);
+            let listed = self.touched.len();
             list_non_idle(&self.states[range.clone()], range.start, &mut self.touched, &mut self.dead_or_stuck);
+            // A touched taxel's baseline was not moved by this frame: its
+            // residual now is the one it was classified with.
+            let tracks = &self.tracks;
+            self.touched_residuals.extend(
+                self.touched[listed..].iter().map(|&i| tracks.residual(i as usize, input[i as usize - range.start])),
+            );
         }
     }
 
     /// Groups the touched taxels into connected components on the neighbour
     /// graph and adds each, split by region, to `found`.
-    fn find_contacts<'r>(&mut self, geometry: &SkinGeometry, layer_responses: &impl Fn(usize) -> Option<&'r [u16]>) {
+    fn find_contacts(&mut self, geometry: &SkinGeometry) {
         for found in &mut self.found {
             found.clear();
         }
@@ -346,7 +357,7 @@ impl ContactDetector {
                 continue;
             }
             self.collect_component(geometry, start);
-            self.accumulate_component(layer_responses);
+            self.accumulate_component();
         }
     }
 
@@ -432,18 +443,12 @@ impl ContactDetector {
     }
 
     /// Splits the component in `queue` by region and adds one contact to each.
-    fn accumulate_component<'r>(&mut self, layer_responses: &impl Fn(usize) -> Option<&'r [u16]>) {
+    fn accumulate_component(&mut self) {
         self.touched_regions.clear();
-        // A touched taxel's baseline was not moved by this frame, so its
-        // residual is recomputed here rather than stored for every taxel.
-        // Its layer had input, or it would not be touched.
-        let ranges = &self.layer_ranges;
-        let response = |i: usize| {
-            let layer = ranges.partition_point(|range| range.end <= i);
-            let start = ranges.get(layer)?.start;
-            layer_responses(layer)?.get(i - start).copied()
-        };
-        let residual = |i: usize| response(i).map_or(0.0, |r| self.tracks.residual(i, r));
+        // `touched` is in ascending order, and every taxel of the component is in it.
+        let (touched, residuals) = (&self.touched, &self.touched_residuals);
+        let residual =
+            |i: usize| touched.binary_search(&(i as u32)).ok().and_then(|k| residuals.get(k)).copied().unwrap_or(0.0);
         for &i in &self.queue {
             let i = i as usize;
             let residual = residual(i);
