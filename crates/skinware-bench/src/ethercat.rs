@@ -104,7 +104,13 @@ pub fn run_latency_reader(args: &LatencyReaderArgs) -> Result<()> {
     };
     let deadline = Instant::now() + Duration::from_secs_f64(args.seconds);
     while Instant::now() < deadline {
-        let Ok(frame) = reader.wait_newer(Duration::from_millis(100)) else { continue };
+        let frame = match reader.wait_newer(Duration::from_millis(100)) {
+            Ok(frame) => frame,
+            // The bench that runs the writer died (a signal, a crash): stop
+            // now rather than at the end of `--seconds`.
+            Err(skinware::Error::WriterGone { .. }) => bail!("the bench's EtherCAT layer is gone"),
+            Err(_) => continue,
+        };
         let copied = skinware::os::monotonic_ns();
         samples.skipped += frame.skipped();
         let stamped = stamp_of(frame.responses());
@@ -271,8 +277,8 @@ pub fn run(options: &EthercatOptions) -> Result<EthercatReport> {
     let stamps = Arc::new(Stamps::default());
     let bus = EmulatedBus::start(stamped_segment(stamps.clone())?, Some(PEER_PRIORITY))?;
 
-    let dir = PathBuf::from("/dev/shm").join(format!("skinware-bench-ecat-{}", std::process::id()));
-    std::fs::create_dir_all(&dir)?;
+    let channels = ChannelDir::create(format!("skinware-bench-ecat-{}", std::process::id()))?;
+    let dir = channels.0.clone();
     let driver = netns::driver("skin", 1, TAXELS, RATE_HZ, rt)?;
     let status = driver.status_handle();
     let frame_timeout_ms = (2.0 / RATE_HZ * 1e3).max(10.0);
@@ -286,6 +292,9 @@ pub fn run(options: &EthercatOptions) -> Result<EthercatReport> {
     let mut watcher = open()?;
     let result = (|| -> Result<EthercatReport> {
         if !netns::wait_until(Duration::from_secs(10), || watcher.writer_state() == WriterState::Running) {
+            if bus.ended() {
+                bail!("the emulated EtherCAT segment stopped before the layer ran");
+            }
             bail!(
                 "the EtherCAT layer was not running 10 s after start: bus {:?}, segments {:?}",
                 status.bus_fault(),
@@ -355,14 +364,37 @@ pub fn run(options: &EthercatOptions) -> Result<EthercatReport> {
     })();
     handler.stop();
     let served = bus.stop();
-    let _ = std::fs::remove_dir_all(&dir);
-    let report = result?;
-    let served = served?;
+    drop(channels);
+    // The emulator's own failure is the cause of whatever the bench saw.
+    let (report, served) = match (result, served) {
+        (Ok(report), Ok(served)) => (report, served),
+        (Err(seen), Err(emulator)) => return Err(emulator.context(format!("{seen:#}"))),
+        (Err(seen), Ok(_)) => return Err(seen),
+        (Ok(_), Err(emulator)) => return Err(emulator),
+    };
     print(&report, served.frames, served.answered);
     let json = options.out.join("ethercat.json");
     std::fs::write(&json, serde_json::to_vec_pretty(&report)?)?;
     println!("wrote {}", json.display());
     Ok(report)
+}
+
+/// The bench's own directory of channels, under the segments' directory
+/// (`$SKINWARE_SHM_DIR` or `/dev/shm`), removed however the bench ends.
+struct ChannelDir(PathBuf);
+
+impl ChannelDir {
+    fn create(name: String) -> Result<ChannelDir> {
+        let dir = skinware::shm::segment_dir().join(name);
+        std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        Ok(ChannelDir(dir))
+    }
+}
+
+impl Drop for ChannelDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
 }
 
 /// The cycles from the SubDevice's times of filling its inputs.
@@ -397,10 +429,19 @@ struct Fault {
     /// The fault ends once detected: the SubDevice left OP on its own, and
     /// it is the driver that brings it back.
     ends_at_detection: bool,
-    /// Held until the bus as a whole counts as down (then 100 ms more),
-    /// rather than 200 ms from throwing it.
+    /// Held until the bus as a whole counts as down (then
+    /// [`BUS_FAULT_TAIL`] more), rather than 200 ms from throwing it.
     until_bus_down: bool,
+    /// Thrown by starting a process (`ip`): detection is timed from its
+    /// return, not from its start.
+    thrown_by_a_process: bool,
 }
+
+/// How long a bus fault is held after the bus counts as down: well before
+/// the driver's first reconnect (100 ms after it saw the bus down), so that
+/// the reconnect finds the fault over. Ending it at the same moment as the
+/// reconnect made the recovery depend on which came first.
+const BUS_FAULT_TAIL: Duration = Duration::from_millis(30);
 
 const FAULTS: [Fault; 6] = [
     Fault {
@@ -416,6 +457,7 @@ const FAULTS: [Fault; 6] = [
         },
         ends_at_detection: false,
         until_bus_down: false,
+        thrown_by_a_process: false,
     },
     Fault {
         name: "every 2nd answer 20 ms late",
@@ -432,6 +474,7 @@ const FAULTS: [Fault; 6] = [
         },
         ends_at_detection: false,
         until_bus_down: false,
+        thrown_by_a_process: false,
     },
     Fault {
         name: "wrong working counter",
@@ -440,6 +483,7 @@ const FAULTS: [Fault; 6] = [
         end: |bus| set_subdevice(bus, |f| f.wrong_working_counter = false),
         ends_at_detection: false,
         until_bus_down: false,
+        thrown_by_a_process: false,
     },
     Fault {
         name: "SubDevice leaves OP",
@@ -473,10 +517,11 @@ const FAULTS: [Fault; 6] = [
         end: |_| Ok(()),
         ends_at_detection: true,
         until_bus_down: false,
+        thrown_by_a_process: false,
     },
     Fault {
         name: "segment silent",
-        how: "the segment's link_down switch (no answers, carrier up) until the bus counts as down, +100 ms",
+        how: "the segment's link_down switch (no answers, carrier up) until the bus counts as down, +30 ms",
         throw: |bus| {
             bus.lock().faults_mut().link_down = true;
             Ok(())
@@ -487,16 +532,30 @@ const FAULTS: [Fault; 6] = [
         },
         ends_at_detection: false,
         until_bus_down: true,
+        thrown_by_a_process: false,
     },
     Fault {
         name: "cable pull",
-        how: "`ip link set ecat-emu down` until the bus counts as down, +100 ms, then `up`",
-        throw: |_| netns::ip(&["link", "set", netns::SEGMENT_END, "down"]),
-        end: |_| netns::ip(&["link", "set", netns::SEGMENT_END, "up"]),
+        how: "`ip link set ecat-emu down` (started in the normal scheduler) until the bus counts as down, +30 ms, \
+              then `up`",
+        throw: |_| ip_in_normal_scheduler(&["link", "set", netns::SEGMENT_END, "down"]),
+        end: |_| ip_in_normal_scheduler(&["link", "set", netns::SEGMENT_END, "up"]),
         ends_at_detection: false,
         until_bus_down: true,
+        thrown_by_a_process: true,
     },
 ];
+
+/// Runs `ip` from a thread in the normal scheduler: the bench's thread is at
+/// SCHED_FIFO 90 here, which `ip` would inherit and run ahead of the driver.
+fn ip_in_normal_scheduler(args: &'static [&'static str]) -> Result<()> {
+    std::thread::spawn(move || {
+        let _ = skinware::os::set_normal_scheduling();
+        netns::ip(args)
+    })
+    .join()
+    .map_err(|_| anyhow::anyhow!("the thread running `ip` panicked"))?
+}
 
 fn set_subdevice(bus: &EmulatedBus, set: impl FnOnce(&mut skinware_emulate::ethercat::SubDeviceFaults)) -> Result<()> {
     let mut segment = bus.lock();
@@ -553,8 +612,11 @@ fn measure_fault(
         if bus.ended() {
             bail!("the emulated segment stopped");
         }
-        let thrown = Instant::now();
+        let mut thrown = Instant::now();
         (fault.throw)(bus)?;
+        if fault.thrown_by_a_process {
+            thrown = Instant::now();
+        }
         let detected =
             netns::wait_until_fine(Duration::from_secs(5), || watcher.writer_state() == WriterState::Faulted);
         match detected {
@@ -568,15 +630,20 @@ fn measure_fault(
         } else {
             if fault.until_bus_down {
                 netns::wait_until(Duration::from_secs(5), || status.bus_fault().is_some());
-                std::thread::sleep(Duration::from_millis(100));
+                std::thread::sleep(BUS_FAULT_TAIL);
             } else {
                 std::thread::sleep(Duration::from_millis(200).saturating_sub(thrown.elapsed()));
             }
             (fault.end)(bus)?;
             Instant::now()
         };
+        // A fault the driver never saw has nothing to recover from: its
+        // "recovery" would be the time to the next stable stretch.
         match stably_running(watcher, Duration::from_secs(20)) {
-            Some(running) => report.recover_ms.push(running.saturating_duration_since(ended_at).as_secs_f64() * 1e3),
+            Some(running) if detected => {
+                report.recover_ms.push(running.saturating_duration_since(ended_at).as_secs_f64() * 1e3)
+            }
+            Some(_) => {}
             None => report.unrecovered += 1,
         }
     }

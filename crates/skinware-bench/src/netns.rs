@@ -10,7 +10,6 @@
 //! [`INSIDE`]. The namespace, and the veth pair in it, disappear with the
 //! last process in it: nothing is left behind, however the bench ends.
 
-use std::path::PathBuf;
 use std::process::Command;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -195,7 +194,7 @@ pub fn wait_until_fine(within: Duration, mut ready: impl FnMut() -> bool) -> boo
 pub fn remove_channels_of_this_process() {
     let pid = std::process::id();
     let dir = skinware::shm::segment_dir();
-    let _ = std::fs::remove_dir_all(PathBuf::from("/dev/shm").join(format!("skinware-bench-ecat-{pid}")));
+    let _ = std::fs::remove_dir_all(dir.join(format!("skinware-bench-ecat-{pid}")));
     let table1 = format!("table1-{pid}.");
     if let Ok(entries) = std::fs::read_dir(&dir) {
         for entry in entries.flatten() {

@@ -121,7 +121,7 @@ pub fn run(options: &PythonBenchOptions) -> Result<PythonReport> {
         bail!("--seconds must be a positive number of seconds");
     }
     let frames = (seconds * RATE_HZ) as usize;
-    let dir = PathBuf::from("/dev/shm").join(format!("skinware-bench-python-{}", std::process::id()));
+    let dir = skinware::shm::segment_dir().join(format!("skinware-bench-python-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir)?;
     let result = start_skin(options, &dir).and_then(|_skin| measure(&dir, reads, frames, options));

@@ -102,7 +102,7 @@ pub fn run(options: &RecordBenchOptions) -> Result<RecordReport> {
         bail!("--seconds must be a positive number of seconds");
     }
     std::fs::create_dir_all(&options.out).with_context(|| format!("cannot create {}", options.out.display()))?;
-    let dir = PathBuf::from("/dev/shm").join(format!("skinware-bench-record-{}", std::process::id()));
+    let dir = skinware::shm::segment_dir().join(format!("skinware-bench-record-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir)?;
     let result = measure(options, seconds, &dir);
