@@ -180,6 +180,15 @@ impl ContactDetector {
     /// the whole skin as one region `skin` when the geometry has none).
     pub fn new(geometry: &SkinGeometry, params: ContactParams) -> ContactDetector {
         let n = geometry.sensor_count();
+        // A built or decoded geometry has one of each per sensor; a missing
+        // one would read as zeros below (a contact at the map's origin).
+        debug_assert!(
+            geometry.positions.len() == n
+                && geometry.normals.len() == n
+                && geometry.radii.len() == n
+                && geometry.map.positions.len() == n,
+            "a geometry whose per-sensor arrays are not all {n} long"
+        );
         let (names, sets): (Vec<String>, Vec<Vec<u32>>) = if geometry.regions.names.is_empty() {
             (vec!["skin".to_owned()], vec![(0..n as u32).collect()])
         } else {
@@ -447,8 +456,11 @@ impl ContactDetector {
         self.touched_regions.clear();
         // `touched` is in ascending order, and every taxel of the component is in it.
         let (touched, residuals) = (&self.touched, &self.touched_residuals);
-        let residual =
-            |i: usize| touched.binary_search(&(i as u32)).ok().and_then(|k| residuals.get(k)).copied().unwrap_or(0.0);
+        let residual = |i: usize| {
+            let found = touched.binary_search(&(i as u32)).ok().and_then(|k| residuals.get(k)).copied();
+            debug_assert!(found.is_some(), "taxel {i} is in a component but not in the touched list");
+            found.unwrap_or(0.0)
+        };
         for &i in &self.queue {
             let i = i as usize;
             let residual = residual(i);
@@ -560,6 +572,68 @@ mod tests {
             calibration.insert("strip", uid, place).unwrap();
         }
         SkinGeometry::build("s", &[builder.build().unwrap()], &calibration, &[]).unwrap()
+    }
+
+    /// Three layers of 12 taxels in a row: `a` and `b` on the palm, `c` on
+    /// the finger but its last four on the wrist; regions `hand` (palm and
+    /// finger) and `palm` overlap, and the wrist's taxels are in neither.
+    fn three_layers() -> SkinGeometry {
+        let mut calibration = Calibration::new();
+        let mut topologies = Vec::new();
+        for (l, name) in ["a", "b", "c"].into_iter().enumerate() {
+            let mut builder = TopologyBuilder::new(name, "pressure", 1.0);
+            builder.patch(1).module(1, 1..=12);
+            topologies.push(builder.build().unwrap());
+            for uid in 1..=12u32 {
+                let link = match (name, uid) {
+                    ("c", 9..) => "wrist",
+                    ("c", _) => "finger",
+                    _ => "palm",
+                };
+                let place = SensorCalibration {
+                    position: [(l as f64 * 12.0 + f64::from(uid)) * 0.005, 0.0, 0.0],
+                    normal: [0.0, 0.0, 1.0],
+                    radius: 0.002,
+                    link: link.into(),
+                };
+                calibration.insert(name, uid, place).unwrap();
+            }
+        }
+        let region = |name: &str, links: &[&str]| skinware_geometry::RegionSpec {
+            name: name.into(),
+            selectors: links.iter().map(|l| skinware_geometry::Selector::Link((*l).into())).collect(),
+        };
+        let regions = [region("hand", &["palm", "finger"]), region("palm", &["palm"])];
+        SkinGeometry::build("s", &topologies, &calibration, &regions).unwrap()
+    }
+
+    #[test]
+    fn layers_given_apart_detect_what_one_array_does() {
+        let geometry = three_layers();
+        let mut whole = ContactDetector::new(&geometry, ContactParams::default());
+        let mut apart = ContactDetector::new(&geometry, ContactParams::default());
+        let regions = whole.region_names().len();
+        let (mut out_whole, mut out_apart) =
+            (vec![RegionContacts::default(); regions], vec![RegionContacts::default(); regions]);
+        let ok = [true, false, true];
+        for frame in 0..60u16 {
+            let mut responses: Vec<u16> = (0..36u16).map(|i| 1000 + (i * 7 + frame * 3) % 11).collect();
+            if frame >= 40 {
+                // Pressed: the end of `a` and across `c` into the wrist.
+                for i in [9, 10, 11, 26, 27, 28, 32, 33, 34] {
+                    responses[i] = 9000;
+                }
+            }
+            let fresh = [true, frame % 2 == 0, true];
+            whole.update(&geometry, &responses, &ok, &fresh, 0.02, &mut out_whole);
+            let layer = |l: usize| responses.get(geometry.layer_starts[l]..geometry.layer_starts[l + 1]);
+            apart.update_layers(&geometry, layer, &ok, &fresh, 0.02, &mut out_apart);
+            assert_eq!(out_whole, out_apart, "frame {frame}");
+            assert_eq!(whole.taxel_states(), apart.taxel_states(), "frame {frame}");
+        }
+        assert!(out_whole[0].count >= 2, "the presses are found: {:?}", out_whole[0]);
+        assert_ne!(out_whole[0].flags & contact_flags::INPUT_FAULTED, 0, "layer b is down");
+        assert!(whole.taxel_states()[12..24].iter().all(|s| *s == TaxelState::NO_INPUT));
     }
 
     #[test]

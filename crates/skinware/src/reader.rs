@@ -349,7 +349,8 @@ impl Reader {
     /// writer comes back to their buffers (K-1 frames after each), and this
     /// copies one of them. Wait-free, like [`latest`](Self::latest); `None`
     /// when the frame is gone (or was never published). It does not change
-    /// which frame the other reads count as this reader's newest.
+    /// which frame the other reads count as this reader's newest, but it is
+    /// what [`last_frame`](Self::last_frame) shows next (nothing, if it failed).
     pub fn read_seq(&mut self, seq: u64) -> Option<Frame<'_>> {
         self.copied = self.shared.ring().read_seq(seq, &mut self.buffer);
         let meta = self.copied?;

@@ -259,42 +259,79 @@ mod tests {
     fn snapshot(tracks: &TaxelTracks, states: &[TaxelState]) -> Vec<u32> {
         let mut bits: Vec<u32> = tracks.baseline.iter().chain(&tracks.variance).map(|v| v.to_bits()).collect();
         bits.extend(tracks.last.iter().map(|&r| u32::from(r)));
-        if let RunLengths::Byte { unchanged, saturated } = &tracks.runs {
-            bits.extend(unchanged.iter().chain(saturated).map(|&c| u32::from(c)));
+        match &tracks.runs {
+            RunLengths::Byte { unchanged, saturated } => {
+                bits.extend(unchanged.iter().chain(saturated).map(|&c| u32::from(c)))
+            }
+            RunLengths::Short { unchanged, saturated } => {
+                bits.extend(unchanged.iter().chain(saturated).map(|&c| u32::from(c)))
+            }
+            RunLengths::Word { unchanged, saturated } => bits.extend(unchanged.iter().chain(saturated)),
         }
         bits.extend(states.iter().map(|s| u32::from(s.0)));
         bits
     }
 
+    /// Whether this CPU has what pulp's AVX2 level (`pulp::x86::V3`) needs.
+    fn has_x86_64_v3() -> bool {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::is_x86_feature_detected as has;
+            has!("sse4.2")
+                && has!("popcnt")
+                && has!("avx")
+                && has!("avx2")
+                && has!("fma")
+                && has!("bmi1")
+                && has!("bmi2")
+                && has!("lzcnt")
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        false
+    }
+
+    #[test]
+    fn the_widest_instruction_set_is_chosen_where_the_cpu_has_it() {
+        let tracks = TaxelTracks::new(1, 100, 50);
+        if has_x86_64_v3() {
+            assert!(matches!(tracks.arch, pulp::Arch::V3(_)), "AVX2 CPU, but {:?} chosen", tracks.arch);
+        } else {
+            eprintln!("skipped: this CPU has no AVX2 (x86-64-v3), so only the baseline loop runs here");
+        }
+    }
+
     proptest! {
         /// The loop compiled for the widest vectors this CPU has (AVX2 where
         /// there is one) and the baseline one give the same bits, frame after
-        /// frame: the detector's outputs do not depend on the machine.
+        /// frame: the detector's outputs do not depend on the machine. Up to
+        /// 300 taxels (several passes of the vector loop and a remainder), and
+        /// thresholds that pick each width of run-length counter.
         #[test]
         fn every_instruction_set_classifies_to_the_same_bits(
+            taxels in 1usize..300,
             frames in proptest::collection::vec(
-                (proptest::collection::vec(prop_oneof![0u16..2000, 64_990u16..=u16::MAX, Just(1000u16)], 37), any::<bool>()),
-                1..40,
+                (proptest::collection::vec(prop_oneof![0u16..2000, 64_990u16..=u16::MAX, Just(1000u16)], 300), any::<bool>()),
+                1..30,
             ),
+            (dead_frames, stuck_frames) in prop_oneof![Just((5u32, 3u32)), Just((300, 3)), Just((70_000, 3))],
         ) {
             let limits = Limits {
                 threshold_sigma: 6.0,
                 min_threshold: 60.0,
                 saturation: 65_000,
-                stuck_frames: 3,
-                dead_frames: 5,
+                stuck_frames,
+                dead_frames,
                 alpha: 0.05,
             };
-            let n = frames[0].0.len();
-            let mut widest = TaxelTracks::new(n, limits.dead_frames, limits.stuck_frames);
-            let mut baseline_isa = TaxelTracks::new(n, limits.dead_frames, limits.stuck_frames);
+            let mut widest = TaxelTracks::new(taxels, dead_frames, stuck_frames);
+            let mut baseline_isa = TaxelTracks::new(taxels, dead_frames, stuck_frames);
             baseline_isa.arch = pulp::Arch::Scalar;
-            widest.initialize(0..n, &frames[0].0);
-            baseline_isa.initialize(0..n, &frames[0].0);
-            let (mut states_a, mut states_b) = (vec![TaxelState::IDLE; n], vec![TaxelState::IDLE; n]);
+            widest.initialize(0..taxels, &frames[0].0[..taxels]);
+            baseline_isa.initialize(0..taxels, &frames[0].0[..taxels]);
+            let (mut states_a, mut states_b) = (vec![TaxelState::IDLE; taxels], vec![TaxelState::IDLE; taxels]);
             for (responses, fresh) in &frames {
-                widest.classify(0..n, responses, *fresh, &limits, &mut states_a);
-                baseline_isa.classify(0..n, responses, *fresh, &limits, &mut states_b);
+                widest.classify(0..taxels, &responses[..taxels], *fresh, &limits, &mut states_a);
+                baseline_isa.classify(0..taxels, &responses[..taxels], *fresh, &limits, &mut states_b);
                 prop_assert_eq!(snapshot(&widest, &states_a), snapshot(&baseline_isa, &states_b));
             }
         }
