@@ -92,6 +92,10 @@ pub struct KilohertzArgs {
     /// Measure the viewer of another `skin` build (for a before/after).
     #[arg(long, hide = true)]
     viewer_exe: Option<PathBuf>,
+    /// Run only this part (`viewer`: the viewer alone with 1, 10 and 9 + 1
+    /// slow browsers, written to `kilohertz-viewer.json`).
+    #[arg(long)]
+    only: Option<super::kilohertz::Part>,
 }
 
 /// Options of `skin bench table1`.
@@ -202,8 +206,8 @@ pub fn run(which: &Which) -> Result<()> {
             };
             skinware_bench::record::run(&options).map(|_| ())
         }
-        Which::Kilohertz(KilohertzArgs { common, viewer_exe }) => {
-            super::kilohertz::bench(common, viewer_exe.as_deref())
+        Which::Kilohertz(KilohertzArgs { common, viewer_exe, only }) => {
+            super::kilohertz::bench(common, viewer_exe.as_deref(), *only)
         }
         Which::Bridge(common) => super::bridge_bench::bench(common),
         Which::Contact(common) => {

@@ -100,8 +100,16 @@ struct KilohertzReport {
     viewer_cpu_ratio_10_to_1: f64,
 }
 
-/// Runs `skin bench kilohertz`; `viewer_exe` measures another build's viewer.
-pub fn bench(common: &Common, viewer_exe: Option<&Path>) -> Result<()> {
+/// A part of the bench that runs alone.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Part {
+    /// The viewer alone with 1, 10 and 9 + 1 slow browsers (no control or loaded run).
+    Viewer,
+}
+
+/// Runs `skin bench kilohertz`; `viewer_exe` measures another build's viewer;
+/// `only` runs one part (into a JSON file of its own, whose `phases` are empty).
+pub fn bench(common: &Common, viewer_exe: Option<&Path>, only: Option<Part>) -> Result<()> {
     let seconds = common.seconds.unwrap_or(if common.quick { 3.0 } else { 15.0 });
     if !(seconds.is_finite() && seconds > 0.0) {
         bail!("--seconds must be a positive number of seconds");
@@ -112,32 +120,38 @@ pub fn bench(common: &Common, viewer_exe: Option<&Path>) -> Result<()> {
     let dir = PathBuf::from("/dev/shm").join(format!("skinware-bench-khz-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir)?;
-    let result = measure(&exe, &viewer_exe, &dir, seconds, &common.out);
+    let result = measure(&exe, &viewer_exe, &dir, seconds, &common.out, only);
     let _ = std::fs::remove_dir_all(&dir);
     let report = result?;
     print(&report);
-    let path = common.out.join("kilohertz.json");
+    let path = common.out.join(if only == Some(Part::Viewer) { "kilohertz-viewer.json" } else { "kilohertz.json" });
     std::fs::write(&path, serde_json::to_vec_pretty(&report)?)?;
     println!("written: {}", path.display());
     Ok(())
 }
 
-fn measure(exe: &Path, viewer_exe: &Path, dir: &Path, seconds: f64, out: &Path) -> Result<KilohertzReport> {
-    let control = run_phase(exe, viewer_exe, dir, seconds, false, out)?;
-    let loaded = run_phase(exe, viewer_exe, dir, seconds, true, out)?;
+fn measure(
+    exe: &Path,
+    viewer_exe: &Path,
+    dir: &Path,
+    seconds: f64,
+    out: &Path,
+    only: Option<Part>,
+) -> Result<KilohertzReport> {
+    let phases = match only {
+        Some(Part::Viewer) => Vec::new(),
+        None => vec![
+            run_phase(exe, viewer_exe, dir, seconds, false, out)?,
+            run_phase(exe, viewer_exe, dir, seconds, true, out)?,
+        ],
+    };
     let viewer = viewer_scaling(exe, viewer_exe, dir, seconds)?;
     let cpu = |n: usize| {
         let run = viewer.iter().find(|run| run.browsers == n && !run.with_slow_browser);
         run.map_or(0.0, |run| run.viewer_cpu_percent)
     };
     let ratio = cpu(10) / cpu(1).max(1e-9);
-    Ok(KilohertzReport {
-        rate_hz: 1000.0,
-        taxels: 30_848,
-        phases: vec![control, loaded],
-        viewer,
-        viewer_cpu_ratio_10_to_1: ratio,
-    })
+    Ok(KilohertzReport { rate_hz: 1000.0, taxels: 30_848, phases, viewer, viewer_cpu_ratio_10_to_1: ratio })
 }
 
 /// The paper's skin at 1 kHz; with its services (also at 1 kHz) or none.

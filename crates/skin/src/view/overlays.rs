@@ -3,6 +3,8 @@
 
 #![forbid(unsafe_code)]
 
+use std::path::PathBuf;
+use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use skinware::{ChannelKind, ReaderOptions, WriterState};
@@ -63,6 +65,7 @@ const DISCOVERY_PERIOD: Duration = Duration::from_secs(1);
 /// services, found by their schemas, whatever they are called.
 pub struct OverlaySource {
     skin: String,
+    dir: Option<PathBuf>,
     contacts: Vec<(String, ServiceReader<RegionContacts>)>,
     motions: Vec<(String, ServiceReader<MotionRecord>)>,
     next_discovery: Instant,
@@ -79,10 +82,12 @@ impl std::fmt::Debug for OverlaySource {
 }
 
 impl OverlaySource {
-    /// The overlay source of `skin`'s services.
-    pub fn new(skin: &str) -> OverlaySource {
+    /// The overlay source of `skin`'s services (in segment directory `dir`,
+    /// or the default).
+    pub fn new(skin: &str, dir: Option<PathBuf>) -> OverlaySource {
         OverlaySource {
             skin: skin.to_owned(),
+            dir,
             contacts: Vec::new(),
             motions: Vec::new(),
             next_discovery: Instant::now(),
@@ -91,10 +96,11 @@ impl OverlaySource {
 
     /// Attaches to services that appeared since the last look.
     fn discover(&mut self) {
-        let Ok(channels) = skinware::list_channels(&skinware::shm::segment_dir()) else {
+        let dir = self.dir.clone().unwrap_or_else(skinware::shm::segment_dir);
+        let Ok(channels) = skinware::list_channels(&dir) else {
             return;
         };
-        let options = ReaderOptions { allow_gone: true, ..ReaderOptions::default() };
+        let options = ReaderOptions { allow_gone: true, dir: self.dir.clone(), ..ReaderOptions::default() };
         for channel in channels.iter().filter(|c| c.skin == self.skin && c.kind == Some(ChannelKind::Service)) {
             let name = &channel.channel;
             if self.contacts.iter().any(|(n, _)| n == name) || self.motions.iter().any(|(n, _)| n == name) {
@@ -149,5 +155,25 @@ impl OverlaySource {
             }
         }
         overlays
+    }
+}
+
+/// One overlay source for every browser: the services are searched for and
+/// attached once, not once per browser (a search opens every segment of the
+/// directory), and each update still polls them for the newest overlays.
+#[derive(Debug)]
+pub struct SharedOverlays(Mutex<OverlaySource>);
+
+impl SharedOverlays {
+    /// The shared overlay source of `skin`'s services (in segment directory
+    /// `dir`, or the default).
+    pub fn new(skin: &str, dir: Option<PathBuf>) -> SharedOverlays {
+        SharedOverlays(Mutex::new(OverlaySource::new(skin, dir)))
+    }
+
+    /// The newest overlays ([`OverlaySource::poll`]).
+    pub fn poll(&self) -> Overlays {
+        // A session that panicked while polling left the readers usable.
+        self.0.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).poll()
     }
 }

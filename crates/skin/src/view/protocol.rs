@@ -51,16 +51,18 @@ pub fn state_code(state: WriterState) -> u8 {
 
 /// One layer in an update: its newest state as sampled, and whether its
 /// responses go along (only when they changed since the last update sent).
-#[derive(Clone, Copy, Debug)]
-pub struct LayerUpdate<'a> {
-    /// The layer's slot on the board.
-    pub slot: &'a LayerSlot,
+/// A session keeps one per layer and refreshes it in place for each update.
+#[derive(Clone, Debug)]
+pub struct LayerUpdate {
+    /// The layer's slot as taken from the board (its responses shared with it).
+    pub slot: LayerSlot,
     /// Send its responses.
     pub with_responses: bool,
 }
 
-impl<'a> LayerUpdate<'a> {
-    fn responses(&self) -> Option<&'a [u16]> {
+impl LayerUpdate {
+    /// The responses this update carries of this layer, if any.
+    pub fn responses(&self) -> Option<&[u16]> {
         self.with_responses.then_some(self.slot.responses.as_slice())
     }
 }
@@ -117,18 +119,22 @@ pub fn encode_geometry(geometry: &SkinGeometry) -> Vec<u8> {
     out
 }
 
-/// Encodes one update into `out` (cleared first).
-pub fn encode_update(out: &mut Vec<u8>, number: u32, mode: ReadMode, layers: &[LayerUpdate<'_>], overlays: &Overlays) {
+/// Bytes of a whole update whose head (from [`encode_update_head`]) is
+/// `head_bytes` long.
+pub fn update_bytes(head_bytes: usize, layers: &[LayerUpdate]) -> usize {
+    head_bytes + layers.iter().filter_map(LayerUpdate::responses).map(|responses| 2 * responses.len()).sum::<usize>()
+}
+
+/// Encodes into `out` (cleared first) everything of an update that precedes
+/// the responses: the header, the layer records and the overlays. The
+/// responses of the layers sent `with_responses` follow it, in layer order,
+/// each as [`responses_le`]; the head's length is a multiple of 4, so that
+/// they start aligned.
+pub fn encode_update_head(out: &mut Vec<u8>, number: u32, mode: ReadMode, layers: &[LayerUpdate], overlays: &Overlays) {
     out.clear();
     let arrows = overlays.arrows.len().min(usize::from(u16::MAX));
     let markers = overlays.markers.len().min(usize::from(u16::MAX));
-    let responses: usize = layers.iter().filter_map(LayerUpdate::responses).map(<[u16]>::len).sum();
-    out.reserve(
-        UPDATE_HEADER_BYTES
-            + layers.len() * LAYER_RECORD_BYTES
-            + (arrows + markers) * OVERLAY_RECORD_BYTES
-            + 2 * responses,
-    );
+    out.reserve(UPDATE_HEADER_BYTES + layers.len() * LAYER_RECORD_BYTES + (arrows + markers) * OVERLAY_RECORD_BYTES);
     out.push(KIND_UPDATE);
     out.push(mode_code(mode));
     out.extend_from_slice(&(layers.len().min(usize::from(u16::MAX)) as u16).to_le_bytes());
@@ -138,7 +144,7 @@ pub fn encode_update(out: &mut Vec<u8>, number: u32, mode: ReadMode, layers: &[L
     out.extend_from_slice(&[0; 4]);
     for layer in layers.iter().take(usize::from(u16::MAX)) {
         let mut flags = 0;
-        let slot = layer.slot;
+        let slot = &layer.slot;
         if layer.with_responses {
             flags |= FLAG_RESPONSES;
         }
@@ -161,18 +167,18 @@ pub fn encode_update(out: &mut Vec<u8>, number: u32, mode: ReadMode, layers: &[L
             out.extend_from_slice(&value.to_le_bytes());
         }
     }
-    for responses in layers.iter().filter_map(LayerUpdate::responses) {
-        extend_le(out, responses);
-    }
 }
 
-/// Appends `values` little-endian: one copy on a little-endian machine (an
-/// update carries up to 61,696 bytes of them, for every browser).
-fn extend_le(out: &mut Vec<u8>, values: &[u16]) {
+/// `values` as they go on the wire (little-endian): on a little-endian
+/// machine the values themselves, not a copy (an update carries up to 61,696
+/// bytes of them, for every browser); elsewhere converted into `scratch`.
+pub fn responses_le<'a>(values: &'a [u16], scratch: &'a mut Vec<u8>) -> &'a [u8] {
     if cfg!(target_endian = "little") {
-        out.extend_from_slice(bytemuck::cast_slice(values));
+        bytemuck::cast_slice(values)
     } else {
-        out.extend(values.iter().flat_map(|value| value.to_le_bytes()));
+        scratch.clear();
+        scratch.extend(values.iter().flat_map(|value| value.to_le_bytes()));
+        scratch
     }
 }
 
@@ -205,20 +211,28 @@ mod tests {
             latency_ms,
             seq,
             fault_frame,
-            responses: responses.to_vec(),
+            responses: std::sync::Arc::new(responses.to_vec()),
         };
         let slots = [
             slot(WriterState::Running, 41.5, 40.0, 0.25, 77, false, &[10, 20, 30]),
             slot(WriterState::Faulted, 0.0, 0.0, 0.0, 5, true, &[9, 9]),
             slot(WriterState::Gone, 0.0, 0.0, 0.0, 0, false, &[65535, 1]),
         ];
+        let [first, second, third] = slots;
         let layers = [
-            LayerUpdate { slot: &slots[0], with_responses: true },
-            LayerUpdate { slot: &slots[1], with_responses: false },
-            LayerUpdate { slot: &slots[2], with_responses: true },
+            LayerUpdate { slot: first, with_responses: true },
+            LayerUpdate { slot: second, with_responses: false },
+            LayerUpdate { slot: third, with_responses: true },
         ];
+        // What the session sends: the head, then each layer's responses.
         let mut out = vec![0xAA; 3];
-        encode_update(&mut out, 9, ReadMode::Periodic { rate_hz: 30.0 }, &layers, &overlays);
+        encode_update_head(&mut out, 9, ReadMode::Periodic { rate_hz: 30.0 }, &layers, &overlays);
+        let head_bytes = out.len();
+        let mut scratch = Vec::new();
+        for responses in layers.iter().filter_map(LayerUpdate::responses) {
+            out.extend_from_slice(responses_le(responses, &mut scratch));
+        }
+        assert_eq!(update_bytes(head_bytes, &layers), out.len());
         let overlays_at = UPDATE_HEADER_BYTES + 3 * LAYER_RECORD_BYTES;
         let responses_at = overlays_at + 3 * OVERLAY_RECORD_BYTES;
         assert_eq!(out.len(), responses_at + 2 * 5, "only the responses of changed layers are sent");

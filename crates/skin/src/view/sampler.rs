@@ -20,8 +20,9 @@ const STATE_POLL: Duration = Duration::from_millis(100);
 /// Window over which rates are measured.
 const RATE_WINDOW: Duration = Duration::from_millis(500);
 
-/// The newest of one layer, as read.
-#[derive(Debug)]
+/// The newest of one layer, as read. Cloning it is cheap: the responses are
+/// shared, not copied.
+#[derive(Clone, Debug)]
 pub struct LayerSlot {
     /// The writer's state when last looked at.
     pub state: WriterState,
@@ -35,8 +36,28 @@ pub struct LayerSlot {
     pub seq: u64,
     /// Whether that frame carries the fault status.
     pub fault_frame: bool,
-    /// Its responses.
-    pub responses: Vec<u16>,
+    /// Its responses, shared with the browsers' sessions that are sending
+    /// them, so that each sends them straight from here: the layer's reader
+    /// writes in place when no session holds them, and into a new buffer
+    /// when one does (the session keeps what it took).
+    pub responses: Arc<Vec<u16>>,
+}
+
+impl LayerSlot {
+    /// Stores `responses` (up to the slot's length; sensors beyond a shorter
+    /// frame keep their last value), without touching any session's copy.
+    fn store_responses(&mut self, responses: &[u16]) {
+        let n = responses.len().min(self.responses.len());
+        match Arc::get_mut(&mut self.responses) {
+            Some(own) => own[..n].copy_from_slice(&responses[..n]),
+            None => {
+                let mut fresh = Vec::with_capacity(self.responses.len());
+                fresh.extend_from_slice(&responses[..n]);
+                fresh.extend_from_slice(&self.responses[n..]);
+                self.responses = Arc::new(fresh);
+            }
+        }
+    }
 }
 
 /// The newest frame of every layer, and a version that changes with anything in it.
@@ -142,7 +163,7 @@ impl Sampler {
                 latency_ms: 0.0,
                 seq: 0,
                 fault_frame: false,
-                responses: vec![0; layer.sensors],
+                responses: Arc::new(vec![0; layer.sensors]),
             })
             .collect();
         let shared = Arc::new(Shared {
@@ -268,13 +289,14 @@ impl LayerJob {
                     let mut board = lock(&self.shared);
                     let slot = &mut board.layers[self.index];
                     if slot.seq != frame.seq() {
-                        let responses = frame.responses();
-                        let n = responses.len().min(slot.responses.len());
-                        slot.responses[..n].copy_from_slice(&responses[..n]);
+                        slot.store_responses(frame.responses());
                         slot.seq = frame.seq();
                         slot.fault_frame = frame.status().is_fault();
                         slot.latency_ms = frame.published_ns().saturating_sub(frame.acquired_ns()) as f32 / 1e6;
                         board.version += 1;
+                        // Outside the lock, so that the woken sessions do
+                        // not wait for it (nor the other layers' readers).
+                        drop(board);
                         self.shared.changed.notify_all();
                     }
                 }
@@ -336,6 +358,7 @@ impl LayerJob {
         }
         if changed {
             board.version += 1;
+            drop(board);
             self.shared.changed.notify_all();
         }
     }
@@ -367,5 +390,35 @@ mod tests {
         assert_eq!(samplers.running(), 1, "the second browser still holds the shared sampler");
         drop(second);
         assert_eq!(samplers.running(), 0);
+    }
+
+    /// Sessions that take the same board share its responses (the same
+    /// bytes, not copies); a frame stored while a session holds them goes
+    /// into a new buffer and leaves the session's as it took it; once no
+    /// session holds them, frames are written in place again.
+    #[test]
+    fn sessions_share_responses_and_keep_what_they_took() {
+        let mut slot = LayerSlot {
+            state: WriterState::Running,
+            writer_rate_hz: 0.0,
+            read_rate_hz: 0.0,
+            latency_ms: 0.0,
+            seq: 1,
+            fault_frame: false,
+            responses: Arc::new(vec![0; 4]),
+        };
+        slot.store_responses(&[1, 2, 3, 4]);
+        let first_session = slot.clone();
+        let second_session = slot.clone();
+        assert!(Arc::ptr_eq(&first_session.responses, &second_session.responses), "one buffer for both");
+        slot.store_responses(&[5, 6]);
+        assert_eq!(*first_session.responses, [1, 2, 3, 4], "a session keeps what it took");
+        assert_eq!(*slot.responses, [5, 6, 3, 4], "a shorter frame leaves the other sensors as they were");
+        assert!(!Arc::ptr_eq(&slot.responses, &first_session.responses));
+        drop((first_session, second_session));
+        let buffer = Arc::as_ptr(&slot.responses);
+        slot.store_responses(&[7, 8, 9, 10, 11]);
+        assert_eq!(Arc::as_ptr(&slot.responses), buffer, "written in place when no session holds it");
+        assert_eq!(*slot.responses, [7, 8, 9, 10], "a longer frame is cut to the layer's sensors");
     }
 }

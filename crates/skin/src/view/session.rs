@@ -6,6 +6,7 @@
 
 #![forbid(unsafe_code)]
 
+use std::io::IoSlice;
 use std::net::TcpStream;
 use std::ops::ControlFlow;
 use std::path::PathBuf;
@@ -18,7 +19,7 @@ use skin::viewer_message::{self, ClientMessage, ReadMode};
 use skinware_geometry::SkinGeometry;
 use tungstenite::{Message, WebSocket};
 
-use super::overlays::OverlaySource;
+use super::overlays::SharedOverlays;
 use super::protocol::{self, LayerUpdate};
 use super::sampler::{LayerToRead, Sampler, Samplers};
 
@@ -45,6 +46,9 @@ const INTERVALS_KEPT: usize = 16;
 struct Pacing {
     last_ack: Option<Instant>,
     intervals: std::collections::VecDeque<Duration>,
+    /// The median of `intervals`, computed when one arrives (the loop asks
+    /// for it several times per update); `None` before the first.
+    median_interval: Option<Duration>,
     sent_since_ack: u32,
     last_sent: Option<Instant>,
 }
@@ -53,9 +57,7 @@ impl Pacing {
     /// The median recent acknowledgement interval: two acknowledgements
     /// read together (this thread was busy) must not make it look short.
     fn frame_interval(&self) -> Duration {
-        let mut intervals: Vec<Duration> = self.intervals.iter().copied().collect();
-        intervals.sort_unstable();
-        intervals.get(intervals.len() / 2).copied().unwrap_or(DISPLAY_INTERVAL)
+        self.median_interval.unwrap_or(DISPLAY_INTERVAL)
     }
 
     fn acknowledged(&mut self, now: Instant) {
@@ -65,6 +67,13 @@ impl Pacing {
             }
             self.intervals
                 .push_back(now.duration_since(previous).clamp(Duration::from_millis(2), Duration::from_secs(2)));
+            let mut sorted = [Duration::ZERO; INTERVALS_KEPT];
+            let sorted = &mut sorted[..self.intervals.len()];
+            for (into, interval) in sorted.iter_mut().zip(&self.intervals) {
+                *into = *interval;
+            }
+            sorted.sort_unstable();
+            self.median_interval = Some(sorted[sorted.len() / 2]);
         }
         self.sent_since_ack = 0;
     }
@@ -140,13 +149,16 @@ pub struct Site {
     pub shutdown: Arc<AtomicBool>,
     /// The layer readers, shared by the browsers reading in the same mode.
     pub samplers: Arc<Samplers>,
+    /// The services' overlays, shared by every browser.
+    pub overlays: Arc<SharedOverlays>,
 }
 
 impl Site {
     /// The site of `skin` (segments in `dir`, or the default directory).
     pub fn new(skin: &str, dir: Option<PathBuf>, shutdown: Arc<AtomicBool>) -> Site {
         let samplers = Arc::new(Samplers::new(skin, dir.clone()));
-        Site { skin: skin.to_owned(), dir, shutdown, samplers }
+        let overlays = Arc::new(SharedOverlays::new(skin, dir.clone()));
+        Site { skin: skin.to_owned(), dir, shutdown, samplers, overlays }
     }
 }
 
@@ -213,7 +225,6 @@ struct Session<'a> {
     layers: Vec<LayerToRead>,
     mode: ReadMode,
     sampler: Arc<Sampler>,
-    overlays: OverlaySource,
     /// Updates the browser will still accept before it acknowledges more.
     credit: u32,
     /// The board version of the last update sent.
@@ -222,8 +233,14 @@ struct Session<'a> {
     sent_seq: Vec<u64>,
     /// Updates sent so far: the number of the next one.
     updates_sent: u32,
-    /// The update being encoded, reused between updates.
-    message: Vec<u8>,
+    /// The update being sent: per layer, the slot taken from the board
+    /// (whose responses it shares) and whether its responses go along;
+    /// emptied once sent, so that the layers' readers write in place again.
+    update: Vec<LayerUpdate>,
+    /// The head of the update being sent, reused between updates.
+    head: Vec<u8>,
+    /// Responses converted to little-endian, on a big-endian machine only.
+    scratch: Vec<Vec<u8>>,
     /// The read timeout the socket has now, to set it only when it changes.
     poll: Option<Duration>,
     /// When its next update is due.
@@ -239,34 +256,37 @@ impl<'a> Session<'a> {
             site,
             mode,
             sampler,
-            overlays: OverlaySource::new(&site.skin),
             credit: 0,
             seen_version: 0,
             sent_seq: vec![0u64; layers.len()],
             updates_sent: 0,
-            message: Vec::new(),
+            update: Vec::with_capacity(layers.len()),
+            head: Vec::new(),
+            scratch: vec![Vec::new(); layers.len()],
             poll: None,
             pacing: Pacing::default(),
             layers,
         })
     }
 
-    /// Everything the browser said since the last update: waiting for it
-    /// (at most [`IDLE_POLL`]) only while there is no credit, and never once
-    /// it has spoken. With credit the board, not the browser, is what we wait
-    /// for: a read that slept would cost a wake-up per update, which at
-    /// 1 kHz is most of what a browser costs. Breaks when the browser left.
+    /// What the browser said since the last update: waiting for it (at most
+    /// [`IDLE_POLL`]) only while there is no credit, and never once it has
+    /// spoken. With credit the board, not the browser, is what we wait for:
+    /// a read that slept would cost a wake-up per update, which at 1 kHz is
+    /// most of what a browser costs. A wait ends with the first message
+    /// (the next call reads what followed it, without waiting), so that an
+    /// acknowledgement costs no read that finds nothing. Breaks when the
+    /// browser left.
     fn read_browser(&mut self) -> Result<ControlFlow<()>> {
         // One timeout for every wait, so that it is set once: an update due
         // without an acknowledgement may go up to IDLE_POLL late.
-        let mut wait = self.credit == 0 || self.pacing.until_due(Instant::now()).is_some();
+        let wait = self.credit == 0 || self.pacing.until_due(Instant::now()).is_some();
         if wait && self.poll != Some(IDLE_POLL) {
             self.socket.get_mut().stream.set_read_timeout(Some(IDLE_POLL))?;
             self.poll = Some(IDLE_POLL);
         }
+        self.socket.get_mut().wait_for_reads = wait;
         loop {
-            self.socket.get_mut().wait_for_reads = wait;
-            wait = false;
             match self.socket.read() {
                 Ok(Message::Text(text)) => match viewer_message::decode(text.as_str()) {
                     Ok(message) => self.obey(message)?,
@@ -277,6 +297,9 @@ impl<'a> Session<'a> {
                 Err(e) if is_timeout(&e) => return Ok(ControlFlow::Continue(())),
                 Err(e) if is_closed(&e) => return Ok(ControlFlow::Break(())),
                 Err(e) => return Err(e.into()),
+            }
+            if wait {
+                return Ok(ControlFlow::Continue(()));
             }
         }
     }
@@ -310,41 +333,147 @@ impl<'a> Session<'a> {
     /// (waiting up to [`IDLE_POLL`] for a change). Breaks when the browser left.
     fn send_update(&mut self) -> Result<ControlFlow<()>> {
         // Outside the board's lock: it may search the segment directory.
-        let newest_overlays = self.overlays.poll();
-        let (sent_seq, message, updates_sent, mode) =
-            (&mut self.sent_seq, &mut self.message, self.updates_sent, self.mode);
+        let newest_overlays = self.site.overlays.poll();
+        let (update, sent_seq) = (&mut self.update, &mut self.sent_seq);
+        // Under the board's lock only long enough to share each layer's
+        // responses: the encoding and the write happen after.
         let taken = self.sampler.take_newer(self.seen_version, IDLE_POLL, |board| {
-            let updates: Vec<LayerUpdate<'_>> = board
-                .layers
-                .iter()
-                .zip(sent_seq)
-                .map(|(slot, sent)| {
-                    let changed = slot.seq != 0 && slot.seq != *sent;
-                    *sent = slot.seq;
-                    LayerUpdate { slot, with_responses: changed }
-                })
-                .collect();
-            protocol::encode_update(message, updates_sent, mode, &updates, &newest_overlays);
+            update.clear();
+            update.extend(board.layers.iter().zip(sent_seq).map(|(slot, sent)| {
+                let with_responses = slot.seq != 0 && slot.seq != *sent;
+                *sent = slot.seq;
+                LayerUpdate { slot: slot.clone(), with_responses }
+            }));
             board.version
         });
-        if let Some(version) = taken {
-            self.pacing.sent(Instant::now());
-            self.seen_version = version;
-            self.updates_sent = self.updates_sent.wrapping_add(1);
-            self.credit -= 1;
-            match self.socket.send(Message::binary(std::mem::take(&mut self.message))) {
-                Ok(()) => {}
-                Err(e) if is_closed(&e) => return Ok(ControlFlow::Break(())),
-                Err(e) => return Err(e.into()),
+        let Some(version) = taken else {
+            return Ok(ControlFlow::Continue(()));
+        };
+        self.pacing.sent(Instant::now());
+        self.seen_version = version;
+        protocol::encode_update_head(&mut self.head, self.updates_sent, self.mode, &self.update, &newest_overlays);
+        self.updates_sent = self.updates_sent.wrapping_add(1);
+        self.credit -= 1;
+        let length = protocol::update_bytes(self.head.len(), &self.update);
+        let header = WebSocketHeader::binary(length);
+        let mut parts = Vec::with_capacity(2 + self.update.len());
+        parts.push(IoSlice::new(header.bytes()));
+        parts.push(IoSlice::new(&self.head));
+        for (layer, scratch) in self.update.iter().zip(&mut self.scratch) {
+            if let Some(responses) = layer.responses() {
+                parts.push(IoSlice::new(protocol::responses_le(responses, scratch)));
             }
         }
-        Ok(ControlFlow::Continue(()))
+        let sent = send_message(&mut self.socket, &mut parts);
+        drop(parts);
+        self.update.clear();
+        match sent {
+            Ok(()) => Ok(ControlFlow::Continue(())),
+            Err(e) if is_closed(&e) => Ok(ControlFlow::Break(())),
+            Err(e) => Err(e.into()),
+        }
     }
+}
+
+/// The header of one unmasked, unfragmented WebSocket message (RFC 6455,
+/// 5.2), as a server sends it.
+struct WebSocketHeader {
+    bytes: [u8; 10],
+    len: usize,
+}
+
+impl WebSocketHeader {
+    /// The header of a binary message of `payload` bytes.
+    fn binary(payload: usize) -> WebSocketHeader {
+        const FIN_BINARY: u8 = 0x82;
+        let mut bytes = [0; 10];
+        bytes[0] = FIN_BINARY;
+        let len = match payload {
+            0..=125 => {
+                bytes[1] = payload as u8;
+                2
+            }
+            126..=0xFFFF => {
+                bytes[1] = 126;
+                bytes[2..4].copy_from_slice(&(payload as u16).to_be_bytes());
+                4
+            }
+            _ => {
+                bytes[1] = 127;
+                bytes[2..10].copy_from_slice(&(payload as u64).to_be_bytes());
+                10
+            }
+        };
+        WebSocketHeader { bytes, len }
+    }
+
+    fn bytes(&self) -> &[u8] {
+        &self.bytes[..self.len]
+    }
+}
+
+/// Writes one WebSocket message, its header first, from where its parts
+/// are: tungstenite's `send` would copy a 62 KB update into its own buffer
+/// first, for every browser. What tungstenite has queued (a pong, a close)
+/// goes before it.
+fn send_message(socket: &mut WebSocket<BrowserStream>, parts: &mut [IoSlice<'_>]) -> tungstenite::Result<()> {
+    if !socket.can_write() {
+        return Err(tungstenite::Error::AlreadyClosed);
+    }
+    socket.flush()?;
+    let stream = &socket.get_mut().stream;
+    let mut parts = parts;
+    while !parts.is_empty() {
+        // NOSIGNAL: a browser that left is an error here, not a SIGPIPE.
+        match rustix::net::sendmsg(
+            stream,
+            parts,
+            &mut rustix::net::SendAncillaryBuffer::default(),
+            rustix::net::SendFlags::NOSIGNAL,
+        ) {
+            Ok(0) => return Err(tungstenite::Error::Io(std::io::ErrorKind::WriteZero.into())),
+            Ok(written) => IoSlice::advance_slices(&mut parts, written),
+            Err(rustix::io::Errno::INTR) => {}
+            Err(e) => return Err(tungstenite::Error::Io(e.into())),
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A message written in parts, with a header of each of the three
+    /// lengths, is what a WebSocket client reads, after a pong that
+    /// tungstenite queued.
+    #[test]
+    fn messages_written_in_parts_are_what_a_client_reads() {
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let client = TcpStream::connect(listener.local_addr().unwrap()).unwrap();
+        let (server, _) = listener.accept().unwrap();
+        let mut server =
+            WebSocket::from_raw_socket(BrowserStream::new(server), tungstenite::protocol::Role::Server, None);
+        let mut client = WebSocket::from_raw_socket(client, tungstenite::protocol::Role::Client, None);
+        client.send(Message::Ping(vec![7u8].into())).unwrap();
+        assert!(matches!(server.read().unwrap(), Message::Ping(_)));
+        let payload: Vec<u8> = (0..70_000u32).map(|i| (i * 31 % 251) as u8).collect();
+        for length in [3, 125, 126, 200, 65_535, 65_536, 70_000] {
+            let message = &payload[..length];
+            let (first, rest) = message.split_at(length / 3);
+            let (second, third) = rest.split_at(rest.len() / 2);
+            let header = WebSocketHeader::binary(length);
+            let mut parts = [header.bytes(), first, second, third].map(IoSlice::new);
+            send_message(&mut server, &mut parts).unwrap();
+        }
+        assert!(matches!(client.read().unwrap(), Message::Pong(data) if data.as_ref() == [7]));
+        for length in [3, 125, 126, 200, 65_535, 65_536, 70_000] {
+            match client.read().unwrap() {
+                Message::Binary(data) => assert_eq!(data.as_ref(), &payload[..length], "{length} bytes"),
+                other => panic!("expected a binary message of {length} bytes, got {other:?}"),
+            }
+        }
+    }
 
     /// One update per acknowledgement, at once; without acknowledgements,
     /// one per frame interval, which the acknowledgements teach.
