@@ -4,7 +4,7 @@
 #![forbid(unsafe_code)]
 
 use std::path::PathBuf;
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex, TryLockError};
 use std::time::{Duration, Instant};
 
 use skinware::{ChannelKind, ReaderOptions, WriterState};
@@ -94,8 +94,13 @@ impl OverlaySource {
         }
     }
 
-    /// Attaches to services that appeared since the last look.
+    /// Attaches to services that appeared since the last look. A reader
+    /// whose writer is gone, and which no successor of the same shape took
+    /// over, is let go, so that a service restarted with another shape (other
+    /// regions, say) is attached afresh by name.
     fn discover(&mut self) {
+        self.contacts.retain(|(_, reader)| reader.writer_state() != WriterState::Gone);
+        self.motions.retain(|(_, reader)| reader.writer_state() != WriterState::Gone);
         let dir = self.dir.clone().unwrap_or_else(skinware::shm::segment_dir);
         let Ok(channels) = skinware::list_channels(&dir) else {
             return;
@@ -162,18 +167,59 @@ impl OverlaySource {
 /// attached once, not once per browser (a search opens every segment of the
 /// directory), and each update still polls them for the newest overlays.
 #[derive(Debug)]
-pub struct SharedOverlays(Mutex<OverlaySource>);
+pub struct SharedOverlays {
+    source: Mutex<OverlaySource>,
+    /// What the last poll found, for a session that finds another polling.
+    last: Mutex<Arc<Overlays>>,
+}
 
 impl SharedOverlays {
     /// The shared overlay source of `skin`'s services (in segment directory
     /// `dir`, or the default).
     pub fn new(skin: &str, dir: Option<PathBuf>) -> SharedOverlays {
-        SharedOverlays(Mutex::new(OverlaySource::new(skin, dir)))
+        SharedOverlays { source: Mutex::new(OverlaySource::new(skin, dir)), last: Mutex::default() }
     }
 
-    /// The newest overlays ([`OverlaySource::poll`]).
-    pub fn poll(&self) -> Overlays {
-        // A session that panicked while polling left the readers usable.
-        self.0.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).poll()
+    /// The newest overlays ([`OverlaySource::poll`]), or, while another
+    /// browser's session is polling, the ones it polled last: a poll may
+    /// search the segment directory or wait for a service that does not
+    /// answer, and the browsers must not queue behind each other for it.
+    pub fn poll(&self) -> Arc<Overlays> {
+        let mut source = match self.source.try_lock() {
+            Ok(source) => source,
+            // A session that panicked while polling left the readers usable.
+            Err(TryLockError::Poisoned(poisoned)) => poisoned.into_inner(),
+            Err(TryLockError::WouldBlock) => return self.last_polled(),
+        };
+        let newest = Arc::new(source.poll());
+        *self.last.lock().unwrap_or_else(|poisoned| poisoned.into_inner()) = newest.clone();
+        newest
+    }
+
+    fn last_polled(&self) -> Arc<Overlays> {
+        self.last.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).clone()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_browser_never_waits_for_another_ones_poll() {
+        let dir = std::env::temp_dir().join(format!("skinware-overlays-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let shared = SharedOverlays::new("nothing-here", Some(dir.clone()));
+        let mut found = Overlays::default();
+        found.markers.push(Marker { at: [0.1, 0.2], radius: 0.01, pressure: 3.0 });
+        *shared.last.lock().unwrap() = Arc::new(found.clone());
+        // Another session is polling (holding the source): this one gets
+        // the last overlays at once instead of queueing.
+        let polling = shared.source.lock().unwrap();
+        assert_eq!(*shared.poll(), found);
+        drop(polling);
+        // Free: it polls (no services in the directory: nothing to draw).
+        assert_eq!(*shared.poll(), Overlays::default());
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
