@@ -117,7 +117,7 @@ for key in ("rust_latest", "rust_latest_to_vec", "python_latest", "python_read_i
 need(is_count(python.get("python_newer_skipped")), "python.json: skipped frames not counted")
 
 wake = json.loads((out / "wake.json").read_text())
-need({(r.get("wake"), r.get("readers")) for r in wake.get("records", [])} == {(w, n) for w in ("writer", "ringer") for n in (0, 15)},
+need({(r.get("wake"), r.get("readers")) for r in wake.get("records", [])} == {(w, n) for w in ("writer", "ringer", "lookout") for n in (0, 15)},
      "wake.json: configurations")
 for r in wake.get("records", []):
     label = f"wake.json: {r.get('wake')}/{r.get('readers')}"

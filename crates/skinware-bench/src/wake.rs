@@ -1,6 +1,6 @@
 //! `skin bench wake`: what readers asleep on the futex cost a 1 kHz writer of
-//! the whole skin's frame, with the wake made by the writer's thread or handed
-//! to its ringer ([`skinware::ReaderWake`]).
+//! the whole skin's frame, with the wake made by the writer's thread, handed
+//! to its ringer, or left to its lookout ([`skinware::ReaderWake`]).
 //!
 //! One writer thread (SCHED_FIFO 80) publishes the 30,848-sensor frame at
 //! 1 kHz. It runs with 0 or 15 reader processes (SCHED_FIFO 70) that wait
@@ -45,7 +45,7 @@ pub struct WakeOptions {
 /// One configuration's figures, pooled over its rounds.
 #[derive(Debug, Serialize)]
 pub struct WakeRecord {
-    /// `writer` or `ringer`.
+    /// `writer`, `ringer` or `lookout`.
     pub wake: String,
     /// Reader processes asleep for every frame.
     pub readers: usize,
@@ -65,10 +65,10 @@ pub struct WakeRecord {
     pub frames_received: usize,
     /// CPU time of the writer's thread per frame, ns.
     pub writer_thread_cpu_ns: f64,
-    /// CPU time of the writer's process per frame (writer, ringer, and this
+    /// CPU time of the writer's process per frame (writer, ringer or lookout, and this
     /// bench's idle main thread), ns.
     pub writer_process_cpu_ns: f64,
-    /// Publishes whose sleepers the ringer woke.
+    /// Publishes whose sleepers the ringer or the lookout woke.
     pub woken_by_ringer: u64,
     /// Publishes whose sleepers the writer woke itself.
     pub woken_by_writer: u64,
@@ -103,8 +103,14 @@ struct Pool {
     by_writer: u64,
 }
 
-const CONFIGURATIONS: [(ReaderWake, usize); 4] =
-    [(ReaderWake::Writer, 0), (ReaderWake::Ringer, 0), (ReaderWake::Writer, READERS), (ReaderWake::Ringer, READERS)];
+const CONFIGURATIONS: [(ReaderWake, usize); 6] = [
+    (ReaderWake::Writer, 0),
+    (ReaderWake::Ringer, 0),
+    (ReaderWake::Lookout, 0),
+    (ReaderWake::Writer, READERS),
+    (ReaderWake::Ringer, READERS),
+    (ReaderWake::Lookout, READERS),
+];
 
 /// Runs the comparison, prints it and writes `wake.json`.
 pub fn run(options: &WakeOptions) -> Result<WakeReport> {
@@ -159,6 +165,7 @@ fn wake_name(wake: ReaderWake) -> &'static str {
     match wake {
         ReaderWake::Writer => "writer",
         ReaderWake::Ringer => "ringer",
+        ReaderWake::Lookout => "lookout",
     }
 }
 
@@ -290,7 +297,7 @@ fn print(report: &WakeReport) {
         );
     }
     let find = |wake: &str, readers: usize| report.records.iter().find(|r| r.wake == wake && r.readers == readers);
-    for wake in ["writer", "ringer"] {
+    for wake in ["writer", "ringer", "lookout"] {
         if let (Some(idle), Some(loaded)) = (find(wake, 0), find(wake, READERS)) {
             let ratio = |a: u64, b: u64| a as f64 / b.max(1) as f64;
             println!(
@@ -301,6 +308,18 @@ fn print(report: &WakeReport) {
                 loaded.missed_periods,
                 idle.missed_periods
             );
+        }
+    }
+    if let Some(own) = find("writer", READERS) {
+        for wake in ["ringer", "lookout"] {
+            if let Some(other) = find(wake, READERS) {
+                println!(
+                    "{wake} wake against the writer's own, reader latency p50 {:+.1} µs, p99 {:+.1} µs; process CPU per frame {:+.1} µs",
+                    (other.reader_latency_ns.p50 as f64 - own.reader_latency_ns.p50 as f64) / 1e3,
+                    (other.reader_latency_ns.p99 as f64 - own.reader_latency_ns.p99 as f64) / 1e3,
+                    (other.writer_process_cpu_ns - own.writer_process_cpu_ns) / 1e3,
+                );
+            }
         }
     }
 }

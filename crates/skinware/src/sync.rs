@@ -66,6 +66,16 @@ mod real {
                 pub(crate) fn fetch_or(&self, value: $int, order: Ordering) -> $int {
                     self.0.fetch_or(value, order)
                 }
+                #[inline(always)]
+                pub(crate) fn compare_exchange(
+                    &self,
+                    current: $int,
+                    new: $int,
+                    success: Ordering,
+                    failure: Ordering,
+                ) -> Result<$int, $int> {
+                    self.0.compare_exchange(current, new, success, failure)
+                }
                 /// The standard atomic, for system calls that take one (futexes).
                 #[inline(always)]
                 pub(crate) fn as_std(&self) -> &$std {

@@ -7,10 +7,12 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
+use crate::anticipate::{Anticipation, RecentP90};
 use crate::channel::doorbell::{self, Futex as _, WaitEnd};
 use crate::channel::handover::Server;
 use crate::channel::layout::{Layout, SCHEMA_NAME_BYTES};
 use crate::channel::liveness::{self, NameLock, NameRecord};
+use crate::channel::lookout::{WakeBy, Watch};
 use crate::channel::ring::{self, Meta};
 use crate::channel::ringer::Handoff;
 use crate::channel::segment::{self, SegmentInit, Shared};
@@ -21,7 +23,7 @@ use crate::os::{self, PRIVATE_FUTEX, SHARED_FUTEX};
 use crate::rt::{Stop, Ticker};
 use crate::shm;
 use crate::stats::{self, WriterState, WriterStats};
-use crate::sync::{AtomicU64, Ordering};
+use crate::sync::{AtomicU32, AtomicU64, Ordering};
 
 /// How a channel is created.
 #[derive(Clone, Debug)]
@@ -68,14 +70,28 @@ pub enum ReaderWake {
     #[default]
     Ringer,
     /// The writer's own thread, right after the publish: readers wake
-    /// soonest, and the acquisition thread pays the interrupt.
+    /// sooner than with the ringer, and the acquisition thread pays the
+    /// interrupt.
     Writer,
+    /// A thread of the writer's process, its *lookout*, which keeps off the
+    /// writer's CPU, learns the writer's grid, and is spinning on another
+    /// CPU when each frame is due (from a timer set as early as its own
+    /// wake-ups are late, p90), for frames some reader sleeps for. The
+    /// writer makes no system call (one compare-and-swap) and readers are
+    /// woken by a CPU that is already awake, so they wake sooner than with
+    /// either of the others. The cost is the lookout's spinning, CPU time on
+    /// another CPU every period a reader sleeps. When the lookout is not
+    /// watching (it or the frame was late), the writer wakes the readers
+    /// itself. Needs what the ringer needs, a periodic writer
+    /// ([`WriterOptions::period`]) and a second CPU it may run on; otherwise
+    /// the writer uses the ringer, or wakes its readers itself.
+    Lookout,
 }
 
 /// How many publishes with readers asleep had them woken by which thread.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct WakeCounts {
-    /// Wakes handed to the writer's ringer.
+    /// Wakes handed to the writer's ringer or lookout.
     pub by_ringer: u64,
     /// Wakes the writer made itself: with [`ReaderWake::Writer`], or because
     /// its ringer had not yet rung the previous publish.
@@ -232,6 +248,8 @@ impl Writer {
                 handed_to_ringer: 0,
                 reader_wake: options.reader_wake,
                 ringer: None,
+                lookout: None,
+                period_ns: options.period.map(|p| p.as_nanos().min(u128::from(u64::MAX)) as u64).filter(|&p| p > 0),
                 period_deadline_ns: None,
             },
             served_requests,
@@ -288,8 +306,10 @@ impl Writer {
     /// response, or readers get a mix of new and old values.
     pub fn begin(&mut self) -> FrameWriter<'_> {
         // Before the frame's time starts: the first frame starts a thread.
-        if self.publishing.reader_wake == ReaderWake::Ringer && self.publishing.ringer.is_none() {
-            self.start_ringer();
+        match self.publishing.reader_wake {
+            ReaderWake::Ringer if self.publishing.ringer.is_none() => self.start_ringer(),
+            ReaderWake::Lookout if self.publishing.lookout.is_none() => self.start_lookout(),
+            _ => {}
         }
         let started_ns = os::monotonic_ns();
         let Writer { shared, publishing, .. } = self;
@@ -430,6 +450,38 @@ impl Writer {
             Ok(ringer) => self.publishing.ringer = Some(ringer),
             Err(error) => {
                 tracing::warn!(channel = %self.shared.label, %error, "cannot start the ringer thread; the writer wakes its readers itself");
+                self.publishing.reader_wake = ReaderWake::Writer;
+            }
+        }
+    }
+
+    /// Starts the lookout from the writer's thread, as [`start_ringer`]
+    /// does the ringer; a writer it cannot serve (sporadic, alone on its
+    /// CPUs) uses the ringer instead.
+    ///
+    /// [`start_ringer`]: Self::start_ringer
+    fn start_lookout(&mut self) {
+        let Some(priority) = os::current_realtime_priority() else {
+            self.publishing.reader_wake = ReaderWake::Writer;
+            return;
+        };
+        let Some(period_ns) = self.publishing.period_ns else {
+            tracing::info!(channel = %self.shared.label, "a sporadic writer has no lookout; its ringer wakes its readers");
+            self.publishing.reader_wake = ReaderWake::Ringer;
+            self.start_ringer();
+            return;
+        };
+        let others = os::allowed_cpus().map(|cpus| cpus.len() > 1);
+        if !matches!(others, Ok(true)) {
+            tracing::info!(channel = %self.shared.label, "the writer may run on one CPU only: no lookout, its ringer wakes its readers");
+            self.publishing.reader_wake = ReaderWake::Ringer;
+            self.start_ringer();
+            return;
+        }
+        match Lookout::start(&self.shared, priority, period_ns) {
+            Ok(lookout) => self.publishing.lookout = Some(lookout),
+            Err(error) => {
+                tracing::warn!(channel = %self.shared.label, %error, "cannot start the lookout thread; the writer wakes its readers itself");
                 self.publishing.reader_wake = ReaderWake::Writer;
             }
         }
@@ -636,26 +688,7 @@ impl FrameWriter<'_> {
         publishing.last_published_ns = published_ns;
         let notify = &self.shared.doorbell().notify;
         let announced = doorbell::announce(notify, seq);
-        let handoff = publishing.ringer.as_ref().map(|ringer| &*ringer.handoff);
-        // A ringer still behind on the last handoff leaves readers asleep
-        // since then, who announce themselves no more: wake them here.
-        let ringer_behind = handoff.is_some_and(Handoff::behind);
-        if announced || ringer_behind {
-            let handed = !ringer_behind
-                && handoff
-                    .is_some_and(|handoff| handoff.hand_off(os::current_cpu().unwrap_or(u32::MAX), &PRIVATE_FUTEX));
-            if handed {
-                publishing.handed_to_ringer += 1;
-            } else {
-                publishing.woken_by_writer += 1;
-                SHARED_FUTEX.wake_all(notify);
-            }
-        }
-        if handoff.is_some_and(Handoff::ringer_gone) {
-            tracing::warn!(channel = %self.shared.label, "the ringer thread ended; the writer wakes its readers itself");
-            publishing.ringer = None;
-            publishing.reader_wake = ReaderWake::Writer;
-        }
+        publishing.wake_sleepers(&self.shared.label, notify, announced, published_ns);
         let header = self.shared.header();
         stats::record_write(&header.stats, os::monotonic_ns() - self.started_ns, self.status.is_fault());
         seq
@@ -672,9 +705,58 @@ struct Publishing {
     reader_wake: ReaderWake,
     /// Started at the first frame with [`ReaderWake::Ringer`].
     ringer: Option<Ringer>,
+    /// Started at the first frame with [`ReaderWake::Lookout`].
+    lookout: Option<Lookout>,
+    /// [`WriterOptions::period`], if periodic.
+    period_ns: Option<u64>,
     /// The deadline of the period being filled, while
     /// [`Writer::run_periodic`] fills it.
     period_deadline_ns: Option<u64>,
+}
+
+impl Publishing {
+    /// After the publish of a frame that `announced` sleepers wait for (or
+    /// not): wakes them, or leaves the wake to the lookout or the ringer.
+    fn wake_sleepers(&mut self, label: &str, notify: &AtomicU32, announced: bool, published_ns: u64) {
+        if let Some(lookout) = &self.lookout {
+            match lookout.watch.published(announced, published_ns, os::current_cpu().unwrap_or(u32::MAX)) {
+                WakeBy::Nobody => {}
+                WakeBy::Lookout => self.handed_to_ringer += 1,
+                WakeBy::Writer => {
+                    self.woken_by_writer += 1;
+                    SHARED_FUTEX.wake_all(notify);
+                }
+            }
+            if lookout.watch.lookout_gone() {
+                tracing::warn!(channel = %label, "the lookout thread ended; the writer wakes its readers itself");
+                // Its last handoff may not have been rung: wake now.
+                SHARED_FUTEX.wake_all(notify);
+                self.lookout = None;
+                self.reader_wake = ReaderWake::Writer;
+            }
+            return;
+        }
+        let handoff = self.ringer.as_ref().map(|ringer| &*ringer.handoff);
+        // A ringer still behind on the last handoff leaves readers asleep
+        // since then, who announce themselves no more: wake them here.
+        let ringer_behind = handoff.is_some_and(Handoff::behind);
+        if announced || ringer_behind {
+            let handed = !ringer_behind
+                && handoff
+                    .is_some_and(|handoff| handoff.hand_off(os::current_cpu().unwrap_or(u32::MAX), &PRIVATE_FUTEX));
+            if handed {
+                self.handed_to_ringer += 1;
+            } else {
+                self.woken_by_writer += 1;
+                SHARED_FUTEX.wake_all(notify);
+            }
+        }
+        if handoff.is_some_and(Handoff::ringer_gone) {
+            tracing::warn!(channel = %label, "the ringer thread ended; the writer wakes its readers itself");
+            self.ringer = None;
+            self.reader_wake = ReaderWake::Writer;
+        }
+    }
 }
 
 /// The thread that wakes a writer's sleeping readers for it
@@ -750,5 +832,167 @@ fn ring_for(shared: &Shared, handoff: &Handoff, writer_priority: u8) {
                 return;
             }
         }
+    }
+}
+
+/// The thread that watches for a periodic writer's frames on another CPU
+/// and wakes its sleeping readers ([`crate::channel::lookout`]); stopped and
+/// joined on drop.
+struct Lookout {
+    watch: Arc<Watch>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    /// The process that started the thread (see [`Ringer`]).
+    pid: u32,
+}
+
+impl Lookout {
+    fn start(shared: &Arc<Shared>, writer_priority: u8, period_ns: u64) -> std::io::Result<Lookout> {
+        let watch = Arc::new(Watch::default());
+        let (lookout_shared, lookout_watch) = (shared.clone(), watch.clone());
+        let thread = std::thread::Builder::new().name("skinware-lookout".into()).spawn(move || {
+            let _ended = LookoutEnded(&lookout_watch);
+            look_out_for(&lookout_shared, &lookout_watch, writer_priority, period_ns);
+        })?;
+        Ok(Lookout { watch, thread: Some(thread), pid: std::process::id() })
+    }
+}
+
+/// Tells the writer, when dropped, that its lookout's thread has ended.
+struct LookoutEnded<'a>(&'a Watch);
+
+impl Drop for LookoutEnded<'_> {
+    fn drop(&mut self) {
+        self.0.lookout_ended();
+    }
+}
+
+impl Drop for Lookout {
+    fn drop(&mut self) {
+        self.watch.stop(&PRIVATE_FUTEX);
+        if let Some(thread) = self.thread.take()
+            && self.pid == std::process::id()
+        {
+            let _ = thread.join();
+        }
+    }
+}
+
+/// The lookout's first timer lead and spin past the earliest expected frame,
+/// before it has measured either.
+const LOOKOUT_INITIAL_NS: u64 = 100_000;
+/// Added to the measured 90th percentiles.
+const LOOKOUT_MARGIN_NS: u64 = 10_000;
+
+/// Sleeps until `deadline_ns` unless the writer goes first (`false`).
+fn lookout_sleep_until(watch: &Watch, deadline_ns: u64) -> bool {
+    loop {
+        if watch.is_stopping() {
+            return false;
+        }
+        if os::monotonic_ns() >= deadline_ns {
+            return true;
+        }
+        if let Err(error) = PRIVATE_FUTEX.wait_until(watch.stopping_word(), 0, deadline_ns) {
+            // Only EFAULT/EINVAL are possible, neither with a valid word and deadline.
+            tracing::debug!(%error, "the lookout's timed sleep failed; sleeping without it");
+            std::thread::sleep(Duration::from_nanos(deadline_ns.saturating_sub(os::monotonic_ns())));
+        }
+    }
+}
+
+/// The lookout's loop: for each frame of the writer's grid that a reader
+/// sleeps for, sleeps until just before it is due, on a CPU other than the
+/// writer's, then watches for it and wakes the readers.
+fn look_out_for(shared: &Shared, watch: &Watch, writer_priority: u8, period_ns: u64) {
+    // One below the writer, as the ringer: its timer must not wait behind
+    // the readers it is to wake, and it never preempts the writer.
+    if let Err(error) = os::set_fifo_priority(writer_priority.saturating_sub(1).max(1)) {
+        tracing::warn!(channel = %shared.label, %error, "the lookout cannot take a real-time priority; the writer wakes its readers itself");
+        return;
+    }
+    let allowed = match os::allowed_cpus() {
+        Ok(cpus) => cpus,
+        Err(error) => {
+            tracing::warn!(channel = %shared.label, %error, "the lookout cannot read its CPUs; the writer wakes its readers itself");
+            return;
+        }
+    };
+    let notify = &shared.doorbell().notify;
+    let ceiling = (period_ns / 4).max(1);
+    let mut grid = Anticipation::new(0);
+    let mut timer_late = RecentP90::new(LOOKOUT_INITIAL_NS, LOOKOUT_MARGIN_NS);
+    let mut frame_late = RecentP90::new(LOOKOUT_INITIAL_NS, LOOKOUT_MARGIN_NS);
+    let mut observed = 0;
+    let mut avoiding = None;
+    let mut idle_looks = 0u64;
+    let mut watched_for = None;
+    loop {
+        if watch.is_stopping() {
+            return;
+        }
+        if let Some(cpu) = watch.writer_cpu()
+            && avoiding != Some(cpu)
+        {
+            avoiding = Some(cpu);
+            let others: Vec<usize> = allowed.iter().copied().filter(|&other| other != cpu as usize).collect();
+            if others.is_empty() {
+                tracing::warn!(channel = %shared.label, "the writer runs on the lookout's only CPU; the writer wakes its readers itself");
+                return;
+            }
+            if let Err(error) = os::pin_to_cpus(&others) {
+                tracing::debug!(channel = %shared.label, %error, "the lookout cannot keep off the writer's CPU {cpu}");
+            }
+        }
+        let last = watch.last_published_ns();
+        if last != observed {
+            grid.observe(last, period_ns);
+            observed = last;
+            // Every frame watched for, including those that came after the
+            // spin ended: sampling only the ones caught would shrink the
+            // spin to the earliest frames.
+            if let Some(expected) = watched_for.take() {
+                frame_late.observe(last.saturating_sub(expected));
+            }
+        }
+        let Some(mut expected) = grid.next_expected(last).filter(|_| last != 0) else {
+            // No frame yet: nothing to anticipate.
+            if !lookout_sleep_until(watch, os::monotonic_ns().saturating_add(period_ns)) {
+                return;
+            }
+            continue;
+        };
+        let lead = timer_late.value_ns().clamp(1, ceiling);
+        let spin_after = frame_late.value_ns().clamp(1, 2 * ceiling);
+        let now = os::monotonic_ns();
+        // A frame that is late past the spin (or a stalled writer) is the
+        // writer's to wake: watch for the next one on the grid.
+        while expected.saturating_add(spin_after) <= now {
+            expected = expected.saturating_add(period_ns);
+        }
+        let wake_at = expected.saturating_sub(lead);
+        if wake_at > now {
+            if !lookout_sleep_until(watch, wake_at) {
+                return;
+            }
+            timer_late.observe(os::monotonic_ns().saturating_sub(wake_at));
+        }
+        let until = expected.saturating_add(spin_after);
+        if !doorbell::someone_waits(notify) {
+            // Nobody sleeps for this frame (yet): one who comes later is the
+            // writer's to wake. The lookout looks again one period later,
+            // then ever fewer times while nobody sleeps (down to once in 64
+            // periods), so that a channel without sleepers costs it almost
+            // nothing.
+            idle_looks = (idle_looks + 1).min(64);
+            let skip = period_ns.saturating_mul(idle_looks);
+            if !lookout_sleep_until(watch, wake_at.max(now).saturating_add(skip)) {
+                return;
+            }
+            continue;
+        }
+        idle_looks = 0;
+        // A frame published before the watch began was the writer's to wake.
+        watched_for = Some(expected);
+        watch.watch(notify, &SHARED_FUTEX, || watch.last_published_ns() == last && os::monotonic_ns() < until);
     }
 }

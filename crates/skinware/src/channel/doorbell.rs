@@ -94,6 +94,14 @@ pub(crate) fn announce(notify: &AtomicU32, seq: u64) -> bool {
     announced & 1 != 0
 }
 
+/// Whether a reader has announced that it sleeps (or is about to) until the
+/// next publish. A hint for a writer's lookout ([`super::lookout`]): a reader
+/// that announces itself after the look misses nothing, since the writer then
+/// wakes it itself.
+pub(crate) fn someone_waits(notify: &AtomicU32) -> bool {
+    notify.load(Ordering::Relaxed) & 1 != 0
+}
+
 /// Changes `word` and wakes everyone on it, so that a sleeper, or a thread
 /// about to sleep on the old value, re-checks its condition at once.
 pub(crate) fn nudge(word: &AtomicU32, futex: &impl Futex) {
@@ -196,6 +204,7 @@ mod loom_tests {
     //! asleep forever, which loom reports as a deadlock.
 
     use super::*;
+    use crate::channel::lookout::{WakeBy, Watch};
     use crate::channel::ring::{META_WORDS, Meta, Ring};
     use crate::channel::ringer::Handoff;
     use loom::sync::atomic::AtomicBool;
@@ -272,6 +281,32 @@ mod loom_tests {
         if (announced || behind) && (behind || !handoff.hand_off(0, &channel.handoff_futex)) {
             channel.futex.wake_all(&channel.notify);
         }
+    }
+
+    /// Publishes frame `seq` as a writer with a lookout does: leaves the
+    /// wake to the lookout if it is watching, else wakes the readers itself.
+    fn publish_watched(channel: &Channel, watch: &Watch, seq: u64) {
+        let ring = Ring::new(&channel.published, &channel.slots, 2);
+        let payload = ring.begin(seq);
+        payload[0].store(seq * 100, Ordering::Relaxed);
+        ring.publish(&Meta { seq, acquired_ns: 0, published_ns: 0, status: 0 });
+        let announced = super::announce(&channel.notify, seq);
+        if watch.published(announced, seq, 0) == WakeBy::Writer {
+            channel.futex.wake_all(&channel.notify);
+        }
+    }
+
+    /// A lookout that watches for `looks` looks, then gives up, as the
+    /// thread in `crate::writer` does at the end of its spin.
+    fn spawn_lookout(channel: &Arc<Channel>, watch: &Arc<Watch>, looks: u32) -> loom::thread::JoinHandle<()> {
+        let (channel, watch) = (channel.clone(), watch.clone());
+        loom::thread::spawn(move || {
+            let mut left = looks;
+            watch.watch(&channel.notify, &channel.futex, || {
+                left -= 1;
+                left > 0
+            });
+        })
     }
 
     /// The ringer thread's loop, as `crate::writer` runs it.
@@ -455,6 +490,52 @@ mod loom_tests {
             assert_eq!(reader.join().unwrap().unwrap(), WaitEnd::Ready);
             handoff.stop(&channel.handoff_futex);
             ringer.join().unwrap();
+        });
+    }
+    /// A reader waits for frame 1 while a lookout watches for it and gives
+    /// up after two looks: whether the writer's publish comes before, during
+    /// or after the watch, the reader wakes (woken by the lookout or by the
+    /// writer, never by neither).
+    #[test]
+    fn loom_a_lookout_or_the_writer_wakes_a_reader() {
+        model(|| {
+            let channel = channel();
+            let watch = Arc::new(Watch::default());
+            let lookout = spawn_lookout(&channel, &watch, 2);
+            let reader = {
+                let channel = channel.clone();
+                loom::thread::spawn(move || {
+                    let ring = Ring::new(&channel.published, &channel.slots, 2);
+                    wait_for_frame(&channel.notify, || ring.published(), 0, u64::MAX, || false, &channel.futex)
+                })
+            };
+            publish_watched(&channel, &watch, 1);
+            assert_eq!(reader.join().unwrap().unwrap(), WaitEnd::Ready);
+            lookout.join().unwrap();
+        });
+    }
+
+    /// Two publishes while a reader waits for the second and a lookout
+    /// watches once: a lookout that took frame 1's wake and has not rung it
+    /// when frame 2 comes leaves frame 2's wake to the writer, and the reader
+    /// wakes either way.
+    #[test]
+    fn loom_a_lookout_that_falls_behind_loses_no_wake() {
+        model(|| {
+            let channel = channel();
+            let watch = Arc::new(Watch::default());
+            let lookout = spawn_lookout(&channel, &watch, 1);
+            let reader = {
+                let channel = channel.clone();
+                loom::thread::spawn(move || {
+                    let ring = Ring::new(&channel.published, &channel.slots, 2);
+                    wait_for_frame(&channel.notify, || ring.published(), 1, u64::MAX, || false, &channel.futex)
+                })
+            };
+            publish_watched(&channel, &watch, 1);
+            publish_watched(&channel, &watch, 2);
+            assert_eq!(reader.join().unwrap().unwrap(), WaitEnd::Ready);
+            lookout.join().unwrap();
         });
     }
 }

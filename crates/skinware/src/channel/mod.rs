@@ -23,7 +23,8 @@
 //!    Model-checked with loom for lost wake-ups.
 //!    [`ringer`]: the wake handed from the writer to a thread on its CPU
 //!    one priority below it, so that the interrupt to another CPU is not on
-//!    the acquisition's time line.
+//!    the acquisition's time line. [`lookout`]: the wake made by a thread
+//!    already spinning on another CPU when a periodic writer's frame is due.
 //! 5. [`liveness`]: who owns a channel name and whether its writer lives
 //!    (open-file-description locks the kernel drops when the writer dies), the
 //!    writer's state, and succession: a new writer takes a dead writer's name
@@ -42,6 +43,7 @@
 
 pub(crate) mod copy;
 pub(crate) mod doorbell;
+pub(crate) mod lookout;
 pub(crate) mod ring;
 pub(crate) mod ringer;
 

@@ -160,6 +160,57 @@ fn as_soon_as_available_reader_wakes_on_publish() {
     assert!(waited < Duration::from_secs(10), "missed the wake-up: {waited:?}");
 }
 
+/// A periodic writer's lookout: three readers asleep for each of 300 frames
+/// at 500 Hz get every one, in order, whoever woke them; the lookout (where it
+/// can run: a real-time writer with a second CPU) woke some; and dropping the
+/// writer ends the lookout's thread (a hang here would hang the test).
+#[test]
+fn a_periodic_writers_lookout_wakes_readers_and_loses_none() {
+    std::thread::spawn(publish_periodically_to_sleeping_readers).join().unwrap();
+}
+
+fn publish_periodically_to_sleeping_readers() {
+    let realtime = RtOptions { fifo_priority: Some(10), ..RtOptions::default() }.apply().is_empty();
+    let cpus = std::thread::available_parallelism().map_or(1, usize::from);
+    let dir = SegmentDir::new("lookout");
+    let period = Duration::from_millis(2);
+    let options = WriterOptions { reader_wake: ReaderWake::Lookout, period: Some(period), ..dir.writer() };
+    let mut writer = Writer::create("skin", "layer", 8, b"", &options).unwrap();
+    const FRAMES: u64 = 300;
+    let waiters: Vec<_> = (0..3)
+        .map(|_| {
+            let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+            std::thread::spawn(move || {
+                let mut seen = Vec::new();
+                while seen.last() != Some(&FRAMES) {
+                    seen.push(reader.wait_newer(Duration::from_secs(10)).expect("a wake went missing").seq());
+                }
+                seen
+            })
+        })
+        .collect();
+    std::thread::sleep(Duration::from_millis(100));
+    let stop = Stop::new();
+    let mut ticker = Ticker::new(period);
+    for value in 1..=FRAMES {
+        ticker.wait(&stop).unwrap();
+        publish(&mut writer, value as u16);
+    }
+    for waiter in waiters {
+        let seen = waiter.join().unwrap();
+        assert!(seen.windows(2).all(|pair| pair[0] < pair[1]), "frames out of order: {seen:?}");
+    }
+    let counts = writer.wake_counts();
+    assert!(counts.by_ringer + counts.by_writer <= FRAMES, "more wakes than frames: {counts:?}");
+    if realtime && cpus > 1 {
+        assert!(counts.by_ringer > 0, "the lookout woke no reader in {FRAMES} frames: {counts:?}");
+        eprintln!("lookout woke the readers of {} frames, the writer of {}", counts.by_ringer, counts.by_writer);
+    } else {
+        eprintln!("no SCHED_FIFO or a single CPU here: the writer (or its ringer) wakes the readers: {counts:?}");
+    }
+    drop(writer);
+}
+
 /// Readers asleep for every frame get every frame whichever thread wakes
 /// them, and the writer says which did; dropping the writer stops its ringer
 /// (a drop that hung on the ringer's thread would hang the test). A ringer
