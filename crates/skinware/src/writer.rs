@@ -920,12 +920,16 @@ fn look_out_for(shared: &Shared, watch: &Watch, writer_priority: u8, period_ns: 
     let notify = &shared.doorbell().notify;
     let ceiling = (period_ns / 4).max(1);
     let mut grid = Anticipation::new(0);
-    let mut timer_late = RecentP90::new(LOOKOUT_INITIAL_NS, LOOKOUT_MARGIN_NS);
+    // How much earlier than the earliest expected frame the lookout must
+    // set its timer: its own lateness less the frame's, which are not
+    // independent (a busy host is slow to run both vCPUs).
+    let mut lead_needed = RecentP90::new(LOOKOUT_INITIAL_NS, LOOKOUT_MARGIN_NS);
+    // How long after the earliest expected frame frames come.
     let mut frame_late = RecentP90::new(LOOKOUT_INITIAL_NS, LOOKOUT_MARGIN_NS);
     let mut observed = 0;
     let mut avoiding = None;
     let mut idle_looks = 0u64;
-    let mut watched_for = None;
+    let mut watched_for: Option<(u64, u64)> = None;
     loop {
         if watch.is_stopping() {
             return;
@@ -950,8 +954,10 @@ fn look_out_for(shared: &Shared, watch: &Watch, writer_priority: u8, period_ns: 
             // Every frame watched for, including those that came after the
             // spin ended: sampling only the ones caught would shrink the
             // spin to the earliest frames.
-            if let Some(expected) = watched_for.take() {
-                frame_late.observe(last.saturating_sub(expected));
+            if let Some((expected, woke_late)) = watched_for.take() {
+                let late = last.saturating_sub(expected);
+                frame_late.observe(late);
+                lead_needed.observe(woke_late.saturating_sub(late));
             }
         }
         let Some(mut expected) = grid.next_expected(last).filter(|_| last != 0) else {
@@ -961,8 +967,10 @@ fn look_out_for(shared: &Shared, watch: &Watch, writer_priority: u8, period_ns: 
             }
             continue;
         };
-        let lead = timer_late.value_ns().clamp(1, ceiling);
-        let spin_after = frame_late.value_ns().clamp(1, 2 * ceiling);
+        let lead = lead_needed.value_ns().clamp(1, ceiling);
+        // Twice the usual: the spin ends at the frame, so a long one costs
+        // only the rare late frames, which the writer would otherwise wake.
+        let spin_after = frame_late.value_ns().saturating_mul(2).clamp(1, 2 * ceiling);
         let now = os::monotonic_ns();
         // A frame that is late past the spin (or a stalled writer) is the
         // writer's to wake: watch for the next one on the grid.
@@ -970,12 +978,10 @@ fn look_out_for(shared: &Shared, watch: &Watch, writer_priority: u8, period_ns: 
             expected = expected.saturating_add(period_ns);
         }
         let wake_at = expected.saturating_sub(lead);
-        if wake_at > now {
-            if !lookout_sleep_until(watch, wake_at) {
-                return;
-            }
-            timer_late.observe(os::monotonic_ns().saturating_sub(wake_at));
+        if wake_at > now && !lookout_sleep_until(watch, wake_at) {
+            return;
         }
+        let woke_late = os::monotonic_ns().saturating_sub(wake_at);
         let until = expected.saturating_add(spin_after);
         if !doorbell::someone_waits(notify) {
             // Nobody sleeps for this frame (yet): one who comes later is the
@@ -992,7 +998,7 @@ fn look_out_for(shared: &Shared, watch: &Watch, writer_priority: u8, period_ns: 
         }
         idle_looks = 0;
         // A frame published before the watch began was the writer's to wake.
-        watched_for = Some(expected);
+        watched_for = Some((expected, woke_late));
         watch.watch(notify, &SHARED_FUTEX, || watch.last_published_ns() == last && os::monotonic_ns() < until);
     }
 }
