@@ -250,6 +250,7 @@ fn create_layer_writer(
         // channel name that readers of a restarted layer wait on.
         unlink_on_drop: false,
         dir: options.dir.clone(),
+        reader_wake: spec.rt.reader_wake,
         ..WriterOptions::default()
     };
     Writer::create(skin, &topology.name, topology.frame_bytes(), &topology.encode(), &writer_options).map_err(

@@ -175,6 +175,11 @@ pub struct RtOptions {
     /// CPU time). The request is for every CPU, and it lasts as long as
     /// the process.
     pub cpu_wake_latency_us: Option<u32>,
+    /// For a writer's thread: which thread wakes the readers asleep for its
+    /// frames ([`crate::ReaderWake`]; a reader's thread ignores it). Like
+    /// the others, it takes effect where a writer is created with these
+    /// settings (a driver's layers, a service), not by [`RtOptions::apply`].
+    pub reader_wake: crate::ReaderWake,
 }
 
 impl RtOptions {

@@ -67,7 +67,6 @@ pub enum ReaderWake {
     /// never more than one frame late. Started at the writer's first frame,
     /// from its thread, and only if that thread is real-time (SCHED_FIFO or
     /// SCHED_RR): a writer in the normal scheduler wakes its readers itself.
-    #[default]
     Ringer,
     /// The writer's own thread, right after the publish: readers wake
     /// sooner than with the ringer, and the acquisition thread pays the
@@ -85,6 +84,7 @@ pub enum ReaderWake {
     /// itself. Needs what the ringer needs, a periodic writer
     /// ([`WriterOptions::period`]) and a second CPU it may run on; otherwise
     /// the writer uses the ringer, or wakes its readers itself.
+    #[default]
     Lookout,
 }
 
@@ -466,14 +466,14 @@ impl Writer {
             return;
         };
         let Some(period_ns) = self.publishing.period_ns else {
-            tracing::info!(channel = %self.shared.label, "a sporadic writer has no lookout; its ringer wakes its readers");
+            tracing::debug!(channel = %self.shared.label, "a sporadic writer has no lookout; its ringer wakes its readers");
             self.publishing.reader_wake = ReaderWake::Ringer;
             self.start_ringer();
             return;
         };
         let others = os::allowed_cpus().map(|cpus| cpus.len() > 1);
         if !matches!(others, Ok(true)) {
-            tracing::info!(channel = %self.shared.label, "the writer may run on one CPU only: no lookout, its ringer wakes its readers");
+            tracing::debug!(channel = %self.shared.label, "the writer may run on one CPU only: no lookout, its ringer wakes its readers");
             self.publishing.reader_wake = ReaderWake::Ringer;
             self.start_ringer();
             return;

@@ -26,9 +26,10 @@ pub fn run(config_path: &Path, name: &str) -> Result<()> {
             }
         });
     }
-    let options = WriterOptions { access: config.access(), ..WriterOptions::default() };
+    let rt = service.rt_options();
+    let options = WriterOptions { access: config.access(), reader_wake: rt.reader_wake, ..WriterOptions::default() };
     // The service runs in this thread; its writers' ringers copy its priority.
-    for refusal in service.rt_options().apply() {
+    for refusal in rt.apply() {
         tracing::warn!(service = name, "{refusal}");
     }
     tracing::info!(service = name, kind = ?service.kind, pid = std::process::id(), "service starting");

@@ -19,6 +19,32 @@ pub struct RtConfig {
     /// Keep idle CPUs able to wake within this many µs while the process
     /// runs (0: polling); see `skinware::RtOptions::cpu_wake_latency_us`.
     pub cpu_wake_latency_us: Option<u32>,
+    /// Which thread wakes readers asleep for the writer's frames:
+    /// `"lookout"`, `"ringer"` or `"writer"` (see `skinware::ReaderWake`);
+    /// the library's default if absent.
+    pub reader_wake: Option<ReaderWakeConfig>,
+}
+
+/// `reader_wake` in `[driver.rt]` and `[service.rt]`.
+#[derive(Debug, Deserialize, Clone, Copy, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum ReaderWakeConfig {
+    /// `skinware::ReaderWake::Lookout`.
+    Lookout,
+    /// `skinware::ReaderWake::Ringer`.
+    Ringer,
+    /// `skinware::ReaderWake::Writer`.
+    Writer,
+}
+
+impl From<ReaderWakeConfig> for skinware::ReaderWake {
+    fn from(config: ReaderWakeConfig) -> Self {
+        match config {
+            ReaderWakeConfig::Lookout => skinware::ReaderWake::Lookout,
+            ReaderWakeConfig::Ringer => skinware::ReaderWake::Ringer,
+            ReaderWakeConfig::Writer => skinware::ReaderWake::Writer,
+        }
+    }
 }
 
 impl RtConfig {
@@ -29,6 +55,7 @@ impl RtConfig {
             lock_memory: self.lock_memory,
             cpus: self.cpus.clone(),
             cpu_wake_latency_us: self.cpu_wake_latency_us,
+            reader_wake: self.reader_wake.map(Into::into).unwrap_or_default(),
         }
     }
 }
