@@ -53,7 +53,7 @@ pub struct WriterOptions {
 }
 
 /// Which thread makes the system call that wakes as-soon-as-available readers
-/// asleep on a channel. Either way the frame is visible to readers before the
+/// asleep on a channel. Whichever it is, the frame is visible to readers before the
 /// wake, and the writer makes no system call when no reader sleeps.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum ReaderWake {

@@ -96,6 +96,10 @@ pub struct KilohertzArgs {
     /// slow browsers, written to `kilohertz-viewer.json`).
     #[arg(long)]
     only: Option<super::kilohertz::Part>,
+    /// Who wakes the layers' sleeping readers (`reader_wake` under
+    /// `[driver.rt]`); the library's default if absent.
+    #[arg(long)]
+    reader_wake: Option<super::kilohertz::Wake>,
 }
 
 /// Options of `skin bench table1`.
@@ -206,8 +210,8 @@ pub fn run(which: &Which) -> Result<()> {
             };
             skinware_bench::record::run(&options).map(|_| ())
         }
-        Which::Kilohertz(KilohertzArgs { common, viewer_exe, only }) => {
-            super::kilohertz::bench(common, viewer_exe.as_deref(), *only)
+        Which::Kilohertz(KilohertzArgs { common, viewer_exe, only, reader_wake }) => {
+            super::kilohertz::bench(common, viewer_exe.as_deref(), *only, *reader_wake)
         }
         Which::Bridge(common) => super::bridge_bench::bench(common),
         Which::Contact(common) => {

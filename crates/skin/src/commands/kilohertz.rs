@@ -94,6 +94,8 @@ struct ViewerRun {
 struct KilohertzReport {
     rate_hz: f64,
     taxels: usize,
+    /// `reader_wake` of the layers' writers (`default`: not set).
+    reader_wake: String,
     phases: Vec<PhaseReport>,
     viewer: Vec<ViewerRun>,
     /// `viewer_cpu_percent` with 10 browsers over that with 1.
@@ -105,11 +107,34 @@ struct KilohertzReport {
 pub enum Part {
     /// The viewer alone with 1, 10 and 9 + 1 slow browsers (no control or loaded run).
     Viewer,
+    /// The control and the loaded run (no viewer scaling).
+    Runs,
+}
+
+/// `reader_wake` for the layers' writers, as in a config's `[driver.rt]`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Wake {
+    /// A lookout spinning on another CPU when each frame is due.
+    Lookout,
+    /// A ringer on the writer's CPU, once the writer sleeps.
+    Ringer,
+    /// The writer's own thread.
+    Writer,
+}
+
+impl Wake {
+    fn name(self) -> &'static str {
+        match self {
+            Wake::Lookout => "lookout",
+            Wake::Ringer => "ringer",
+            Wake::Writer => "writer",
+        }
+    }
 }
 
 /// Runs `skin bench kilohertz`; `viewer_exe` measures another build's viewer;
 /// `only` runs one part (into a JSON file of its own, whose `phases` are empty).
-pub fn bench(common: &Common, viewer_exe: Option<&Path>, only: Option<Part>) -> Result<()> {
+pub fn bench(common: &Common, viewer_exe: Option<&Path>, only: Option<Part>, wake: Option<Wake>) -> Result<()> {
     let seconds = common.seconds.unwrap_or(if common.quick { 3.0 } else { 15.0 });
     if !(seconds.is_finite() && seconds > 0.0) {
         bail!("--seconds must be a positive number of seconds");
@@ -120,11 +145,15 @@ pub fn bench(common: &Common, viewer_exe: Option<&Path>, only: Option<Part>) -> 
     let dir = PathBuf::from("/dev/shm").join(format!("skinware-bench-khz-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir)?;
-    let result = measure(&exe, &viewer_exe, &dir, seconds, &common.out, only);
+    let result = measure(&exe, &viewer_exe, &dir, seconds, &common.out, only, wake);
     let _ = std::fs::remove_dir_all(&dir);
     let report = result?;
     print(&report);
-    let path = common.out.join(if only == Some(Part::Viewer) { "kilohertz-viewer.json" } else { "kilohertz.json" });
+    let path = common.out.join(match only {
+        Some(Part::Viewer) => "kilohertz-viewer.json",
+        Some(Part::Runs) => "kilohertz-runs.json",
+        None => "kilohertz.json",
+    });
     std::fs::write(&path, serde_json::to_vec_pretty(&report)?)?;
     println!("written: {}", path.display());
     Ok(())
@@ -137,30 +166,45 @@ fn measure(
     seconds: f64,
     out: &Path,
     only: Option<Part>,
+    wake: Option<Wake>,
 ) -> Result<KilohertzReport> {
     let phases = match only {
         Some(Part::Viewer) => Vec::new(),
-        None => vec![
-            run_phase(exe, viewer_exe, dir, seconds, false, out)?,
-            run_phase(exe, viewer_exe, dir, seconds, true, out)?,
+        _ => vec![
+            run_phase(exe, viewer_exe, (dir, wake), seconds, false, out)?,
+            run_phase(exe, viewer_exe, (dir, wake), seconds, true, out)?,
         ],
     };
-    let viewer = viewer_scaling(exe, viewer_exe, dir, seconds)?;
+    let viewer = if only == Some(Part::Runs) { Vec::new() } else { viewer_scaling(exe, viewer_exe, dir, seconds)? };
     let cpu = |n: usize| {
         let run = viewer.iter().find(|run| run.browsers == n && !run.with_slow_browser);
         run.map_or(0.0, |run| run.viewer_cpu_percent)
     };
     let ratio = cpu(10) / cpu(1).max(1e-9);
-    Ok(KilohertzReport { rate_hz: 1000.0, taxels: 30_848, phases, viewer, viewer_cpu_ratio_10_to_1: ratio })
+    let reader_wake = wake.map_or("default", Wake::name).to_owned();
+    Ok(KilohertzReport {
+        rate_hz: 1000.0,
+        taxels: 30_848,
+        reader_wake,
+        phases,
+        viewer,
+        viewer_cpu_ratio_10_to_1: ratio,
+    })
 }
 
 /// The paper's skin at 1 kHz; with its services (also at 1 kHz) or none.
-fn config(with_services: bool) -> Result<String> {
+fn config(with_services: bool, wake: Option<Wake>) -> Result<String> {
     let layers_at = "rate_hz = { random = [30, 50] }";
-    if !PAPER_SKIN.contains(layers_at) {
-        bail!("examples/paper-virtual-skin.toml no longer sets {layers_at:?}; update the kilohertz bench");
+    let rt = "[driver.rt]\n";
+    if !PAPER_SKIN.contains(layers_at) || PAPER_SKIN.matches(rt).count() != 1 {
+        bail!(
+            "examples/paper-virtual-skin.toml no longer sets {layers_at:?} and one {rt:?}; update the kilohertz bench"
+        );
     }
-    let text = PAPER_SKIN.replace(layers_at, "rate_hz = 1000");
+    let mut text = PAPER_SKIN.replace(layers_at, "rate_hz = 1000");
+    if let Some(wake) = wake {
+        text = text.replace(rt, &format!("{rt}reader_wake = \"{}\"\n", wake.name()));
+    }
     Ok(match text.split_once("[[service]]") {
         Some((skin, services)) if with_services => {
             format!("{skin}[[service]]{}", services.replace("rate_hz = 50", "rate_hz = 1000"))
@@ -180,9 +224,13 @@ impl Drop for Guarded {
     }
 }
 
-fn start_skin(exe: &Path, dir: &Path, with_services: bool) -> Result<(RunningSkin, Vec<Reader>)> {
+fn start_skin(
+    exe: &Path,
+    (dir, wake): (&Path, Option<Wake>),
+    with_services: bool,
+) -> Result<(RunningSkin, Vec<Reader>)> {
     let path = dir.join(if with_services { "loaded.toml" } else { "control.toml" });
-    std::fs::write(&path, config(with_services)?)?;
+    std::fs::write(&path, config(with_services, wake)?)?;
     let skin = RunningSkin::start(exe, &path, dir)?;
     let options = ReaderOptions { dir: Some(dir.to_owned()), ..ReaderOptions::default() };
     let deadline = Instant::now() + Duration::from_secs(30);
@@ -211,10 +259,17 @@ fn start_skin(exe: &Path, dir: &Path, with_services: bool) -> Result<(RunningSki
     Ok((skin, readers))
 }
 
-fn run_phase(exe: &Path, viewer_exe: &Path, dir: &Path, seconds: f64, loaded: bool, out: &Path) -> Result<PhaseReport> {
+fn run_phase(
+    exe: &Path,
+    viewer_exe: &Path,
+    (dir, wake): (&Path, Option<Wake>),
+    seconds: f64,
+    loaded: bool,
+    out: &Path,
+) -> Result<PhaseReport> {
     let phase = if loaded { "loaded" } else { "control" };
     eprintln!("kilohertz: {phase} run, {seconds} s");
-    let (skin, readers) = start_skin(exe, dir, loaded)?;
+    let (skin, readers) = start_skin(exe, (dir, wake), loaded)?;
     let skin_pid = skin.pid();
     let stop = Arc::new(AtomicBool::new(false));
     let clock = SeqClock::start(dir, stop.clone());
@@ -562,7 +617,7 @@ fn browse(address: &str, ack_hz: f64, stop: &AtomicBool, clock: &SeqClock) -> Re
 /// The viewer alone on the 1 kHz skin with 1, then 10 browsers; then 9 at
 /// 60 Hz and one slow browser at 5 Hz.
 fn viewer_scaling(exe: &Path, viewer_exe: &Path, dir: &Path, seconds: f64) -> Result<Vec<ViewerRun>> {
-    let (skin, _readers) = start_skin(exe, dir, false)?;
+    let (skin, _readers) = start_skin(exe, (dir, None), false)?;
     let (viewer, address) = start_viewer(viewer_exe, dir)?;
     let mut runs = Vec::new();
     let plans: [Vec<f64>; 3] =
