@@ -126,7 +126,7 @@ for r in wake.get("records", []):
         need(is_count(r.get(key, {}).get("p99")), f"{label}: {key} missing")
     if r.get("readers"):
         need(r.get("frames_received", 0) > 0, f"{label}: the readers received nothing")
-        need(r.get("woken_by_ringer" if r.get("wake") == "ringer" else "woken_by_writer", 0) > 0, f"{label}: no wake went the chosen way")
+        need(r.get(f"woken_by_{r.get('wake')}", 0) > 0, f"{label}: no wake went the chosen way")
 
 khz = json.loads((out / "kilohertz.json").read_text())
 need([p.get("phase") for p in khz.get("phases", [])] == ["control", "loaded"], "kilohertz.json: phases")

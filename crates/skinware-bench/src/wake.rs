@@ -68,8 +68,10 @@ pub struct WakeRecord {
     /// CPU time of the writer's process per frame (writer, ringer or lookout, and this
     /// bench's idle main thread), ns.
     pub writer_process_cpu_ns: f64,
-    /// Publishes whose sleepers the ringer or the lookout woke.
+    /// Publishes whose sleepers the ringer woke.
     pub woken_by_ringer: u64,
+    /// Publishes whose sleepers the lookout woke.
+    pub woken_by_lookout: u64,
     /// Publishes whose sleepers the writer woke itself.
     pub woken_by_writer: u64,
 }
@@ -100,6 +102,7 @@ struct Pool {
     thread_cpu_ns: u64,
     process_cpu_ns: u64,
     by_ringer: u64,
+    by_lookout: u64,
     by_writer: u64,
 }
 
@@ -148,6 +151,7 @@ pub fn run(options: &WakeOptions) -> Result<WakeReport> {
                 writer_thread_cpu_ns: per_frame(pool.thread_cpu_ns),
                 writer_process_cpu_ns: per_frame(pool.process_cpu_ns),
                 woken_by_ringer: pool.by_ringer,
+                woken_by_lookout: pool.by_lookout,
                 woken_by_writer: pool.by_writer,
             }
         })
@@ -205,6 +209,7 @@ fn run_configuration(
     pool.thread_cpu_ns += measured.thread_cpu_ns;
     pool.process_cpu_ns += measured.process_cpu_ns;
     pool.by_ringer += measured.by_ringer;
+    pool.by_lookout += measured.by_lookout;
     pool.by_writer += measured.by_writer;
     Ok(())
 }
@@ -217,6 +222,7 @@ struct Measured {
     thread_cpu_ns: u64,
     process_cpu_ns: u64,
     by_ringer: u64,
+    by_lookout: u64,
     by_writer: u64,
 }
 
@@ -239,6 +245,7 @@ fn publish_frames(mut writer: Writer, period: Duration, stop: &Stop, frame: &[u1
         thread_cpu_ns: 0,
         process_cpu_ns: 0,
         by_ringer: 0,
+        by_lookout: 0,
         by_writer: 0,
     };
     // One unmeasured frame: the ringer's thread starts here.
@@ -262,6 +269,7 @@ fn publish_frames(mut writer: Writer, period: Duration, stop: &Stop, frame: &[u1
     measured.process_cpu_ns = cpu_ns(ClockId::ProcessCPUTime) - process_cpu;
     let after = writer.wake_counts();
     measured.by_ringer = after.by_ringer - counts.by_ringer;
+    measured.by_lookout = after.by_lookout - counts.by_lookout;
     measured.by_writer = after.by_writer - counts.by_writer;
     Ok(measured)
 }
@@ -276,13 +284,13 @@ fn print(report: &WakeReport) {
         report.frame_bytes, report.rate_hz, report.rounds, report.seconds
     );
     println!(
-        "| wake | readers | period start → visible | start jitter | missed | publish call | reader latency | writer thread CPU/frame | process CPU/frame | woken by ringer / writer |"
+        "| wake | readers | period start → visible | start jitter | missed | publish call | reader latency | writer thread CPU/frame | process CPU/frame | woken by lookout / ringer / writer |"
     );
     println!("|---|---|---|---|---|---|---|---|---|---|");
     let triple = |s: &Summary| format!("{} / {} / {}", us(s.p50), us(s.p99), us(s.max));
     for record in &report.records {
         println!(
-            "| {} | {} | {} | {} | {} | {} | {} | {:.1} | {:.1} | {} / {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {:.1} | {:.1} | {} / {} / {} |",
             record.wake,
             record.readers,
             triple(&record.visible_ns),
@@ -292,6 +300,7 @@ fn print(report: &WakeReport) {
             if record.readers == 0 { "–".to_string() } else { triple(&record.reader_latency_ns) },
             record.writer_thread_cpu_ns / 1e3,
             record.writer_process_cpu_ns / 1e3,
+            record.woken_by_lookout,
             record.woken_by_ringer,
             record.woken_by_writer,
         );

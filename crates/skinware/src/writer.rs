@@ -80,8 +80,8 @@ pub enum ReaderWake {
     /// woken by a CPU that is already awake, so they wake sooner than with
     /// either of the others. The cost is the lookout's spinning, CPU time on
     /// another CPU every period a reader sleeps. When the lookout is not
-    /// watching (it or the frame was late), the writer wakes the readers
-    /// itself. Needs what the ringer needs, a periodic writer
+    /// watching (it or the frame was late), the writer hands the wake to its
+    /// ringer, which it also has. Needs what the ringer needs, a periodic writer
     /// ([`WriterOptions::period`]) and a second CPU it may run on; otherwise
     /// the writer uses the ringer, or wakes its readers itself.
     #[default]
@@ -91,10 +91,13 @@ pub enum ReaderWake {
 /// How many publishes with readers asleep had them woken by which thread.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct WakeCounts {
-    /// Wakes handed to the writer's ringer or lookout.
+    /// Wakes handed to the writer's ringer.
     pub by_ringer: u64,
+    /// Wakes the writer's lookout made.
+    pub by_lookout: u64,
     /// Wakes the writer made itself: with [`ReaderWake::Writer`], or because
-    /// its ringer had not yet rung the previous publish.
+    /// its ringer had not yet rung the previous publish (with a lookout: and
+    /// the lookout was not watching for this one).
     pub by_writer: u64,
 }
 
@@ -246,6 +249,7 @@ impl Writer {
                 last_published_ns: 0,
                 woken_by_writer: 0,
                 handed_to_ringer: 0,
+                woken_by_lookout: 0,
                 reader_wake: options.reader_wake,
                 ringer: None,
                 lookout: None,
@@ -294,7 +298,11 @@ impl Writer {
 
     /// Which thread woke the readers asleep for this writer's frames, so far.
     pub fn wake_counts(&self) -> WakeCounts {
-        WakeCounts { by_ringer: self.publishing.handed_to_ringer, by_writer: self.publishing.woken_by_writer }
+        WakeCounts {
+            by_ringer: self.publishing.handed_to_ringer,
+            by_lookout: self.publishing.woken_by_lookout,
+            by_writer: self.publishing.woken_by_writer,
+        }
     }
 
     /// Opens the next frame for filling, in place in shared memory. It is
@@ -479,7 +487,17 @@ impl Writer {
             return;
         }
         match Lookout::start(&self.shared, priority, period_ns) {
-            Ok(lookout) => self.publishing.lookout = Some(lookout),
+            Ok(lookout) => {
+                self.publishing.lookout = Some(lookout);
+                // For the frames the lookout is not watching for: a wake
+                // on the writer's own CPU rather than one to another.
+                match Ringer::start(&self.shared, priority) {
+                    Ok(ringer) => self.publishing.ringer = Some(ringer),
+                    Err(error) => {
+                        tracing::warn!(channel = %self.shared.label, %error, "cannot start the ringer thread; the writer wakes the readers its lookout does not");
+                    }
+                }
+            }
             Err(error) => {
                 tracing::warn!(channel = %self.shared.label, %error, "cannot start the lookout thread; the writer wakes its readers itself");
                 self.publishing.reader_wake = ReaderWake::Writer;
@@ -702,6 +720,7 @@ struct Publishing {
     last_published_ns: u64,
     woken_by_writer: u64,
     handed_to_ringer: u64,
+    woken_by_lookout: u64,
     reader_wake: ReaderWake,
     /// Started at the first frame with [`ReaderWake::Ringer`].
     ringer: Option<Ringer>,
@@ -718,32 +737,33 @@ impl Publishing {
     /// After the publish of a frame that `announced` sleepers wait for (or
     /// not): wakes them, or leaves the wake to the lookout or the ringer.
     fn wake_sleepers(&mut self, label: &str, notify: &AtomicU32, announced: bool, published_ns: u64) {
-        if let Some(lookout) = &self.lookout {
-            match lookout.watch.published(announced, published_ns, os::current_cpu().unwrap_or(u32::MAX)) {
-                WakeBy::Nobody => {}
-                WakeBy::Lookout => self.handed_to_ringer += 1,
-                WakeBy::Writer => {
-                    self.woken_by_writer += 1;
-                    SHARED_FUTEX.wake_all(notify);
-                }
-            }
-            if lookout.watch.lookout_gone() {
-                tracing::warn!(channel = %label, "the lookout thread ended; the writer wakes its readers itself");
-                // Its last handoff may not have been rung: wake now.
-                SHARED_FUTEX.wake_all(notify);
-                self.lookout = None;
-                self.reader_wake = ReaderWake::Writer;
-            }
-            return;
-        }
         let handoff = self.ringer.as_ref().map(|ringer| &*ringer.handoff);
         // A ringer still behind on the last handoff leaves readers asleep
-        // since then, who announce themselves no more: wake them here.
+        // since then, who announce themselves no more: they are woken now.
         let ringer_behind = handoff.is_some_and(Handoff::behind);
-        if announced || ringer_behind {
-            let handed = !ringer_behind
-                && handoff
-                    .is_some_and(|handoff| handoff.hand_off(os::current_cpu().unwrap_or(u32::MAX), &PRIVATE_FUTEX));
+        let mut wake = announced || ringer_behind;
+        let writer_cpu = os::current_cpu().unwrap_or(u32::MAX);
+        if let Some(lookout) = &self.lookout {
+            match lookout.watch.published(wake, published_ns, writer_cpu) {
+                WakeBy::Lookout => {
+                    self.woken_by_lookout += 1;
+                    wake = false;
+                }
+                WakeBy::Nobody => {}
+                // Not watching, or behind on the last frame: the ringer's
+                // (or the writer's) to wake.
+                WakeBy::Writer => wake = true,
+            }
+            if lookout.watch.lookout_gone() {
+                tracing::warn!(channel = %label, "the lookout thread ended; its ringer (or the writer) wakes the readers");
+                // Its last frame may not have been rung.
+                wake = true;
+                self.lookout = None;
+                self.reader_wake = if self.ringer.is_some() { ReaderWake::Ringer } else { ReaderWake::Writer };
+            }
+        }
+        if wake {
+            let handed = !ringer_behind && handoff.is_some_and(|handoff| handoff.hand_off(writer_cpu, &PRIVATE_FUTEX));
             if handed {
                 self.handed_to_ringer += 1;
             } else {
@@ -754,7 +774,9 @@ impl Publishing {
         if handoff.is_some_and(Handoff::ringer_gone) {
             tracing::warn!(channel = %label, "the ringer thread ended; the writer wakes its readers itself");
             self.ringer = None;
-            self.reader_wake = ReaderWake::Writer;
+            if self.reader_wake == ReaderWake::Ringer {
+                self.reader_wake = ReaderWake::Writer;
+            }
         }
     }
 }

@@ -15,10 +15,10 @@
 //! only for frames some reader has announced it sleeps for.
 //!
 //! When the lookout is not watching (it was late, the frame was, or no reader
-//! had announced itself when it looked), the writer wakes the readers itself,
-//! as with [`crate::ReaderWake::Writer`], so no reader is ever later than
-//! that. A lookout that has not rung the last frame when the next is
-//! published leaves that wake to the writer too.
+//! had announced itself when it looked), the writer hands the wake to its
+//! ringer, as with [`crate::ReaderWake::Ringer`] (or, without one, wakes the
+//! readers itself). A lookout that has not rung the last frame when the next
+//! is published leaves that wake to them too.
 //!
 //! This module is the protocol on that word, model-checked with loom in
 //! [`super::doorbell`]'s models; the thread lives in `crate::writer`.
@@ -43,7 +43,7 @@ pub(crate) enum WakeBy {
     Nobody,
     /// The lookout, which was watching.
     Lookout,
-    /// The writer itself, now.
+    /// The writer's side (its ringer, or the writer itself), now.
     Writer,
 }
 
