@@ -82,41 +82,44 @@ impl Anticipation {
     }
 }
 
-/// Samples per window of [`RecentP90`].
-const P90_WINDOW: usize = 64;
+/// Samples per window of [`RecentQuantile`].
+const QUANTILE_WINDOW: usize = 128;
 
-/// The 90th percentile of a delay over the last window of samples, plus a
-/// margin: how early a writer's lookout sets its timer (its own timer
-/// wake-ups' lateness) and how long it spins past the earliest expected
-/// frame (the writer's own). Recomputed once per window, so that one stall
-/// moves nothing and a machine that turns slower is followed within a window.
+/// A high quantile of a delay over the last window of samples, plus a
+/// margin: how early a writer's lookout sets its timer and how long it spins
+/// past the earliest expected frame. Recomputed once per window, so that a
+/// stall or two move nothing (above the quantile) and a machine that turns
+/// slower is followed within a window.
 #[derive(Clone, Debug)]
-pub(crate) struct RecentP90 {
-    samples: [u32; P90_WINDOW],
+pub(crate) struct RecentQuantile {
+    samples: [u32; QUANTILE_WINDOW],
     filled: usize,
+    /// Index of the quantile in a sorted window.
+    rank: usize,
     value_ns: u64,
     margin_ns: u64,
 }
 
-impl RecentP90 {
-    /// Starts at `initial_ns` until a window is full.
-    pub(crate) fn new(initial_ns: u64, margin_ns: u64) -> RecentP90 {
-        RecentP90 { samples: [0; P90_WINDOW], filled: 0, value_ns: initial_ns, margin_ns }
+impl RecentQuantile {
+    /// The `per_mille` quantile (e.g. 970), `initial_ns` until a window is full.
+    pub(crate) fn new(per_mille: usize, initial_ns: u64, margin_ns: u64) -> RecentQuantile {
+        let rank = (QUANTILE_WINDOW * per_mille.min(1000) / 1000).min(QUANTILE_WINDOW - 1);
+        RecentQuantile { samples: [0; QUANTILE_WINDOW], filled: 0, rank, value_ns: initial_ns, margin_ns }
     }
 
     /// Takes note of one delay.
     pub(crate) fn observe(&mut self, delay_ns: u64) {
         self.samples[self.filled] = u32::try_from(delay_ns).unwrap_or(u32::MAX);
         self.filled += 1;
-        if self.filled == P90_WINDOW {
+        if self.filled == QUANTILE_WINDOW {
             let mut sorted = self.samples;
             sorted.sort_unstable();
-            self.value_ns = u64::from(sorted[P90_WINDOW * 9 / 10]) + self.margin_ns;
+            self.value_ns = u64::from(sorted[self.rank]) + self.margin_ns;
             self.filled = 0;
         }
     }
 
-    /// The 90th percentile of the last full window plus the margin, ns.
+    /// The quantile of the last full window plus the margin, ns.
     pub(crate) fn value_ns(&self) -> u64 {
         self.value_ns
     }
@@ -127,27 +130,27 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_recent_p90_ignores_a_stall_and_follows_a_slower_machine() {
-        let mut lead = RecentP90::new(100_000, 10_000);
+    fn the_recent_quantile_ignores_stalls_and_follows_a_slower_machine() {
+        let mut lead = RecentQuantile::new(970, 100_000, 10_000);
         assert_eq!(lead.value_ns(), 100_000);
-        // 60 µs wake-ups with one 20 ms stall: the stall is above the 90th percentile.
-        for k in 0..P90_WINDOW {
-            lead.observe(if k == 7 { 20_000_000 } else { 60_000 });
+        // 60 µs wake-ups with three 20 ms stalls: above the 97th percentile.
+        for k in 0..QUANTILE_WINDOW {
+            lead.observe(if k % 40 == 7 { 20_000_000 } else { 60_000 });
         }
         assert_eq!(lead.value_ns(), 70_000);
         // Slower wake-ups for a whole window are followed.
-        for _ in 0..P90_WINDOW {
+        for _ in 0..QUANTILE_WINDOW {
             lead.observe(150_000);
         }
         assert_eq!(lead.value_ns(), 160_000);
         // A delay beyond u32 nanoseconds saturates instead of wrapping.
-        for _ in 0..P90_WINDOW {
+        for _ in 0..QUANTILE_WINDOW {
             lead.observe(u64::MAX);
         }
         assert_eq!(lead.value_ns(), u64::from(u32::MAX) + 10_000);
+        // The quantile's rank stays inside the window whatever is asked.
+        assert_eq!(RecentQuantile::new(5000, 0, 0).rank, QUANTILE_WINDOW - 1);
     }
-
-    const PERIOD: u64 = 5_000_000;
 
     #[test]
     fn the_earliest_phase_predicts_the_next_frame() {

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
-use crate::anticipate::{Anticipation, RecentP90};
+use crate::anticipate::{Anticipation, RecentQuantile};
 use crate::channel::doorbell::{self, Futex as _, WaitEnd};
 use crate::channel::handover::Server;
 use crate::channel::layout::{Layout, SCHEMA_NAME_BYTES};
@@ -75,7 +75,7 @@ pub enum ReaderWake {
     /// A thread of the writer's process, its *lookout*, which keeps off the
     /// writer's CPU, learns the writer's grid, and is spinning on another
     /// CPU when each frame is due (from a timer set as early as its own
-    /// wake-ups are late, p90), for frames some reader sleeps for. The
+    /// wake-ups are late, p97), for frames some reader sleeps for. The
     /// writer makes no system call (one compare-and-swap) and readers are
     /// woken by a CPU that is already awake, so they wake sooner than with
     /// either of the others. The cost is the lookout's spinning, CPU time on
@@ -902,7 +902,10 @@ impl Drop for Lookout {
 /// The lookout's first timer lead and spin past the earliest expected frame,
 /// before it has measured either.
 const LOOKOUT_INITIAL_NS: u64 = 100_000;
-/// Added to the measured 90th percentiles.
+/// The quantile (per mille) of its own lateness and the frames' that the
+/// lookout is ready for: the frames beyond it go to the ringer.
+const LOOKOUT_QUANTILE: usize = 970;
+/// Added to the measured quantiles.
 const LOOKOUT_MARGIN_NS: u64 = 10_000;
 
 /// Sleeps until `deadline_ns` unless the writer goes first (`false`).
@@ -945,9 +948,9 @@ fn look_out_for(shared: &Shared, watch: &Watch, writer_priority: u8, period_ns: 
     // How much earlier than the earliest expected frame the lookout must
     // set its timer: its own lateness less the frame's, which are not
     // independent (a busy host is slow to run both vCPUs).
-    let mut lead_needed = RecentP90::new(LOOKOUT_INITIAL_NS, LOOKOUT_MARGIN_NS);
+    let mut lead_needed = RecentQuantile::new(LOOKOUT_QUANTILE, LOOKOUT_INITIAL_NS, LOOKOUT_MARGIN_NS);
     // How long after the earliest expected frame frames come.
-    let mut frame_late = RecentP90::new(LOOKOUT_INITIAL_NS, LOOKOUT_MARGIN_NS);
+    let mut frame_late = RecentQuantile::new(LOOKOUT_QUANTILE, LOOKOUT_INITIAL_NS, LOOKOUT_MARGIN_NS);
     let mut observed = 0;
     let mut avoiding = None;
     let mut idle_looks = 0u64;
@@ -990,9 +993,9 @@ fn look_out_for(shared: &Shared, watch: &Watch, writer_priority: u8, period_ns: 
             continue;
         };
         let lead = lead_needed.value_ns().clamp(1, ceiling);
-        // Twice the usual: the spin ends at the frame, so a long one costs
-        // only the rare late frames, which the writer would otherwise wake.
-        let spin_after = frame_late.value_ns().saturating_mul(2).clamp(1, 2 * ceiling);
+        // The spin ends at the frame, so a long one costs only the rare
+        // late frames.
+        let spin_after = frame_late.value_ns().clamp(1, 2 * ceiling);
         let now = os::monotonic_ns();
         // A frame that is late past the spin (or a stalled writer) is the
         // writer's to wake: watch for the next one on the grid.
