@@ -1007,6 +1007,12 @@ fn look_out_for(shared: &Shared, watch: &Watch, writer_priority: u8, period_ns: 
             return;
         }
         let woke_late = os::monotonic_ns().saturating_sub(wake_at);
+        if watch.last_published_ns() != last {
+            // A frame came while it slept (a late one, after the last spin
+            // ended): take note of it first, or its lateness is lost and the
+            // spins shrink to the frames that come early.
+            continue;
+        }
         let until = expected.saturating_add(spin_after);
         if !doorbell::someone_waits(notify) {
             // Nobody sleeps for this frame (yet): one who comes later is the
