@@ -152,6 +152,8 @@ mod tests {
         assert_eq!(RecentQuantile::new(5000, 0, 0).rank, QUANTILE_WINDOW - 1);
     }
 
+    const PERIOD: u64 = 5_000_000;
+
     #[test]
     fn the_earliest_phase_predicts_the_next_frame() {
         let mut a = Anticipation::new(100_000);
