@@ -135,7 +135,7 @@ mod tests {
         assert_eq!(lead.value_ns(), 100_000);
         // 60 µs wake-ups with three 20 ms stalls: above the 97th percentile.
         for k in 0..QUANTILE_WINDOW {
-            lead.observe(if k % 40 == 7 { 20_000_000 } else { 60_000 });
+            lead.observe(if k % 50 == 7 { 20_000_000 } else { 60_000 });
         }
         assert_eq!(lead.value_ns(), 70_000);
         // Slower wake-ups for a whole window are followed.

@@ -756,8 +756,11 @@ impl Publishing {
             }
             if lookout.watch.lookout_gone() {
                 tracing::warn!(channel = %label, "the lookout thread ended; its ringer (or the writer) wakes the readers");
-                // Its last frame may not have been rung.
-                wake = true;
+                // It may have ended with a frame taken and not rung: one
+                // spare wake, not counted.
+                if !wake {
+                    SHARED_FUTEX.wake_all(notify);
+                }
                 self.lookout = None;
                 self.reader_wake = if self.ringer.is_some() { ReaderWake::Ringer } else { ReaderWake::Writer };
             }
@@ -907,6 +910,8 @@ const LOOKOUT_INITIAL_NS: u64 = 100_000;
 const LOOKOUT_QUANTILE: usize = 970;
 /// Added to the measured quantiles.
 const LOOKOUT_MARGIN_NS: u64 = 10_000;
+/// Watches in a row without a frame after which the lookout backs off.
+const FRUITLESS_BEFORE_BACKING_OFF: u64 = 4;
 
 /// Sleeps until `deadline_ns` unless the writer goes first (`false`).
 fn lookout_sleep_until(watch: &Watch, deadline_ns: u64) -> bool {
@@ -954,6 +959,9 @@ fn look_out_for(shared: &Shared, watch: &Watch, writer_priority: u8, period_ns: 
     let mut observed = 0;
     let mut avoiding = None;
     let mut idle_looks = 0u64;
+    // Watches in a row that saw no frame (a writer whose fills fail, or
+    // that stopped): after a few, the lookout looks ever more rarely.
+    let mut fruitless = 0u64;
     let mut watched_for: Option<(u64, u64)> = None;
     loop {
         if watch.is_stopping() {
@@ -974,8 +982,14 @@ fn look_out_for(shared: &Shared, watch: &Watch, writer_priority: u8, period_ns: 
         }
         let last = watch.last_published_ns();
         if last != observed {
-            grid.observe(last, period_ns);
+            // Not the first frame: a writer's first is often off its grid
+            // (published at start-up, before its first tick), which would
+            // set the lookout's timer early for two windows.
+            if observed != 0 {
+                grid.observe(last, period_ns);
+            }
             observed = last;
+            fruitless = 0;
             // Every frame watched for, including those that came after the
             // spin ended: sampling only the ones caught would shrink the
             // spin to the earliest frames.
@@ -999,18 +1013,27 @@ fn look_out_for(shared: &Shared, watch: &Watch, writer_priority: u8, period_ns: 
         let now = os::monotonic_ns();
         // A frame that is late past the spin (or a stalled writer) is the
         // writer's to wake: watch for the next one on the grid.
-        while expected.saturating_add(spin_after) <= now {
-            expected = expected.saturating_add(period_ns);
+        if let Some(behind) = now.checked_sub(expected.saturating_add(spin_after)) {
+            expected = expected.saturating_add((behind / period_ns + 1).saturating_mul(period_ns));
         }
         let wake_at = expected.saturating_sub(lead);
         if wake_at > now && !lookout_sleep_until(watch, wake_at) {
             return;
         }
         let woke_late = os::monotonic_ns().saturating_sub(wake_at);
-        if watch.last_published_ns() != last {
-            // A frame came while it slept (a late one, after the last spin
-            // ended): take note of it first, or its lateness is lost and the
-            // spins shrink to the frames that come early.
+        let arrived = watch.last_published_ns();
+        if arrived != last {
+            if arrived >= wake_at {
+                // The frame it was to watch for came first: the lookout woke
+                // too late, by how much it needed more lead.
+                let late = arrived.saturating_sub(expected);
+                frame_late.observe(late);
+                lead_needed.observe(woke_late.saturating_sub(late));
+                watched_for = None;
+            }
+            // Otherwise a late frame came while it slept, after its spin
+            // ended: noted at the top, or its lateness is lost and the spins
+            // shrink to the frames that come early.
             continue;
         }
         let until = expected.saturating_add(spin_after);
@@ -1028,8 +1051,21 @@ fn look_out_for(shared: &Shared, watch: &Watch, writer_priority: u8, period_ns: 
             continue;
         }
         idle_looks = 0;
+        if fruitless >= FRUITLESS_BEFORE_BACKING_OFF {
+            let skip = period_ns.saturating_mul((fruitless - FRUITLESS_BEFORE_BACKING_OFF + 1).min(64));
+            fruitless += 1;
+            if !lookout_sleep_until(watch, until.saturating_add(skip)) {
+                return;
+            }
+            continue;
+        }
         // A frame published before the watch began was the writer's to wake.
         watched_for = Some((expected, woke_late));
-        watch.watch(notify, &SHARED_FUTEX, || watch.last_published_ns() == last && os::monotonic_ns() < until);
+        watch.watch(notify, &SHARED_FUTEX, || {
+            watch.last_published_ns() == last && os::monotonic_ns() < until && !watch.is_stopping()
+        });
+        if watch.last_published_ns() == last {
+            fruitless += 1;
+        }
     }
 }

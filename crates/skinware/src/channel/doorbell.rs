@@ -515,6 +515,28 @@ mod loom_tests {
         });
     }
 
+    /// A lookout that took frame 1's wake and never rings it (it stalled
+    /// for good): the writer, finding it still behind at frame 2, wakes the
+    /// reader asleep since frame 1, which announces itself no more.
+    #[test]
+    fn loom_a_lookout_that_never_rings_loses_no_wake() {
+        model(|| {
+            let channel = channel();
+            let watch = Arc::new(Watch::default());
+            watch.begin_watching_and_stall();
+            let reader = {
+                let channel = channel.clone();
+                loom::thread::spawn(move || {
+                    let ring = Ring::new(&channel.published, &channel.slots, 2);
+                    wait_for_frame(&channel.notify, || ring.published(), 0, u64::MAX, || false, &channel.futex)
+                })
+            };
+            publish_watched(&channel, &watch, 1);
+            publish_watched(&channel, &watch, 2);
+            assert_eq!(reader.join().unwrap().unwrap(), WaitEnd::Ready);
+        });
+    }
+
     /// Two publishes while a reader waits for the second and a lookout
     /// watches once: a lookout that took frame 1's wake and has not rung it
     /// when frame 2 comes leaves frame 2's wake to the writer, and the reader

@@ -86,9 +86,9 @@ impl Watch {
         // writer's swap of the doorbell word before it, so its wake comes
         // after the change the sleepers wait for.
         let answered = self.state.compare_exchange(WATCHING, outcome, Ordering::AcqRel, Ordering::Acquire);
-        // After the exchange: a lookout that sees the new time while it still
-        // reads `WATCHING` knows the writer has answered already (its own
-        // exchange then fails and it takes the answer) or found it idle.
+        // After the exchange, as a hint only: a lookout that sees the new
+        // time gives up its watch, and its own exchange from `WATCHING`
+        // decides whether the writer's answer is still its to take.
         self.last_published_ns.store(published_ns, Ordering::Relaxed);
         self.writer_cpu.store(writer_cpu, Ordering::Relaxed);
         match answered {
@@ -100,6 +100,13 @@ impl Watch {
             Err(_) if announced => WakeBy::Writer,
             Err(_) => WakeBy::Nobody,
         }
+    }
+
+    /// Loom models: a lookout that began watching and never looks again
+    /// (starved for good, or dead).
+    #[cfg(all(test, loom))]
+    pub(crate) fn begin_watching_and_stall(&self) {
+        self.state.store(WATCHING, Ordering::Relaxed);
     }
 
     /// Lookout: watches for the next publish while `keep_watching` says so,
@@ -141,8 +148,8 @@ impl Watch {
         ring
     }
 
-    /// Lookout: when the writer last published (0: not yet). A change seen
-    /// while watching means the writer has answered or found nobody watching.
+    /// Lookout: when the writer last published (0: not yet); a hint, which
+    /// orders nothing.
     pub(crate) fn last_published_ns(&self) -> u64 {
         self.last_published_ns.load(Ordering::Relaxed)
     }
