@@ -67,6 +67,7 @@ pub enum ReaderWake {
     /// never more than one frame late. Started at the writer's first frame,
     /// from its thread, and only if that thread is real-time (SCHED_FIFO or
     /// SCHED_RR): a writer in the normal scheduler wakes its readers itself.
+    #[default]
     Ringer,
     /// The writer's own thread, right after the publish: readers wake
     /// sooner than with the ringer, and the acquisition thread pays the
@@ -84,7 +85,12 @@ pub enum ReaderWake {
     /// ringer, which it also has. Needs what the ringer needs, a periodic writer
     /// ([`WriterOptions::period`]) and a second CPU it may run on; otherwise
     /// the writer uses the ringer, or wakes its readers itself.
-    #[default]
+    ///
+    /// Not the default: on the 2-vCPU development VM it spent about 70 µs
+    /// of the other CPU per frame, and the paper's skin at 1 kHz (5 writers)
+    /// took 35–40 % of a core more with it, for no gain to readers in the
+    /// normal scheduler (`docs/benchmarks.md`). Real-time readers of a
+    /// writer with CPU to spare gain the most.
     Lookout,
 }
 
@@ -474,14 +480,14 @@ impl Writer {
             return;
         };
         let Some(period_ns) = self.publishing.period_ns else {
-            tracing::debug!(channel = %self.shared.label, "a sporadic writer has no lookout; its ringer wakes its readers");
+            tracing::info!(channel = %self.shared.label, "a sporadic writer has no lookout; its ringer wakes its readers");
             self.publishing.reader_wake = ReaderWake::Ringer;
             self.start_ringer();
             return;
         };
         let others = os::allowed_cpus().map(|cpus| cpus.len() > 1);
         if !matches!(others, Ok(true)) {
-            tracing::debug!(channel = %self.shared.label, "the writer may run on one CPU only: no lookout, its ringer wakes its readers");
+            tracing::info!(channel = %self.shared.label, "the writer may run on one CPU only: no lookout, its ringer wakes its readers");
             self.publishing.reader_wake = ReaderWake::Ringer;
             self.start_ringer();
             return;

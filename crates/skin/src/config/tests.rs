@@ -68,9 +68,9 @@ fn with(extra: &str) -> Result<Config> {
 #[test]
 fn the_reader_wake_is_chosen_per_driver_and_service() {
     let default = with("").unwrap();
-    assert_eq!(default.drivers[0].rt.options().reader_wake, skinware::ReaderWake::Lookout);
-    let chosen = with("[driver.rt]\nreader_wake = \"ringer\"\n[[service]]\nname = \"c\"\nkind = \"contact\"\n[service.rt]\nreader_wake = \"writer\"\n").unwrap();
-    assert_eq!(chosen.drivers[0].rt.options().reader_wake, skinware::ReaderWake::Ringer);
+    assert_eq!(default.drivers[0].rt.options().reader_wake, skinware::ReaderWake::Ringer);
+    let chosen = with("[driver.rt]\nreader_wake = \"lookout\"\n[[service]]\nname = \"c\"\nkind = \"contact\"\n[service.rt]\nreader_wake = \"writer\"\n").unwrap();
+    assert_eq!(chosen.drivers[0].rt.options().reader_wake, skinware::ReaderWake::Lookout);
     assert_eq!(chosen.services[0].rt_options().reader_wake, skinware::ReaderWake::Writer);
     let err = format!("{:#}", with("[driver.rt]\nreader_wake = \"spin\"\n").unwrap_err());
     assert!(err.contains("unknown variant `spin`") && err.contains("lookout") && err.contains("ringer"), "{err}");
