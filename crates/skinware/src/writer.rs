@@ -88,7 +88,7 @@ pub enum ReaderWake {
     ///
     /// Not the default: on the 2-vCPU development VM it spent about 70 µs
     /// of the other CPU per frame, and the paper's skin at 1 kHz (5 writers)
-    /// took 35–40 % of a core more with it, for no gain to readers in the
+    /// took 31–46 % of a core more with it, for no gain to readers in the
     /// normal scheduler (`docs/benchmarks.md`). Real-time readers of a
     /// writer with CPU to spare gain the most.
     Lookout,
@@ -169,8 +169,8 @@ pub const DEFAULT_SLOTS: usize = 3;
 /// Publishing is wait-free: it never takes a lock, never waits for a reader and
 /// reads nothing readers write; the only syscall it may make is one futex wake
 /// (of its ringer on its own CPU, or of the readers: [`ReaderWake`]), and only
-/// when a reader is sleeping on the channel. The ringer thread starts at the
-/// first frame.
+/// when a reader is sleeping on the channel. The ringer (or lookout) thread
+/// starts at the first frame.
 pub struct Writer {
     shared: Arc<Shared>,
     publishing: Publishing,
@@ -728,7 +728,8 @@ struct Publishing {
     handed_to_ringer: u64,
     woken_by_lookout: u64,
     reader_wake: ReaderWake,
-    /// Started at the first frame with [`ReaderWake::Ringer`].
+    /// Started at the first frame with [`ReaderWake::Ringer`], or with the
+    /// lookout for the frames it misses.
     ringer: Option<Ringer>,
     /// Started at the first frame with [`ReaderWake::Lookout`].
     lookout: Option<Lookout>,
@@ -943,13 +944,13 @@ fn look_out_for(shared: &Shared, watch: &Watch, writer_priority: u8, period_ns: 
     // One below the writer, as the ringer: its timer must not wait behind
     // the readers it is to wake, and it never preempts the writer.
     if let Err(error) = os::set_fifo_priority(writer_priority.saturating_sub(1).max(1)) {
-        tracing::warn!(channel = %shared.label, %error, "the lookout cannot take a real-time priority; the writer wakes its readers itself");
+        tracing::warn!(channel = %shared.label, %error, "the lookout cannot take a real-time priority; its ringer wakes the readers");
         return;
     }
     let allowed = match os::allowed_cpus() {
         Ok(cpus) => cpus,
         Err(error) => {
-            tracing::warn!(channel = %shared.label, %error, "the lookout cannot read its CPUs; the writer wakes its readers itself");
+            tracing::warn!(channel = %shared.label, %error, "the lookout cannot read its CPUs; its ringer wakes the readers");
             return;
         }
     };
@@ -979,7 +980,7 @@ fn look_out_for(shared: &Shared, watch: &Watch, writer_priority: u8, period_ns: 
             avoiding = Some(cpu);
             let others: Vec<usize> = allowed.iter().copied().filter(|&other| other != cpu as usize).collect();
             if others.is_empty() {
-                tracing::warn!(channel = %shared.label, "the writer runs on the lookout's only CPU; the writer wakes its readers itself");
+                tracing::warn!(channel = %shared.label, "the writer runs on the lookout's only CPU; its ringer wakes the readers");
                 return;
             }
             if let Err(error) = os::pin_to_cpus(&others) {
@@ -1018,7 +1019,7 @@ fn look_out_for(shared: &Shared, watch: &Watch, writer_priority: u8, period_ns: 
         let spin_after = frame_late.value_ns().clamp(1, 2 * ceiling);
         let now = os::monotonic_ns();
         // A frame that is late past the spin (or a stalled writer) is the
-        // writer's to wake: watch for the next one on the grid.
+        // ringer's to wake: watch for the next one on the grid.
         if let Some(behind) = now.checked_sub(expected.saturating_add(spin_after)) {
             expected = expected.saturating_add((behind / period_ns + 1).saturating_mul(period_ns));
         }
@@ -1045,7 +1046,7 @@ fn look_out_for(shared: &Shared, watch: &Watch, writer_priority: u8, period_ns: 
         let until = expected.saturating_add(spin_after);
         if !doorbell::someone_waits(notify) {
             // Nobody sleeps for this frame (yet): one who comes later is the
-            // writer's to wake. The lookout looks again one period later,
+            // ringer's to wake. The lookout looks again one period later,
             // then ever fewer times while nobody sleeps (down to once in 64
             // periods), so that a channel without sleepers costs it almost
             // nothing.
@@ -1065,7 +1066,7 @@ fn look_out_for(shared: &Shared, watch: &Watch, writer_priority: u8, period_ns: 
             }
             continue;
         }
-        // A frame published before the watch began was the writer's to wake.
+        // A frame published before the watch began was the ringer's to wake.
         watched_for = Some((expected, woke_late));
         watch.watch(notify, &SHARED_FUTEX, || {
             watch.last_published_ns() == last && os::monotonic_ns() < until && !watch.is_stopping()

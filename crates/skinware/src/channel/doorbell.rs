@@ -96,8 +96,8 @@ pub(crate) fn announce(notify: &AtomicU32, seq: u64) -> bool {
 
 /// Whether a reader has announced that it sleeps (or is about to) until the
 /// next publish. A hint for a writer's lookout ([`super::lookout`]): a reader
-/// that announces itself after the look misses nothing, since the writer then
-/// wakes it itself.
+/// that announces itself after the look misses nothing, since the writer's
+/// ringer (or the writer) then wakes it.
 pub(crate) fn someone_waits(notify: &AtomicU32) -> bool {
     notify.load(Ordering::Relaxed) & 1 != 0
 }

@@ -27,7 +27,8 @@ use crate::sync::{AtomicU32, AtomicU64, Ordering};
 
 use super::doorbell::Futex;
 
-/// The lookout is not watching: the writer wakes readers itself.
+/// The lookout is not watching: the writer hands the wake to its ringer (or,
+/// without one, wakes the readers itself).
 const IDLE: u32 = 0;
 /// The lookout is spinning on the word, ready to wake readers.
 const WATCHING: u32 = 1;
