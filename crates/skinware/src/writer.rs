@@ -802,13 +802,15 @@ struct Ringer {
 }
 
 impl Ringer {
+    /// Called from the writer's thread, whose CPU the ringer starts on.
     fn start(shared: &Arc<Shared>, writer_priority: u8) -> std::io::Result<Ringer> {
         let handoff = Arc::new(Handoff::default());
         let (ringer_shared, ringer_handoff) = (shared.clone(), handoff.clone());
+        let writer_cpu = os::current_cpu();
         let thread = std::thread::Builder::new().name("skinware-ringer".into()).spawn(move || {
             // Said however the thread ends, a panic included.
             let _ended = RingerEnded(&ringer_handoff);
-            ring_for(&ringer_shared, &ringer_handoff, writer_priority);
+            ring_for(&ringer_shared, &ringer_handoff, writer_priority, writer_cpu);
         })?;
         Ok(Ringer { handoff, thread: Some(thread), pid: std::process::id() })
     }
@@ -837,14 +839,26 @@ impl Drop for Ringer {
 /// The ringer's loop: wakes the channel's sleeping readers for every handoff,
 /// then moves to the CPU the writer ran on, so that the next handoff is a
 /// wake on the writer's own CPU.
-fn ring_for(shared: &Shared, handoff: &Handoff, writer_priority: u8) {
+fn ring_for(shared: &Shared, handoff: &Handoff, writer_priority: u8, writer_cpu: Option<u32>) {
     // One below the writer (at priority 1, the same): it runs as soon as the
     // writer sleeps and never preempts it.
     if let Err(error) = os::set_fifo_priority(writer_priority.saturating_sub(1).max(1)) {
         tracing::warn!(channel = %shared.label, %error, "the ringer cannot take a real-time priority; the writer wakes its readers itself");
         return;
     }
+    // On the writer's CPU from the start, not only after a first ring: the
+    // first handoff, and with a lookout the rare ones it leaves, would
+    // otherwise wake this thread on another CPU, the interrupt the ringer is
+    // there to spare the writer.
     let mut on_cpu = None;
+    if let Some(cpu) = writer_cpu {
+        match os::pin_to_cpus(&[cpu as usize]) {
+            Ok(()) => on_cpu = Some(cpu),
+            Err(error) => {
+                tracing::debug!(channel = %shared.label, %error, "the ringer cannot start on the writer's CPU {cpu}")
+            }
+        }
+    }
     loop {
         match handoff.next(&PRIVATE_FUTEX, Duration::from_secs(1)) {
             Ok(Some((requested, writer_cpu))) => {

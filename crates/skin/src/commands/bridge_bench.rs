@@ -345,7 +345,7 @@ mod with_zenoh {
         let exe = std::env::current_exe().context("cannot find the skin executable")?;
         let seconds = common.seconds.unwrap_or(if common.quick { 3.0 } else { 10.0 });
         std::fs::create_dir_all(&common.out)?;
-        let dir = skinware::shm::segment_dir().join(format!("skin-bench-bridge-{}", std::process::id()));
+        let dir = PathBuf::from("/dev/shm").join(format!("skin-bench-bridge-{}", std::process::id()));
         std::fs::create_dir_all(&dir)?;
         let _cleanup = RemoveDir(dir.clone());
         let config = dir.join("skin.toml");

@@ -142,7 +142,7 @@ pub fn bench(common: &Common, viewer_exe: Option<&Path>, only: Option<Part>, wak
     std::fs::create_dir_all(&common.out).with_context(|| format!("cannot create {}", common.out.display()))?;
     let exe = std::env::current_exe().context("cannot find this executable")?;
     let viewer_exe = viewer_exe.map(Path::to_path_buf).unwrap_or_else(|| exe.clone());
-    let dir = skinware::shm::segment_dir().join(format!("skinware-bench-khz-{}", std::process::id()));
+    let dir = skinware::shm::segment_dir().join(format!("skk{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir)?;
     let result = measure(&exe, &viewer_exe, &dir, seconds, &common.out, only, wake);

@@ -167,6 +167,9 @@ fn hand_over(stream: &UnixStream, data: &OwnedFd, bell: &OwnedFd) {
     );
 }
 
+/// The longest path a Unix socket address holds (`sun_path` less its NUL).
+const SOCKET_PATH_MAX: usize = 107;
+
 /// Binds a listening socket under a temporary name, gives it `mode`, and
 /// renames it onto `path`, so that the name never shows a socket with the
 /// wrong permissions. Returns it with the identity of the file at `path`.
@@ -175,6 +178,15 @@ fn bind(path: &Path, mode: u32) -> Result<(UnixListener, FileIdentity)> {
     let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("channel");
     let temp = dir.join(format!("{}{name}.{}.{}", shm::TEMP_PREFIX, std::process::id(), crate::os::monotonic_ns()));
     let os_error = |op, source| Error::Os { op, path: path.to_owned(), source };
+    if temp.as_os_str().len() > SOCKET_PATH_MAX {
+        let reason = format!(
+            "its socket, bound first as {} ({} bytes), does not fit a Unix socket address ({SOCKET_PATH_MAX} bytes); \
+             use a shorter segment directory (SKINWARE_SHM_DIR) or a shorter skin or channel name",
+            temp.display(),
+            temp.as_os_str().len()
+        );
+        return Err(os_error("bind", std::io::Error::new(std::io::ErrorKind::InvalidInput, reason)));
+    }
     let listener = UnixListener::bind(&temp).map_err(|e| os_error("bind", e))?;
     let placed = std::fs::set_permissions(&temp, std::fs::Permissions::from_mode(mode))
         .map_err(|e| os_error("chmod", e))

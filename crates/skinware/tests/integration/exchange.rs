@@ -160,6 +160,22 @@ fn as_soon_as_available_reader_wakes_on_publish() {
     assert!(waited < Duration::from_secs(10), "missed the wake-up: {waited:?}");
 }
 
+/// A segment directory so deep that the channel's socket cannot be bound
+/// gets an error that says so and what to shorten, not the kernel's bare
+/// "path must be shorter than SUN_LEN" about a path that looks short enough.
+#[test]
+fn a_segment_directory_too_deep_for_a_socket_address_is_a_clear_error() {
+    let dir = SegmentDir::new("deep");
+    let deep = dir.path.join("d".repeat(60));
+    std::fs::create_dir_all(&deep).unwrap();
+    let options = WriterOptions { dir: Some(deep), ..dir.writer() };
+    let error = Writer::create("skin", "layer", 8, b"", &options).unwrap_err().to_string();
+    assert!(
+        error.contains("does not fit a Unix socket address (107 bytes)") && error.contains("SKINWARE_SHM_DIR"),
+        "{error}"
+    );
+}
+
 /// A periodic writer's lookout: three readers asleep for each of 300 frames
 /// at 500 Hz get every one, in order, whoever woke them; the lookout (where it
 /// can run: a real-time writer with a second CPU) woke some; and dropping the
