@@ -744,14 +744,16 @@ impl Publishing {
     /// After the publish of a frame that `announced` sleepers wait for (or
     /// not): wakes them, or leaves the wake to the lookout or the ringer.
     fn wake_sleepers(&mut self, label: &str, notify: &AtomicU32, announced: bool, published_ns: u64) {
-        let handoff = self.ringer.as_ref().map(|ringer| &*ringer.handoff);
+        let handoff = self.ringer.as_ref().map(|ringer| &*ringer.state);
         // A ringer still behind on the last handoff leaves readers asleep
         // since then, who announce themselves no more: they are woken now.
         let ringer_behind = handoff.is_some_and(Handoff::behind);
         let mut wake = announced || ringer_behind;
-        let writer_cpu = os::current_cpu().unwrap_or(u32::MAX);
+        // Asked only where it is used: a ringer's writer publishing to nobody
+        // asleep makes no call at all.
+        let writer_cpu = || os::current_cpu().unwrap_or(u32::MAX);
         if let Some(lookout) = &self.lookout {
-            match lookout.watch.published(wake, published_ns, writer_cpu) {
+            match lookout.state.published(wake, published_ns, writer_cpu()) {
                 WakeBy::Lookout => {
                     self.woken_by_lookout += 1;
                     wake = false;
@@ -761,7 +763,7 @@ impl Publishing {
                 // (or the writer's) to wake.
                 WakeBy::Writer => wake = true,
             }
-            if lookout.watch.lookout_gone() {
+            if lookout.state.lookout_gone() {
                 tracing::warn!(channel = %label, "the lookout thread ended; its ringer (or the writer) wakes the readers");
                 // It may have ended with a frame taken and not rung: one
                 // spare wake, not counted.
@@ -773,7 +775,8 @@ impl Publishing {
             }
         }
         if wake {
-            let handed = !ringer_behind && handoff.is_some_and(|handoff| handoff.hand_off(writer_cpu, &PRIVATE_FUTEX));
+            let handed =
+                !ringer_behind && handoff.is_some_and(|handoff| handoff.hand_off(writer_cpu(), &PRIVATE_FUTEX));
             if handed {
                 self.handed_to_ringer += 1;
             } else {
@@ -791,43 +794,89 @@ impl Publishing {
     }
 }
 
-/// The thread that wakes a writer's sleeping readers for it
-/// ([`crate::channel::ringer`]); stopped and joined on drop.
-struct Ringer {
-    handoff: Arc<Handoff>,
+/// What a writer shares with one of the threads that wake its sleeping
+/// readers for it: its ringer ([`Handoff`]) or its lookout ([`Watch`]).
+trait WakerState: Default + Send + Sync + 'static {
+    /// The writer is going: the thread's wait returns and it ends.
+    fn stop_thread(&self);
+    /// The thread is ending, for any reason, and will wake no one more.
+    fn thread_ended(&self);
+}
+
+impl WakerState for Handoff {
+    fn stop_thread(&self) {
+        self.stop(&PRIVATE_FUTEX);
+    }
+    fn thread_ended(&self) {
+        self.ringer_ended();
+    }
+}
+
+impl WakerState for Watch {
+    fn stop_thread(&self) {
+        self.stop(&PRIVATE_FUTEX);
+    }
+    fn thread_ended(&self) {
+        self.lookout_ended();
+    }
+}
+
+/// A thread that wakes a writer's sleeping readers for it; stopped and
+/// joined on drop.
+struct WakerThread<S: WakerState> {
+    state: Arc<S>,
     thread: Option<std::thread::JoinHandle<()>>,
     /// The process that started the thread: a child made by `fork` has a
     /// copy of this struct but not the thread.
     pid: u32,
 }
 
+/// The ringer ([`crate::channel::ringer`]).
+type Ringer = WakerThread<Handoff>;
+/// The lookout ([`crate::channel::lookout`]).
+type Lookout = WakerThread<Watch>;
+
+impl<S: WakerState> WakerThread<S> {
+    fn spawn(name: &str, run: impl FnOnce(&S) + Send + 'static) -> std::io::Result<WakerThread<S>> {
+        let state = Arc::new(S::default());
+        let thread_state = state.clone();
+        let thread = std::thread::Builder::new().name(name.into()).spawn(move || {
+            // Said however the thread ends, a panic included.
+            let _ended = ThreadEnded(&*thread_state);
+            run(&thread_state);
+        })?;
+        Ok(WakerThread { state, thread: Some(thread), pid: std::process::id() })
+    }
+}
+
 impl Ringer {
     /// Called from the writer's thread, whose CPU the ringer starts on.
     fn start(shared: &Arc<Shared>, writer_priority: u8) -> std::io::Result<Ringer> {
-        let handoff = Arc::new(Handoff::default());
-        let (ringer_shared, ringer_handoff) = (shared.clone(), handoff.clone());
+        let shared = shared.clone();
         let writer_cpu = os::current_cpu();
-        let thread = std::thread::Builder::new().name("skinware-ringer".into()).spawn(move || {
-            // Said however the thread ends, a panic included.
-            let _ended = RingerEnded(&ringer_handoff);
-            ring_for(&ringer_shared, &ringer_handoff, writer_priority, writer_cpu);
-        })?;
-        Ok(Ringer { handoff, thread: Some(thread), pid: std::process::id() })
+        WakerThread::spawn("skinware-ringer", move |handoff| ring_for(&shared, handoff, writer_priority, writer_cpu))
     }
 }
 
-/// Tells the writer, when dropped, that its ringer's thread has ended.
-struct RingerEnded<'a>(&'a Handoff);
-
-impl Drop for RingerEnded<'_> {
-    fn drop(&mut self) {
-        self.0.ringer_ended();
+impl Lookout {
+    fn start(shared: &Arc<Shared>, writer_priority: u8, period_ns: u64) -> std::io::Result<Lookout> {
+        let shared = shared.clone();
+        WakerThread::spawn("skinware-lookout", move |watch| look_out_for(&shared, watch, writer_priority, period_ns))
     }
 }
 
-impl Drop for Ringer {
+/// Tells the writer, when dropped, that its waking thread has ended.
+struct ThreadEnded<'a, S: WakerState>(&'a S);
+
+impl<S: WakerState> Drop for ThreadEnded<'_, S> {
     fn drop(&mut self) {
-        self.handoff.stop(&PRIVATE_FUTEX);
+        self.0.thread_ended();
+    }
+}
+
+impl<S: WakerState> Drop for WakerThread<S> {
+    fn drop(&mut self) {
+        self.state.stop_thread();
         if let Some(thread) = self.thread.take()
             && self.pid == std::process::id()
         {
@@ -877,48 +926,6 @@ fn ring_for(shared: &Shared, handoff: &Handoff, writer_priority: u8, writer_cpu:
                 tracing::warn!(channel = %shared.label, %error, "the ringer stopped; the writer wakes its readers itself");
                 return;
             }
-        }
-    }
-}
-
-/// The thread that watches for a periodic writer's frames on another CPU
-/// and wakes its sleeping readers ([`crate::channel::lookout`]); stopped and
-/// joined on drop.
-struct Lookout {
-    watch: Arc<Watch>,
-    thread: Option<std::thread::JoinHandle<()>>,
-    /// The process that started the thread (see [`Ringer`]).
-    pid: u32,
-}
-
-impl Lookout {
-    fn start(shared: &Arc<Shared>, writer_priority: u8, period_ns: u64) -> std::io::Result<Lookout> {
-        let watch = Arc::new(Watch::default());
-        let (lookout_shared, lookout_watch) = (shared.clone(), watch.clone());
-        let thread = std::thread::Builder::new().name("skinware-lookout".into()).spawn(move || {
-            let _ended = LookoutEnded(&lookout_watch);
-            look_out_for(&lookout_shared, &lookout_watch, writer_priority, period_ns);
-        })?;
-        Ok(Lookout { watch, thread: Some(thread), pid: std::process::id() })
-    }
-}
-
-/// Tells the writer, when dropped, that its lookout's thread has ended.
-struct LookoutEnded<'a>(&'a Watch);
-
-impl Drop for LookoutEnded<'_> {
-    fn drop(&mut self) {
-        self.0.lookout_ended();
-    }
-}
-
-impl Drop for Lookout {
-    fn drop(&mut self) {
-        self.watch.stop(&PRIVATE_FUTEX);
-        if let Some(thread) = self.thread.take()
-            && self.pid == std::process::id()
-        {
-            let _ = thread.join();
         }
     }
 }

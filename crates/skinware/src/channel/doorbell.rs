@@ -309,6 +309,16 @@ mod loom_tests {
         })
     }
 
+    /// A reader waiting for a frame above `after`; its thread returns how
+    /// the wait ended.
+    fn spawn_waiter(channel: &Arc<Channel>, after: u64) -> loom::thread::JoinHandle<io::Result<WaitEnd>> {
+        let channel = channel.clone();
+        loom::thread::spawn(move || {
+            let ring = Ring::new(&channel.published, &channel.slots, 2);
+            wait_for_frame(&channel.notify, || ring.published(), after, u64::MAX, || false, &channel.futex)
+        })
+    }
+
     /// The ringer thread's loop, as `crate::writer` runs it.
     fn spawn_ringer(channel: &Arc<Channel>, handoff: &Arc<Handoff>) -> loom::thread::JoinHandle<()> {
         let (channel, handoff) = (channel.clone(), handoff.clone());
@@ -434,13 +444,7 @@ mod loom_tests {
             let channel = channel();
             let handoff = Arc::new(Handoff::default());
             let ringer = spawn_ringer(&channel, &handoff);
-            let reader = {
-                let channel = channel.clone();
-                loom::thread::spawn(move || {
-                    let ring = Ring::new(&channel.published, &channel.slots, 2);
-                    wait_for_frame(&channel.notify, || ring.published(), 0, u64::MAX, || false, &channel.futex)
-                })
-            };
+            let reader = spawn_waiter(&channel, 0);
             publish_deferred(&channel, &handoff, 1);
             assert_eq!(reader.join().unwrap().unwrap(), WaitEnd::Ready);
             handoff.stop(&channel.handoff_futex);
@@ -456,13 +460,7 @@ mod loom_tests {
         model(|| {
             let channel = channel();
             let handoff = Arc::new(Handoff::default());
-            let reader = {
-                let channel = channel.clone();
-                loom::thread::spawn(move || {
-                    let ring = Ring::new(&channel.published, &channel.slots, 2);
-                    wait_for_frame(&channel.notify, || ring.published(), 0, u64::MAX, || false, &channel.futex)
-                })
-            };
+            let reader = spawn_waiter(&channel, 0);
             publish_deferred(&channel, &handoff, 1);
             publish_deferred(&channel, &handoff, 2);
             assert_eq!(reader.join().unwrap().unwrap(), WaitEnd::Ready);
@@ -478,13 +476,7 @@ mod loom_tests {
             let channel = channel();
             let handoff = Arc::new(Handoff::default());
             let ringer = spawn_ringer(&channel, &handoff);
-            let reader = {
-                let channel = channel.clone();
-                loom::thread::spawn(move || {
-                    let ring = Ring::new(&channel.published, &channel.slots, 2);
-                    wait_for_frame(&channel.notify, || ring.published(), 1, u64::MAX, || false, &channel.futex)
-                })
-            };
+            let reader = spawn_waiter(&channel, 1);
             publish_deferred(&channel, &handoff, 1);
             publish_deferred(&channel, &handoff, 2);
             assert_eq!(reader.join().unwrap().unwrap(), WaitEnd::Ready);
@@ -502,13 +494,7 @@ mod loom_tests {
             let channel = channel();
             let watch = Arc::new(Watch::default());
             let lookout = spawn_lookout(&channel, &watch, 2);
-            let reader = {
-                let channel = channel.clone();
-                loom::thread::spawn(move || {
-                    let ring = Ring::new(&channel.published, &channel.slots, 2);
-                    wait_for_frame(&channel.notify, || ring.published(), 0, u64::MAX, || false, &channel.futex)
-                })
-            };
+            let reader = spawn_waiter(&channel, 0);
             publish_watched(&channel, &watch, 1);
             assert_eq!(reader.join().unwrap().unwrap(), WaitEnd::Ready);
             lookout.join().unwrap();
@@ -524,13 +510,7 @@ mod loom_tests {
             let channel = channel();
             let watch = Arc::new(Watch::default());
             watch.begin_watching_and_stall();
-            let reader = {
-                let channel = channel.clone();
-                loom::thread::spawn(move || {
-                    let ring = Ring::new(&channel.published, &channel.slots, 2);
-                    wait_for_frame(&channel.notify, || ring.published(), 0, u64::MAX, || false, &channel.futex)
-                })
-            };
+            let reader = spawn_waiter(&channel, 0);
             publish_watched(&channel, &watch, 1);
             publish_watched(&channel, &watch, 2);
             assert_eq!(reader.join().unwrap().unwrap(), WaitEnd::Ready);
@@ -547,13 +527,7 @@ mod loom_tests {
             let channel = channel();
             let watch = Arc::new(Watch::default());
             let lookout = spawn_lookout(&channel, &watch, 1);
-            let reader = {
-                let channel = channel.clone();
-                loom::thread::spawn(move || {
-                    let ring = Ring::new(&channel.published, &channel.slots, 2);
-                    wait_for_frame(&channel.notify, || ring.published(), 1, u64::MAX, || false, &channel.futex)
-                })
-            };
+            let reader = spawn_waiter(&channel, 1);
             publish_watched(&channel, &watch, 1);
             publish_watched(&channel, &watch, 2);
             assert_eq!(reader.join().unwrap().unwrap(), WaitEnd::Ready);
