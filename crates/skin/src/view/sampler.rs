@@ -14,9 +14,6 @@ use std::time::{Duration, Instant};
 use skin::viewer_message::ReadMode;
 use skinware::{Error, Reader, ReaderOptions, Stop, Ticker, WriterState};
 
-use super::browsers::Browsers;
-use super::overlays::SharedOverlays;
-
 /// How long a blocking read waits before it looks at the writer's state again,
 /// so that a fault or a vanished writer shows within this time.
 const STATE_POLL: Duration = Duration::from_millis(100);
@@ -74,34 +71,12 @@ pub struct Board {
     requests: u64,
 }
 
-impl Board {
-    /// A board of `layers`, at version 0.
-    pub fn new(layers: Vec<LayerSlot>) -> Board {
-        Board { version: 0, layers, requests: 0 }
-    }
-}
-
-/// The board, the condition the readers of an on-request sampler wait on,
-/// and the browsers the board goes to.
+/// The board and the condition its readers signal.
 #[derive(Debug)]
 struct Shared {
     board: Mutex<Board>,
+    changed: Condvar,
     requested: Condvar,
-    browsers: Browsers,
-}
-
-impl Shared {
-    /// On-request mode: asks every layer's reader for one frame (which every
-    /// browser in this mode then gets).
-    fn request(&self) {
-        lock(self).requests += 1;
-        self.requested.notify_all();
-    }
-
-    /// Lets the browsers know the board changed (called holding nothing).
-    fn board_changed(&self) {
-        self.browsers.board_changed(&self.board, || self.request());
-    }
 }
 
 fn lock(shared: &Shared) -> MutexGuard<'_, Board> {
@@ -126,7 +101,6 @@ pub struct LayerToRead {
 pub struct Samplers {
     skin: String,
     dir: Option<PathBuf>,
-    overlays: Arc<SharedOverlays>,
     running: Mutex<Vec<RunningSampler>>,
 }
 
@@ -138,10 +112,9 @@ struct RunningSampler {
 }
 
 impl Samplers {
-    /// No sampler yet for `skin`'s layers (in segment directory `dir`),
-    /// whose updates carry `overlays`.
-    pub fn new(skin: &str, dir: Option<PathBuf>, overlays: Arc<SharedOverlays>) -> Samplers {
-        Samplers { skin: skin.to_owned(), dir, overlays, running: Mutex::new(Vec::new()) }
+    /// No sampler yet for `skin`'s layers (in segment directory `dir`).
+    pub fn new(skin: &str, dir: Option<PathBuf>) -> Samplers {
+        Samplers { skin: skin.to_owned(), dir, running: Mutex::new(Vec::new()) }
     }
 
     /// The sampler of `layers` in `mode`: the one already running for
@@ -157,7 +130,7 @@ impl Samplers {
         if let Some(sampler) = shared {
             return Ok(sampler);
         }
-        let sampler = Arc::new(Sampler::start(&self.skin, self.dir.clone(), layers, mode, self.overlays.clone())?);
+        let sampler = Arc::new(Sampler::start(&self.skin, self.dir.clone(), layers, mode)?);
         running.push(RunningSampler { mode, layers: key, sampler: Arc::downgrade(&sampler) });
         Ok(sampler)
     }
@@ -170,8 +143,7 @@ impl Samplers {
     }
 }
 
-/// The reader threads of one mode, shared by the browsers reading in it,
-/// and the doorman of those browsers ([`Browsers::doorman`]).
+/// The reader threads of one mode, shared by the browsers reading in it.
 #[derive(Debug)]
 pub struct Sampler {
     shared: Arc<Shared>,
@@ -180,16 +152,8 @@ pub struct Sampler {
 }
 
 impl Sampler {
-    /// Starts one reader thread per layer of `skin`, reading in `mode`, and
-    /// the doorman of the browsers that will read from it (their updates
-    /// carrying `overlays`).
-    pub fn start(
-        skin: &str,
-        dir: Option<PathBuf>,
-        layers: &[LayerToRead],
-        mode: ReadMode,
-        overlays: Arc<SharedOverlays>,
-    ) -> std::io::Result<Sampler> {
+    /// Starts one reader thread per layer of `skin`, reading in `mode`.
+    pub fn start(skin: &str, dir: Option<PathBuf>, layers: &[LayerToRead], mode: ReadMode) -> std::io::Result<Sampler> {
         let slots = layers
             .iter()
             .map(|layer| LayerSlot {
@@ -203,9 +167,9 @@ impl Sampler {
             })
             .collect();
         let shared = Arc::new(Shared {
-            board: Mutex::new(Board::new(slots)),
+            board: Mutex::new(Board { version: 0, layers: slots, requests: 0 }),
+            changed: Condvar::new(),
             requested: Condvar::new(),
-            browsers: Browsers::new(overlays)?,
         });
         let stop = Stop::new();
         // Built before the threads start, so that a failure stops those already started (on drop).
@@ -223,16 +187,26 @@ impl Sampler {
             let thread = std::thread::Builder::new().name(format!("view-{}", layer.name)).spawn(move || job.run())?;
             sampler.threads.push(thread);
         }
-        let doorman = std::thread::Builder::new().name("view-doorman".into()).spawn(move || {
-            shared.browsers.doorman(&stop, &shared.board, || shared.request());
-        })?;
-        sampler.threads.push(doorman);
         Ok(sampler)
     }
 
-    /// The browsers reading from this sampler.
-    pub fn browsers(&self) -> &Browsers {
-        &self.shared.browsers
+    /// Waits up to `timeout` for the board to differ from `seen`; then calls
+    /// `take` with it (locked) and returns what it returns.
+    pub fn take_newer<T>(&self, seen: u64, timeout: Duration, take: impl FnOnce(&Board) -> T) -> Option<T> {
+        let board = lock(&self.shared);
+        let (board, _) = self
+            .shared
+            .changed
+            .wait_timeout_while(board, timeout, |board| board.version == seen)
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        (board.version != seen).then(|| take(&board))
+    }
+
+    /// On-request mode: asks every layer's reader for one frame (which every
+    /// browser in this mode then gets).
+    pub fn request(&self) {
+        lock(&self.shared).requests += 1;
+        self.shared.requested.notify_all();
     }
 
     /// Stops the reader threads and waits for them; the board keeps what it
@@ -322,9 +296,10 @@ impl LayerJob {
                         slot.fault_frame = frame.status().is_fault();
                         slot.latency_ms = frame.published_ns().saturating_sub(frame.acquired_ns()) as f32 / 1e6;
                         board.version += 1;
-                        // Outside the lock: the dispatch takes it again.
+                        // Outside the lock, so that the woken sessions do
+                        // not wait for it (nor the other layers' readers).
                         drop(board);
-                        self.shared.board_changed();
+                        self.shared.changed.notify_all();
                     }
                 }
                 Err(Error::Stopped { .. }) => return,
@@ -392,7 +367,7 @@ impl LayerJob {
         if changed {
             board.version += 1;
             drop(board);
-            self.shared.board_changed();
+            self.shared.changed.notify_all();
         }
     }
 }
@@ -406,8 +381,7 @@ mod tests {
     #[test]
     fn browsers_in_one_mode_share_one_sampler() {
         let dir = std::env::temp_dir().join(format!("skin-samplers-{}", std::process::id()));
-        let overlays = Arc::new(SharedOverlays::new("nosuchskin", Some(dir.clone())));
-        let samplers = Samplers::new("nosuchskin", Some(dir), overlays);
+        let samplers = Samplers::new("nosuchskin", Some(dir));
         let layers = [LayerToRead { name: "tactile".into(), sensors: 4 }];
         let first = samplers.subscribe(&layers, ReadMode::Asap).unwrap();
         let second = samplers.subscribe(&layers, ReadMode::Asap).unwrap();

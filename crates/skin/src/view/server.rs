@@ -1,5 +1,4 @@
-//! The HTTP side: one thread per connection (for a browser's WebSocket, one
-//! that sleeps while the browser's dispatcher serves it), serving the embedded page and
+//! The HTTP side: one thread per connection, serving the embedded page and
 //! upgrading `/ws` to the WebSocket of a [`session`](super::session).
 
 #![forbid(unsafe_code)]

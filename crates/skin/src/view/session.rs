@@ -3,19 +3,15 @@
 //! has more than [`MAX_CREDIT`] updates unacknowledged, and each update holds
 //! the newest frames at the moment it is sent, so a slow browser gets fewer,
 //! fresher updates instead of a growing queue.
-//!
-//! The updates are sent by the dispatcher of the browser's sampler
-//! ([`super::browsers`]), not by a thread of the browser's own: a thread per
-//! browser woke for every acknowledgement, which was most of what a browser
-//! cost. The browser's thread does only what may wait.
 
 #![forbid(unsafe_code)]
 
 use std::io::IoSlice;
 use std::net::TcpStream;
+use std::ops::ControlFlow;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Condvar, Mutex, MutexGuard, TryLockError};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
@@ -23,12 +19,14 @@ use skin::viewer_message::{self, ClientMessage, ReadMode};
 use skinware_geometry::SkinGeometry;
 use tungstenite::{Message, WebSocket};
 
-use super::overlays::{Overlays, SharedOverlays};
+use super::overlays::SharedOverlays;
 use super::protocol::{self, LayerUpdate};
-use super::sampler::{LayerSlot, LayerToRead, Sampler, Samplers};
+use super::sampler::{LayerToRead, Sampler, Samplers};
 
 /// Updates the server may send ahead of the browser's acknowledgements.
 const MAX_CREDIT: u32 = 4;
+/// How long to wait for the browser when it has no credit left.
+const IDLE_POLL: Duration = Duration::from_millis(20);
 /// A browser's frame interval until its acknowledgements tell (60 Hz).
 const DISPLAY_INTERVAL: Duration = Duration::from_micros(16_667);
 /// Acknowledgement intervals the frame interval is the median of.
@@ -97,24 +95,21 @@ impl Pacing {
         due.checked_duration_since(now).filter(|left| *left >= Duration::from_millis(1))
     }
 }
-/// A browser's TCP connection, whose reads and writes each wait (reads up to
-/// the socket's read timeout) only when asked to, and otherwise return
-/// `WouldBlock` at once: the dispatcher that serves every browser of a
-/// sampler must never wait for one of them.
+/// A browser's TCP connection, whose reads wait (up to the socket's read
+/// timeout) only when asked to and otherwise return `WouldBlock` at once,
+/// while its writes always block: a slow browser slows only its own thread.
 #[derive(Debug)]
 pub struct BrowserStream {
     /// The connection.
     pub stream: TcpStream,
     /// Whether the next reads may wait for data.
     pub wait_for_reads: bool,
-    /// Whether the next writes may wait for the browser to take data.
-    pub wait_for_writes: bool,
 }
 
 impl BrowserStream {
-    /// A connection whose reads and writes wait.
+    /// A connection whose reads wait.
     pub fn new(stream: TcpStream) -> BrowserStream {
-        BrowserStream { stream, wait_for_reads: true, wait_for_writes: true }
+        BrowserStream { stream, wait_for_reads: true }
     }
 }
 
@@ -131,11 +126,7 @@ impl std::io::Read for BrowserStream {
 
 impl std::io::Write for BrowserStream {
     fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
-        if self.wait_for_writes {
-            return self.stream.write(bytes);
-        }
-        rustix::net::send(&self.stream, bytes, rustix::net::SendFlags::DONTWAIT | rustix::net::SendFlags::NOSIGNAL)
-            .map_err(std::io::Error::from)
+        self.stream.write(bytes)
     }
 
     fn flush(&mut self) -> std::io::Result<()> {
@@ -145,9 +136,6 @@ impl std::io::Write for BrowserStream {
 
 /// The mode a new browser starts in.
 const INITIAL_MODE: ReadMode = ReadMode::Asap;
-/// How often a browser's own thread looks at the shutdown flag while the
-/// dispatcher serves the browser.
-const SHUTDOWN_POLL: Duration = Duration::from_millis(250);
 
 /// What every connection needs to know. It lives here, with the session that
 /// reads it, so that the server depends on the session and not both ways.
@@ -161,14 +149,16 @@ pub struct Site {
     pub shutdown: Arc<AtomicBool>,
     /// The layer readers, shared by the browsers reading in the same mode.
     pub samplers: Arc<Samplers>,
+    /// The services' overlays, shared by every browser.
+    pub overlays: Arc<SharedOverlays>,
 }
 
 impl Site {
     /// The site of `skin` (segments in `dir`, or the default directory).
     pub fn new(skin: &str, dir: Option<PathBuf>, shutdown: Arc<AtomicBool>) -> Site {
+        let samplers = Arc::new(Samplers::new(skin, dir.clone()));
         let overlays = Arc::new(SharedOverlays::new(skin, dir.clone()));
-        let samplers = Arc::new(Samplers::new(skin, dir.clone(), overlays));
-        Site { skin: skin.to_owned(), dir, shutdown, samplers }
+        Site { skin: skin.to_owned(), dir, shutdown, samplers, overlays }
     }
 }
 
@@ -177,70 +167,33 @@ fn is_timeout(error: &tungstenite::Error) -> bool {
         if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut))
 }
 
-/// Serves one browser until it leaves or the viewer shuts down: sends the
-/// geometry, then hands the browser to its sampler's dispatcher, which
-/// reads its acknowledgements and sends its updates without this thread.
-/// This thread does only what may wait: a mode change (which may start
-/// readers), the rest of an update a slow browser did not take at once,
-/// and the close.
-pub fn run(mut socket: WebSocket<BrowserStream>, site: &Site) -> Result<()> {
-    let layers = send_geometry(&mut socket, site)?;
-    let mut sampler = site.samplers.subscribe(&layers, INITIAL_MODE).context("cannot start the layer readers")?;
-    let browser = Arc::new(Browser::new(socket, layers.len(), INITIAL_MODE));
-    sampler.browsers().add(&browser).context("cannot watch the browser's connection")?;
-    let served = attend(&browser, &mut sampler, &layers, site);
-    sampler.browsers().remove(&browser);
-    served
+fn is_closed(error: &tungstenite::Error) -> bool {
+    matches!(error, tungstenite::Error::ConnectionClosed | tungstenite::Error::AlreadyClosed)
 }
 
-/// Waits for what the dispatcher leaves to this thread, and does it.
-fn attend(browser: &Arc<Browser>, sampler: &mut Arc<Sampler>, layers: &[LayerToRead], site: &Site) -> Result<()> {
+/// Serves one browser until it leaves or the viewer shuts down.
+pub fn run(mut socket: WebSocket<BrowserStream>, site: &Site) -> Result<()> {
+    let layers = send_geometry(&mut socket, site)?;
+    let mut session = Session::start(socket, site, layers)?;
     loop {
-        let mut connection = browser.lock();
-        while !connection.wants_its_thread() && !site.shutdown.load(Ordering::Relaxed) {
-            connection = browser
-                .attention
-                .wait_timeout(connection, SHUTDOWN_POLL)
-                .unwrap_or_else(|poisoned| poisoned.into_inner())
-                .0;
-        }
         if site.shutdown.load(Ordering::Relaxed) {
-            close(&mut connection.socket);
+            close(&mut session.socket);
             return Ok(());
         }
-        if connection.left {
+        if session.read_browser()?.is_break() {
             return Ok(());
         }
-        if connection.unsent.is_some() {
-            match connection.finish_update() {
-                Ok(()) => {}
-                Err(e) if is_closed(&e) => return Ok(()),
-                Err(e) => return Err(e.into()),
-            }
+        if session.credit == 0 || session.pacing.until_due(Instant::now()).is_some() {
+            continue;
         }
-        if let Some(mode) = connection.new_mode.take() {
-            connection.mode = mode;
-            connection.seen_version = 0;
-            drop(connection);
-            let moved = site.samplers.subscribe(layers, mode).context("cannot start the layer readers")?;
-            sampler.browsers().remove(browser);
-            // The old sampler stops here if this was its last browser.
-            *sampler = moved;
-            sampler.browsers().add(browser).context("cannot watch the browser's connection")?;
-            tracing::debug!(?mode, "reader mode changed");
+        if session.send_update()?.is_break() {
+            return Ok(());
         }
     }
 }
 
-fn is_closed(error: &tungstenite::Error) -> bool {
-    matches!(error, tungstenite::Error::ConnectionClosed | tungstenite::Error::AlreadyClosed)
-        || matches!(error, tungstenite::Error::Io(e) if matches!(e.kind(),
-            std::io::ErrorKind::BrokenPipe | std::io::ErrorKind::ConnectionReset | std::io::ErrorKind::ConnectionAborted))
-}
-
 /// Closes the WebSocket, ignoring a browser that is already gone.
 fn close(socket: &mut WebSocket<BrowserStream>) {
-    socket.get_mut().wait_for_writes = true;
     let _ = socket.close(None);
     let _ = socket.flush();
 }
@@ -265,58 +218,13 @@ fn send_geometry(socket: &mut WebSocket<BrowserStream>, site: &Site) -> Result<V
     Ok(layers)
 }
 
-/// One browser, shared by its own thread and the dispatcher of the sampler
-/// it reads from: whoever holds the connection serves it, and the
-/// dispatcher only ever tries the lock, so that a browser its thread is
-/// busy with never holds up the others.
-#[derive(Debug)]
-pub struct Browser {
-    connection: Mutex<Connection>,
-    /// Signalled when the browser needs its own thread ([`Connection::wants_its_thread`]).
-    attention: Condvar,
-    /// The browser's key in its dispatcher's epoll set.
-    pub key: u64,
-}
-
-static NEXT_BROWSER_KEY: AtomicU64 = AtomicU64::new(1);
-
-impl Browser {
-    /// The browser at the other end of `socket`, which has been sent the
-    /// geometry of `layers` layers, reading in `mode`.
-    pub fn new(socket: WebSocket<BrowserStream>, layers: usize, mode: ReadMode) -> Browser {
-        Browser {
-            connection: Mutex::new(Connection::new(socket, layers, mode)),
-            attention: Condvar::new(),
-            key: NEXT_BROWSER_KEY.fetch_add(1, Ordering::Relaxed),
-        }
-    }
-
-    /// The connection, waiting for whoever serves it now.
-    pub fn lock(&self) -> MutexGuard<'_, Connection> {
-        // A thread that panicked serving the browser left whole values.
-        self.connection.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
-    }
-
-    /// The connection if nobody serves it now.
-    pub fn try_lock(&self) -> Option<MutexGuard<'_, Connection>> {
-        match self.connection.try_lock() {
-            Ok(connection) => Some(connection),
-            Err(TryLockError::Poisoned(poisoned)) => Some(poisoned.into_inner()),
-            Err(TryLockError::WouldBlock) => None,
-        }
-    }
-
-    /// Wakes the browser's own thread (after [`Connection::wants_its_thread`] became true).
-    pub fn call_its_thread(&self) {
-        self.attention.notify_one();
-    }
-}
-
-/// What one browser's connection holds between updates.
-#[derive(Debug)]
-pub struct Connection {
+/// The state of one browser's connection after the geometry was sent.
+struct Session<'a> {
     socket: WebSocket<BrowserStream>,
+    site: &'a Site,
+    layers: Vec<LayerToRead>,
     mode: ReadMode,
+    sampler: Arc<Sampler>,
     /// Updates the browser will still accept before it acknowledges more.
     credit: u32,
     /// The board version of the last update sent.
@@ -333,137 +241,119 @@ pub struct Connection {
     head: Vec<u8>,
     /// Responses converted to little-endian, on a big-endian machine only.
     scratch: Vec<Vec<u8>>,
+    /// The read timeout the socket has now, to set it only when it changes.
+    poll: Option<Duration>,
     /// When its next update is due.
     pacing: Pacing,
-    /// Bytes written of an update the browser did not take all of at once
-    /// (WebSocket header included); its own thread writes the rest, and no
-    /// other update goes before.
-    unsent: Option<usize>,
-    /// The mode the browser asked for, which its own thread switches to.
-    new_mode: Option<ReadMode>,
-    /// The browser closed the connection, or it failed.
-    pub left: bool,
 }
 
-/// What a browser said, as far as its dispatcher must act on it.
-#[derive(Debug, Default)]
-pub struct Heard {
-    /// It asked for one frame of every layer (on-request mode).
-    pub request: bool,
-}
-
-impl Connection {
-    fn new(mut socket: WebSocket<BrowserStream>, layers: usize, mode: ReadMode) -> Connection {
-        let stream = socket.get_mut();
-        stream.wait_for_reads = false;
-        stream.wait_for_writes = false;
-        Connection {
+impl<'a> Session<'a> {
+    fn start(socket: WebSocket<BrowserStream>, site: &'a Site, layers: Vec<LayerToRead>) -> Result<Session<'a>> {
+        let mode = INITIAL_MODE;
+        let sampler = site.samplers.subscribe(&layers, mode).context("cannot start the layer readers")?;
+        Ok(Session {
             socket,
+            site,
             mode,
+            sampler,
             credit: 0,
             seen_version: 0,
-            sent_seq: vec![0u64; layers],
+            sent_seq: vec![0u64; layers.len()],
             updates_sent: 0,
-            update: Vec::with_capacity(layers),
+            update: Vec::with_capacity(layers.len()),
             head: Vec::new(),
-            scratch: vec![Vec::new(); layers],
+            scratch: vec![Vec::new(); layers.len()],
+            poll: None,
             pacing: Pacing::default(),
-            unsent: None,
-            new_mode: None,
-            left: false,
+            layers,
+        })
+    }
+
+    /// What the browser said since the last update: waiting for it (at most
+    /// [`IDLE_POLL`]) only while there is no credit, and never once it has
+    /// spoken. With credit the board, not the browser, is what we wait for:
+    /// a read that slept would cost a wake-up per update, which at 1 kHz is
+    /// most of what a browser costs. A wait ends with the first message
+    /// (the next call reads what followed it, without waiting), so that an
+    /// acknowledgement costs no read that finds nothing. Breaks when the
+    /// browser left.
+    fn read_browser(&mut self) -> Result<ControlFlow<()>> {
+        // One timeout for every wait, so that it is set once: an update due
+        // without an acknowledgement may go up to IDLE_POLL late.
+        let wait = self.credit == 0 || self.pacing.until_due(Instant::now()).is_some();
+        if wait && self.poll != Some(IDLE_POLL) {
+            self.socket.get_mut().stream.set_read_timeout(Some(IDLE_POLL))?;
+            self.poll = Some(IDLE_POLL);
         }
-    }
-
-    /// The TCP connection, to watch it.
-    pub fn stream(&self) -> &TcpStream {
-        &self.socket.get_ref().stream
-    }
-
-    /// Whether something waits for the browser's own thread: the rest of
-    /// an update, a mode change, or the end.
-    pub fn wants_its_thread(&self) -> bool {
-        self.unsent.is_some() || self.new_mode.is_some() || self.left
-    }
-
-    /// Reads everything the browser said, without waiting: acknowledgements
-    /// grant credit; the rest is for the dispatcher or the browser's thread.
-    pub fn read_messages(&mut self) -> Heard {
-        let mut heard = Heard::default();
-        while !self.left {
+        self.socket.get_mut().wait_for_reads = wait;
+        loop {
             match self.socket.read() {
                 Ok(Message::Text(text)) => match viewer_message::decode(text.as_str()) {
-                    Ok(ClientMessage::Ack(n)) => {
-                        self.credit = self.credit.saturating_add(n).min(MAX_CREDIT);
-                        self.pacing.acknowledged(Instant::now());
-                    }
-                    Ok(ClientMessage::Mode(mode)) => {
-                        self.new_mode = (mode != self.mode).then_some(mode);
-                    }
-                    Ok(ClientMessage::Request) => heard.request = true,
+                    Ok(message) => self.obey(message)?,
                     Err(e) => tracing::warn!("browser message ignored: {e}"),
                 },
-                Ok(Message::Close(_)) => self.left = true,
+                Ok(Message::Close(_)) => return Ok(ControlFlow::Break(())),
                 Ok(_) => {}
-                Err(e) if is_timeout(&e) => break,
-                Err(e) => {
-                    if !is_closed(&e) {
-                        tracing::debug!("browser connection failed: {e}");
-                    }
-                    self.left = true;
-                }
+                Err(e) if is_timeout(&e) => return Ok(ControlFlow::Continue(())),
+                Err(e) if is_closed(&e) => return Ok(ControlFlow::Break(())),
+                Err(e) => return Err(e.into()),
+            }
+            if wait {
+                return Ok(ControlFlow::Continue(()));
             }
         }
-        heard
     }
 
-    /// The mode the browser asked for, which its own thread is to switch to.
-    #[cfg(test)]
-    pub fn mode_asked(&self) -> Option<ReadMode> {
-        self.new_mode
+    /// Acts on one message of the browser.
+    fn obey(&mut self, message: ClientMessage) -> Result<()> {
+        match message {
+            ClientMessage::Ack(n) => {
+                self.credit = self.credit.saturating_add(n).min(MAX_CREDIT);
+                self.pacing.acknowledged(Instant::now());
+            }
+            ClientMessage::Mode(new_mode) => {
+                if new_mode != self.mode {
+                    self.mode = new_mode;
+                    // The old sampler stops when its last browser leaves it.
+                    self.sampler = self
+                        .site
+                        .samplers
+                        .subscribe(&self.layers, self.mode)
+                        .context("cannot start the layer readers")?;
+                    self.seen_version = 0;
+                    tracing::debug!(mode = ?self.mode, "reader mode changed");
+                }
+            }
+            ClientMessage::Request => self.sampler.request(),
+        }
+        Ok(())
     }
 
-    /// Whether an update may go now, if the board has something new.
-    pub fn ready_for_update(&self, now: Instant) -> bool {
-        !self.wants_its_thread() && self.credit > 0 && self.pacing.until_due(now).is_none()
-    }
-
-    /// Whether the board at `version` has anything this browser was not sent.
-    pub fn has_seen(&self, version: u64) -> bool {
-        self.seen_version == version
-    }
-
-    /// Sends the board's `layers` at `version` with `overlays`, without
-    /// waiting: what the browser does not take at once is left for its
-    /// own thread ([`Connection::wants_its_thread`]).
-    pub fn send_update(&mut self, version: u64, layers: &[LayerSlot], overlays: &Overlays) {
-        self.update.clear();
-        self.update.extend(layers.iter().zip(&mut self.sent_seq).map(|(slot, sent)| {
-            let with_responses = slot.seq != 0 && slot.seq != *sent;
-            *sent = slot.seq;
-            LayerUpdate { slot: slot.clone(), with_responses }
-        }));
+    /// Sends the newest frames, if anything changed since the last update
+    /// (waiting up to [`IDLE_POLL`] for a change). Breaks when the browser left.
+    fn send_update(&mut self) -> Result<ControlFlow<()>> {
+        // Outside the board's lock: it may search the segment directory.
+        let newest_overlays = self.site.overlays.poll();
+        let (update, sent_seq) = (&mut self.update, &mut self.sent_seq);
+        // Under the board's lock only long enough to share each layer's
+        // responses: the encoding and the write happen after.
+        let taken = self.sampler.take_newer(self.seen_version, IDLE_POLL, |board| {
+            update.clear();
+            update.extend(board.layers.iter().zip(sent_seq).map(|(slot, sent)| {
+                let with_responses = slot.seq != 0 && slot.seq != *sent;
+                *sent = slot.seq;
+                LayerUpdate { slot: slot.clone(), with_responses }
+            }));
+            board.version
+        });
+        let Some(version) = taken else {
+            return Ok(ControlFlow::Continue(()));
+        };
         self.pacing.sent(Instant::now());
         self.seen_version = version;
-        protocol::encode_update_head(&mut self.head, self.updates_sent, self.mode, &self.update, overlays);
+        protocol::encode_update_head(&mut self.head, self.updates_sent, self.mode, &self.update, &newest_overlays);
         self.updates_sent = self.updates_sent.wrapping_add(1);
         self.credit -= 1;
-        self.write_update(0, false);
-    }
-
-    /// Writes the rest of an update the browser did not take at once,
-    /// waiting for it (a slow browser holds up only its own thread).
-    pub fn finish_update(&mut self) -> tungstenite::Result<()> {
-        let Some(written) = self.unsent.take() else { return Ok(()) };
-        self.write_update(written, true);
-        match self.left {
-            true => Err(tungstenite::Error::ConnectionClosed),
-            false => Ok(()),
-        }
-    }
-
-    /// Writes `self.update` from byte `written` on, waiting for the browser
-    /// or not; records what is left, or that the browser left.
-    fn write_update(&mut self, written: usize, wait: bool) {
         let length = protocol::update_bytes(self.head.len(), &self.update);
         let header = WebSocketHeader::binary(length);
         let mut parts = Vec::with_capacity(2 + self.update.len());
@@ -474,25 +364,13 @@ impl Connection {
                 parts.push(IoSlice::new(protocol::responses_le(responses, scratch)));
             }
         }
-        let message = header.bytes().len() + length;
-        let mut parts = &mut parts[..];
-        IoSlice::advance_slices(&mut parts, written);
-        self.socket.get_mut().wait_for_writes = wait;
-        let sent = send_message(&mut self.socket, parts, wait);
-        self.socket.get_mut().wait_for_writes = false;
+        let sent = send_message(&mut self.socket, &mut parts);
+        drop(parts);
+        self.update.clear();
         match sent {
-            Ok(now) if written + now == message => {
-                self.unsent = None;
-                self.update.clear();
-            }
-            Ok(now) => self.unsent = Some(written + now),
-            Err(e) => {
-                if !is_closed(&e) {
-                    tracing::debug!("cannot send an update: {e}");
-                }
-                self.left = true;
-                self.update.clear();
-            }
+            Ok(()) => Ok(ControlFlow::Continue(())),
+            Err(e) if is_closed(&e) => Ok(ControlFlow::Break(())),
+            Err(e) => Err(e.into()),
         }
     }
 }
@@ -537,41 +415,29 @@ impl WebSocketHeader {
 /// Writes one WebSocket message, its header first, from where its parts
 /// are: tungstenite's `send` would copy a 62 KB update into its own buffer
 /// first, for every browser. What tungstenite has queued (a pong, a close)
-/// goes before it. Without `wait`, stops where the browser takes no more
-/// for now; returns the bytes of `parts` written.
-fn send_message(
-    socket: &mut WebSocket<BrowserStream>,
-    mut parts: &mut [IoSlice<'_>],
-    wait: bool,
-) -> tungstenite::Result<usize> {
+/// goes before it.
+fn send_message(socket: &mut WebSocket<BrowserStream>, parts: &mut [IoSlice<'_>]) -> tungstenite::Result<()> {
     if !socket.can_write() {
         return Err(tungstenite::Error::AlreadyClosed);
     }
-    match socket.flush() {
-        Ok(()) => {}
-        Err(e) if !wait && is_timeout(&e) => return Ok(0),
-        Err(e) => return Err(e),
-    }
+    socket.flush()?;
     let stream = &socket.get_mut().stream;
-    // NOSIGNAL: a browser that left is an error here, not a SIGPIPE.
-    let flags = match wait {
-        true => rustix::net::SendFlags::NOSIGNAL,
-        false => rustix::net::SendFlags::NOSIGNAL | rustix::net::SendFlags::DONTWAIT,
-    };
-    let mut total = 0;
+    let mut parts = parts;
     while !parts.is_empty() {
-        match rustix::net::sendmsg(stream, parts, &mut rustix::net::SendAncillaryBuffer::default(), flags) {
+        // NOSIGNAL: a browser that left is an error here, not a SIGPIPE.
+        match rustix::net::sendmsg(
+            stream,
+            parts,
+            &mut rustix::net::SendAncillaryBuffer::default(),
+            rustix::net::SendFlags::NOSIGNAL,
+        ) {
             Ok(0) => return Err(tungstenite::Error::Io(std::io::ErrorKind::WriteZero.into())),
-            Ok(written) => {
-                total += written;
-                IoSlice::advance_slices(&mut parts, written);
-            }
+            Ok(written) => IoSlice::advance_slices(&mut parts, written),
             Err(rustix::io::Errno::INTR) => {}
-            Err(rustix::io::Errno::AGAIN) if !wait => break,
             Err(e) => return Err(tungstenite::Error::Io(e.into())),
         }
     }
-    Ok(total)
+    Ok(())
 }
 
 #[cfg(test)]
@@ -598,7 +464,7 @@ mod tests {
             let (second, third) = rest.split_at(rest.len() / 2);
             let header = WebSocketHeader::binary(length);
             let mut parts = [header.bytes(), first, second, third].map(IoSlice::new);
-            assert_eq!(send_message(&mut server, &mut parts, true).unwrap(), header.bytes().len() + length);
+            send_message(&mut server, &mut parts).unwrap();
         }
         assert!(matches!(client.read().unwrap(), Message::Pong(data) if data.as_ref() == [7]));
         for length in [3, 125, 126, 200, 65_535, 65_536, 70_000] {
