@@ -141,6 +141,9 @@ need(isinstance(loaded.get("recorder"), dict) and is_count(loaded["recorder"].ge
 need([v.get("browsers") for v in khz.get("viewer", [])] == [1, 10, 10], "kilohertz.json: viewer runs")
 need(all(b.get("updates_per_s", 0) > 0 for v in khz.get("viewer", []) for b in v.get("per_browser", [])), "kilohertz.json: a browser got no update")
 need(khz.get("viewer_cpu_ratio_10_to_1", 0) > 0, "kilohertz.json: viewer CPU ratio")
+need(len(khz.get("viewer_cpu_ratios", [])) == 1, "kilohertz.json: one round of 1 and 10 browsers in a quick run")
+need(all(v.get("viewer_cpu_percent", 0) > 0 and v.get("viewer_cpu_percent_ticks", -1) >= 0 for v in khz.get("viewer", [])),
+     "kilohertz.json: the viewer's CPU (schedstat and ticks)")
 
 contact = json.loads((out / "contact.json").read_text())
 need(contact.get("taxels") == 30848 and contact.get("detector_ns", {}).get("samples", 0) > 0, "contact.json: detector incomplete")
