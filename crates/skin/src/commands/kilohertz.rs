@@ -90,9 +90,14 @@ struct ViewerRun {
     browsers: usize,
     /// Whether one of them is the slow browser.
     with_slow_browser: bool,
+    /// The window measured, seconds.
+    seconds: f64,
     /// The viewer's threads' run time (`/proc/PID/task/*/schedstat`, in ns)
     /// over the window, in % of one core.
     viewer_cpu_percent: f64,
+    /// Threads of the viewer that ended during the window, whose run time in
+    /// it `viewer_cpu_percent` misses (0 in a sound run).
+    viewer_threads_ended: usize,
     /// The same from `/proc/PID/stat`'s utime + stime, in clock ticks (what
     /// this bench reported before 2026-11-25: a tick is 1 % of a core-second).
     viewer_cpu_percent_ticks: f64,
@@ -105,6 +110,8 @@ struct KilohertzReport {
     taxels: usize,
     /// `reader_wake` of the layers' writers (`default`: not set).
     reader_wake: String,
+    /// The `skin` executable that ran the viewer (`--viewer-exe`, or this one).
+    viewer_exe: String,
     phases: Vec<PhaseReport>,
     viewer: Vec<ViewerRun>,
     /// `viewer_cpu_percent` with 10 browsers over that with 1: the median
@@ -202,6 +209,7 @@ fn measure(
         rate_hz: 1000.0,
         taxels: 30_848,
         reader_wake,
+        viewer_exe: viewer_exe.display().to_string(),
         phases,
         viewer,
         viewer_cpu_ratio_10_to_1: ratio,
@@ -452,18 +460,28 @@ fn median(values: &[f64]) -> f64 {
     }
 }
 
-/// The run time of every thread of process `pid` now, in ns (the first field
-/// of each `/proc/PID/task/TID/schedstat`): exact, where utime + stime count
-/// whole clock ticks, each charged to whoever ran when it struck. A thread
-/// that ends between two readings takes its time along: the viewer's
-/// threads all live through the window measured.
-fn cpu_ns(pid: u32) -> u64 {
-    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else { return 0 };
+/// The run time of each thread of process `pid` now, in ns, by thread id
+/// (the first field of `/proc/PID/task/TID/schedstat`): exact, where utime +
+/// stime count whole clock ticks, each charged to whoever ran when it struck.
+/// Empty if the process is gone.
+fn thread_cpu_ns(pid: u32) -> BTreeMap<u32, u64> {
+    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else { return BTreeMap::new() };
     tasks
         .flatten()
-        .filter_map(|task| std::fs::read_to_string(task.path().join("schedstat")).ok())
-        .filter_map(|stat| stat.split_whitespace().next().and_then(|ns| ns.parse::<u64>().ok()))
-        .sum()
+        .filter_map(|task| {
+            let tid = task.file_name().to_str()?.parse::<u32>().ok()?;
+            let stat = std::fs::read_to_string(task.path().join("schedstat")).ok()?;
+            Some((tid, stat.split_whitespace().next()?.parse::<u64>().ok()?))
+        })
+        .collect()
+}
+
+/// The run time between two [`thread_cpu_ns`] readings, in ns, and how many
+/// threads ended in between (whose time since `before` is lost: schedstat
+/// dies with its thread, where utime + stime keep it).
+fn cpu_ns_between(before: &BTreeMap<u32, u64>, after: &BTreeMap<u32, u64>) -> (u64, usize) {
+    let ran = after.iter().map(|(tid, ns)| ns.saturating_sub(before.get(tid).copied().unwrap_or(0))).sum();
+    (ran, before.keys().filter(|tid| !after.contains_key(tid)).count())
 }
 
 /// utime + stime of each process, in clock ticks (0 for one that is gone).
@@ -678,11 +696,15 @@ fn viewer_scaling(exe: &Path, viewer_exe: &Path, dir: &Path, seconds: f64, round
             .collect();
         std::thread::sleep(Duration::from_secs(1));
         let pids = [("viewer".to_string(), viewer.0.id())];
-        let (before, before_ns) = (cpu_ticks(&pids), cpu_ns(viewer.0.id()));
+        let (before, before_ns) = (cpu_ticks(&pids), thread_cpu_ns(viewer.0.id()));
         let started = Instant::now();
         std::thread::sleep(Duration::from_secs_f64(seconds));
-        let (after, after_ns) = (cpu_ticks(&pids), cpu_ns(viewer.0.id()));
+        let (after, after_ns) = (cpu_ticks(&pids), thread_cpu_ns(viewer.0.id()));
         let elapsed = started.elapsed().as_secs_f64();
+        if after_ns.is_empty() {
+            bail!("the viewer (pid {}) exited during the run with {} browsers", viewer.0.id(), plan.len());
+        }
+        let (ran_ns, threads_ended) = cpu_ns_between(&before_ns, &after_ns);
         stop.store(true, Ordering::Relaxed);
         let mut per_browser = Vec::new();
         for thread in threads {
@@ -692,7 +714,9 @@ fn viewer_scaling(exe: &Path, viewer_exe: &Path, dir: &Path, seconds: f64, round
             round,
             browsers: plan.len(),
             with_slow_browser: plan.contains(&SLOW_BROWSER_HZ),
-            viewer_cpu_percent: 100.0 * after_ns.saturating_sub(before_ns) as f64 / 1e9 / elapsed,
+            seconds: elapsed,
+            viewer_cpu_percent: 100.0 * ran_ns as f64 / 1e9 / elapsed,
+            viewer_threads_ended: threads_ended,
             viewer_cpu_percent_ticks: 100.0 * (after[0].saturating_sub(before[0])) as f64
                 / clock_ticks_per_s()
                 / elapsed,
@@ -779,6 +803,12 @@ fn print(report: &KilohertzReport) {
             max,
             p50s.get(p50s.len() / 2).copied().unwrap_or(0)
         );
+        if run.viewer_threads_ended > 0 {
+            println!(
+                "  {} of the viewer's threads ended during this window: its CPU above misses their time",
+                run.viewer_threads_ended
+            );
+        }
         if let Some(slow) = slow {
             println!(
                 "  the slow browser: {:.1} updates/s, latency p50 {} µs p99 {} µs",

@@ -269,6 +269,8 @@ impl LayerJob {
         let mut requests_served = 0;
         let mut window = RateWindow { started: Instant::now(), writer_frames: reader.writer_stats().frames, reads: 0 };
         let mut first = true;
+        // When the kernel was last asked whether the writer lives.
+        let mut asked_kernel = Instant::now();
         while !self.stop.is_stopped() {
             let result = match (self.mode, &mut ticker) {
                 (ReadMode::Periodic { .. }, Some(ticker)) => reader.next_periodic(ticker),
@@ -281,10 +283,10 @@ impl LayerJob {
                 _ => reader.wait_newer(STATE_POLL),
             };
             first = false;
-            let mut got_frame = false;
+            let mut fresh_frame = false;
             match result {
                 Ok(frame) => {
-                    got_frame = true;
+                    fresh_frame = frame.is_fresh();
                     if frame.is_fresh() {
                         window.reads += 1;
                     }
@@ -312,7 +314,14 @@ impl LayerJob {
                     }
                 }
             }
-            self.refresh_state(&mut reader, &mut window, got_frame);
+            // A fresh frame says the writer lived a period ago; a stale one
+            // (periodic reads of a writer that died) says nothing, and the
+            // kernel is asked at least every STATE_POLL regardless.
+            let trust_stored = fresh_frame && asked_kernel.elapsed() < STATE_POLL;
+            if !trust_stored {
+                asked_kernel = Instant::now();
+            }
+            self.refresh_state(&mut reader, &mut window, trust_stored);
         }
     }
 
@@ -331,11 +340,13 @@ impl LayerJob {
     }
 
     /// Publishes the writer's state at once when it changes, and the rates at
-    /// the end of each window. Just after a frame (`got_frame`) the state the
-    /// writer stored is enough: it was alive a period ago, and asking the
-    /// kernel (an `fcntl`) for every frame was a tenth of the readers' time.
-    fn refresh_state(&self, reader: &mut Reader, window: &mut RateWindow, got_frame: bool) {
-        let state = if got_frame {
+    /// the end of each window. With `trust_stored` (just after a fresh
+    /// frame) the state the writer stored is enough: it was alive a period
+    /// ago, and asking the kernel (an `fcntl`) for every frame was a tenth of
+    /// the readers' time. Otherwise the kernel says whether it still lives,
+    /// and a writer gone is followed to its successor.
+    fn refresh_state(&self, reader: &mut Reader, window: &mut RateWindow, trust_stored: bool) {
+        let state = if trust_stored {
             reader.stored_writer_state()
         } else {
             if reader.writer_state() == WriterState::Gone {

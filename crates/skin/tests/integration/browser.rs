@@ -357,7 +357,7 @@ fn demo_in_headless_chromium() {
     hovering_names_a_taxel(&browser);
     the_page_keeps_up(&browser, &demo);
     a_pulled_cable_shows_as_faulted_then_recovered(&browser, &demo);
-    reader_modes_work(&browser);
+    reader_modes_work(&browser, &demo);
 
     // 6. Ctrl-C stops everything and leaves nothing behind.
     drop(browser);
@@ -465,8 +465,44 @@ fn a_pulled_cable_shows_as_faulted_then_recovered(browser: &Browser, demo: &Demo
     });
 }
 
+/// In periodic mode a reader keeps getting the last frame of a writer that
+/// died, which still says "running": the viewer must show the layer gone
+/// (the kernel's word, not the dead writer's last one) while the demo waits
+/// out its restart backoff (at least 0.2 s), then the successor's frames.
+fn a_killed_driver_shows_gone_then_its_successor_in_periodic_mode(browser: &Browser, demo: &Demo) {
+    let pid = demo.reader("virtual-0").writer_pid();
+    send_signal(pid, rustix::process::Signal::KILL);
+    let started = Instant::now();
+    // Polled without the usual pause: the gap may be short.
+    loop {
+        if layer_state(browser, "virtual-0").0 == "gone" {
+            break;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(10),
+            "virtual-0 never showed as gone after its driver was SIGKILLed in periodic mode"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let gone_after = started.elapsed();
+    let (running, shown) = wait_for("the restarted driver's frames in periodic mode", Duration::from_secs(30), || {
+        let options = ReaderOptions { dir: Some(demo.dir.clone()), ..ReaderOptions::default() };
+        let successor = Reader::open_with(SKIN, "virtual-0", &options).ok()?.writer_pid();
+        let (state, _) = layer_state(browser, "virtual-0");
+        (successor != pid && state == "running").then(|| (started.elapsed(), seqs(browser)[0]))
+    });
+    wait_for("further frames of the restarted driver", Duration::from_secs(10), || {
+        (seqs(browser)[0] != shown).then_some(())
+    });
+    println!(
+        "browser: driver {pid} SIGKILLed in periodic mode: gone shown after {:.0} ms, running again after {:.0} ms",
+        gone_after.as_secs_f64() * 1e3,
+        running.as_secs_f64() * 1e3
+    );
+}
+
 /// Step 5: Reader modes: periodic at the chosen rate, on request only when asked.
-fn reader_modes_work(browser: &Browser) {
+fn reader_modes_work(browser: &Browser, demo: &Demo) {
     choose_mode(browser, "periodic", 10.0);
     wait_for("virtual-0 to be read at about 10 Hz", Duration::from_secs(15), || {
         let rate: f64 = browser
@@ -476,6 +512,7 @@ fn reader_modes_work(browser: &Browser) {
             .ok()?;
         (7.0..=13.0).contains(&rate).then_some(())
     });
+    a_killed_driver_shows_gone_then_its_successor_in_periodic_mode(browser, demo);
     choose_mode(browser, "request", 10.0);
     std::thread::sleep(Duration::from_millis(500));
     let idle = seqs(browser);
