@@ -142,8 +142,11 @@ need([v.get("browsers") for v in khz.get("viewer", [])] == [1, 10, 10], "kiloher
 need(all(b.get("updates_per_s", 0) > 0 for v in khz.get("viewer", []) for b in v.get("per_browser", [])), "kilohertz.json: a browser got no update")
 need(khz.get("viewer_cpu_ratio_10_to_1", 0) > 0, "kilohertz.json: viewer CPU ratio")
 need(len(khz.get("viewer_cpu_ratios", [])) == 1, "kilohertz.json: one round of 1 and 10 browsers in a quick run")
-need(all(v.get("viewer_cpu_percent", 0) > 0 and v.get("viewer_cpu_percent_ticks", -1) >= 0 for v in khz.get("viewer", [])),
-     "kilohertz.json: the viewer's CPU (schedstat and ticks)")
+need(all(v.get("viewer_cpu_percent", 0) > 0 and v.get("viewer_cpu_percent_ticks", -1) >= 0 and v.get("seconds", 0) > 0
+         for v in khz.get("viewer", [])), "kilohertz.json: the viewer's CPU (schedstat and ticks) and its window")
+need(all(v.get("viewer_threads_ended") == 0 for v in khz.get("viewer", [])),
+     "kilohertz.json: a viewer thread ended inside a measured window (its CPU would be undercounted)")
+need(bool(khz.get("viewer_exe")), "kilohertz.json: which executable ran the viewer")
 
 contact = json.loads((out / "contact.json").read_text())
 need(contact.get("taxels") == 30848 and contact.get("detector_ns", {}).get("samples", 0) > 0, "contact.json: detector incomplete")

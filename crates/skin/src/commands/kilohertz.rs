@@ -478,7 +478,8 @@ fn thread_cpu_ns(pid: u32) -> BTreeMap<u32, u64> {
 
 /// The run time between two [`thread_cpu_ns`] readings, in ns, and how many
 /// threads ended in between (whose time since `before` is lost: schedstat
-/// dies with its thread, where utime + stime keep it).
+/// dies with its thread, where utime + stime keep it). A thread that both
+/// started and ended in between is neither counted nor reported.
 fn cpu_ns_between(before: &BTreeMap<u32, u64>, after: &BTreeMap<u32, u64>) -> (u64, usize) {
     let ran = after.iter().map(|(tid, ns)| ns.saturating_sub(before.get(tid).copied().unwrap_or(0))).sum();
     (ran, before.keys().filter(|tid| !after.contains_key(tid)).count())
@@ -678,7 +679,7 @@ fn browse(address: &str, ack_hz: f64, stop: &AtomicBool, clock: &SeqClock) -> Re
 /// times; then 9 at 60 Hz and one slow browser at 5 Hz.
 fn viewer_scaling(exe: &Path, viewer_exe: &Path, dir: &Path, seconds: f64, rounds: usize) -> Result<Vec<ViewerRun>> {
     let (skin, _readers) = start_skin(exe, (dir, None), false)?;
-    let (viewer, address) = start_viewer(viewer_exe, dir)?;
+    let (mut viewer, address) = start_viewer(viewer_exe, dir)?;
     let mut runs = Vec::new();
     let mut plans: Vec<(usize, Vec<f64>)> =
         (0..rounds).flat_map(|round| [(round, vec![DISPLAY_HZ]), (round, vec![DISPLAY_HZ; 10])]).collect();
@@ -701,11 +702,18 @@ fn viewer_scaling(exe: &Path, viewer_exe: &Path, dir: &Path, seconds: f64, round
         std::thread::sleep(Duration::from_secs_f64(seconds));
         let (after, after_ns) = (cpu_ticks(&pids), thread_cpu_ns(viewer.0.id()));
         let elapsed = started.elapsed().as_secs_f64();
+        stop.store(true, Ordering::Relaxed);
+        if let Ok(Some(status)) = viewer.0.try_wait() {
+            bail!("the viewer exited during the run with {} browsers ({status})", plan.len());
+        }
         if after_ns.is_empty() {
-            bail!("the viewer (pid {}) exited during the run with {} browsers", viewer.0.id(), plan.len());
+            bail!(
+                "cannot read the viewer's threads' run time in /proc/{}/task/*/schedstat \
+                 (a kernel without CONFIG_SCHED_INFO?)",
+                viewer.0.id()
+            );
         }
         let (ran_ns, threads_ended) = cpu_ns_between(&before_ns, &after_ns);
-        stop.store(true, Ordering::Relaxed);
         let mut per_browser = Vec::new();
         for thread in threads {
             per_browser.push(thread.join().map_err(|_| anyhow::anyhow!("a browser thread panicked"))??);

@@ -30,6 +30,8 @@ const stats = window.skinStats = {
   lastUpdateNumber: -1, mode: null, fps: 0, updatesPerSecond: 0, animationFrames: 0, renderMs: 0,
   // Per layer, the sequence number of the newest frame received.
   seqs: [],
+  // Per layer, the writer states updates reported, each change once, in order.
+  statesSeen: [],
   // Overlays in the newest update, and how many updates carried some.
   markers: 0, arrows: 0, updatesWithMarkers: 0, updatesWithArrows: 0,
 };
@@ -122,6 +124,10 @@ function applyUpdate(buffer) {
     if (view.getUint8(at + 1) & FLAG_RESPONSES) included.push(l);
   }
   stats.seqs = layerStatus.map(status => status.seq);
+  layerStatus.forEach((status, l) => {
+    const seen = stats.statesSeen[l] || (stats.statesSeen[l] = []);
+    if (seen[seen.length - 1] !== status.state) seen.push(status.state);
+  });
   const next = { arrows: [], markers: [] };
   for (let i = 0; i < arrows; i++, at += 16) {
     next.arrows.push([0, 4, 8, 12].map(d => view.getFloat32(at + d, true)));

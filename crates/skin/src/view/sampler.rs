@@ -271,6 +271,8 @@ impl LayerJob {
         let mut first = true;
         // When the kernel was last asked whether the writer lives.
         let mut asked_kernel = Instant::now();
+        // Whether the board shows this layer's writer gone.
+        let mut shown_gone = false;
         while !self.stop.is_stopped() {
             let result = match (self.mode, &mut ticker) {
                 (ReadMode::Periodic { .. }, Some(ticker)) => reader.next_periodic(ticker),
@@ -321,7 +323,7 @@ impl LayerJob {
             if !trust_stored {
                 asked_kernel = Instant::now();
             }
-            self.refresh_state(&mut reader, &mut window, trust_stored);
+            self.refresh_state(&mut reader, &mut window, trust_stored, &mut shown_gone);
         }
     }
 
@@ -345,17 +347,24 @@ impl LayerJob {
     /// ago, and asking the kernel (an `fcntl`) for every frame was a tenth of
     /// the readers' time. Otherwise the kernel says whether it still lives,
     /// and a writer gone is followed to its successor.
-    fn refresh_state(&self, reader: &mut Reader, window: &mut RateWindow, trust_stored: bool) {
+    /// A writer found gone is shown gone (`shown_gone`) before its successor
+    /// is followed, one read later: a successor that starts at once would
+    /// otherwise hide that the layer died.
+    fn refresh_state(&self, reader: &mut Reader, window: &mut RateWindow, trust_stored: bool, shown_gone: &mut bool) {
         let state = if trust_stored {
             reader.stored_writer_state()
         } else {
-            if reader.writer_state() == WriterState::Gone {
-                // A driver that stopped cleanly removed its channel; its
-                // restart makes a new one, which every reader mode must follow.
-                reader.follow_recreated();
+            let state = reader.writer_state();
+            // A successor makes a new channel, which every reader mode must follow.
+            if state == WriterState::Gone && *shown_gone && reader.follow_recreated() {
+                // The successor's frame count starts again.
+                *window = RateWindow { started: Instant::now(), writer_frames: reader.writer_stats().frames, reads: 0 };
+                reader.writer_state()
+            } else {
+                state
             }
-            reader.writer_state()
         };
+        *shown_gone = state == WriterState::Gone;
         let elapsed = window.started.elapsed();
         let rates = (elapsed >= RATE_WINDOW).then(|| {
             let frames = reader.writer_stats().frames;
