@@ -289,7 +289,7 @@ impl LayerJob {
             match result {
                 Ok(frame) => {
                     fresh_frame = frame.is_fresh();
-                    if frame.is_fresh() {
+                    if fresh_frame {
                         window.reads += 1;
                     }
                     let mut board = lock(&self.shared);
@@ -347,6 +347,7 @@ impl LayerJob {
     /// ago, and asking the kernel (an `fcntl`) for every frame was a tenth of
     /// the readers' time. Otherwise the kernel says whether it still lives,
     /// and a writer gone is followed to its successor.
+    ///
     /// A writer found gone is shown gone (`shown_gone`) before its successor
     /// is followed, one read later: a successor that starts at once would
     /// otherwise hide that the layer died.
