@@ -147,6 +147,12 @@ need(all(v.get("viewer_cpu_percent", 0) > 0 and v.get("viewer_cpu_percent_ticks"
 need(all(v.get("viewer_threads_ended") == 0 for v in khz.get("viewer", [])),
      "kilohertz.json: a viewer thread ended inside a measured window (its CPU would be undercounted)")
 need(bool(khz.get("viewer_exe")), "kilohertz.json: which executable ran the viewer")
+need([f.get("browsers") for f in khz.get("floor", [])] == [1, 10], "kilohertz.json: floor server runs (1 and 10 browsers)")
+need(all(f.get("cpu_percent", 0) > 0 and f.get("threads_ended") == 0 and all(b.get("updates_per_s", 0) > 0 for b in f.get("per_browser", []))
+         for f in khz.get("floor", [])), "kilohertz.json: the floor server's CPU, a thread ended in its window, or a browser got no update")
+cost = khz.get("browser_cost_percent", {})
+need(all(isinstance(cost.get(k), (int, float)) for k in ("viewer", "floor")), "kilohertz.json: what a browser costs, viewer and floor")
+need(khz.get("viewer_cpu_ratio_at_floor", 0) > 0, "kilohertz.json: the viewer's ratio at the floor")
 
 contact = json.loads((out / "contact.json").read_text())
 need(contact.get("taxels") == 30848 and contact.get("detector_ns", {}).get("samples", 0) > 0, "contact.json: detector incomplete")

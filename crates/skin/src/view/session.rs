@@ -377,14 +377,14 @@ impl<'a> Session<'a> {
 
 /// The header of one unmasked, unfragmented WebSocket message (RFC 6455,
 /// 5.2), as a server sends it.
-struct WebSocketHeader {
+pub struct WebSocketHeader {
     bytes: [u8; 10],
     len: usize,
 }
 
 impl WebSocketHeader {
     /// The header of a binary message of `payload` bytes.
-    fn binary(payload: usize) -> WebSocketHeader {
+    pub fn binary(payload: usize) -> WebSocketHeader {
         const FIN_BINARY: u8 = 0x82;
         let mut bytes = [0; 10];
         bytes[0] = FIN_BINARY;
@@ -407,7 +407,8 @@ impl WebSocketHeader {
         WebSocketHeader { bytes, len }
     }
 
-    fn bytes(&self) -> &[u8] {
+    /// The header's bytes, to go before the payload.
+    pub fn bytes(&self) -> &[u8] {
         &self.bytes[..self.len]
     }
 }
@@ -416,7 +417,7 @@ impl WebSocketHeader {
 /// are: tungstenite's `send` would copy a 62 KB update into its own buffer
 /// first, for every browser. What tungstenite has queued (a pong, a close)
 /// goes before it.
-fn send_message(socket: &mut WebSocket<BrowserStream>, parts: &mut [IoSlice<'_>]) -> tungstenite::Result<()> {
+pub fn send_message(socket: &mut WebSocket<BrowserStream>, parts: &mut [IoSlice<'_>]) -> tungstenite::Result<()> {
     if !socket.can_write() {
         return Err(tungstenite::Error::AlreadyClosed);
     }

@@ -2,7 +2,9 @@
 //! 1 kHz, first alone (the control), then with everything that reads it:
 //! 15 application processes, both services at 1 kHz, the viewer with 3
 //! browsers and the recorder. Then the viewer alone with 1 and 10 browsers,
-//! and with one slow browser among them.
+//! and with one slow browser among them; beside it, in the same rounds, the
+//! [`floor`] server with 1 and 10 browsers: what a browser costs when
+//! nothing but its messages is done for it.
 //!
 //! The figures come from where they are made: each writer's shared
 //! statistics (frames, missed periods, overruns, and its publish and
@@ -19,7 +21,7 @@ use std::net::TcpStream;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
@@ -30,8 +32,12 @@ use skinware_bench::measure::{Percentiles, RunningSkin};
 
 use super::bench::Common;
 
-const PAPER_SKIN: &str = include_str!("../../../../examples/paper-virtual-skin.toml");
+mod floor;
+
+const PAPER_SKIN: &str = include_str!("../../../../../examples/paper-virtual-skin.toml");
 const LAYERS: usize = 5;
+/// Taxels of the paper's skin, over its layers.
+const TAXELS: usize = 30_848;
 const APPS: usize = 15;
 /// Applications that wait for every frame; the others read periodically at
 /// random 10–100 Hz, as in the paper's experiment.
@@ -104,6 +110,31 @@ struct ViewerRun {
     per_browser: Vec<BrowserFigures>,
 }
 
+/// The [`floor`] server with N browsers.
+#[derive(Debug, Serialize)]
+struct FloorRun {
+    /// The round of the viewer's runs this one was measured in.
+    round: usize,
+    browsers: usize,
+    /// The window measured, seconds.
+    seconds: f64,
+    /// The floor server's threads' run time over the window (schedstat, ns),
+    /// in % of one core.
+    cpu_percent: f64,
+    /// Threads of the floor server that ended during the window (0 in a sound run).
+    threads_ended: usize,
+    per_browser: Vec<BrowserFigures>,
+}
+
+/// What one more browser costs, in % of one core: (CPU with 10 browsers −
+/// CPU with 1) / 9, the median over the rounds.
+#[derive(Debug, Default, Serialize)]
+struct BrowserCost {
+    viewer: f64,
+    /// The floor server: one update-sized message per acknowledgement.
+    floor: f64,
+}
+
 #[derive(Debug, Serialize)]
 struct KilohertzReport {
     rate_hz: f64,
@@ -120,6 +151,15 @@ struct KilohertzReport {
     /// The same ratio in each round (1 browser, then 10, alternating: the
     /// machine's mood moves the readers' share between runs).
     viewer_cpu_ratios: Vec<f64>,
+    /// The floor server with 1 and 10 browsers, in the same rounds.
+    floor: Vec<FloorRun>,
+    /// What one more browser costs the viewer and the floor server.
+    browser_cost_percent: BrowserCost,
+    /// The 10/1 ratio the viewer would have if each browser cost it what
+    /// one costs the floor server, the rest of its CPU as measured with one
+    /// browser: (S + 10 f) / (S + f), S = the viewer's CPU with 1 browser −
+    /// the viewer's cost of a browser, f = the floor's; the median over the rounds.
+    viewer_cpu_ratio_at_floor: f64,
 }
 
 /// A part of the bench that runs alone.
@@ -196,24 +236,44 @@ fn measure(
             run_phase(exe, viewer_exe, (dir, wake), seconds, true, out)?,
         ],
     };
-    let viewer =
-        if only == Some(Part::Runs) { Vec::new() } else { viewer_scaling(exe, viewer_exe, dir, seconds, rounds)? };
+    let (viewer, floor) = if only == Some(Part::Runs) {
+        (Vec::new(), Vec::new())
+    } else {
+        viewer_scaling(exe, viewer_exe, dir, seconds, rounds)?
+    };
     let cpu = |round: usize, n: usize| {
         let run = viewer.iter().find(|run| run.round == round && run.browsers == n && !run.with_slow_browser);
         run.map(|run| run.viewer_cpu_percent)
     };
+    let floor_cpu = |round: usize, n: usize| {
+        floor.iter().find(|run| run.round == round && run.browsers == n).map(|run| run.cpu_percent)
+    };
     let ratios: Vec<f64> = (0..rounds).filter_map(|round| Some(cpu(round, 10)? / cpu(round, 1)?.max(1e-9))).collect();
     let ratio = median(&ratios);
+    let per_browser = |one: Option<f64>, ten: Option<f64>| Some((ten? - one?) / 9.0);
+    let viewer_costs: Vec<f64> = (0..rounds).filter_map(|round| per_browser(cpu(round, 1), cpu(round, 10))).collect();
+    let floor_costs: Vec<f64> =
+        (0..rounds).filter_map(|round| per_browser(floor_cpu(round, 1), floor_cpu(round, 10))).collect();
+    let ratios_at_floor: Vec<f64> = (0..rounds)
+        .filter_map(|round| {
+            let own = cpu(round, 1)? - per_browser(cpu(round, 1), cpu(round, 10))?;
+            let browser = per_browser(floor_cpu(round, 1), floor_cpu(round, 10))?;
+            Some((own + 10.0 * browser) / (own + browser).max(1e-9))
+        })
+        .collect();
     let reader_wake = wake.map_or("default", Wake::name).to_owned();
     Ok(KilohertzReport {
         rate_hz: 1000.0,
-        taxels: 30_848,
+        taxels: TAXELS,
         reader_wake,
         viewer_exe: viewer_exe.display().to_string(),
         phases,
         viewer,
         viewer_cpu_ratio_10_to_1: ratio,
         viewer_cpu_ratios: ratios,
+        floor,
+        browser_cost_percent: BrowserCost { viewer: median(&viewer_costs), floor: median(&floor_costs) },
+        viewer_cpu_ratio_at_floor: median(&ratios_at_floor),
     })
 }
 
@@ -297,6 +357,7 @@ fn run_phase(
     let (skin, readers) = start_skin(exe, (dir, wake), loaded)?;
     let skin_pid = skin.pid();
     let stop = Arc::new(AtomicBool::new(false));
+    let marks = Arc::new(WindowMarks::default());
     let clock = SeqClock::start(dir, stop.clone());
     let mut apps = Vec::new();
     let mut viewer = None;
@@ -324,8 +385,8 @@ fn run_phase(
         let (child, address) = start_viewer(viewer_exe, dir)?;
         viewer = Some(child);
         for _ in 0..BROWSERS {
-            let (stop, clock, address) = (stop.clone(), clock.clone(), address.clone());
-            browser_threads.push(std::thread::spawn(move || browse(&address, DISPLAY_HZ, &stop, &clock)));
+            let (stop, marks, clock, address) = (stop.clone(), marks.clone(), clock.clone(), address.clone());
+            browser_threads.push(std::thread::spawn(move || browse(&address, DISPLAY_HZ, (&stop, &marks), &clock)));
         }
         let file = work.join("kilohertz.mcap");
         let _ = std::fs::remove_file(&file);
@@ -358,7 +419,9 @@ fn run_phase(
     let before_stats: Vec<WriterStats> = readers.iter().map(Reader::writer_stats).collect();
     let before_cpu = cpu_ticks(&pids);
     let started = Instant::now();
+    let _ = marks.start.set(started);
     std::thread::sleep(Duration::from_secs_f64(seconds));
+    let _ = marks.end.set(Instant::now());
     let elapsed = started.elapsed().as_secs_f64();
     let after_cpu = cpu_ticks(&pids);
     let after_stats: Vec<WriterStats> = readers.iter().map(Reader::writer_stats).collect();
@@ -520,14 +583,27 @@ fn supervised_pids(parent: u32) -> Vec<(String, u32)> {
 }
 
 /// Acquisition times of layer 0's frames by sequence number, for the
-/// browsers to date what they receive.
+/// browsers to date what they receive. Its reader stops with `stop`, or
+/// when the last clone is dropped.
 #[derive(Clone)]
-struct SeqClock(Arc<Mutex<BTreeMap<u64, u64>>>, Arc<AtomicBool>);
+struct SeqClock {
+    table: Arc<Mutex<BTreeMap<u64, u64>>>,
+    _stop: Arc<StopOnDrop>,
+}
+
+/// Sets its flag when dropped.
+struct StopOnDrop(Arc<AtomicBool>);
+
+impl Drop for StopOnDrop {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+}
 
 impl SeqClock {
     fn start(dir: &Path, stop: Arc<AtomicBool>) -> SeqClock {
         let table = Arc::new(Mutex::new(BTreeMap::new()));
-        let clock = SeqClock(table.clone(), stop.clone());
+        let clock = SeqClock { table: table.clone(), _stop: Arc::new(StopOnDrop(stop.clone())) };
         let options = ReaderOptions { dir: Some(dir.to_owned()), ..ReaderOptions::default() };
         std::thread::spawn(move || {
             let Ok(mut reader) = Reader::open_with("default", "virtual-0", &options) else { return };
@@ -546,13 +622,7 @@ impl SeqClock {
     }
 
     fn acquired(&self, seq: u64) -> Option<u64> {
-        self.0.lock().unwrap_or_else(|p| p.into_inner()).get(&seq).copied()
-    }
-}
-
-impl Drop for SeqClock {
-    fn drop(&mut self) {
-        self.1.store(true, Ordering::Relaxed);
+        self.table.lock().unwrap_or_else(|p| p.into_inner()).get(&seq).copied()
     }
 }
 
@@ -616,7 +686,30 @@ fn start_viewer(exe: &Path, dir: &Path) -> Result<(Guarded, String)> {
 /// One browser: takes the geometry, then acknowledges the updates it
 /// received `ack_hz` times a second, as a page does after each animation
 /// frame that drew something.
-fn browse(address: &str, ack_hz: f64, stop: &AtomicBool, clock: &SeqClock) -> Result<BrowserFigures> {
+/// Updates per second count only what a browser received inside the
+/// measured window, which its caller marks here.
+#[derive(Debug, Default)]
+struct WindowMarks {
+    start: OnceLock<Instant>,
+    end: OnceLock<Instant>,
+}
+
+impl WindowMarks {
+    fn contains(&self, at: Instant) -> bool {
+        self.start.get().is_some_and(|start| at >= *start) && self.end.get().is_none_or(|end| at < *end)
+    }
+
+    fn seconds(&self) -> Option<f64> {
+        Some(self.end.get()?.duration_since(*self.start.get()?).as_secs_f64())
+    }
+}
+
+fn browse(
+    address: &str,
+    ack_hz: f64,
+    (stop, marks): (&AtomicBool, &WindowMarks),
+    clock: &SeqClock,
+) -> Result<BrowserFigures> {
     use tungstenite::Message;
     let stream = TcpStream::connect(address)?;
     let (mut socket, _) = tungstenite::client(format!("ws://{address}/ws"), stream)
@@ -624,7 +717,7 @@ fn browse(address: &str, ack_hz: f64, stop: &AtomicBool, clock: &SeqClock) -> Re
     socket.get_mut().set_read_timeout(Some(Duration::from_millis(2)))?;
     let period = Duration::from_secs_f64(1.0 / ack_hz);
     let mut geometry = false;
-    let (mut updates, mut bytes, mut unacked) = (0u64, 0u64, 0u32);
+    let (mut updates, mut bytes, mut unacked, mut in_window) = (0u64, 0u64, 0u32, 0u64);
     let mut latency = Vec::new();
     let mut last_seq = 0;
     let started = Instant::now();
@@ -637,6 +730,9 @@ fn browse(address: &str, ack_hz: f64, stop: &AtomicBool, clock: &SeqClock) -> Re
             }
             Ok(Message::Binary(data)) if data.first() == Some(&2) => {
                 updates += 1;
+                if marks.contains(Instant::now()) {
+                    in_window += 1;
+                }
                 bytes += data.len() as u64;
                 unacked += 1;
                 if let Some(seq) = data.get(32..40).map(|b| u64::from_le_bytes(b.try_into().unwrap_or_default()))
@@ -669,73 +765,165 @@ fn browse(address: &str, ack_hz: f64, stop: &AtomicBool, clock: &SeqClock) -> Re
     let _ = socket.close(None);
     Ok(BrowserFigures {
         ack_hz,
-        updates_per_s: updates as f64 / seconds,
+        updates_per_s: marks.seconds().map_or(updates as f64 / seconds, |window| in_window as f64 / window),
         kb_per_update: bytes as f64 / 1e3 / updates.max(1) as f64,
         latency_us: Percentiles::of(&mut latency),
     })
 }
 
+/// What a window with browsers measured.
+struct Window {
+    seconds: f64,
+    /// Run time of the measured threads in the window, ns.
+    ran_ns: u64,
+    /// Measured threads that ended in the window.
+    threads_ended: usize,
+    /// Clock ticks of the measured process in the window (the viewer's only).
+    ticks: u64,
+    per_browser: Vec<BrowserFigures>,
+}
+
+/// Browsers acknowledging at `plan`'s rates on `address`: 1 s to settle,
+/// then `seconds` measured by `threads` (run time by thread id) and `ticks`;
+/// `check` runs at the end of the window, before the browsers are stopped.
+fn with_browsers(
+    address: &str,
+    plan: &[f64],
+    (dir, seconds): (&Path, f64),
+    threads: &dyn Fn() -> BTreeMap<u32, u64>,
+    ticks: &dyn Fn() -> u64,
+    check: &mut dyn FnMut(&BTreeMap<u32, u64>) -> Result<()>,
+) -> Result<Window> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let marks = Arc::new(WindowMarks::default());
+    let clock = SeqClock::start(dir, stop.clone());
+    let browsers: Vec<_> = plan
+        .iter()
+        .map(|&hz| {
+            let (stop, marks, clock, address) = (stop.clone(), marks.clone(), clock.clone(), address.to_owned());
+            std::thread::spawn(move || browse(&address, hz, (&stop, &marks), &clock))
+        })
+        .collect();
+    std::thread::sleep(Duration::from_secs(1));
+    let (ticks_before, before_ns) = (ticks(), threads());
+    let started = Instant::now();
+    let _ = marks.start.set(started);
+    std::thread::sleep(Duration::from_secs_f64(seconds));
+    let _ = marks.end.set(Instant::now());
+    let (ticks_after, after_ns) = (ticks(), threads());
+    let elapsed = started.elapsed().as_secs_f64();
+    stop.store(true, Ordering::Relaxed);
+    let checked = check(&after_ns);
+    let mut per_browser = Vec::new();
+    for browser in browsers {
+        per_browser.push(browser.join().map_err(|_| anyhow::anyhow!("a browser thread panicked")));
+    }
+    checked?;
+    let per_browser = per_browser.into_iter().map(|figures| figures?).collect::<Result<Vec<_>>>()?;
+    let (ran_ns, threads_ended) = cpu_ns_between(&before_ns, &after_ns);
+    Ok(Window { seconds: elapsed, ran_ns, threads_ended, ticks: ticks_after.saturating_sub(ticks_before), per_browser })
+}
+
 /// The viewer alone on the 1 kHz skin with 1, then 10 browsers, `rounds`
-/// times; then 9 at 60 Hz and one slow browser at 5 Hz.
-fn viewer_scaling(exe: &Path, viewer_exe: &Path, dir: &Path, seconds: f64, rounds: usize) -> Result<Vec<ViewerRun>> {
+/// times, each round with the [`floor`] server's 1 and 10 between; then the
+/// viewer with 9 at 60 Hz and one slow browser at 5 Hz.
+fn viewer_scaling(
+    exe: &Path,
+    viewer_exe: &Path,
+    dir: &Path,
+    seconds: f64,
+    rounds: usize,
+) -> Result<(Vec<ViewerRun>, Vec<FloorRun>)> {
     let (skin, _readers) = start_skin(exe, (dir, None), false)?;
     let (mut viewer, address) = start_viewer(viewer_exe, dir)?;
-    let mut runs = Vec::new();
-    let mut plans: Vec<(usize, Vec<f64>)> =
-        (0..rounds).flat_map(|round| [(round, vec![DISPLAY_HZ]), (round, vec![DISPLAY_HZ; 10])]).collect();
-    plans.push((rounds - 1, std::iter::repeat_n(DISPLAY_HZ, 9).chain([SLOW_BROWSER_HZ]).collect()));
-    for (round, plan) in plans {
-        eprintln!("kilohertz: viewer with {} browsers, {seconds} s", plan.len());
-        let stop = Arc::new(AtomicBool::new(false));
-        let clock = SeqClock::start(dir, stop.clone());
-        let threads: Vec<_> = plan
-            .iter()
-            .map(|&hz| {
-                let (stop, clock, address) = (stop.clone(), clock.clone(), address.clone());
-                std::thread::spawn(move || browse(&address, hz, &stop, &clock))
-            })
-            .collect();
-        std::thread::sleep(Duration::from_secs(1));
-        let pids = [("viewer".to_string(), viewer.0.id())];
-        let (before, before_ns) = (cpu_ticks(&pids), thread_cpu_ns(viewer.0.id()));
-        let started = Instant::now();
-        std::thread::sleep(Duration::from_secs_f64(seconds));
-        let (after, after_ns) = (cpu_ticks(&pids), thread_cpu_ns(viewer.0.id()));
-        let elapsed = started.elapsed().as_secs_f64();
-        stop.store(true, Ordering::Relaxed);
-        if let Ok(Some(status)) = viewer.0.try_wait() {
-            bail!("the viewer exited during the run with {} browsers ({status})", plan.len());
+    let floor_server = floor::FloorServer::start(
+        crate::view::protocol::UPDATE_HEADER_BYTES + LAYERS * crate::view::protocol::LAYER_RECORD_BYTES + 2 * TAXELS,
+    )?;
+    let (mut runs, mut floor_runs) = (Vec::new(), Vec::new());
+    let one = vec![DISPLAY_HZ];
+    let ten = vec![DISPLAY_HZ; 10];
+    let mut plans: Vec<(usize, bool, Vec<f64>)> = (0..rounds)
+        .flat_map(|round| {
+            [
+                (round, true, one.clone()),
+                (round, false, one.clone()),
+                (round, true, ten.clone()),
+                (round, false, ten.clone()),
+            ]
+        })
+        .collect();
+    plans.push((rounds - 1, true, std::iter::repeat_n(DISPLAY_HZ, 9).chain([SLOW_BROWSER_HZ]).collect()));
+    let viewer_pid = viewer.0.id();
+    for (round, on_viewer, plan) in plans {
+        let server = if on_viewer { "viewer" } else { "floor server" };
+        eprintln!("kilohertz: {server} with {} browsers, {seconds} s", plan.len());
+        let window = if on_viewer {
+            let pids = [("viewer".to_string(), viewer_pid)];
+            let mut check = |after_ns: &BTreeMap<u32, u64>| {
+                if let Ok(Some(status)) = viewer.0.try_wait() {
+                    bail!("the viewer exited during the run with {} browsers ({status})", plan.len());
+                }
+                if after_ns.is_empty() {
+                    bail!(
+                        "cannot read the viewer's threads' run time in /proc/{viewer_pid}/task/*/schedstat \
+                         (a kernel without CONFIG_SCHED_INFO?)"
+                    );
+                }
+                Ok(())
+            };
+            with_browsers(
+                &address,
+                &plan,
+                (dir, seconds),
+                &|| thread_cpu_ns(viewer_pid),
+                &|| cpu_ticks(&pids)[0],
+                &mut check,
+            )?
+        } else {
+            let mut check = |after_ns: &BTreeMap<u32, u64>| {
+                if after_ns.is_empty() {
+                    bail!("cannot read the floor server's threads' run time in /proc/self/task/*/schedstat");
+                }
+                Ok(())
+            };
+            with_browsers(
+                floor_server.address(),
+                &plan,
+                (dir, seconds),
+                &|| floor_server.thread_cpu_ns(),
+                &|| 0,
+                &mut check,
+            )?
+        };
+        let percent = |ns: u64| 100.0 * ns as f64 / 1e9 / window.seconds;
+        if on_viewer {
+            runs.push(ViewerRun {
+                round,
+                browsers: plan.len(),
+                with_slow_browser: plan.contains(&SLOW_BROWSER_HZ),
+                seconds: window.seconds,
+                viewer_cpu_percent: percent(window.ran_ns),
+                viewer_threads_ended: window.threads_ended,
+                viewer_cpu_percent_ticks: 100.0 * window.ticks as f64 / clock_ticks_per_s() / window.seconds,
+                per_browser: window.per_browser,
+            });
+        } else {
+            floor_runs.push(FloorRun {
+                round,
+                browsers: plan.len(),
+                seconds: window.seconds,
+                cpu_percent: percent(window.ran_ns),
+                threads_ended: window.threads_ended,
+                per_browser: window.per_browser,
+            });
         }
-        if after_ns.is_empty() {
-            bail!(
-                "cannot read the viewer's threads' run time in /proc/{}/task/*/schedstat \
-                 (a kernel without CONFIG_SCHED_INFO?)",
-                viewer.0.id()
-            );
-        }
-        let (ran_ns, threads_ended) = cpu_ns_between(&before_ns, &after_ns);
-        let mut per_browser = Vec::new();
-        for thread in threads {
-            per_browser.push(thread.join().map_err(|_| anyhow::anyhow!("a browser thread panicked"))??);
-        }
-        runs.push(ViewerRun {
-            round,
-            browsers: plan.len(),
-            with_slow_browser: plan.contains(&SLOW_BROWSER_HZ),
-            seconds: elapsed,
-            viewer_cpu_percent: 100.0 * ran_ns as f64 / 1e9 / elapsed,
-            viewer_threads_ended: threads_ended,
-            viewer_cpu_percent_ticks: 100.0 * (after[0].saturating_sub(before[0])) as f64
-                / clock_ticks_per_s()
-                / elapsed,
-            per_browser,
-        });
-        // The viewer notices the closed sockets and stops the shared readers.
+        // The servers notice the closed sockets (the viewer stops the shared readers).
         std::thread::sleep(Duration::from_millis(500));
     }
+    drop(floor_server);
     drop(viewer);
     drop(skin);
-    Ok(runs)
+    Ok((runs, floor_runs))
 }
 
 fn print(report: &KilohertzReport) {
@@ -829,5 +1017,33 @@ fn print(report: &KilohertzReport) {
         "viewer CPU, 10 browsers over 1: {:.2}x (median of the rounds: {})",
         report.viewer_cpu_ratio_10_to_1,
         ratios.join(", ")
+    );
+    if report.floor.is_empty() {
+        return;
+    }
+    println!("The floor server (one update-sized message per acknowledgement, nothing else) in the same rounds:");
+    println!("| round | browsers | floor server CPU (% of one core) | updates/s per browser (min–max) |");
+    println!("|---|---|---|---|");
+    for run in &report.floor {
+        let rates: Vec<f64> = run.per_browser.iter().map(|b| b.updates_per_s).collect();
+        println!(
+            "| {} | {} | {:.2} | {:.1}–{:.1} |",
+            run.round + 1,
+            run.browsers,
+            run.cpu_percent,
+            rates.iter().copied().fold(f64::INFINITY, f64::min),
+            rates.iter().copied().fold(0.0, f64::max)
+        );
+        if run.threads_ended > 0 {
+            println!("  {} of the floor server's threads ended during this window", run.threads_ended);
+        }
+    }
+    println!(
+        "a browser costs (10 − 1) / 9: the viewer {:.3} %, the floor server {:.3} % of one core (medians)",
+        report.browser_cost_percent.viewer, report.browser_cost_percent.floor
+    );
+    println!(
+        "the viewer's 10/1 if each browser cost it the floor's: {:.2}x (median)",
+        report.viewer_cpu_ratio_at_floor
     );
 }
