@@ -79,6 +79,9 @@ enum Command {
     /// One application process of a benchmark (what `skin bench` starts).
     #[command(hide = true)]
     BenchApp(commands::bench::AppArgs),
+    /// The floor server of `skin bench kilohertz`: one update-sized message per acknowledgement.
+    #[command(hide = true)]
+    BenchFloor(commands::kilohertz::floor::FloorArgs),
     /// Run one service of CONFIG in this process (what `skin run` starts).
     #[command(hide = true)]
     Service {
@@ -151,6 +154,7 @@ fn main() -> std::process::ExitCode {
         Command::Bridge(args) => commands::bridge::run(&args),
         Command::BridgeProbe(args) => commands::bridge_bench::probe(&args),
         Command::BenchApp(args) => commands::bench::app(&args),
+        Command::BenchFloor(args) => commands::kilohertz::floor::run(&args),
         Command::BenchEcatReader(args) => commands::bench::ecat_reader(&args),
         Command::BenchPeerReader(args) => commands::bench::peer_reader(&args),
     };

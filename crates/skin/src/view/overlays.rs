@@ -171,13 +171,19 @@ pub struct SharedOverlays {
     source: Mutex<OverlaySource>,
     /// What the last poll found, for a session that finds another polling.
     last: Mutex<Arc<Overlays>>,
+    /// No overlays, shared: what most polls find, without an allocation each.
+    none: Arc<Overlays>,
 }
 
 impl SharedOverlays {
     /// The shared overlay source of `skin`'s services (in segment directory
     /// `dir`, or the default).
     pub fn new(skin: &str, dir: Option<PathBuf>) -> SharedOverlays {
-        SharedOverlays { source: Mutex::new(OverlaySource::new(skin, dir)), last: Mutex::default() }
+        SharedOverlays {
+            source: Mutex::new(OverlaySource::new(skin, dir)),
+            last: Mutex::default(),
+            none: Arc::default(),
+        }
     }
 
     /// The newest overlays ([`OverlaySource::poll`]), or, while another
@@ -191,7 +197,9 @@ impl SharedOverlays {
             Err(TryLockError::Poisoned(poisoned)) => poisoned.into_inner(),
             Err(TryLockError::WouldBlock) => return self.last_polled(),
         };
-        let newest = Arc::new(source.poll());
+        let polled = source.poll();
+        let newest =
+            if polled.arrows.is_empty() && polled.markers.is_empty() { self.none.clone() } else { Arc::new(polled) };
         *self.last.lock().unwrap_or_else(|poisoned| poisoned.into_inner()) = newest.clone();
         newest
     }

@@ -245,6 +245,9 @@ struct Session<'a> {
     poll: Option<Duration>,
     /// When its next update is due.
     pacing: Pacing,
+    /// A wait for the browser just ended with a message: the update it
+    /// made due goes without a read that would find nothing first.
+    just_spoke: bool,
 }
 
 impl<'a> Session<'a> {
@@ -265,6 +268,7 @@ impl<'a> Session<'a> {
             scratch: vec![Vec::new(); layers.len()],
             poll: None,
             pacing: Pacing::default(),
+            just_spoke: false,
             layers,
         })
     }
@@ -273,14 +277,18 @@ impl<'a> Session<'a> {
     /// [`IDLE_POLL`]) only while there is no credit, and never once it has
     /// spoken. With credit the board, not the browser, is what we wait for:
     /// a read that slept would cost a wake-up per update, which at 1 kHz is
-    /// most of what a browser costs. A wait ends with the first message
-    /// (the next call reads what followed it, without waiting), so that an
-    /// acknowledgement costs no read that finds nothing. Breaks when the
-    /// browser left.
+    /// most of what a browser costs. A wait ends with the first message,
+    /// and the call right after it does not read: whatever followed that
+    /// message is read by the next wait, after the update it made due, so
+    /// that an acknowledgement costs no read that finds nothing (one system
+    /// call per update). Breaks when the browser left.
     fn read_browser(&mut self) -> Result<ControlFlow<()>> {
         // One timeout for every wait, so that it is set once: an update due
         // without an acknowledgement may go up to IDLE_POLL late.
         let wait = self.credit == 0 || self.pacing.until_due(Instant::now()).is_some();
+        if std::mem::take(&mut self.just_spoke) && !wait {
+            return Ok(ControlFlow::Continue(()));
+        }
         if wait && self.poll != Some(IDLE_POLL) {
             self.socket.get_mut().stream.set_read_timeout(Some(IDLE_POLL))?;
             self.poll = Some(IDLE_POLL);
@@ -299,6 +307,7 @@ impl<'a> Session<'a> {
                 Err(e) => return Err(e.into()),
             }
             if wait {
+                self.just_spoke = true;
                 return Ok(ControlFlow::Continue(()));
             }
         }
@@ -356,16 +365,26 @@ impl<'a> Session<'a> {
         self.credit -= 1;
         let length = protocol::update_bytes(self.head.len(), &self.update);
         let header = WebSocketHeader::binary(length);
-        let mut parts = Vec::with_capacity(2 + self.update.len());
-        parts.push(IoSlice::new(header.bytes()));
-        parts.push(IoSlice::new(&self.head));
-        for (layer, scratch) in self.update.iter().zip(&mut self.scratch) {
-            if let Some(responses) = layer.responses() {
-                parts.push(IoSlice::new(protocol::responses_le(responses, scratch)));
-            }
+        // The parts on the stack for the skins of up to 14 layers: no allocation per update.
+        let count = 2 + self.update.iter().filter(|layer| layer.with_responses).count();
+        let mut on_stack = [IoSlice::new(&[]); 16];
+        let mut on_heap = Vec::new();
+        let parts = if count <= on_stack.len() {
+            &mut on_stack[..count]
+        } else {
+            on_heap.resize(count, IoSlice::new(&[]));
+            &mut on_heap[..]
+        };
+        parts[0] = IoSlice::new(header.bytes());
+        parts[1] = IoSlice::new(&self.head);
+        let responses = self.update.iter().zip(&mut self.scratch).filter_map(|(layer, scratch)| {
+            layer.responses().map(|responses| IoSlice::new(protocol::responses_le(responses, scratch)))
+        });
+        for (part, responses) in parts[2..].iter_mut().zip(responses) {
+            *part = responses;
         }
-        let sent = send_message(&mut self.socket, &mut parts);
-        drop(parts);
+        let sent = send_message(&mut self.socket, parts);
+        drop(on_heap);
         self.update.clear();
         match sent {
             Ok(()) => Ok(ControlFlow::Continue(())),

@@ -1,6 +1,7 @@
 //! The floor under what a browser costs the viewer, for `skin bench
-//! kilohertz`: a bare WebSocket server that does, per browser, only what no
-//! viewer of this design can leave out. It waits for the browser's
+//! kilohertz` (which runs it as the hidden `skin bench-floor`, a process of
+//! its own as the viewer is): a bare WebSocket server that does, per
+//! browser, only what no viewer of this design can leave out. It waits for the browser's
 //! acknowledgement, and for each one sends one message of an update's size
 //! through the viewer's own send path (one `sendmsg` from where the bytes
 //! are). It reads no skin, keeps no board and paces nothing, so the
@@ -17,8 +18,7 @@
 
 #![forbid(unsafe_code)]
 
-use std::collections::BTreeMap;
-use std::io::IoSlice;
+use std::io::{IoSlice, Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -35,12 +35,34 @@ use crate::view::session::{BrowserStream, WebSocketHeader, send_message};
 /// How long a connection's read waits before it looks at the stop flag.
 const STOP_POLL: Duration = Duration::from_millis(100);
 
+/// The name of the threads that serve a browser each: what the bench
+/// measures of this process.
+pub const BROWSER_THREAD: &str = "floor-browser";
+
+/// Arguments of the hidden `bench-floor` role.
+#[derive(clap::Args)]
+pub struct FloorArgs {
+    /// Bytes of each update message.
+    #[arg(long)]
+    bytes: usize,
+}
+
+/// Runs the floor server: prints the address it listens on, then serves
+/// until its standard input closes (the bench ended).
+pub fn run(args: &FloorArgs) -> Result<()> {
+    let server = FloorServer::start(args.bytes)?;
+    let mut stdout = std::io::stdout();
+    writeln!(stdout, "{}", server.address)?;
+    stdout.flush()?;
+    let mut rest = Vec::new();
+    let _ = std::io::stdin().read_to_end(&mut rest);
+    Ok(())
+}
+
 /// The running floor server; stopped (its threads joined) when dropped.
-pub struct FloorServer {
+struct FloorServer {
     address: String,
     stop: Arc<AtomicBool>,
-    /// The thread ids of the server's threads, for their run time.
-    threads: Arc<Mutex<Vec<u32>>>,
     acceptor: Option<JoinHandle<()>>,
     rewriter: Option<JoinHandle<()>>,
 }
@@ -54,11 +76,10 @@ const REWRITE_EVERY: Duration = Duration::from_millis(1);
 impl FloorServer {
     /// Listens on a free loopback port and answers each acknowledgement of
     /// a browser with one binary message of `update_bytes` bytes.
-    pub fn start(update_bytes: usize) -> Result<FloorServer> {
+    fn start(update_bytes: usize) -> Result<FloorServer> {
         let listener = TcpListener::bind("127.0.0.1:0").context("cannot listen on loopback for the floor server")?;
         let address = listener.local_addr()?.to_string();
         let stop = Arc::new(AtomicBool::new(false));
-        let threads = Arc::new(Mutex::new(Vec::new()));
         let mut update = vec![0u8; update_bytes.max(1)];
         update[0] = KIND_UPDATE;
         let newest: Newest = Arc::new(Mutex::new(Arc::new(update)));
@@ -67,27 +88,10 @@ impl FloorServer {
             std::thread::spawn(move || rewrite(&newest, &stop))
         };
         let acceptor = {
-            let (stop, threads) = (stop.clone(), threads.clone());
-            std::thread::spawn(move || accept_browsers(&listener, &stop, &threads, &newest))
+            let stop = stop.clone();
+            std::thread::spawn(move || accept_browsers(&listener, &stop, &newest))
         };
-        Ok(FloorServer { address, stop, threads, acceptor: Some(acceptor), rewriter: Some(rewriter) })
-    }
-
-    /// Where browsers connect (`host:port`; any path is accepted).
-    pub fn address(&self) -> &str {
-        &self.address
-    }
-
-    /// The run time of each of the server's threads now, in ns, by thread
-    /// id; a thread that ended is absent.
-    pub fn thread_cpu_ns(&self) -> BTreeMap<u32, u64> {
-        let tids = self.threads.lock().unwrap_or_else(|p| p.into_inner()).clone();
-        tids.into_iter()
-            .filter_map(|tid| {
-                let stat = std::fs::read_to_string(format!("/proc/self/task/{tid}/schedstat")).ok()?;
-                Some((tid, stat.split_whitespace().next()?.parse::<u64>().ok()?))
-            })
-            .collect()
+        Ok(FloorServer { address, stop, acceptor: Some(acceptor), rewriter: Some(rewriter) })
     }
 }
 
@@ -100,10 +104,6 @@ impl Drop for FloorServer {
             let _ = thread.join();
         }
     }
-}
-
-fn this_thread_id() -> u32 {
-    rustix::thread::gettid().as_raw_nonzero().get() as u32
 }
 
 /// Writes a new update every [`REWRITE_EVERY`] into a buffer no send holds
@@ -130,8 +130,7 @@ fn lock(newest: &Newest) -> std::sync::MutexGuard<'_, Arc<Vec<u8>>> {
     newest.lock().unwrap_or_else(|p| p.into_inner())
 }
 
-fn accept_browsers(listener: &TcpListener, stop: &Arc<AtomicBool>, threads: &Arc<Mutex<Vec<u32>>>, newest: &Newest) {
-    threads.lock().unwrap_or_else(|p| p.into_inner()).push(this_thread_id());
+fn accept_browsers(listener: &TcpListener, stop: &Arc<AtomicBool>, newest: &Newest) {
     let mut connections = Vec::new();
     while !stop.load(Ordering::Relaxed) {
         let Ok((stream, _)) = listener.accept() else {
@@ -141,9 +140,8 @@ fn accept_browsers(listener: &TcpListener, stop: &Arc<AtomicBool>, threads: &Arc
         if stop.load(Ordering::Relaxed) {
             break;
         }
-        let (stop, threads, newest) = (stop.clone(), threads.clone(), newest.clone());
-        let spawned = std::thread::Builder::new().name("floor-browser".into()).spawn(move || {
-            threads.lock().unwrap_or_else(|p| p.into_inner()).push(this_thread_id());
+        let (stop, newest) = (stop.clone(), newest.clone());
+        let spawned = std::thread::Builder::new().name(BROWSER_THREAD.into()).spawn(move || {
             if let Err(e) = serve_browser(stream, &stop, &newest) {
                 eprintln!("kilohertz: the floor server lost a browser: {e:#}");
             }

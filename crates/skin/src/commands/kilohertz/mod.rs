@@ -32,7 +32,7 @@ use skinware_bench::measure::{Percentiles, RunningSkin};
 
 use super::bench::Common;
 
-mod floor;
+pub mod floor;
 
 const PAPER_SKIN: &str = include_str!("../../../../../examples/paper-virtual-skin.toml");
 const LAYERS: usize = 5;
@@ -523,16 +523,23 @@ fn median(values: &[f64]) -> f64 {
     }
 }
 
-/// The run time of each thread of process `pid` now, in ns, by thread id
-/// (the first field of `/proc/PID/task/TID/schedstat`): exact, where utime +
-/// stime count whole clock ticks, each charged to whoever ran when it struck.
-/// Empty if the process is gone.
-fn thread_cpu_ns(pid: u32) -> BTreeMap<u32, u64> {
+/// The run time of each thread of process `pid` now (only those named
+/// `named`, if given), in ns, by thread id (the first field of
+/// `/proc/PID/task/TID/schedstat`): exact, where utime + stime count whole
+/// clock ticks, each charged to whoever ran when it struck. Empty if the
+/// process is gone.
+fn thread_cpu_ns(pid: u32, named: Option<&str>) -> BTreeMap<u32, u64> {
     let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else { return BTreeMap::new() };
     tasks
         .flatten()
         .filter_map(|task| {
             let tid = task.file_name().to_str()?.parse::<u32>().ok()?;
+            if let Some(named) = named {
+                let comm = std::fs::read_to_string(task.path().join("comm")).ok()?;
+                if comm.trim_end() != named {
+                    return None;
+                }
+            }
             let stat = std::fs::read_to_string(task.path().join("schedstat")).ok()?;
             Some((tid, stat.split_whitespace().next()?.parse::<u64>().ok()?))
         })
@@ -659,6 +666,29 @@ impl ServiceProbe {
             .map(|(name, thread)| Ok((name, thread.join().map_err(|_| anyhow::anyhow!("a probe thread panicked"))?)))
             .collect()
     }
+}
+
+/// Starts the [`floor`] server (`skin bench-floor`) with updates of the
+/// viewer's size on this skin; returns it and where it listens.
+fn start_floor(exe: &Path) -> Result<(Guarded, String)> {
+    use std::io::BufRead;
+    let bytes =
+        crate::view::protocol::UPDATE_HEADER_BYTES + LAYERS * crate::view::protocol::LAYER_RECORD_BYTES + 2 * TAXELS;
+    let mut child = Command::new(exe)
+        .args(["bench-floor", "--bytes", &bytes.to_string()])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .context("cannot start the floor server (`skin bench-floor`)")?;
+    let stdout = child.stdout.take().context("the floor server's stdout")?;
+    let child = Guarded(child);
+    let mut address = String::new();
+    std::io::BufReader::new(stdout).read_line(&mut address).context("cannot read the floor server's address")?;
+    let address = address.trim().to_owned();
+    if address.is_empty() {
+        bail!("the floor server (`skin bench-floor`) exited before it said where it listens");
+    }
+    Ok((child, address))
 }
 
 /// Starts `skin view` on a free loopback port and waits until it answers.
@@ -836,9 +866,8 @@ fn viewer_scaling(
 ) -> Result<(Vec<ViewerRun>, Vec<FloorRun>)> {
     let (skin, _readers) = start_skin(exe, (dir, None), false)?;
     let (mut viewer, address) = start_viewer(viewer_exe, dir)?;
-    let floor_server = floor::FloorServer::start(
-        crate::view::protocol::UPDATE_HEADER_BYTES + LAYERS * crate::view::protocol::LAYER_RECORD_BYTES + 2 * TAXELS,
-    )?;
+    let (floor_server, floor_address) = start_floor(exe)?;
+    let floor_pid = floor_server.0.id();
     let (mut runs, mut floor_runs) = (Vec::new(), Vec::new());
     let one = vec![DISPLAY_HZ];
     let ten = vec![DISPLAY_HZ; 10];
@@ -875,22 +904,24 @@ fn viewer_scaling(
                 &address,
                 &plan,
                 (dir, seconds),
-                &|| thread_cpu_ns(viewer_pid),
+                &|| thread_cpu_ns(viewer_pid, None),
                 &|| cpu_ticks(&pids)[0],
                 &mut check,
             )?
         } else {
             let mut check = |after_ns: &BTreeMap<u32, u64>| {
                 if after_ns.is_empty() {
-                    bail!("cannot read the floor server's threads' run time in /proc/self/task/*/schedstat");
+                    bail!(
+                        "cannot read the floor server's browser threads' run time in /proc/{floor_pid}/task/*/schedstat"
+                    );
                 }
                 Ok(())
             };
             with_browsers(
-                floor_server.address(),
+                &floor_address,
                 &plan,
                 (dir, seconds),
-                &|| floor_server.thread_cpu_ns(),
+                &|| thread_cpu_ns(floor_pid, Some(floor::BROWSER_THREAD)),
                 &|| 0,
                 &mut check,
             )?
