@@ -151,7 +151,11 @@ need([f.get("browsers") for f in khz.get("floor", [])] == [1, 10], "kilohertz.js
 need(all(f.get("cpu_percent", 0) > 0 and f.get("threads_ended") == 0 and all(b.get("updates_per_s", 0) > 0 for b in f.get("per_browser", []))
          for f in khz.get("floor", [])), "kilohertz.json: the floor server's CPU, a thread ended in its window, or a browser got no update")
 cost = khz.get("browser_cost_percent", {})
-need(all(isinstance(cost.get(k), (int, float)) for k in ("viewer", "floor")), "kilohertz.json: what a browser costs, viewer and floor")
+# The viewer's cost per browser only exists (a quick round is noisy); the floor's, 10 browsers against 1, is above 0.
+need(isinstance(cost.get("viewer"), (int, float)) and cost.get("floor", 0) > 0, "kilohertz.json: what a browser costs, viewer and floor")
+need(cost.get("viewer_session", 0) > 0 and cost.get("floor_thread", 0) > 0, "kilohertz.json: each browser's own thread, viewer and floor")
+need(all(0 < v.get("sessions_cpu_percent", 0) <= v.get("viewer_cpu_percent", 0) for v in khz.get("viewer", [])),
+     "kilohertz.json: the viewer's session threads' CPU (above 0, within the viewer's)")
 need(khz.get("viewer_cpu_ratio_at_floor", 0) > 0, "kilohertz.json: the viewer's ratio at the floor")
 
 contact = json.loads((out / "contact.json").read_text())

@@ -24,6 +24,10 @@ const MAX_HEAD_BYTES: usize = 16 * 1024;
 /// connection before it is buffered (tungstenite's default is 64 MiB): the
 /// page's messages are under [`skin::viewer_message::MAX_MESSAGE_BYTES`].
 const MAX_INCOMING_BYTES: usize = 64 * 1024;
+/// The start of the name of a connection's thread (then the browser's port,
+/// within Linux's 15 characters): what `top -H` shows, and what `skin bench
+/// kilohertz` measures as the browsers' own cost.
+pub const BROWSER_THREAD_PREFIX: &str = "browser-";
 /// Bytes read from a browser at a time; its messages are a few dozen bytes.
 pub const BROWSER_READ_BYTES: usize = 4 * 1024;
 
@@ -66,10 +70,10 @@ pub fn serve(listener: TcpListener, site: &Site) -> Result<()> {
     listener.set_nonblocking(true).context("cannot make the listening socket non-blocking")?;
     let (signalled, signal_end) =
         std::os::unix::net::UnixStream::pair().context("cannot create the viewer's shutdown socket pair")?;
-    signal_end.set_nonblocking(true)?;
-    // Each handler owns a clone of `signal_end` from here on, for the rest
-    // of the process (signal-hook never closes it), so that a handler
-    // running late never writes to a closed descriptor.
+    // Drained after each wake-up, without waiting.
+    signalled.set_nonblocking(true).context("cannot make the viewer's shutdown socket non-blocking")?;
+    // Each handler owns a clone of `signal_end`; `unregister` closes it
+    // once no handler is running any more.
     let handlers = [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM]
         .into_iter()
         .map(|signal| {
@@ -98,17 +102,24 @@ fn accept_until_shutdown(
             Ok(_) | Err(rustix::io::Errno::INTR) => {}
             Err(e) => return Err(std::io::Error::from(e)).context("cannot wait for browsers (poll)"),
         }
+        if waiting[1].revents().contains(PollFlags::IN) {
+            // The signal's byte: read, so that a flag not set by that signal does not make poll spin.
+            let mut bytes = [0u8; 16];
+            while matches!(rustix::net::recv(signalled, &mut bytes, rustix::net::RecvFlags::DONTWAIT), Ok((1.., _))) {}
+        }
         if !waiting[0].revents().contains(PollFlags::IN) {
             continue;
         }
         match listener.accept() {
             Ok((stream, peer)) => {
                 let site = site.clone();
-                let spawned = std::thread::Builder::new().name(format!("view-{peer}")).spawn(move || {
-                    if let Err(e) = handle_connection(stream, &site) {
-                        tracing::debug!(%peer, "connection ended: {e:#}");
-                    }
-                });
+                let spawned = std::thread::Builder::new()
+                    .name(format!("{BROWSER_THREAD_PREFIX}{}", peer.port()))
+                    .spawn(move || {
+                        if let Err(e) = handle_connection(stream, &site) {
+                            tracing::debug!(%peer, "connection ended: {e:#}");
+                        }
+                    });
                 if let Err(e) = spawned {
                     tracing::warn!(%peer, "cannot start a thread for a connection: {e}");
                 }

@@ -102,25 +102,38 @@ impl Pacing {
 pub struct BrowserStream {
     /// The connection.
     pub stream: TcpStream,
-    /// Whether the next reads may wait for data.
-    pub wait_for_reads: bool,
+    /// How the next reads behave.
+    pub reads: Reads,
+}
+
+/// How a [`BrowserStream`]'s next reads behave.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Reads {
+    /// Wait for data, up to the socket's read timeout.
+    Wait,
+    /// Take what the socket holds, or `WouldBlock` at once.
+    DontWait,
+    /// `WouldBlock` without asking the socket: tungstenite then returns only
+    /// the messages it already holds in its buffer, for no system call.
+    BufferedOnly,
 }
 
 impl BrowserStream {
     /// A connection whose reads wait.
     pub fn new(stream: TcpStream) -> BrowserStream {
-        BrowserStream { stream, wait_for_reads: true }
+        BrowserStream { stream, reads: Reads::Wait }
     }
 }
 
 impl std::io::Read for BrowserStream {
     fn read(&mut self, buffer: &mut [u8]) -> std::io::Result<usize> {
-        if self.wait_for_reads {
-            return self.stream.read(buffer);
+        match self.reads {
+            Reads::Wait => self.stream.read(buffer),
+            Reads::DontWait => rustix::net::recv(&self.stream, buffer, rustix::net::RecvFlags::DONTWAIT)
+                .map(|(read, _)| read)
+                .map_err(std::io::Error::from),
+            Reads::BufferedOnly => Err(std::io::ErrorKind::WouldBlock.into()),
         }
-        rustix::net::recv(&self.stream, buffer, rustix::net::RecvFlags::DONTWAIT)
-            .map(|(read, _)| read)
-            .map_err(std::io::Error::from)
     }
 }
 
@@ -274,26 +287,30 @@ impl<'a> Session<'a> {
     }
 
     /// What the browser said since the last update: waiting for it (at most
-    /// [`IDLE_POLL`]) only while there is no credit, and never once it has
-    /// spoken. With credit the board, not the browser, is what we wait for:
-    /// a read that slept would cost a wake-up per update, which at 1 kHz is
-    /// most of what a browser costs. A wait ends with the first message,
-    /// and the call right after it does not read: whatever followed that
-    /// message is read by the next wait, after the update it made due, so
-    /// that an acknowledgement costs no read that finds nothing (one system
-    /// call per update). Breaks when the browser left.
+    /// [`IDLE_POLL`]) only while there is no credit or no update is due yet,
+    /// and never once it has spoken. With credit the board, not the
+    /// browser, is what we wait for: a read that slept would cost a wake-up
+    /// per update, which at 1 kHz is most of what a browser costs. A wait
+    /// ends with the first message, and the call right after it takes only
+    /// what tungstenite already holds (a request sent along with the
+    /// acknowledgement, say), without asking the socket: what arrived later
+    /// is read by the next wait, right after the update, so that an
+    /// acknowledgement costs no read that finds nothing (one system call
+    /// per update). Breaks when the browser left.
     fn read_browser(&mut self) -> Result<ControlFlow<()>> {
         // One timeout for every wait, so that it is set once: an update due
         // without an acknowledgement may go up to IDLE_POLL late.
         let wait = self.credit == 0 || self.pacing.until_due(Instant::now()).is_some();
-        if std::mem::take(&mut self.just_spoke) && !wait {
-            return Ok(ControlFlow::Continue(()));
-        }
         if wait && self.poll != Some(IDLE_POLL) {
             self.socket.get_mut().stream.set_read_timeout(Some(IDLE_POLL))?;
             self.poll = Some(IDLE_POLL);
         }
-        self.socket.get_mut().wait_for_reads = wait;
+        let just_spoke = std::mem::take(&mut self.just_spoke);
+        self.socket.get_mut().reads = match (wait, just_spoke) {
+            (true, _) => Reads::Wait,
+            (false, true) => Reads::BufferedOnly,
+            (false, false) => Reads::DontWait,
+        };
         loop {
             match self.socket.read() {
                 Ok(Message::Text(text)) => match viewer_message::decode(text.as_str()) {
@@ -463,6 +480,44 @@ pub fn send_message(socket: &mut WebSocket<BrowserStream>, parts: &mut [IoSlice<
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// After the acknowledgement that made an update due, the session reads
+    /// only what tungstenite already holds: a message that came in the same
+    /// segment is handled at once, and a later one stays in the socket
+    /// (no system call) until a read that asks the socket.
+    #[test]
+    fn buffered_only_reads_return_what_tungstenite_holds_and_leave_the_socket_alone() {
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let client = TcpStream::connect(listener.local_addr().unwrap()).unwrap();
+        let (server, _) = listener.accept().unwrap();
+        server.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+        let mut server =
+            WebSocket::from_raw_socket(BrowserStream::new(server), tungstenite::protocol::Role::Server, None);
+        let mut client = WebSocket::from_raw_socket(client, tungstenite::protocol::Role::Client, None);
+        // Two messages in one segment, as a page sends an acknowledgement and a request together.
+        client.write(Message::text(r#"{"ack":1}"#)).unwrap();
+        client.write(Message::text(r#"{"request":true}"#)).unwrap();
+        client.flush().unwrap();
+        let mut peeked = [0u8; 64];
+        let both = loop {
+            let (bytes, _) =
+                rustix::net::recv(&server.get_ref().stream, &mut peeked, rustix::net::RecvFlags::PEEK).unwrap();
+            if bytes >= 2 * 6 + 9 + 16 {
+                break bytes;
+            }
+        };
+        assert_eq!(both, 2 * 6 + 9 + 16, "two masked text frames");
+        assert!(matches!(server.read().unwrap(), Message::Text(t) if t.as_str() == r#"{"ack":1}"#));
+        server.get_mut().reads = Reads::BufferedOnly;
+        assert!(matches!(server.read().unwrap(), Message::Text(t) if t.as_str() == r#"{"request":true}"#));
+        assert!(matches!(server.read(), Err(e) if is_timeout(&e)), "nothing more is buffered");
+        client.send(Message::text(r#"{"ack":2}"#)).unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+        assert!(matches!(server.read(), Err(e) if is_timeout(&e)), "the socket is not asked");
+        server.get_mut().reads = Reads::DontWait;
+        assert!(matches!(server.read().unwrap(), Message::Text(t) if t.as_str() == r#"{"ack":2}"#));
+        assert!(matches!(server.read(), Err(e) if is_timeout(&e)), "the socket is empty");
+    }
 
     /// A message written in parts, with a header of each of the three
     /// lengths, is what a WebSocket client reads, after a pong that

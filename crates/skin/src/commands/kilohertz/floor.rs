@@ -21,7 +21,7 @@
 use std::io::{IoSlice, Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
@@ -62,13 +62,40 @@ pub fn run(args: &FloorArgs) -> Result<()> {
 /// The running floor server; stopped (its threads joined) when dropped.
 struct FloorServer {
     address: String,
-    stop: Arc<AtomicBool>,
+    shared: Arc<Shared>,
     acceptor: Option<JoinHandle<()>>,
     rewriter: Option<JoinHandle<()>>,
 }
 
-/// The newest update, replaced whole by the rewriter.
-type Newest = Arc<Mutex<Arc<Vec<u8>>>>;
+/// What the server's threads share.
+struct Shared {
+    stop: AtomicBool,
+    /// The newest update, replaced whole by the rewriter.
+    newest: Mutex<Arc<Vec<u8>>>,
+    /// Browsers connected: the rewriter works only while there is one, so
+    /// that the floor server loads the machine only in its own rounds.
+    browsers: Mutex<usize>,
+    browsers_changed: Condvar,
+}
+
+impl Shared {
+    fn newest(&self) -> Arc<Vec<u8>> {
+        self.newest.lock().unwrap_or_else(|p| p.into_inner()).clone()
+    }
+
+    fn count_browsers(&self, change: impl FnOnce(&mut usize)) {
+        change(&mut self.browsers.lock().unwrap_or_else(|p| p.into_inner()));
+        self.browsers_changed.notify_all();
+    }
+
+    /// Waits while no browser is connected; false once the server stops.
+    fn wait_for_browsers(&self) -> bool {
+        let browsers = self.browsers.lock().unwrap_or_else(|p| p.into_inner());
+        let idle = |browsers: &mut usize| *browsers == 0 && !self.stop.load(Ordering::Relaxed);
+        let _unused = self.browsers_changed.wait_while(browsers, idle).unwrap_or_else(|p| p.into_inner());
+        !self.stop.load(Ordering::Relaxed)
+    }
+}
 
 /// How often the rewriter writes a new update: the skin's rate.
 const REWRITE_EVERY: Duration = Duration::from_millis(1);
@@ -79,25 +106,30 @@ impl FloorServer {
     fn start(update_bytes: usize) -> Result<FloorServer> {
         let listener = TcpListener::bind("127.0.0.1:0").context("cannot listen on loopback for the floor server")?;
         let address = listener.local_addr()?.to_string();
-        let stop = Arc::new(AtomicBool::new(false));
         let mut update = vec![0u8; update_bytes.max(1)];
         update[0] = KIND_UPDATE;
-        let newest: Newest = Arc::new(Mutex::new(Arc::new(update)));
+        let shared = Arc::new(Shared {
+            stop: AtomicBool::new(false),
+            newest: Mutex::new(Arc::new(update)),
+            browsers: Mutex::new(0),
+            browsers_changed: Condvar::new(),
+        });
         let rewriter = {
-            let (stop, newest) = (stop.clone(), newest.clone());
-            std::thread::spawn(move || rewrite(&newest, &stop))
+            let shared = shared.clone();
+            std::thread::spawn(move || rewrite(&shared))
         };
         let acceptor = {
-            let stop = stop.clone();
-            std::thread::spawn(move || accept_browsers(&listener, &stop, &newest))
+            let shared = shared.clone();
+            std::thread::spawn(move || accept_browsers(&listener, &shared))
         };
-        Ok(FloorServer { address, stop, acceptor: Some(acceptor), rewriter: Some(rewriter) })
+        Ok(FloorServer { address, shared, acceptor: Some(acceptor), rewriter: Some(rewriter) })
     }
 }
 
 impl Drop for FloorServer {
     fn drop(&mut self) {
-        self.stop.store(true, Ordering::Relaxed);
+        self.shared.stop.store(true, Ordering::Relaxed);
+        self.shared.count_browsers(|_| {});
         // The acceptor blocks in accept(): a connection wakes it to see the flag.
         let _ = TcpStream::connect(&self.address);
         for thread in [self.acceptor.take(), self.rewriter.take()].into_iter().flatten() {
@@ -106,43 +138,43 @@ impl Drop for FloorServer {
     }
 }
 
-/// Writes a new update every [`REWRITE_EVERY`] into a buffer no send holds
-/// (the one it replaced last time, once the sends let go of it), then swaps
-/// it in.
-fn rewrite(newest: &Newest, stop: &AtomicBool) {
-    let mut spare = Arc::new(lock(newest).as_ref().clone());
+/// While a browser is connected, writes a new update every
+/// [`REWRITE_EVERY`] into a buffer no send holds (the one it replaced last
+/// time, once the sends let go of it), then swaps it in.
+fn rewrite(shared: &Shared) {
+    let mut spare = Arc::new(shared.newest().as_ref().clone());
     let mut count = 0u8;
-    while !stop.load(Ordering::Relaxed) {
+    while shared.wait_for_browsers() {
         std::thread::sleep(REWRITE_EVERY);
         count = count.wrapping_add(1);
         if Arc::get_mut(&mut spare).is_none() {
             // A send still holds it: write a new one.
-            spare = Arc::new(lock(newest).as_ref().clone());
+            spare = Arc::new(shared.newest().as_ref().clone());
         }
         if let Some(bytes) = Arc::get_mut(&mut spare) {
             bytes[1..].fill(count);
-            spare = std::mem::replace(&mut *lock(newest), spare);
+            spare = std::mem::replace(&mut *shared.newest.lock().unwrap_or_else(|p| p.into_inner()), spare);
         }
     }
 }
 
-fn lock(newest: &Newest) -> std::sync::MutexGuard<'_, Arc<Vec<u8>>> {
-    newest.lock().unwrap_or_else(|p| p.into_inner())
-}
-
-fn accept_browsers(listener: &TcpListener, stop: &Arc<AtomicBool>, newest: &Newest) {
-    let mut connections = Vec::new();
-    while !stop.load(Ordering::Relaxed) {
+fn accept_browsers(listener: &TcpListener, shared: &Arc<Shared>) {
+    let mut connections: Vec<JoinHandle<()>> = Vec::new();
+    while !shared.stop.load(Ordering::Relaxed) {
         let Ok((stream, _)) = listener.accept() else {
             std::thread::sleep(Duration::from_millis(10));
             continue;
         };
-        if stop.load(Ordering::Relaxed) {
+        if shared.stop.load(Ordering::Relaxed) {
             break;
         }
-        let (stop, newest) = (stop.clone(), newest.clone());
+        connections.retain(|connection| !connection.is_finished());
+        let shared = shared.clone();
         let spawned = std::thread::Builder::new().name(BROWSER_THREAD.into()).spawn(move || {
-            if let Err(e) = serve_browser(stream, &stop, &newest) {
+            shared.count_browsers(|browsers| *browsers += 1);
+            let served = serve_browser(stream, &shared);
+            shared.count_browsers(|browsers| *browsers -= 1);
+            if let Err(e) = served {
                 eprintln!("kilohertz: the floor server lost a browser: {e:#}");
             }
         });
@@ -158,7 +190,7 @@ fn accept_browsers(listener: &TcpListener, stop: &Arc<AtomicBool>, newest: &Newe
 
 /// One browser: a token geometry message, then one update per
 /// acknowledgement, until it closes or the server stops.
-fn serve_browser(stream: TcpStream, stop: &AtomicBool, newest: &Newest) -> Result<()> {
+fn serve_browser(stream: TcpStream, shared: &Shared) -> Result<()> {
     stream.set_read_timeout(Some(STOP_POLL))?;
     stream.set_nodelay(true)?;
     // The viewer's read buffer (`view::server`): tungstenite zeroes it before every read.
@@ -166,21 +198,37 @@ fn serve_browser(stream: TcpStream, stop: &AtomicBool, newest: &Newest) -> Resul
     let mut socket = tungstenite::accept_with_config(BrowserStream::new(stream), Some(config))
         .map_err(|e| anyhow::anyhow!("WebSocket handshake with a browser failed: {e}"))?;
     socket.send(Message::binary(vec![KIND_GEOMETRY]))?;
-    while !stop.load(Ordering::Relaxed) {
+    while !shared.stop.load(Ordering::Relaxed) {
         match socket.read() {
             Ok(Message::Text(_)) => {
-                let update = lock(newest).clone();
+                let update = shared.newest();
                 let header = WebSocketHeader::binary(update.len());
                 let mut parts = [IoSlice::new(header.bytes()), IoSlice::new(&update)];
-                send_message(&mut socket, &mut parts)?;
+                match send_message(&mut socket, &mut parts) {
+                    Ok(()) => {}
+                    Err(e) if ended_by_browser(&e) => break,
+                    Err(e) => return Err(e.into()),
+                }
             }
             Ok(Message::Close(_)) => break,
             Ok(_) => {}
             Err(tungstenite::Error::Io(e))
                 if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {}
-            Err(tungstenite::Error::ConnectionClosed | tungstenite::Error::AlreadyClosed) => break,
+            Err(e) if ended_by_browser(&e) => break,
             Err(e) => return Err(e.into()),
         }
     }
     Ok(())
+}
+
+/// How a browser's connection ends at the end of a window: closed, or reset
+/// because the browser closed with an update unread.
+fn ended_by_browser(error: &tungstenite::Error) -> bool {
+    match error {
+        tungstenite::Error::ConnectionClosed | tungstenite::Error::AlreadyClosed => true,
+        tungstenite::Error::Io(e) => {
+            matches!(e.kind(), std::io::ErrorKind::ConnectionReset | std::io::ErrorKind::BrokenPipe)
+        }
+        _ => false,
+    }
 }

@@ -107,6 +107,10 @@ struct ViewerRun {
     /// The same from `/proc/PID/stat`'s utime + stime, in clock ticks (what
     /// this bench reported before 2026-11-25: a tick is 1 % of a core-second).
     viewer_cpu_percent_ticks: f64,
+    /// Of `viewer_cpu_percent`, the browsers' own threads (one per
+    /// connection; not the shared layer readers): what the browsers cost,
+    /// without the readers' share, which moves by up to a point between runs.
+    sessions_cpu_percent: f64,
     per_browser: Vec<BrowserFigures>,
 }
 
@@ -118,21 +122,28 @@ struct FloorRun {
     browsers: usize,
     /// The window measured, seconds.
     seconds: f64,
-    /// The floor server's threads' run time over the window (schedstat, ns),
-    /// in % of one core.
+    /// The run time of the floor server's browser threads (one per
+    /// browser; not its rewriter, which stands for the viewer's layer
+    /// readers) over the window (schedstat, ns), in % of one core.
     cpu_percent: f64,
-    /// Threads of the floor server that ended during the window (0 in a sound run).
+    /// Browser threads of the floor server that ended during the window (0 in a sound run).
     threads_ended: usize,
     per_browser: Vec<BrowserFigures>,
 }
 
-/// What one more browser costs, in % of one core: (CPU with 10 browsers −
-/// CPU with 1) / 9, the median over the rounds.
+/// What one more browser costs, in % of one core, the median over the
+/// rounds: (CPU with 10 browsers − CPU with 1) / 9, and each browser's own
+/// thread with 10 browsers (its CPU / 10), which the layer readers' share
+/// does not move.
 #[derive(Debug, Default, Serialize)]
 struct BrowserCost {
     viewer: f64,
     /// The floor server: one update-sized message per acknowledgement.
     floor: f64,
+    /// A viewer session's thread, with 10 browsers.
+    viewer_session: f64,
+    /// A floor server's browser thread, with 10 browsers.
+    floor_thread: f64,
 }
 
 #[derive(Debug, Serialize)]
@@ -254,11 +265,21 @@ fn measure(
     let viewer_costs: Vec<f64> = (0..rounds).filter_map(|round| per_browser(cpu(round, 1), cpu(round, 10))).collect();
     let floor_costs: Vec<f64> =
         (0..rounds).filter_map(|round| per_browser(floor_cpu(round, 1), floor_cpu(round, 10))).collect();
+    let of_ten = |runs: Vec<f64>| median(&runs.iter().map(|cpu| cpu / 10.0).collect::<Vec<_>>());
+    let viewer_session = of_ten(
+        viewer
+            .iter()
+            .filter(|run| run.browsers == 10 && !run.with_slow_browser)
+            .map(|run| run.sessions_cpu_percent)
+            .collect(),
+    );
+    let floor_thread = of_ten(floor.iter().filter(|run| run.browsers == 10).map(|run| run.cpu_percent).collect());
     let ratios_at_floor: Vec<f64> = (0..rounds)
         .filter_map(|round| {
             let own = cpu(round, 1)? - per_browser(cpu(round, 1), cpu(round, 10))?;
             let browser = per_browser(floor_cpu(round, 1), floor_cpu(round, 10))?;
-            Some((own + 10.0 * browser) / (own + browser).max(1e-9))
+            // A round whose browsers measured dearer than its whole 1-browser run says nothing.
+            (own > 0.0 && browser >= 0.0).then(|| (own + 10.0 * browser) / (own + browser))
         })
         .collect();
     let reader_wake = wake.map_or("default", Wake::name).to_owned();
@@ -272,7 +293,12 @@ fn measure(
         viewer_cpu_ratio_10_to_1: ratio,
         viewer_cpu_ratios: ratios,
         floor,
-        browser_cost_percent: BrowserCost { viewer: median(&viewer_costs), floor: median(&floor_costs) },
+        browser_cost_percent: BrowserCost {
+            viewer: median(&viewer_costs),
+            floor: median(&floor_costs),
+            viewer_session,
+            floor_thread,
+        },
         viewer_cpu_ratio_at_floor: median(&ratios_at_floor),
     })
 }
@@ -523,8 +549,8 @@ fn median(values: &[f64]) -> f64 {
     }
 }
 
-/// The run time of each thread of process `pid` now (only those named
-/// `named`, if given), in ns, by thread id (the first field of
+/// The run time of each thread of process `pid` now (only those whose
+/// names start with `named`, if given), in ns, by thread id (the first field of
 /// `/proc/PID/task/TID/schedstat`): exact, where utime + stime count whole
 /// clock ticks, each charged to whoever ran when it struck. Empty if the
 /// process is gone.
@@ -536,7 +562,7 @@ fn thread_cpu_ns(pid: u32, named: Option<&str>) -> BTreeMap<u32, u64> {
             let tid = task.file_name().to_str()?.parse::<u32>().ok()?;
             if let Some(named) = named {
                 let comm = std::fs::read_to_string(task.path().join("comm")).ok()?;
-                if comm.trim_end() != named {
+                if !comm.starts_with(named) {
                     return None;
                 }
             }
@@ -713,9 +739,6 @@ fn start_viewer(exe: &Path, dir: &Path) -> Result<(Guarded, String)> {
     Ok((child, address))
 }
 
-/// One browser: takes the geometry, then acknowledges the updates it
-/// received `ack_hz` times a second, as a page does after each animation
-/// frame that drew something.
 /// Updates per second count only what a browser received inside the
 /// measured window, which its caller marks here.
 #[derive(Debug, Default)]
@@ -734,6 +757,9 @@ impl WindowMarks {
     }
 }
 
+/// One browser: takes the geometry, then acknowledges the updates it
+/// received `ack_hz` times a second, as a page does after each animation
+/// frame that drew something.
 fn browse(
     address: &str,
     ack_hz: f64,
@@ -801,6 +827,9 @@ fn browse(
     })
 }
 
+/// The run time of some threads now, in ns, by thread id ([`thread_cpu_ns`]).
+type RunTimes<'a> = dyn Fn() -> BTreeMap<u32, u64> + 'a;
+
 /// What a window with browsers measured.
 struct Window {
     seconds: f64,
@@ -810,17 +839,20 @@ struct Window {
     threads_ended: usize,
     /// Clock ticks of the measured process in the window (the viewer's only).
     ticks: u64,
+    /// Run time of the threads `part` measured in the window, ns.
+    part_ns: u64,
     per_browser: Vec<BrowserFigures>,
 }
 
 /// Browsers acknowledging at `plan`'s rates on `address`: 1 s to settle,
 /// then `seconds` measured by `threads` (run time by thread id) and `ticks`;
-/// `check` runs at the end of the window, before the browsers are stopped.
+/// `check` runs at the end of the window, right after the browsers are told
+/// to stop and before they are joined.
 fn with_browsers(
     address: &str,
     plan: &[f64],
     (dir, seconds): (&Path, f64),
-    threads: &dyn Fn() -> BTreeMap<u32, u64>,
+    (threads, part): (&RunTimes<'_>, &RunTimes<'_>),
     ticks: &dyn Fn() -> u64,
     check: &mut dyn FnMut(&BTreeMap<u32, u64>) -> Result<()>,
 ) -> Result<Window> {
@@ -835,12 +867,12 @@ fn with_browsers(
         })
         .collect();
     std::thread::sleep(Duration::from_secs(1));
-    let (ticks_before, before_ns) = (ticks(), threads());
+    let (ticks_before, before_ns, part_before) = (ticks(), threads(), part());
     let started = Instant::now();
     let _ = marks.start.set(started);
     std::thread::sleep(Duration::from_secs_f64(seconds));
     let _ = marks.end.set(Instant::now());
-    let (ticks_after, after_ns) = (ticks(), threads());
+    let (ticks_after, after_ns, part_after) = (ticks(), threads(), part());
     let elapsed = started.elapsed().as_secs_f64();
     stop.store(true, Ordering::Relaxed);
     let checked = check(&after_ns);
@@ -851,7 +883,9 @@ fn with_browsers(
     checked?;
     let per_browser = per_browser.into_iter().map(|figures| figures?).collect::<Result<Vec<_>>>()?;
     let (ran_ns, threads_ended) = cpu_ns_between(&before_ns, &after_ns);
-    Ok(Window { seconds: elapsed, ran_ns, threads_ended, ticks: ticks_after.saturating_sub(ticks_before), per_browser })
+    let (part_ns, _) = cpu_ns_between(&part_before, &part_after);
+    let ticks = ticks_after.saturating_sub(ticks_before);
+    Ok(Window { seconds: elapsed, ran_ns, threads_ended, ticks, part_ns, per_browser })
 }
 
 /// The viewer alone on the 1 kHz skin with 1, then 10 browsers, `rounds`
@@ -904,7 +938,9 @@ fn viewer_scaling(
                 &address,
                 &plan,
                 (dir, seconds),
-                &|| thread_cpu_ns(viewer_pid, None),
+                (&|| thread_cpu_ns(viewer_pid, None), &|| {
+                    thread_cpu_ns(viewer_pid, Some(crate::view::server::BROWSER_THREAD_PREFIX))
+                }),
                 &|| cpu_ticks(&pids)[0],
                 &mut check,
             )?
@@ -921,7 +957,7 @@ fn viewer_scaling(
                 &floor_address,
                 &plan,
                 (dir, seconds),
-                &|| thread_cpu_ns(floor_pid, Some(floor::BROWSER_THREAD)),
+                (&|| thread_cpu_ns(floor_pid, Some(floor::BROWSER_THREAD)), &BTreeMap::new),
                 &|| 0,
                 &mut check,
             )?
@@ -936,6 +972,7 @@ fn viewer_scaling(
                 viewer_cpu_percent: percent(window.ran_ns),
                 viewer_threads_ended: window.threads_ended,
                 viewer_cpu_percent_ticks: 100.0 * window.ticks as f64 / clock_ticks_per_s() / window.seconds,
+                sessions_cpu_percent: percent(window.part_ns),
                 per_browser: window.per_browser,
             });
         } else {
@@ -1072,6 +1109,10 @@ fn print(report: &KilohertzReport) {
     println!(
         "a browser costs (10 − 1) / 9: the viewer {:.3} %, the floor server {:.3} % of one core (medians)",
         report.browser_cost_percent.viewer, report.browser_cost_percent.floor
+    );
+    println!(
+        "each browser's own thread among 10: a viewer session {:.3} %, a floor server thread {:.3} % of one core (medians)",
+        report.browser_cost_percent.viewer_session, report.browser_cost_percent.floor_thread
     );
     println!(
         "the viewer's 10/1 if each browser cost it the floor's: {:.2}x (median)",
