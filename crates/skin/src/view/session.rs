@@ -382,26 +382,16 @@ impl<'a> Session<'a> {
         self.credit -= 1;
         let length = protocol::update_bytes(self.head.len(), &self.update);
         let header = WebSocketHeader::binary(length);
-        // The parts on the stack for the skins of up to 14 layers: no allocation per update.
-        let count = 2 + self.update.iter().filter(|layer| layer.with_responses).count();
-        let mut on_stack = [IoSlice::new(&[]); 16];
-        let mut on_heap = Vec::new();
-        let parts = if count <= on_stack.len() {
-            &mut on_stack[..count]
-        } else {
-            on_heap.resize(count, IoSlice::new(&[]));
-            &mut on_heap[..]
-        };
-        parts[0] = IoSlice::new(header.bytes());
-        parts[1] = IoSlice::new(&self.head);
-        let responses = self.update.iter().zip(&mut self.scratch).filter_map(|(layer, scratch)| {
-            layer.responses().map(|responses| IoSlice::new(protocol::responses_le(responses, scratch)))
-        });
-        for (part, responses) in parts[2..].iter_mut().zip(responses) {
-            *part = responses;
+        let mut parts = Vec::with_capacity(2 + self.update.len());
+        parts.push(IoSlice::new(header.bytes()));
+        parts.push(IoSlice::new(&self.head));
+        for (layer, scratch) in self.update.iter().zip(&mut self.scratch) {
+            if let Some(responses) = layer.responses() {
+                parts.push(IoSlice::new(protocol::responses_le(responses, scratch)));
+            }
         }
-        let sent = send_message(&mut self.socket, parts);
-        drop(on_heap);
+        let sent = send_message(&mut self.socket, &mut parts);
+        drop(parts);
         self.update.clear();
         match sent {
             Ok(()) => Ok(ControlFlow::Continue(())),

@@ -1,8 +1,8 @@
 //! The floor under what a browser costs the viewer, for `skin bench
 //! kilohertz` (which runs it as the hidden `skin bench-floor`, a process of
 //! its own as the viewer is): a bare WebSocket server that does, per
-//! browser, only what no viewer of this design can leave out. It waits for the browser's
-//! acknowledgement, and for each one sends one message of an update's size
+//! browser, only what no viewer of this design can leave out. It waits for
+//! the browser's acknowledgement, and for each one sends one message of an update's size
 //! through the viewer's own send path (one `sendmsg` from where the bytes
 //! are). It reads no skin, keeps no board and paces nothing, so the
 //! difference between its cost with 10 browsers and with 1 is what the
@@ -39,6 +39,9 @@ const STOP_POLL: Duration = Duration::from_millis(100);
 /// measures of this process.
 pub const BROWSER_THREAD: &str = "floor-browser";
 
+/// The largest update it sends: a WebSocket message the viewer could send.
+const MAX_UPDATE_BYTES: usize = 16 << 20;
+
 /// Arguments of the hidden `bench-floor` role.
 #[derive(clap::Args)]
 pub struct FloorArgs {
@@ -50,6 +53,9 @@ pub struct FloorArgs {
 /// Runs the floor server: prints the address it listens on, then serves
 /// until its standard input closes (the bench ended).
 pub fn run(args: &FloorArgs) -> Result<()> {
+    if !(1..=MAX_UPDATE_BYTES).contains(&args.bytes) {
+        anyhow::bail!("--bytes {} is not an update's size: give 1 to {MAX_UPDATE_BYTES} bytes", args.bytes);
+    }
     let server = FloorServer::start(args.bytes)?;
     let mut stdout = std::io::stdout();
     writeln!(stdout, "{}", server.address)?;
