@@ -157,6 +157,7 @@ need(cost.get("viewer_session", 0) > 0 and cost.get("floor_thread", 0) > 0, "kil
 need(all(0 < v.get("sessions_cpu_percent", 0) <= v.get("viewer_cpu_percent", 0) for v in khz.get("viewer", [])),
      "kilohertz.json: the viewer's session threads' CPU (above 0, within the viewer's)")
 need(khz.get("viewer_cpu_ratio_at_floor", 0) > 0, "kilohertz.json: the viewer's ratio at the floor")
+need(khz.get("floor_bytes") == 61832, "kilohertz.json: the floor server's message is the viewer's update (61,832 bytes)")
 
 contact = json.loads((out / "contact.json").read_text())
 need(contact.get("taxels") == 30848 and contact.get("detector_ns", {}).get("samples", 0) > 0, "contact.json: detector incomplete")

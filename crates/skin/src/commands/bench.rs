@@ -100,6 +100,10 @@ pub struct KilohertzArgs {
     /// `[driver.rt]`); the library's default if absent.
     #[arg(long)]
     reader_wake: Option<super::kilohertz::Wake>,
+    /// Bytes of the floor server's message, to see what an update's size
+    /// costs a browser (default: the viewer's update, 61,832 bytes).
+    #[arg(long, value_parser = super::kilohertz::floor::parse_update_bytes)]
+    floor_bytes: Option<usize>,
 }
 
 /// Options of `skin bench table1`.
@@ -210,8 +214,14 @@ pub fn run(which: &Which) -> Result<()> {
             };
             skinware_bench::record::run(&options).map(|_| ())
         }
-        Which::Kilohertz(KilohertzArgs { common, viewer_exe, only, reader_wake }) => {
-            super::kilohertz::bench(common, viewer_exe.as_deref(), *only, *reader_wake)
+        Which::Kilohertz(KilohertzArgs { common, viewer_exe, only, reader_wake, floor_bytes }) => {
+            let options = super::kilohertz::Options {
+                viewer_exe: viewer_exe.as_deref(),
+                only: *only,
+                wake: *reader_wake,
+                floor_bytes: *floor_bytes,
+            };
+            super::kilohertz::bench(common, &options)
         }
         Which::Bridge(common) => super::bridge_bench::bench(common),
         Which::Contact(common) => {

@@ -46,16 +46,23 @@ const MAX_UPDATE_BYTES: usize = 16 << 20;
 #[derive(clap::Args)]
 pub struct FloorArgs {
     /// Bytes of each update message.
-    #[arg(long)]
+    #[arg(long, value_parser = parse_update_bytes)]
     bytes: usize,
+}
+
+/// An update's size in bytes: 1 to 16 MiB, refused here rather than as an
+/// allocation that aborts.
+pub fn parse_update_bytes(text: &str) -> Result<usize, String> {
+    let bytes: usize = text.trim().parse().map_err(|_| format!("{text:?} is not a number of bytes"))?;
+    if !(1..=MAX_UPDATE_BYTES).contains(&bytes) {
+        return Err(format!("{bytes} is not an update's size: give 1 to {MAX_UPDATE_BYTES} bytes"));
+    }
+    Ok(bytes)
 }
 
 /// Runs the floor server: prints the address it listens on, then serves
 /// until its standard input closes (the bench ended).
 pub fn run(args: &FloorArgs) -> Result<()> {
-    if !(1..=MAX_UPDATE_BYTES).contains(&args.bytes) {
-        anyhow::bail!("--bytes {} is not an update's size: give 1 to {MAX_UPDATE_BYTES} bytes", args.bytes);
-    }
     let server = FloorServer::start(args.bytes)?;
     let mut stdout = std::io::stdout();
     writeln!(stdout, "{}", server.address)?;

@@ -164,6 +164,8 @@ struct KilohertzReport {
     viewer_cpu_ratios: Vec<f64>,
     /// The floor server with 1 and 10 browsers, in the same rounds.
     floor: Vec<FloorRun>,
+    /// Bytes of the floor server's message (the viewer's update: 61,832).
+    floor_bytes: usize,
     /// What one more browser costs the viewer and the floor server.
     browser_cost_percent: BrowserCost,
     /// The 10/1 ratio the viewer would have if each browser cost it what
@@ -203,9 +205,27 @@ impl Wake {
     }
 }
 
-/// Runs `skin bench kilohertz`; `viewer_exe` measures another build's viewer;
-/// `only` runs one part (into a JSON file of its own, whose `phases` are empty).
-pub fn bench(common: &Common, viewer_exe: Option<&Path>, only: Option<Part>, wake: Option<Wake>) -> Result<()> {
+/// Bytes of the viewer's update of the paper's skin at 1 kHz (every layer's
+/// responses, no overlays): the floor server's message unless told otherwise.
+const UPDATE_BYTES: usize =
+    crate::view::protocol::UPDATE_HEADER_BYTES + LAYERS * crate::view::protocol::LAYER_RECORD_BYTES + 2 * TAXELS;
+
+/// What `skin bench kilohertz` runs, besides the options every bench takes.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Options<'a> {
+    /// Measure this `skin` build's viewer rather than this one's (a before/after).
+    pub viewer_exe: Option<&'a Path>,
+    /// Run one part only (into a JSON file of its own, whose `phases` are empty).
+    pub only: Option<Part>,
+    /// `reader_wake` of the layers' writers; the library's default if `None`.
+    pub wake: Option<Wake>,
+    /// Bytes of the floor server's message; [`UPDATE_BYTES`] if `None`.
+    pub floor_bytes: Option<usize>,
+}
+
+/// Runs `skin bench kilohertz`.
+pub fn bench(common: &Common, options: &Options) -> Result<()> {
+    let Options { viewer_exe, only, wake, floor_bytes } = *options;
     let seconds = common.seconds.unwrap_or(if common.quick { 3.0 } else { 15.0 });
     if !(seconds.is_finite() && seconds > 0.0) {
         bail!("--seconds must be a positive number of seconds");
@@ -217,7 +237,8 @@ pub fn bench(common: &Common, viewer_exe: Option<&Path>, only: Option<Part>, wak
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir)?;
     let rounds = if common.quick { 1 } else { VIEWER_ROUNDS };
-    let result = measure(&exe, &viewer_exe, &dir, (seconds, rounds), &common.out, only, wake);
+    let floor_bytes = floor_bytes.unwrap_or(UPDATE_BYTES);
+    let result = measure(&exe, (&viewer_exe, floor_bytes), &dir, (seconds, rounds), &common.out, only, wake);
     let _ = std::fs::remove_dir_all(&dir);
     let report = result?;
     print(&report);
@@ -233,7 +254,7 @@ pub fn bench(common: &Common, viewer_exe: Option<&Path>, only: Option<Part>, wak
 
 fn measure(
     exe: &Path,
-    viewer_exe: &Path,
+    (viewer_exe, floor_bytes): (&Path, usize),
     dir: &Path,
     (seconds, rounds): (f64, usize),
     out: &Path,
@@ -250,7 +271,7 @@ fn measure(
     let (viewer, floor) = if only == Some(Part::Runs) {
         (Vec::new(), Vec::new())
     } else {
-        viewer_scaling(exe, viewer_exe, dir, seconds, rounds)?
+        viewer_scaling((exe, viewer_exe), dir, (seconds, rounds), floor_bytes)?
     };
     let cpu = |round: usize, n: usize| {
         let run = viewer.iter().find(|run| run.round == round && run.browsers == n && !run.with_slow_browser);
@@ -293,6 +314,7 @@ fn measure(
         viewer_cpu_ratio_10_to_1: ratio,
         viewer_cpu_ratios: ratios,
         floor,
+        floor_bytes,
         browser_cost_percent: BrowserCost {
             viewer: median(&viewer_costs),
             floor: median(&floor_costs),
@@ -696,10 +718,8 @@ impl ServiceProbe {
 
 /// Starts the [`floor`] server (`skin bench-floor`) with updates of the
 /// viewer's size on this skin; returns it and where it listens.
-fn start_floor(exe: &Path) -> Result<(Guarded, String)> {
+fn start_floor(exe: &Path, bytes: usize) -> Result<(Guarded, String)> {
     use std::io::BufRead;
-    let bytes =
-        crate::view::protocol::UPDATE_HEADER_BYTES + LAYERS * crate::view::protocol::LAYER_RECORD_BYTES + 2 * TAXELS;
     let mut child = Command::new(exe)
         .args(["bench-floor", "--bytes", &bytes.to_string()])
         .stdin(Stdio::piped())
@@ -892,15 +912,14 @@ fn with_browsers(
 /// times, each round with the [`floor`] server's 1 and 10 between; then the
 /// viewer with 9 at 60 Hz and one slow browser at 5 Hz.
 fn viewer_scaling(
-    exe: &Path,
-    viewer_exe: &Path,
+    (exe, viewer_exe): (&Path, &Path),
     dir: &Path,
-    seconds: f64,
-    rounds: usize,
+    (seconds, rounds): (f64, usize),
+    floor_bytes: usize,
 ) -> Result<(Vec<ViewerRun>, Vec<FloorRun>)> {
     let (skin, _readers) = start_skin(exe, (dir, None), false)?;
     let (mut viewer, address) = start_viewer(viewer_exe, dir)?;
-    let (floor_server, floor_address) = start_floor(exe)?;
+    let (floor_server, floor_address) = start_floor(exe, floor_bytes)?;
     let floor_pid = floor_server.0.id();
     let (mut runs, mut floor_runs) = (Vec::new(), Vec::new());
     let one = vec![DISPLAY_HZ];
@@ -1089,7 +1108,10 @@ fn print(report: &KilohertzReport) {
     if report.floor.is_empty() {
         return;
     }
-    println!("The floor server (one update-sized message per acknowledgement, nothing else) in the same rounds:");
+    println!(
+        "The floor server (one message of {} bytes per acknowledgement, nothing else) in the same rounds:",
+        report.floor_bytes
+    );
     println!("| round | browsers | floor server CPU (% of one core) | updates/s per browser (min–max) |");
     println!("|---|---|---|---|");
     for run in &report.floor {
