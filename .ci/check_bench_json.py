@@ -158,6 +158,8 @@ need(all(0 < v.get("sessions_cpu_percent", 0) <= v.get("viewer_cpu_percent", 0) 
      "kilohertz.json: the viewer's session threads' CPU (above 0, within the viewer's)")
 need(khz.get("viewer_cpu_ratio_at_floor", 0) > 0, "kilohertz.json: the viewer's ratio at the floor")
 need(khz.get("floor_bytes") == 61832, "kilohertz.json: the floor server's message is the viewer's update (61,832 bytes)")
+need(all(round(b.get("kb_per_update", 0) * 1000) == khz.get("floor_bytes") for f in khz.get("floor", []) for b in f.get("per_browser", [])),
+     "kilohertz.json: every floor browser received messages of floor_bytes")
 
 contact = json.loads((out / "contact.json").read_text())
 need(contact.get("taxels") == 30848 and contact.get("detector_ns", {}).get("samples", 0) > 0, "contact.json: detector incomplete")

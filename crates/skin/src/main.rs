@@ -79,7 +79,7 @@ enum Command {
     /// One application process of a benchmark (what `skin bench` starts).
     #[command(hide = true)]
     BenchApp(commands::bench::AppArgs),
-    /// The floor server of `skin bench kilohertz`: one update-sized message per acknowledgement.
+    /// The floor server of `skin bench kilohertz`: one message of `--bytes` per acknowledgement.
     #[command(hide = true)]
     BenchFloor(commands::kilohertz::floor::FloorArgs),
     /// Run one service of CONFIG in this process (what `skin run` starts).

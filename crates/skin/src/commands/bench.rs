@@ -100,8 +100,9 @@ pub struct KilohertzArgs {
     /// `[driver.rt]`); the library's default if absent.
     #[arg(long)]
     reader_wake: Option<super::kilohertz::Wake>,
-    /// Bytes of the floor server's message, to see what an update's size
-    /// costs a browser (default: the viewer's update, 61,832 bytes).
+    /// Bytes of the floor server's message, 1 to 16 MiB, to see what an
+    /// update's size costs a browser (default: the viewer's update, 61,832
+    /// bytes; the viewer part only).
     #[arg(long, value_parser = super::kilohertz::floor::parse_update_bytes)]
     floor_bytes: Option<usize>,
 }

@@ -2,8 +2,8 @@
 //! kilohertz` (which runs it as the hidden `skin bench-floor`, a process of
 //! its own as the viewer is): a bare WebSocket server that does, per
 //! browser, only what no viewer of this design can leave out. It waits for
-//! the browser's acknowledgement, and for each one sends one message of an update's size
-//! through the viewer's own send path (one `sendmsg` from where the bytes
+//! the browser's acknowledgement, and for each one sends one message (of an
+//! update's size unless told otherwise) through the viewer's own send path (one `sendmsg` from where the bytes
 //! are). It reads no skin, keeps no board and paces nothing, so the
 //! difference between its cost with 10 browsers and with 1 is what the
 //! kernel and the wake-ups charge per browser on this machine: what the
@@ -55,7 +55,7 @@ pub struct FloorArgs {
 pub fn parse_update_bytes(text: &str) -> Result<usize, String> {
     let bytes: usize = text.trim().parse().map_err(|_| format!("{text:?} is not a number of bytes"))?;
     if !(1..=MAX_UPDATE_BYTES).contains(&bytes) {
-        return Err(format!("{bytes} is not an update's size: give 1 to {MAX_UPDATE_BYTES} bytes"));
+        return Err(format!("{bytes} is not an update's size: give 1 to {MAX_UPDATE_BYTES} bytes (16 MiB)"));
     }
     Ok(bytes)
 }
@@ -243,5 +243,24 @@ fn ended_by_browser(error: &tungstenite::Error) -> bool {
             matches!(e.kind(), std::io::ErrorKind::ConnectionReset | std::io::ErrorKind::BrokenPipe)
         }
         _ => false,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn update_sizes_outside_1_byte_to_16_mib_are_refused_by_name() {
+        assert_eq!(parse_update_bytes("1"), Ok(1));
+        assert_eq!(parse_update_bytes(" 61832 "), Ok(61_832));
+        assert_eq!(parse_update_bytes("16777216"), Ok(MAX_UPDATE_BYTES));
+        for refused in ["0", "16777217"] {
+            let error = parse_update_bytes(refused).unwrap_err();
+            assert_eq!(error, format!("{refused} is not an update's size: give 1 to 16777216 bytes (16 MiB)"));
+        }
+        assert!(parse_update_bytes("99999999999999999999").unwrap_err().contains("is not a number of bytes"));
+        assert_eq!(parse_update_bytes("abc"), Err("\"abc\" is not a number of bytes".to_owned()));
+        assert_eq!(parse_update_bytes("-5"), Err("\"-5\" is not a number of bytes".to_owned()));
     }
 }

@@ -138,7 +138,7 @@ struct FloorRun {
 #[derive(Debug, Default, Serialize)]
 struct BrowserCost {
     viewer: f64,
-    /// The floor server: one update-sized message per acknowledgement.
+    /// The floor server: one message of `floor_bytes` per acknowledgement.
     floor: f64,
     /// A viewer session's thread, with 10 browsers.
     viewer_session: f64,
@@ -164,7 +164,8 @@ struct KilohertzReport {
     viewer_cpu_ratios: Vec<f64>,
     /// The floor server with 1 and 10 browsers, in the same rounds.
     floor: Vec<FloorRun>,
-    /// Bytes of the floor server's message (the viewer's update: 61,832).
+    /// Bytes of the floor server's message: by default the viewer's update,
+    /// 61,832 (`--floor-bytes`).
     floor_bytes: usize,
     /// What one more browser costs the viewer and the floor server.
     browser_cost_percent: BrowserCost,
@@ -226,6 +227,9 @@ pub struct Options<'a> {
 /// Runs `skin bench kilohertz`.
 pub fn bench(common: &Common, options: &Options) -> Result<()> {
     let Options { viewer_exe, only, wake, floor_bytes } = *options;
+    if only == Some(Part::Runs) && floor_bytes.is_some() {
+        bail!("--floor-bytes sets the floor server of the viewer part, which --only runs leaves out: drop one of them");
+    }
     let seconds = common.seconds.unwrap_or(if common.quick { 3.0 } else { 15.0 });
     if !(seconds.is_finite() && seconds > 0.0) {
         bail!("--seconds must be a positive number of seconds");
@@ -254,6 +258,7 @@ pub fn bench(common: &Common, options: &Options) -> Result<()> {
 
 fn measure(
     exe: &Path,
+    // The viewer part's two servers: whose viewer, and the floor's message.
     (viewer_exe, floor_bytes): (&Path, usize),
     dir: &Path,
     (seconds, rounds): (f64, usize),
@@ -271,7 +276,7 @@ fn measure(
     let (viewer, floor) = if only == Some(Part::Runs) {
         (Vec::new(), Vec::new())
     } else {
-        viewer_scaling((exe, viewer_exe), dir, (seconds, rounds), floor_bytes)?
+        viewer_scaling(exe, viewer_exe, dir, seconds, rounds, floor_bytes)?
     };
     let cpu = |round: usize, n: usize| {
         let run = viewer.iter().find(|run| run.round == round && run.browsers == n && !run.with_slow_browser);
@@ -716,8 +721,9 @@ impl ServiceProbe {
     }
 }
 
-/// Starts the [`floor`] server (`skin bench-floor`) with updates of the
-/// viewer's size on this skin; returns it and where it listens.
+/// Starts the [`floor`] server (`skin bench-floor`) with messages of
+/// `bytes` (the viewer's update on this skin unless `--floor-bytes` said
+/// otherwise); returns it and where it listens.
 fn start_floor(exe: &Path, bytes: usize) -> Result<(Guarded, String)> {
     use std::io::BufRead;
     let mut child = Command::new(exe)
@@ -912,9 +918,11 @@ fn with_browsers(
 /// times, each round with the [`floor`] server's 1 and 10 between; then the
 /// viewer with 9 at 60 Hz and one slow browser at 5 Hz.
 fn viewer_scaling(
-    (exe, viewer_exe): (&Path, &Path),
+    exe: &Path,
+    viewer_exe: &Path,
     dir: &Path,
-    (seconds, rounds): (f64, usize),
+    seconds: f64,
+    rounds: usize,
     floor_bytes: usize,
 ) -> Result<(Vec<ViewerRun>, Vec<FloorRun>)> {
     let (skin, _readers) = start_skin(exe, (dir, None), false)?;
