@@ -105,6 +105,12 @@ pub struct KilohertzArgs {
     /// bytes; the viewer part only).
     #[arg(long, value_parser = super::kilohertz::floor::parse_update_bytes)]
     floor_bytes: Option<usize>,
+    /// The floor server also reads every layer as the viewer does (its own
+    /// layer readers), so that its browsers share the machine with the same
+    /// load and its 10/1 ratio is that of a viewer whose sessions cost only
+    /// the message (the viewer part only).
+    #[arg(long)]
+    floor_reads_skin: bool,
 }
 
 /// Options of `skin bench table1`.
@@ -215,12 +221,13 @@ pub fn run(which: &Which) -> Result<()> {
             };
             skinware_bench::record::run(&options).map(|_| ())
         }
-        Which::Kilohertz(KilohertzArgs { common, viewer_exe, only, reader_wake, floor_bytes }) => {
+        Which::Kilohertz(KilohertzArgs { common, viewer_exe, only, reader_wake, floor_bytes, floor_reads_skin }) => {
             let options = super::kilohertz::Options {
                 viewer_exe: viewer_exe.as_deref(),
                 only: *only,
                 wake: *reader_wake,
                 floor_bytes: *floor_bytes,
+                floor_reads_skin: *floor_reads_skin,
             };
             super::kilohertz::bench(common, &options)
         }

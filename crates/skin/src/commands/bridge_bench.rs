@@ -86,6 +86,8 @@ mod with_zenoh {
         mismatched: u64,
         unverifiable: u64,
         bridge_dropped: u64,
+        /// Of `skipped`, the frames the bridge had sent: lost on the link.
+        lost: u64,
     }
 
     fn unix_now_ns(offset: i64) -> u64 {
@@ -170,6 +172,7 @@ mod with_zenoh {
                         }
                     }
                     figures.bridge_dropped = reader.bridge_state().map_or(0, |s| s.dropped);
+                    figures.lost = reader.stats().lost;
                     (layer, figures)
                 }));
             } else {
@@ -190,12 +193,13 @@ mod with_zenoh {
         }
         let mut report = BTreeMap::new();
         let mut all_latencies = Vec::new();
-        let (mut received, mut skipped, mut bytes) = (0, 0, 0);
+        let (mut received, mut skipped, mut bytes, mut lost) = (0, 0, 0, 0);
         for thread in threads {
             let (layer, mut figures) = thread.join().map_err(|_| anyhow::anyhow!("a probe thread panicked"))?;
             received += figures.received;
             skipped += figures.skipped;
             bytes += figures.bytes;
+            lost += figures.lost;
             all_latencies.extend_from_slice(&figures.latencies);
             report.insert(
                 layer,
@@ -203,7 +207,7 @@ mod with_zenoh {
                     "received": figures.received, "skipped": figures.skipped, "bytes": figures.bytes,
                     "latency_us": quantiles_us(&mut figures.latencies),
                     "verified": figures.verified, "mismatched": figures.mismatched, "unverifiable": figures.unverifiable,
-                    "bridge_dropped": figures.bridge_dropped,
+                    "bridge_dropped": figures.bridge_dropped, "lost": figures.lost,
                 }),
             );
         }
@@ -215,6 +219,7 @@ mod with_zenoh {
             "mb_per_s": bytes as f64 / seconds / 1e6,
             "received": received,
             "skipped": skipped,
+            "lost": lost,
             "latency_us": quantiles_us(&mut all_latencies),
             "layers": report,
             "events": *events.lock().unwrap(),

@@ -148,7 +148,7 @@ impl std::io::Write for BrowserStream {
 }
 
 /// The mode a new browser starts in.
-const INITIAL_MODE: ReadMode = ReadMode::Asap;
+pub const INITIAL_MODE: ReadMode = ReadMode::Asap;
 
 /// What every connection needs to know. It lives here, with the session that
 /// reads it, so that the server depends on the session and not both ways.

@@ -117,10 +117,21 @@ fn two_hosts_read_the_skin_through_the_bridge_across_shaping_and_a_cut_link() {
     assert!(one["skipped"].as_u64().unwrap() > 0, "2.3 MB/s through 1 Mbit/s must skip frames, and count them: {one}");
     assert!(one["mb_per_s"].as_f64().unwrap() < 0.2, "more than 1 Mbit/s through a 1 Mbit/s link? {one}");
     // And the bridge knows: its remote reader reported what the link lost.
+    // Of the frames skipped, those the bridge left out itself (it sends the
+    // newest when the link takes one) are not losses, so a run may lose
+    // none on the link; what the bridge shows must be what the reader
+    // counted, up to its last report (once a second).
     let channels = one["bridge"]["channels"].as_array().expect("the bridge's --json figures");
-    let lost: u64 = channels.iter().filter_map(|c| c["remote_lost"].as_u64()).sum();
+    let reported: u64 = channels.iter().filter_map(|c| c["remote_lost"].as_u64()).sum();
     let readers: u64 = channels.iter().filter_map(|c| c["remote_readers"].as_u64()).sum();
-    assert!(readers >= 5 && lost > 0, "the bridge does not see the link's losses: {}", one["bridge"]);
+    let counted = one["lost"].as_u64().expect("the remote reader's lost frames");
+    assert!(readers >= 5, "the bridge heard no report from the remote readers: {}", one["bridge"]);
+    assert!(reported <= counted, "the bridge shows {reported} lost, the readers counted {counted}: {}", one["bridge"]);
+    // A reader that lost frames throughout the run reported some of them.
+    if counted >= 20 {
+        assert!(reported > 0, "the readers lost {counted} frames and the bridge saw none: {}", one["bridge"]);
+    }
+    println!("1 Mbit/s: the readers lost {counted} frames on the link, the bridge was told of {reported}");
 
     // A cut link is noticed, and reading resumes by itself when it returns.
     let cut = &results["cut"];

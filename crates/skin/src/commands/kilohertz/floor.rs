@@ -15,6 +15,13 @@
 //! millisecond and swaps it in, as the layer readers do with the board, and
 //! each send takes the newest. A buffer that nothing rewrote would be sent
 //! from a warm cache, cheaper than anything the viewer can do.
+//!
+//! With `--read-skin`, it also reads every layer of the skin while a
+//! browser is connected, with the viewer's own samplers (in the viewer's
+//! first mode, as soon as frames exist), and throws what it read away.
+//! Its browser threads then share the machine with the same readers as a
+//! viewer session, and its whole CPU with 10 browsers over 1 is the ratio
+//! of a viewer whose sessions cost only the message.
 
 #![forbid(unsafe_code)]
 
@@ -29,8 +36,9 @@ use anyhow::{Context, Result};
 use tungstenite::Message;
 
 use crate::view::protocol::{KIND_GEOMETRY, KIND_UPDATE};
+use crate::view::sampler::{LayerToRead, Sampler, Samplers};
 use crate::view::server::BROWSER_READ_BYTES;
-use crate::view::session::{BrowserStream, WebSocketHeader, send_message};
+use crate::view::session::{BrowserStream, INITIAL_MODE, WebSocketHeader, send_message};
 
 /// How long a connection's read waits before it looks at the stop flag.
 const STOP_POLL: Duration = Duration::from_millis(100);
@@ -48,6 +56,41 @@ pub struct FloorArgs {
     /// Bytes of each update message.
     #[arg(long, value_parser = parse_update_bytes)]
     bytes: usize,
+    /// Also read every layer of this skin (in `SKINWARE_SHM_DIR`) while a
+    /// browser is connected, as the viewer does, and throw it away.
+    #[arg(long)]
+    read_skin: Option<String>,
+}
+
+/// The viewer's readers of a skin, run by the floor server for nothing but
+/// their load.
+struct SkinReaders {
+    samplers: Samplers,
+    layers: Vec<LayerToRead>,
+}
+
+impl SkinReaders {
+    fn open(skin: &str) -> Result<SkinReaders> {
+        let dir = skinware::shm::segment_dir();
+        let geometry = skinware_geometry::SkinGeometry::open_in(&dir, skin)
+            .with_context(|| format!("the floor server cannot read skin {skin:?}'s geometry in {}", dir.display()))?;
+        let layers = geometry
+            .layers
+            .iter()
+            .map(|layer| LayerToRead { name: layer.name.clone(), sensors: layer.sensors.len() })
+            .collect();
+        Ok(SkinReaders { samplers: Samplers::new(skin, Some(dir)), layers })
+    }
+
+    fn start(&self) -> Option<Arc<Sampler>> {
+        match self.samplers.subscribe(&self.layers, INITIAL_MODE) {
+            Ok(sampler) => Some(sampler),
+            Err(e) => {
+                eprintln!("kilohertz: the floor server cannot start its layer readers, and goes on without: {e}");
+                None
+            }
+        }
+    }
 }
 
 /// An update's size in bytes: 1 to 16 MiB, refused here rather than as an
@@ -63,7 +106,8 @@ pub fn parse_update_bytes(text: &str) -> Result<usize, String> {
 /// Runs the floor server: prints the address it listens on, then serves
 /// until its standard input closes (the bench ended).
 pub fn run(args: &FloorArgs) -> Result<()> {
-    let server = FloorServer::start(args.bytes)?;
+    let readers = args.read_skin.as_deref().map(SkinReaders::open).transpose()?;
+    let server = FloorServer::start(args.bytes, readers)?;
     let mut stdout = std::io::stdout();
     writeln!(stdout, "{}", server.address)?;
     stdout.flush()?;
@@ -92,6 +136,10 @@ struct Shared {
 }
 
 impl Shared {
+    fn browsers(&self) -> usize {
+        *self.browsers.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
     fn newest(&self) -> Arc<Vec<u8>> {
         self.newest.lock().unwrap_or_else(|p| p.into_inner()).clone()
     }
@@ -116,7 +164,7 @@ const REWRITE_EVERY: Duration = Duration::from_millis(1);
 impl FloorServer {
     /// Listens on a free loopback port and answers each acknowledgement of
     /// a browser with one binary message of `update_bytes` bytes.
-    fn start(update_bytes: usize) -> Result<FloorServer> {
+    fn start(update_bytes: usize, readers: Option<SkinReaders>) -> Result<FloorServer> {
         let listener = TcpListener::bind("127.0.0.1:0").context("cannot listen on loopback for the floor server")?;
         let address = listener.local_addr()?.to_string();
         let mut update = vec![0u8; update_bytes.max(1)];
@@ -129,7 +177,7 @@ impl FloorServer {
         });
         let rewriter = {
             let shared = shared.clone();
-            std::thread::spawn(move || rewrite(&shared))
+            std::thread::spawn(move || rewrite(&shared, readers.as_ref()))
         };
         let acceptor = {
             let shared = shared.clone();
@@ -153,12 +201,27 @@ impl Drop for FloorServer {
 
 /// While a browser is connected, writes a new update every
 /// [`REWRITE_EVERY`] into a buffer no send holds (the one it replaced last
-/// time, once the sends let go of it), then swaps it in.
-fn rewrite(shared: &Shared) {
+/// time, once the sends let go of it), then swaps it in; and keeps the
+/// skin's `readers` reading, if any.
+fn rewrite(shared: &Shared, readers: Option<&SkinReaders>) {
     let mut spare = Arc::new(shared.newest().as_ref().clone());
     let mut count = 0u8;
+    let (mut readers, mut reading) = (readers, None);
     while shared.wait_for_browsers() {
+        if reading.is_none()
+            && let Some(skin) = readers
+        {
+            reading = skin.start();
+            if reading.is_none() {
+                // It said why; once is enough.
+                readers = None;
+            }
+        }
         std::thread::sleep(REWRITE_EVERY);
+        if shared.browsers() == 0 {
+            // The last browser left: the readers stop until the next one.
+            reading = None;
+        }
         count = count.wrapping_add(1);
         if Arc::get_mut(&mut spare).is_none() {
             // A send still holds it: write a new one.

@@ -126,7 +126,10 @@ struct FloorRun {
     /// browser; not its rewriter, which stands for the viewer's layer
     /// readers) over the window (schedstat, ns), in % of one core.
     cpu_percent: f64,
-    /// Browser threads of the floor server that ended during the window (0 in a sound run).
+    /// The same for all its threads (the rewriter, and the layer readers
+    /// with `--floor-reads-skin`).
+    process_cpu_percent: f64,
+    /// Threads of the floor server that ended during the window (0 in a sound run).
     threads_ended: usize,
     per_browser: Vec<BrowserFigures>,
 }
@@ -167,6 +170,13 @@ struct KilohertzReport {
     /// Bytes of the floor server's message: by default the viewer's update,
     /// 61,832 (`--floor-bytes`).
     floor_bytes: usize,
+    /// Whether the floor server read the skin's layers as the viewer does
+    /// (`--floor-reads-skin`).
+    floor_reads_skin: bool,
+    /// The floor server's whole CPU with 10 browsers over 1, the median of
+    /// the rounds: with `floor_reads_skin`, the ratio of a viewer whose
+    /// sessions cost only the message.
+    floor_cpu_ratio_10_to_1: f64,
     /// What one more browser costs the viewer and the floor server.
     browser_cost_percent: BrowserCost,
     /// The 10/1 ratio the viewer would have if each browser cost it what
@@ -222,13 +232,18 @@ pub struct Options<'a> {
     pub wake: Option<Wake>,
     /// Bytes of the floor server's message; [`UPDATE_BYTES`] if `None`.
     pub floor_bytes: Option<usize>,
+    /// The floor server reads the skin's layers as the viewer does.
+    pub floor_reads_skin: bool,
 }
 
 /// Runs `skin bench kilohertz`.
 pub fn bench(common: &Common, options: &Options) -> Result<()> {
-    let Options { viewer_exe, only, wake, floor_bytes } = *options;
-    if only == Some(Part::Runs) && floor_bytes.is_some() {
-        bail!("--floor-bytes sets the floor server of the viewer part, which --only runs leaves out: drop one of them");
+    let Options { viewer_exe, only, wake, floor_bytes, floor_reads_skin } = *options;
+    if only == Some(Part::Runs) && (floor_bytes.is_some() || floor_reads_skin) {
+        bail!(
+            "--floor-bytes and --floor-reads-skin set the floor server of the viewer part, which --only runs \
+             leaves out: drop one of them"
+        );
     }
     let seconds = common.seconds.unwrap_or(if common.quick { 3.0 } else { 15.0 });
     if !(seconds.is_finite() && seconds > 0.0) {
@@ -242,7 +257,8 @@ pub fn bench(common: &Common, options: &Options) -> Result<()> {
     std::fs::create_dir_all(&dir)?;
     let rounds = if common.quick { 1 } else { VIEWER_ROUNDS };
     let floor_bytes = floor_bytes.unwrap_or(UPDATE_BYTES);
-    let result = measure(&exe, (&viewer_exe, floor_bytes), &dir, (seconds, rounds), &common.out, only, wake);
+    let floor = Floor { bytes: floor_bytes, reads_skin: floor_reads_skin };
+    let result = measure(&exe, (&viewer_exe, floor), &dir, (seconds, rounds), &common.out, only, wake);
     let _ = std::fs::remove_dir_all(&dir);
     let report = result?;
     print(&report);
@@ -258,8 +274,8 @@ pub fn bench(common: &Common, options: &Options) -> Result<()> {
 
 fn measure(
     exe: &Path,
-    // The viewer part's two servers: whose viewer, and the floor's message.
-    (viewer_exe, floor_bytes): (&Path, usize),
+    // The viewer part's two servers: whose viewer, and what the floor does.
+    (viewer_exe, floor_options): (&Path, Floor),
     dir: &Path,
     (seconds, rounds): (f64, usize),
     out: &Path,
@@ -276,7 +292,7 @@ fn measure(
     let (viewer, floor) = if only == Some(Part::Runs) {
         (Vec::new(), Vec::new())
     } else {
-        viewer_scaling(exe, viewer_exe, dir, seconds, rounds, floor_bytes)?
+        viewer_scaling(exe, viewer_exe, dir, seconds, rounds, floor_options)?
     };
     let cpu = |round: usize, n: usize| {
         let run = viewer.iter().find(|run| run.round == round && run.browsers == n && !run.with_slow_browser);
@@ -308,6 +324,11 @@ fn measure(
             (own > 0.0 && browser >= 0.0).then(|| (own + 10.0 * browser) / (own + browser))
         })
         .collect();
+    let floor_process = |round: usize, n: usize| {
+        floor.iter().find(|run| run.round == round && run.browsers == n).map(|run| run.process_cpu_percent)
+    };
+    let floor_ratios: Vec<f64> =
+        (0..rounds).filter_map(|round| Some(floor_process(round, 10)? / floor_process(round, 1)?.max(1e-9))).collect();
     let reader_wake = wake.map_or("default", Wake::name).to_owned();
     Ok(KilohertzReport {
         rate_hz: 1000.0,
@@ -319,7 +340,9 @@ fn measure(
         viewer_cpu_ratio_10_to_1: ratio,
         viewer_cpu_ratios: ratios,
         floor,
-        floor_bytes,
+        floor_bytes: floor_options.bytes,
+        floor_reads_skin: floor_options.reads_skin,
+        floor_cpu_ratio_10_to_1: median(&floor_ratios),
         browser_cost_percent: BrowserCost {
             viewer: median(&viewer_costs),
             floor: median(&floor_costs),
@@ -721,13 +744,25 @@ impl ServiceProbe {
     }
 }
 
-/// Starts the [`floor`] server (`skin bench-floor`) with messages of
-/// `bytes` (the viewer's update on this skin unless `--floor-bytes` said
-/// otherwise); returns it and where it listens.
-fn start_floor(exe: &Path, bytes: usize) -> Result<(Guarded, String)> {
+/// What the [`floor`] server does.
+#[derive(Clone, Copy, Debug)]
+struct Floor {
+    /// Bytes of its message.
+    bytes: usize,
+    /// It reads the skin's layers as the viewer does (`--read-skin`).
+    reads_skin: bool,
+}
+
+/// Starts the [`floor`] server (`skin bench-floor`) on the skin in segment
+/// directory `dir`; returns it and where it listens.
+fn start_floor(exe: &Path, floor: Floor, dir: &Path) -> Result<(Guarded, String)> {
     use std::io::BufRead;
-    let mut child = Command::new(exe)
-        .args(["bench-floor", "--bytes", &bytes.to_string()])
+    let mut command = Command::new(exe);
+    command.args(["bench-floor", "--bytes", &floor.bytes.to_string()]).env("SKINWARE_SHM_DIR", dir);
+    if floor.reads_skin {
+        command.args(["--read-skin", "default"]);
+    }
+    let mut child = command
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .spawn()
@@ -923,11 +958,11 @@ fn viewer_scaling(
     dir: &Path,
     seconds: f64,
     rounds: usize,
-    floor_bytes: usize,
+    floor_options: Floor,
 ) -> Result<(Vec<ViewerRun>, Vec<FloorRun>)> {
     let (skin, _readers) = start_skin(exe, (dir, None), false)?;
     let (mut viewer, address) = start_viewer(viewer_exe, dir)?;
-    let (floor_server, floor_address) = start_floor(exe, floor_bytes)?;
+    let (floor_server, floor_address) = start_floor(exe, floor_options, dir)?;
     let floor_pid = floor_server.0.id();
     let (mut runs, mut floor_runs) = (Vec::new(), Vec::new());
     let one = vec![DISPLAY_HZ];
@@ -984,7 +1019,7 @@ fn viewer_scaling(
                 &floor_address,
                 &plan,
                 (dir, seconds),
-                (&|| thread_cpu_ns(floor_pid, Some(floor::BROWSER_THREAD)), &BTreeMap::new),
+                (&|| thread_cpu_ns(floor_pid, None), &|| thread_cpu_ns(floor_pid, Some(floor::BROWSER_THREAD))),
                 &|| 0,
                 &mut check,
             )?
@@ -1007,7 +1042,8 @@ fn viewer_scaling(
                 round,
                 browsers: plan.len(),
                 seconds: window.seconds,
-                cpu_percent: percent(window.ran_ns),
+                cpu_percent: percent(window.part_ns),
+                process_cpu_percent: percent(window.ran_ns),
                 threads_ended: window.threads_ended,
                 per_browser: window.per_browser,
             });
@@ -1147,5 +1183,10 @@ fn print(report: &KilohertzReport) {
     println!(
         "the viewer's 10/1 if each browser cost it the floor's: {:.2}x (median)",
         report.viewer_cpu_ratio_at_floor
+    );
+    println!(
+        "the floor server's whole CPU, 10 browsers over 1{}: {:.2}x (median)",
+        if report.floor_reads_skin { ", reading the skin as the viewer does" } else { "" },
+        report.floor_cpu_ratio_10_to_1
     );
 }
