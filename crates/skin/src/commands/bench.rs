@@ -105,10 +105,11 @@ pub struct KilohertzArgs {
     /// bytes; the viewer part only).
     #[arg(long, value_parser = super::kilohertz::floor::parse_update_bytes)]
     floor_bytes: Option<usize>,
-    /// The floor server also reads every layer as the viewer does (its own
-    /// layer readers), so that its browsers share the machine with the same
-    /// load and its 10/1 ratio is that of a viewer whose sessions cost only
-    /// the message (the viewer part only).
+    /// The floor server reads every layer with the viewer's own readers and
+    /// sends their board, instead of a stand-in message: the viewer without
+    /// what its sessions decide, whose 10/1 ratio is that of a viewer whose
+    /// sessions cost only the message (the viewer part only; not with
+    /// --floor-bytes).
     #[arg(long)]
     floor_reads_skin: bool,
 }

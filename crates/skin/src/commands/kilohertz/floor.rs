@@ -16,12 +16,15 @@
 //! each send takes the newest. A buffer that nothing rewrote would be sent
 //! from a warm cache, cheaper than anything the viewer can do.
 //!
-//! With `--read-skin`, it also reads every layer of the skin while a
-//! browser is connected, with the viewer's own samplers (in the viewer's
-//! first mode, as soon as frames exist), and throws what it read away.
-//! Its browser threads then share the machine with the same readers as a
-//! viewer session, and its whole CPU with 10 browsers over 1 is the ratio
-//! of a viewer whose sessions cost only the message.
+//! With `--read-skin`, it reads every layer of the skin instead, with the
+//! viewer's own samplers (in the viewer's first mode, as soon as frames
+//! exist; shared by all browsers and stopped with the last, as the
+//! viewer's are), and answers each acknowledgement with the board as it is:
+//! a head of the viewer's size and every layer's newest responses, sent
+//! from where the readers left them. That is the viewer without what its
+//! sessions decide (pacing, credit, the acknowledgement's JSON, overlays,
+//! the head's contents), so its whole CPU with 10 browsers over 1 is the
+//! ratio of a viewer whose sessions cost only the message.
 
 #![forbid(unsafe_code)]
 
@@ -35,7 +38,7 @@ use std::time::Duration;
 use anyhow::{Context, Result};
 use tungstenite::Message;
 
-use crate::view::protocol::{KIND_GEOMETRY, KIND_UPDATE};
+use crate::view::protocol::{KIND_GEOMETRY, KIND_UPDATE, LAYER_RECORD_BYTES, UPDATE_HEADER_BYTES, responses_le};
 use crate::view::sampler::{LayerToRead, Sampler, Samplers};
 use crate::view::server::BROWSER_READ_BYTES;
 use crate::view::session::{BrowserStream, INITIAL_MODE, WebSocketHeader, send_message};
@@ -56,14 +59,13 @@ pub struct FloorArgs {
     /// Bytes of each update message.
     #[arg(long, value_parser = parse_update_bytes)]
     bytes: usize,
-    /// Also read every layer of this skin (in `SKINWARE_SHM_DIR`) while a
-    /// browser is connected, as the viewer does, and throw it away.
+    /// Read every layer of this skin (in `SKINWARE_SHM_DIR`) as the viewer
+    /// does and send its newest frames instead (`--bytes` is then unused).
     #[arg(long)]
     read_skin: Option<String>,
 }
 
-/// The viewer's readers of a skin, run by the floor server for nothing but
-/// their load.
+/// The viewer's readers of a skin, whose board the floor server sends.
 struct SkinReaders {
     samplers: Samplers,
     layers: Vec<LayerToRead>,
@@ -86,7 +88,7 @@ impl SkinReaders {
         match self.samplers.subscribe(&self.layers, INITIAL_MODE) {
             Ok(sampler) => Some(sampler),
             Err(e) => {
-                eprintln!("kilohertz: the floor server cannot start its layer readers, and goes on without: {e}");
+                eprintln!("kilohertz: the floor server cannot start its layer readers: {e}");
                 None
             }
         }
@@ -133,13 +135,11 @@ struct Shared {
     /// that the floor server loads the machine only in its own rounds.
     browsers: Mutex<usize>,
     browsers_changed: Condvar,
+    /// With `--read-skin`: the skin's readers, whose board is sent instead.
+    readers: Option<SkinReaders>,
 }
 
 impl Shared {
-    fn browsers(&self) -> usize {
-        *self.browsers.lock().unwrap_or_else(|p| p.into_inner())
-    }
-
     fn newest(&self) -> Arc<Vec<u8>> {
         self.newest.lock().unwrap_or_else(|p| p.into_inner()).clone()
     }
@@ -174,16 +174,18 @@ impl FloorServer {
             newest: Mutex::new(Arc::new(update)),
             browsers: Mutex::new(0),
             browsers_changed: Condvar::new(),
+            readers,
         });
-        let rewriter = {
+        // What is sent from the skin's board needs no stand-in.
+        let rewriter = shared.readers.is_none().then(|| {
             let shared = shared.clone();
-            std::thread::spawn(move || rewrite(&shared, readers.as_ref()))
-        };
+            std::thread::spawn(move || rewrite(&shared))
+        });
         let acceptor = {
             let shared = shared.clone();
             std::thread::spawn(move || accept_browsers(&listener, &shared))
         };
-        Ok(FloorServer { address, shared, acceptor: Some(acceptor), rewriter: Some(rewriter) })
+        Ok(FloorServer { address, shared, acceptor: Some(acceptor), rewriter })
     }
 }
 
@@ -201,27 +203,12 @@ impl Drop for FloorServer {
 
 /// While a browser is connected, writes a new update every
 /// [`REWRITE_EVERY`] into a buffer no send holds (the one it replaced last
-/// time, once the sends let go of it), then swaps it in; and keeps the
-/// skin's `readers` reading, if any.
-fn rewrite(shared: &Shared, readers: Option<&SkinReaders>) {
+/// time, once the sends let go of it), then swaps it in.
+fn rewrite(shared: &Shared) {
     let mut spare = Arc::new(shared.newest().as_ref().clone());
     let mut count = 0u8;
-    let (mut readers, mut reading) = (readers, None);
     while shared.wait_for_browsers() {
-        if reading.is_none()
-            && let Some(skin) = readers
-        {
-            reading = skin.start();
-            if reading.is_none() {
-                // It said why; once is enough.
-                readers = None;
-            }
-        }
         std::thread::sleep(REWRITE_EVERY);
-        if shared.browsers() == 0 {
-            // The last browser left: the readers stop until the next one.
-            reading = None;
-        }
         count = count.wrapping_add(1);
         if Arc::get_mut(&mut spare).is_none() {
             // A send still holds it: write a new one.
@@ -274,13 +261,23 @@ fn serve_browser(stream: TcpStream, shared: &Shared) -> Result<()> {
     let mut socket = tungstenite::accept_with_config(BrowserStream::new(stream), Some(config))
         .map_err(|e| anyhow::anyhow!("WebSocket handshake with a browser failed: {e}"))?;
     socket.send(Message::binary(vec![KIND_GEOMETRY]))?;
+    // With the skin's readers: shared with the other browsers, stopped with the last.
+    let mut board = match &shared.readers {
+        Some(readers) => Some(BoardSender::new(readers.start().context("no layer readers")?, readers.layers.len())),
+        None => None,
+    };
     while !shared.stop.load(Ordering::Relaxed) {
         match socket.read() {
             Ok(Message::Text(_)) => {
-                let update = shared.newest();
-                let header = WebSocketHeader::binary(update.len());
-                let mut parts = [IoSlice::new(header.bytes()), IoSlice::new(&update)];
-                match send_message(&mut socket, &mut parts) {
+                let sent = match &mut board {
+                    Some(board) => board.send(&mut socket),
+                    None => {
+                        let update = shared.newest();
+                        let header = WebSocketHeader::binary(update.len());
+                        send_message(&mut socket, &mut [IoSlice::new(header.bytes()), IoSlice::new(&update)])
+                    }
+                };
+                match sent {
                     Ok(()) => {}
                     Err(e) if ended_by_browser(&e) => break,
                     Err(e) => return Err(e.into()),
@@ -295,6 +292,48 @@ fn serve_browser(stream: TcpStream, shared: &Shared) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Sends the skin's board as the viewer's session sends it: the slots'
+/// responses shared under the board's lock, written after it.
+struct BoardSender {
+    sampler: Arc<Sampler>,
+    /// A head of the viewer's size for this many layers (its contents are
+    /// not the floor's business).
+    head: Vec<u8>,
+    responses: Vec<Arc<Vec<u16>>>,
+    /// Responses converted to little-endian, on a big-endian machine only.
+    scratch: Vec<Vec<u8>>,
+}
+
+impl BoardSender {
+    fn new(sampler: Arc<Sampler>, layers: usize) -> BoardSender {
+        let mut head = vec![0u8; UPDATE_HEADER_BYTES + layers * LAYER_RECORD_BYTES];
+        head[0] = KIND_UPDATE;
+        BoardSender { sampler, head, responses: Vec::with_capacity(layers), scratch: vec![Vec::new(); layers] }
+    }
+
+    fn send(&mut self, socket: &mut tungstenite::WebSocket<BrowserStream>) -> tungstenite::Result<()> {
+        let responses = &mut self.responses;
+        // A version no board has: the board as it is, at once.
+        self.sampler.take_newer(u64::MAX, Duration::ZERO, |board| {
+            responses.clear();
+            responses.extend(board.layers.iter().map(|slot| slot.responses.clone()));
+        });
+        let length = self.head.len() + responses.iter().map(|r| 2 * r.len()).sum::<usize>();
+        let header = WebSocketHeader::binary(length);
+        let mut parts = Vec::with_capacity(2 + responses.len());
+        parts.push(IoSlice::new(header.bytes()));
+        parts.push(IoSlice::new(&self.head));
+        for (layer, scratch) in responses.iter().zip(&mut self.scratch) {
+            parts.push(IoSlice::new(responses_le(layer, scratch)));
+        }
+        let sent = send_message(socket, &mut parts);
+        drop(parts);
+        // Let go, so that the readers write in place again.
+        responses.clear();
+        sent
+    }
 }
 
 /// How a browser's connection ends at the end of a window: closed, or reset

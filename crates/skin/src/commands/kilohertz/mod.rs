@@ -123,11 +123,11 @@ struct FloorRun {
     /// The window measured, seconds.
     seconds: f64,
     /// The run time of the floor server's browser threads (one per
-    /// browser; not its rewriter, which stands for the viewer's layer
-    /// readers) over the window (schedstat, ns), in % of one core.
+    /// browser; not its rewriter or layer readers) over the window
+    /// (schedstat, ns), in % of one core.
     cpu_percent: f64,
-    /// The same for all its threads (the rewriter, and the layer readers
-    /// with `--floor-reads-skin`).
+    /// The same for all its threads (with the rewriter, or the layer
+    /// readers with `--floor-reads-skin`).
     process_cpu_percent: f64,
     /// Threads of the floor server that ended during the window (0 in a sound run).
     threads_ended: usize,
@@ -170,8 +170,9 @@ struct KilohertzReport {
     /// Bytes of the floor server's message: by default the viewer's update,
     /// 61,832 (`--floor-bytes`).
     floor_bytes: usize,
-    /// Whether the floor server read the skin's layers as the viewer does
-    /// (`--floor-reads-skin`).
+    /// Whether the floor server read the skin's layers with the viewer's
+    /// readers and sent their board (`--floor-reads-skin`), rather than a
+    /// stand-in rewritten every millisecond.
     floor_reads_skin: bool,
     /// The floor server's whole CPU with 10 browsers over 1, the median of
     /// the rounds: with `floor_reads_skin`, the ratio of a viewer whose
@@ -239,6 +240,9 @@ pub struct Options<'a> {
 /// Runs `skin bench kilohertz`.
 pub fn bench(common: &Common, options: &Options) -> Result<()> {
     let Options { viewer_exe, only, wake, floor_bytes, floor_reads_skin } = *options;
+    if floor_bytes.is_some() && floor_reads_skin {
+        bail!("--floor-reads-skin sends the skin's frames, whose size is the skin's: drop --floor-bytes");
+    }
     if only == Some(Part::Runs) && (floor_bytes.is_some() || floor_reads_skin) {
         bail!(
             "--floor-bytes and --floor-reads-skin set the floor server of the viewer part, which --only runs \
