@@ -86,7 +86,8 @@ mod with_zenoh {
         mismatched: u64,
         unverifiable: u64,
         bridge_dropped: u64,
-        /// Of `skipped`, the frames the bridge had sent: lost on the link.
+        /// Of `skipped`, the frames the bridge had handed to zenoh: lost on
+        /// the link, or dropped by zenoh on a full link.
         lost: u64,
     }
 
@@ -173,6 +174,13 @@ mod with_zenoh {
                     }
                     figures.bridge_dropped = reader.bridge_state().map_or(0, |s| s.dropped);
                     figures.lost = reader.stats().lost;
+                    // The reader reports once a second: one more report, with
+                    // these final figures, so that the bridge's match them.
+                    let report_until = Instant::now() + Duration::from_millis(1_500);
+                    while Instant::now() < report_until && !stop.is_stopped() {
+                        let _ = reader.state();
+                        std::thread::sleep(Duration::from_millis(20));
+                    }
                     (layer, figures)
                 }));
             } else {

@@ -3,8 +3,9 @@
 //! its own as the viewer is): a bare WebSocket server that does, per
 //! browser, only what no viewer of this design can leave out. It waits for
 //! the browser's acknowledgement, and for each one sends one message (of an
-//! update's size unless told otherwise) through the viewer's own send path (one `sendmsg` from where the bytes
-//! are). It reads no skin, keeps no board and paces nothing, so the
+//! update's size unless told otherwise) through the viewer's own send path
+//! (one `sendmsg` from where the bytes are). By default it reads no skin,
+//! keeps no board and paces nothing, so the
 //! difference between its cost with 10 browsers and with 1 is what the
 //! kernel and the wake-ups charge per browser on this machine: what the
 //! viewer's per-browser cost is compared with, in the same run.
@@ -17,8 +18,8 @@
 //! from a warm cache, cheaper than anything the viewer can do.
 //!
 //! With `--read-skin`, it reads every layer of the skin instead, with the
-//! viewer's own samplers (in the viewer's first mode, as soon as frames
-//! exist; shared by all browsers and stopped with the last, as the
+//! viewer's own samplers (in the viewer's first mode, asap: every frame as
+//! it is published; shared by all browsers and stopped with the last, as the
 //! viewer's are), and answers each acknowledgement with the board as it is:
 //! a head of the viewer's size and every layer's newest responses, sent
 //! from where the readers left them. That is the viewer without what its
@@ -60,7 +61,8 @@ pub struct FloorArgs {
     #[arg(long, value_parser = parse_update_bytes)]
     bytes: usize,
     /// Read every layer of this skin (in `SKINWARE_SHM_DIR`) as the viewer
-    /// does and send its newest frames instead (`--bytes` is then unused).
+    /// does and send its newest frames instead (`--bytes` is still
+    /// required, and unused).
     #[arg(long)]
     read_skin: Option<String>,
 }
@@ -72,6 +74,7 @@ struct SkinReaders {
 }
 
 impl SkinReaders {
+    /// The readers of `skin`'s layers, as its geometry lists them; none runs yet.
     fn open(skin: &str) -> Result<SkinReaders> {
         let dir = skinware::shm::segment_dir();
         let geometry = skinware_geometry::SkinGeometry::open_in(&dir, skin)
@@ -84,14 +87,10 @@ impl SkinReaders {
         Ok(SkinReaders { samplers: Samplers::new(skin, Some(dir)), layers })
     }
 
-    fn start(&self) -> Option<Arc<Sampler>> {
-        match self.samplers.subscribe(&self.layers, INITIAL_MODE) {
-            Ok(sampler) => Some(sampler),
-            Err(e) => {
-                eprintln!("kilohertz: the floor server cannot start its layer readers: {e}");
-                None
-            }
-        }
+    /// The running readers, shared with every browser that holds them:
+    /// started by the first, stopped when the last lets go.
+    fn start(&self) -> Result<Arc<Sampler>> {
+        self.samplers.subscribe(&self.layers, INITIAL_MODE).context("the floor server cannot start its layer readers")
     }
 }
 
@@ -263,7 +262,7 @@ fn serve_browser(stream: TcpStream, shared: &Shared) -> Result<()> {
     socket.send(Message::binary(vec![KIND_GEOMETRY]))?;
     // With the skin's readers: shared with the other browsers, stopped with the last.
     let mut board = match &shared.readers {
-        Some(readers) => Some(BoardSender::new(readers.start().context("no layer readers")?, readers.layers.len())),
+        Some(readers) => Some(BoardSender::new(readers.start()?, readers.layers.len())),
         None => None,
     };
     while !shared.stop.load(Ordering::Relaxed) {
@@ -297,22 +296,27 @@ fn serve_browser(stream: TcpStream, shared: &Shared) -> Result<()> {
 /// Sends the skin's board as the viewer's session sends it: the slots'
 /// responses shared under the board's lock, written after it.
 struct BoardSender {
+    /// The readers whose board is sent.
     sampler: Arc<Sampler>,
     /// A head of the viewer's size for this many layers (its contents are
     /// not the floor's business).
     head: Vec<u8>,
+    /// The layers' responses taken for the message being sent; emptied
+    /// once it is, so that the readers write in place again.
     responses: Vec<Arc<Vec<u16>>>,
     /// Responses converted to little-endian, on a big-endian machine only.
     scratch: Vec<Vec<u8>>,
 }
 
 impl BoardSender {
+    /// Sends the board of `sampler`, which reads `layers` layers.
     fn new(sampler: Arc<Sampler>, layers: usize) -> BoardSender {
         let mut head = vec![0u8; UPDATE_HEADER_BYTES + layers * LAYER_RECORD_BYTES];
         head[0] = KIND_UPDATE;
         BoardSender { sampler, head, responses: Vec::with_capacity(layers), scratch: vec![Vec::new(); layers] }
     }
 
+    /// Sends the board as it is now, as one binary message.
     fn send(&mut self, socket: &mut tungstenite::WebSocket<BrowserStream>) -> tungstenite::Result<()> {
         let responses = &mut self.responses;
         // A version no board has: the board as it is, at once.

@@ -168,7 +168,8 @@ struct KilohertzReport {
     /// The floor server with 1 and 10 browsers, in the same rounds.
     floor: Vec<FloorRun>,
     /// Bytes of the floor server's message: by default the viewer's update,
-    /// 61,832 (`--floor-bytes`).
+    /// 61,832 (`--floor-bytes`); with `floor_reads_skin`, the skin's own
+    /// update, which is that size on this skin.
     floor_bytes: usize,
     /// Whether the floor server read the skin's layers with the viewer's
     /// readers and sent their board (`--floor-reads-skin`), rather than a
@@ -966,7 +967,7 @@ fn viewer_scaling(
 ) -> Result<(Vec<ViewerRun>, Vec<FloorRun>)> {
     let (skin, _readers) = start_skin(exe, (dir, None), false)?;
     let (mut viewer, address) = start_viewer(viewer_exe, dir)?;
-    let (floor_server, floor_address) = start_floor(exe, floor_options, dir)?;
+    let (mut floor_server, floor_address) = start_floor(exe, floor_options, dir)?;
     let floor_pid = floor_server.0.id();
     let (mut runs, mut floor_runs) = (Vec::new(), Vec::new());
     let one = vec![DISPLAY_HZ];
@@ -1012,10 +1013,11 @@ fn viewer_scaling(
             )?
         } else {
             let mut check = |after_ns: &BTreeMap<u32, u64>| {
+                if let Ok(Some(status)) = floor_server.0.try_wait() {
+                    bail!("the floor server exited during the run with {} browsers ({status})", plan.len());
+                }
                 if after_ns.is_empty() {
-                    bail!(
-                        "cannot read the floor server's browser threads' run time in /proc/{floor_pid}/task/*/schedstat"
-                    );
+                    bail!("cannot read the floor server's threads' run time in /proc/{floor_pid}/task/*/schedstat");
                 }
                 Ok(())
             };
@@ -1156,19 +1158,29 @@ fn print(report: &KilohertzReport) {
     if report.floor.is_empty() {
         return;
     }
+    if report.floor_reads_skin {
+        println!(
+            "The floor server (the viewer's layer readers; their board sent once per acknowledgement, nothing else) \
+             in the same rounds:"
+        );
+    } else {
+        println!(
+            "The floor server (one message of {} bytes per acknowledgement, nothing else) in the same rounds:",
+            report.floor_bytes
+        );
+    }
     println!(
-        "The floor server (one message of {} bytes per acknowledgement, nothing else) in the same rounds:",
-        report.floor_bytes
+        "| round | browsers | its browser threads' CPU | its whole CPU (% of one core) | updates/s per browser (min–max) |"
     );
-    println!("| round | browsers | floor server CPU (% of one core) | updates/s per browser (min–max) |");
-    println!("|---|---|---|---|");
+    println!("|---|---|---|---|---|");
     for run in &report.floor {
         let rates: Vec<f64> = run.per_browser.iter().map(|b| b.updates_per_s).collect();
         println!(
-            "| {} | {} | {:.2} | {:.1}–{:.1} |",
+            "| {} | {} | {:.2} | {:.2} | {:.1}–{:.1} |",
             run.round + 1,
             run.browsers,
             run.cpu_percent,
+            run.process_cpu_percent,
             rates.iter().copied().fold(f64::INFINITY, f64::min),
             rates.iter().copied().fold(0.0, f64::max)
         );
