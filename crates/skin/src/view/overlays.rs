@@ -4,6 +4,7 @@
 #![forbid(unsafe_code)]
 
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, TryLockError};
 use std::time::{Duration, Instant};
 
@@ -123,11 +124,15 @@ impl OverlaySource {
     /// The newest overlays. Never blocks: called once per update sent. A
     /// service that is gone contributes nothing rather than stale marks.
     pub fn poll(&mut self) -> Overlays {
-        if Instant::now() >= self.next_discovery {
-            self.next_discovery = Instant::now() + DISCOVERY_PERIOD;
+        let now = Instant::now();
+        if now >= self.next_discovery {
+            self.next_discovery = now + DISCOVERY_PERIOD;
             self.discover();
         }
         let mut overlays = Overlays::default();
+        if self.contacts.is_empty() && self.motions.is_empty() {
+            return overlays;
+        }
         // Overlapping regions report the same contact once each: keep one per peak taxel.
         let mut peaks = std::collections::HashSet::new();
         for (_, reader) in &mut self.contacts {
@@ -163,6 +168,9 @@ impl OverlaySource {
     }
 }
 
+/// No overlays: what an update carries while no service runs.
+pub static NO_OVERLAYS: Overlays = Overlays { arrows: Vec::new(), markers: Vec::new() };
+
 /// One overlay source for every browser: the services are searched for and
 /// attached once, not once per browser (a search opens every segment of the
 /// directory), and each update still polls them for the newest overlays.
@@ -170,9 +178,12 @@ impl OverlaySource {
 pub struct SharedOverlays {
     source: Mutex<OverlaySource>,
     /// What the last poll found, for a session that finds another polling.
-    last: Mutex<Arc<Overlays>>,
-    /// No overlays, shared: what most polls find, without an allocation each.
-    none: Arc<Overlays>,
+    last: Mutex<Option<Arc<Overlays>>>,
+    /// Until when (`monotonic_ns`) there is nothing to poll: a poll that
+    /// found no service sets it to the next search for them, and until
+    /// then every session's poll answers at once, without writing anything
+    /// that the others share.
+    quiet_until_ns: AtomicU64,
 }
 
 impl SharedOverlays {
@@ -181,16 +192,20 @@ impl SharedOverlays {
     pub fn new(skin: &str, dir: Option<PathBuf>) -> SharedOverlays {
         SharedOverlays {
             source: Mutex::new(OverlaySource::new(skin, dir)),
-            last: Mutex::default(),
-            none: Arc::default(),
+            last: Mutex::new(None),
+            quiet_until_ns: AtomicU64::new(0),
         }
     }
 
-    /// The newest overlays ([`OverlaySource::poll`]), or, while another
-    /// browser's session is polling, the ones it polled last: a poll may
-    /// search the segment directory or wait for a service that does not
-    /// answer, and the browsers must not queue behind each other for it.
-    pub fn poll(&self) -> Arc<Overlays> {
+    /// The newest overlays ([`OverlaySource::poll`]; `None` for none), or,
+    /// while another browser's session is polling, the ones it polled
+    /// last: a poll may search the segment directory or wait for a service
+    /// that does not answer, and the browsers must not queue behind each
+    /// other for it.
+    pub fn poll(&self) -> Option<Arc<Overlays>> {
+        if skinware::os::monotonic_ns() < self.quiet_until_ns.load(Ordering::Relaxed) {
+            return None;
+        }
         let mut source = match self.source.try_lock() {
             Ok(source) => source,
             // A session that panicked while polling left the readers usable.
@@ -198,13 +213,20 @@ impl SharedOverlays {
             Err(TryLockError::WouldBlock) => return self.last_polled(),
         };
         let polled = source.poll();
-        let newest =
-            if polled.arrows.is_empty() && polled.markers.is_empty() { self.none.clone() } else { Arc::new(polled) };
-        *self.last.lock().unwrap_or_else(|poisoned| poisoned.into_inner()) = newest.clone();
+        if source.contacts.is_empty() && source.motions.is_empty() {
+            let until_search = source.next_discovery.saturating_duration_since(Instant::now());
+            let until_ns = skinware::os::monotonic_ns().saturating_add(until_search.as_nanos() as u64);
+            self.quiet_until_ns.store(until_ns, Ordering::Relaxed);
+        }
+        let newest = (!polled.arrows.is_empty() || !polled.markers.is_empty()).then(|| Arc::new(polled));
+        let mut last = self.last.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        if last.is_some() || newest.is_some() {
+            *last = newest.clone();
+        }
         newest
     }
 
-    fn last_polled(&self) -> Arc<Overlays> {
+    fn last_polled(&self) -> Option<Arc<Overlays>> {
         self.last.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).clone()
     }
 }
@@ -220,14 +242,23 @@ mod tests {
         let shared = SharedOverlays::new("nothing-here", Some(dir.clone()));
         let mut found = Overlays::default();
         found.markers.push(Marker { at: [0.1, 0.2], radius: 0.01, pressure: 3.0 });
-        *shared.last.lock().unwrap() = Arc::new(found.clone());
+        *shared.last.lock().unwrap() = Some(Arc::new(found.clone()));
         // Another session is polling (holding the source): this one gets
         // the last overlays at once instead of queueing.
         let polling = shared.source.lock().unwrap();
-        assert_eq!(*shared.poll(), found);
+        assert_eq!(shared.poll().as_deref(), Some(&found));
         drop(polling);
         // Free: it polls (no services in the directory: nothing to draw).
-        assert_eq!(*shared.poll(), Overlays::default());
+        assert_eq!(shared.poll(), None);
+        assert_eq!(*shared.last.lock().unwrap(), None, "what the next session gets while one polls");
+        // Until the next search for services, there is nothing to poll:
+        // the answer comes without the source, even while it is held.
+        let polling = shared.source.lock().unwrap();
+        *shared.last.lock().unwrap() = Some(Arc::new(found.clone()));
+        assert_eq!(shared.poll(), None, "quiet: neither the source nor the last overlays are looked at");
+        drop(polling);
+        let quiet_for = shared.quiet_until_ns.load(Ordering::Relaxed).saturating_sub(skinware::os::monotonic_ns());
+        assert!(quiet_for > 0 && quiet_for <= DISCOVERY_PERIOD.as_nanos() as u64, "{quiet_for} ns");
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

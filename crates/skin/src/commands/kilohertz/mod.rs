@@ -836,7 +836,6 @@ fn browse(
     let stream = TcpStream::connect(address)?;
     let (mut socket, _) = tungstenite::client(format!("ws://{address}/ws"), stream)
         .map_err(|e| anyhow::anyhow!("WebSocket handshake with the viewer failed: {e}"))?;
-    socket.get_mut().set_read_timeout(Some(Duration::from_millis(2)))?;
     let period = Duration::from_secs_f64(1.0 / ack_hz);
     let mut geometry = false;
     let (mut updates, mut bytes, mut unacked, mut in_window) = (0u64, 0u64, 0u32, 0u64);
@@ -845,6 +844,12 @@ fn browse(
     let started = Instant::now();
     let mut next_ack = started + period;
     while !stop.load(Ordering::Relaxed) {
+        // Asleep until an update comes or the next acknowledgement is due,
+        // as a page is between its animation frames: a client that polled
+        // (every 2 ms, before) loaded the machine with wake-ups that grew
+        // with the browsers, and the viewer's readers shared it.
+        let until_ack = next_ack.saturating_duration_since(Instant::now()).max(Duration::from_micros(100));
+        socket.get_mut().set_read_timeout(Some(until_ack))?;
         match socket.read() {
             Ok(Message::Binary(data)) if data.first() == Some(&1) && !geometry => {
                 geometry = true;
