@@ -176,14 +176,13 @@ pub struct Site {
 /// time) says whether it is still the one encoded.
 #[derive(Debug, Default)]
 pub struct GeometryCache {
-    encoded: std::sync::Mutex<Option<Arc<EncodedGeometry>>>,
+    /// The last geometry encoded, and the file it came from.
+    encoded: std::sync::Mutex<Option<(FileIdentity, Arc<EncodedGeometry>)>>,
 }
 
 /// One published geometry, as the browsers get it.
 #[derive(Debug)]
 pub struct EncodedGeometry {
-    /// The file it came from.
-    identity: FileIdentity,
     /// The geometry message ([`protocol::encode_geometry`]).
     pub message: Vec<u8>,
     /// The layers to read.
@@ -226,14 +225,13 @@ impl GeometryCache {
         // finds different, and encodes again.
         let identity = FileIdentity::of(&SkinGeometry::published_path(dir, skin));
         let mut encoded = self.encoded.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-        if let (Some(cached), Some(identity)) = (encoded.as_ref(), identity)
-            && cached.identity == identity
+        if let (Some((cached_identity, cached)), Some(identity)) = (encoded.as_ref(), identity)
+            && *cached_identity == identity
         {
             return Ok(cached.clone());
         }
         let geometry = SkinGeometry::open_in(dir, skin)?;
         let fresh = Arc::new(EncodedGeometry {
-            identity: identity.unwrap_or(FileIdentity { device: 0, inode: 0, bytes: 0, modified: None }),
             message: protocol::encode_geometry(&geometry),
             layers: geometry
                 .layers
@@ -242,7 +240,7 @@ impl GeometryCache {
                 .collect(),
         });
         // A file that could not be looked at is not remembered.
-        *encoded = identity.is_some().then(|| fresh.clone());
+        *encoded = identity.map(|identity| (identity, fresh.clone()));
         Ok(fresh)
     }
 }
