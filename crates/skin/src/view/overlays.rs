@@ -201,7 +201,8 @@ impl SharedOverlays {
     /// while another browser's session is polling, the ones it polled
     /// last: a poll may search the segment directory or wait for a service
     /// that does not answer, and the browsers must not queue behind each
-    /// other for it.
+    /// other for it. After a poll that found no service, `None` at once,
+    /// without a look, until the next search for services.
     pub fn poll(&self) -> Option<Arc<Overlays>> {
         if skinware::os::monotonic_ns() < self.quiet_until_ns.load(Ordering::Relaxed) {
             return None;
@@ -251,14 +252,19 @@ mod tests {
         // Free: it polls (no services in the directory: nothing to draw).
         assert_eq!(shared.poll(), None);
         assert_eq!(*shared.last.lock().unwrap(), None, "what the next session gets while one polls");
-        // Until the next search for services, there is nothing to poll:
-        // the answer comes without the source, even while it is held.
+        // Until the next search for services, there is nothing to poll.
+        let quiet_for = shared.quiet_until_ns.load(Ordering::Relaxed).saturating_sub(skinware::os::monotonic_ns());
+        assert!(quiet_for > 0 && quiet_for <= DISCOVERY_PERIOD.as_nanos() as u64, "{quiet_for} ns");
+        // Meanwhile the answer comes without the source, even while it is
+        // held (a deadline far ahead, so that a slow machine cannot end it).
+        shared.quiet_until_ns.store(u64::MAX, Ordering::Relaxed);
         let polling = shared.source.lock().unwrap();
         *shared.last.lock().unwrap() = Some(Arc::new(found.clone()));
         assert_eq!(shared.poll(), None, "quiet: neither the source nor the last overlays are looked at");
+        // Once it ends, sessions look again.
+        shared.quiet_until_ns.store(0, Ordering::Relaxed);
+        assert_eq!(shared.poll().as_deref(), Some(&found), "no longer quiet: the source is asked for");
         drop(polling);
-        let quiet_for = shared.quiet_until_ns.load(Ordering::Relaxed).saturating_sub(skinware::os::monotonic_ns());
-        assert!(quiet_for > 0 && quiet_for <= DISCOVERY_PERIOD.as_nanos() as u64, "{quiet_for} ns");
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

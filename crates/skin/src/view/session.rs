@@ -164,8 +164,8 @@ pub struct Site {
     pub samplers: Arc<Samplers>,
     /// The services' overlays, shared by every browser.
     pub overlays: Arc<SharedOverlays>,
-    /// The geometry message last sent, shared by the browsers that connect
-    /// while the published geometry stays the same file.
+    /// The geometry message last encoded, shared by the browsers that
+    /// connect while the published geometry stays the same file.
     pub geometry: Arc<GeometryCache>,
 }
 
@@ -659,10 +659,45 @@ mod tests {
         let again = cache.get(&dir, "cached").unwrap();
         assert_eq!(again.message, protocol::encode_geometry(&second), "a geometry published again is read again");
         assert_eq!(again.layers.iter().map(|l| l.sensors).collect::<Vec<_>>(), [240, 240]);
+        // A restarted `skin run` publishes a file of the same length: a new
+        // one all the same (renamed into place), so it is read again.
+        second.publish(&dir).unwrap();
+        assert!(!Arc::ptr_eq(&again, &cache.get(&dir, "cached").unwrap()), "the same bytes in a new file");
 
         std::fs::write(SkinGeometry::published_path(&dir, "cached"), b"not a geometry").unwrap();
         let corrupt = cache.get(&dir, "cached").unwrap_err();
         assert!(matches!(corrupt, skinware_geometry::GeometryError::Corrupt { .. }), "{corrupt}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A browser receives the cached geometry, sent in parts from the shared
+    /// message, as the one WebSocket message the page decodes, and the
+    /// session reads the layers it lists.
+    #[test]
+    fn a_browser_receives_the_geometry_whole() {
+        let dir = std::env::temp_dir().join(format!("skin-geometry-send-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let geometry = virtual_geometry("sent", 4_000);
+        geometry.publish(&dir).unwrap();
+        let site = Site::new("sent", Some(dir.clone()), Arc::new(AtomicBool::new(false)));
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let client = TcpStream::connect(listener.local_addr().unwrap()).unwrap();
+        let (server, _) = listener.accept().unwrap();
+        let reader = std::thread::spawn(move || {
+            let mut client = WebSocket::from_raw_socket(client, tungstenite::protocol::Role::Client, None);
+            client.read().unwrap()
+        });
+        let mut server =
+            WebSocket::from_raw_socket(BrowserStream::new(server), tungstenite::protocol::Role::Server, None);
+        let layers = send_geometry(&mut server, &site).unwrap();
+        assert_eq!(
+            layers.iter().map(|l| (l.name.as_str(), l.sensors)).collect::<Vec<_>>(),
+            [("v-0", 2_000), ("v-1", 2_000)]
+        );
+        match reader.join().unwrap() {
+            Message::Binary(bytes) => assert!(bytes.as_ref() == protocol::encode_geometry(&geometry).as_slice()),
+            other => panic!("expected the geometry, got {other:?}"),
+        }
         let _ = std::fs::remove_dir_all(&dir);
     }
 

@@ -12,7 +12,7 @@
 //! end of the measured window), `/proc` for the CPU of every process, and
 //! the consumers themselves for the latency from acquisition. The browsers
 //! are WebSocket clients that speak the page's protocol (`docs/viewer.md`)
-//! and acknowledge what they received at a display's 60 Hz (a slow one at
+//! and acknowledge what they received at a display's 59.94 Hz (a slow one at
 //! 5 Hz), so that the viewer's cost is measured without a browser's
 //! rendering competing for the same two cores.
 
@@ -837,16 +837,17 @@ fn browse(
     (stop, marks): (&AtomicBool, &WindowMarks),
     clock: &SeqClock,
 ) -> Result<BrowserFigures> {
+    use crate::view::session::{BrowserStream, Reads};
     use tungstenite::Message;
-    let stream = TcpStream::connect(address)?;
+    let stream = BrowserStream::new(TcpStream::connect(address)?);
     let (mut socket, _) = tungstenite::client(format!("ws://{address}/ws"), stream)
         .map_err(|e| anyhow::anyhow!("WebSocket handshake with the viewer failed: {e}"))?;
-    // Reads that find nothing return at once; the waiting is done by
-    // `poll`, whose timeout is a high-resolution timer. A socket's read
-    // timeout counts in the kernel's ticks, which are in step with the
-    // writers' periods: every acknowledgement of a run then came at the same
-    // point of the skin's millisecond.
-    socket.get_mut().set_nonblocking(true)?;
+    // Reads that find nothing return at once (writes still block); the
+    // waiting is done by `poll`, whose timeout is a high-resolution timer. A
+    // socket's read timeout counts in the kernel's ticks, which are in step
+    // with the writers' periods: every acknowledgement of a run then came at
+    // the same point of the skin's millisecond.
+    socket.get_mut().reads = Reads::DontWait;
     let period = Duration::from_secs_f64(1.0 / ack_hz);
     let mut geometry = false;
     let (mut updates, mut bytes, mut unacked, mut in_window) = (0u64, 0u64, 0u32, 0u64);
@@ -858,7 +859,7 @@ fn browse(
         match socket.read() {
             Ok(Message::Binary(data)) if data.first() == Some(&1) && !geometry => {
                 geometry = true;
-                send_text(&mut socket, r#"{"ack":2}"#)?;
+                socket.send(Message::text(r#"{"ack":2}"#))?;
             }
             Ok(Message::Binary(data)) if data.first() == Some(&2) => {
                 updates += 1;
@@ -884,11 +885,8 @@ fn browse(
                 // that polled every 2 ms, before, loaded the machine with
                 // wake-ups that grew with the browsers).
                 let until_ack = next_ack.saturating_duration_since(Instant::now());
-                let timeout = rustix::time::Timespec {
-                    tv_sec: until_ack.as_secs() as i64,
-                    tv_nsec: i64::from(until_ack.subsec_nanos()),
-                };
-                let mut readable = [rustix::event::PollFd::new(socket.get_ref(), rustix::event::PollFlags::IN)];
+                let timeout = rustix::time::Timespec::try_from(until_ack)?;
+                let mut readable = [rustix::event::PollFd::new(&socket.get_ref().stream, rustix::event::PollFlags::IN)];
                 match rustix::event::poll(&mut readable, Some(&timeout)) {
                     Ok(_) | Err(rustix::io::Errno::INTR) => {}
                     Err(e) => return Err(std::io::Error::from(e).into()),
@@ -899,7 +897,7 @@ fn browse(
         let now = Instant::now();
         if now >= next_ack {
             if unacked > 0 {
-                send_text(&mut socket, &format!(r#"{{"ack":{unacked}}}"#))?;
+                socket.send(Message::text(format!(r#"{{"ack":{unacked}}}"#)))?;
                 unacked = 0;
             }
             while next_ack <= now {
@@ -915,17 +913,6 @@ fn browse(
         kb_per_update: bytes as f64 / 1e3 / updates.max(1) as f64,
         latency_us: Percentiles::of(&mut latency),
     })
-}
-
-/// Sends a browser's text message on its non-blocking socket: a message the
-/// socket cannot take at once stays queued in tungstenite, which writes it
-/// with the next one.
-fn send_text(socket: &mut tungstenite::WebSocket<TcpStream>, text: &str) -> Result<()> {
-    match socket.send(tungstenite::Message::text(text)) {
-        Ok(()) => Ok(()),
-        Err(tungstenite::Error::Io(e)) if e.kind() == std::io::ErrorKind::WouldBlock => Ok(()),
-        Err(e) => Err(e.into()),
-    }
 }
 
 /// The run time of some threads now, in ns, by thread id ([`thread_cpu_ns`]).
@@ -991,7 +978,7 @@ fn with_browsers(
 
 /// The viewer alone on the 1 kHz skin with 1, then 10 browsers, `rounds`
 /// times, each round with the [`floor`] server's 1 and 10 between; then the
-/// viewer with 9 at 60 Hz and one slow browser at 5 Hz.
+/// viewer with 9 at 59.94 Hz and one slow browser at 5 Hz.
 fn viewer_scaling(
     exe: &Path,
     viewer_exe: &Path,
