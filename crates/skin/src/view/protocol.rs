@@ -256,22 +256,9 @@ mod tests {
         assert_eq!(responses_at % 4, 0, "responses must be viewable as a Uint16Array in place");
     }
 
-    fn small_geometry() -> SkinGeometry {
-        let path = std::env::temp_dir().join(format!("skin-view-protocol-{}.toml", std::process::id()));
-        std::fs::write(
-            &path,
-            "skin = \"small\"\n[[driver]]\nname = \"v\"\nkind = \"virtual\"\nsensors = 240\nlayers = 2\n",
-        )
-        .unwrap();
-        let config = skin::config::Config::load(&path);
-        let _ = std::fs::remove_file(&path);
-        let (layers, calibration, regions) = crate::geometry::inputs(&config.unwrap()).unwrap();
-        SkinGeometry::build("small", &layers, &calibration, &regions).unwrap()
-    }
-
     #[test]
     fn geometry_message_holds_layers_names_positions_and_ids_where_documented() {
-        let geometry = small_geometry();
+        let geometry = crate::view::virtual_geometry("small", 240);
         let out = encode_geometry(&geometry);
         let u32_at = |offset: usize| u32::from_le_bytes(out[offset..offset + 4].try_into().unwrap());
         assert_eq!(&out[..4], &[KIND_GEOMETRY, PROTOCOL_VERSION, 2, 0]);

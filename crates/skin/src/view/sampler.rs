@@ -94,6 +94,17 @@ pub struct LayerToRead {
     pub sensors: usize,
 }
 
+impl LayerToRead {
+    /// Every layer of `geometry`, in its order.
+    pub fn all_of(geometry: &skinware_geometry::SkinGeometry) -> Vec<LayerToRead> {
+        geometry
+            .layers
+            .iter()
+            .map(|layer| LayerToRead { name: layer.name.clone(), sensors: layer.sensors.len() })
+            .collect()
+    }
+}
+
 /// The samplers running, one per reader mode (and set of layers), shared by
 /// every browser that reads in that mode; a sampler stops when its last
 /// browser leaves or changes mode.

@@ -233,11 +233,7 @@ impl GeometryCache {
         let geometry = SkinGeometry::open_in(dir, skin)?;
         let fresh = Arc::new(EncodedGeometry {
             message: protocol::encode_geometry(&geometry),
-            layers: geometry
-                .layers
-                .iter()
-                .map(|layer| LayerToRead { name: layer.name.clone(), sensors: layer.sensors.len() })
-                .collect(),
+            layers: LayerToRead::all_of(&geometry),
         });
         // A file that could not be looked at is not remembered.
         *encoded = identity.map(|identity| (identity, fresh.clone()));
@@ -621,21 +617,6 @@ mod tests {
         }
     }
 
-    fn virtual_geometry(skin: &str, sensors: usize) -> SkinGeometry {
-        let path = std::env::temp_dir().join(format!("skin-view-session-{skin}-{}.toml", std::process::id()));
-        std::fs::write(
-            &path,
-            format!(
-                "skin = \"{skin}\"\n[[driver]]\nname = \"v\"\nkind = \"virtual\"\nsensors = {sensors}\nlayers = 2\n"
-            ),
-        )
-        .unwrap();
-        let config = skin::config::Config::load(&path);
-        let _ = std::fs::remove_file(&path);
-        let (layers, calibration, regions) = crate::geometry::inputs(&config.unwrap()).unwrap();
-        SkinGeometry::build(skin, &layers, &calibration, &regions).unwrap()
-    }
-
     /// Browsers get the geometry encoded once while its file stays the
     /// same, the new one as soon as it is published again, and the
     /// library's error when it is missing.
@@ -647,14 +628,14 @@ mod tests {
         let missing = cache.get(&dir, "cached").unwrap_err();
         assert!(matches!(missing, skinware_geometry::GeometryError::Missing { .. }), "{missing}");
 
-        let first = virtual_geometry("cached", 240);
+        let first = crate::view::virtual_geometry("cached", 240);
         first.publish(&dir).unwrap();
         let encoded = cache.get(&dir, "cached").unwrap();
         assert_eq!(encoded.message, protocol::encode_geometry(&first));
         assert_eq!(encoded.layers.iter().map(|l| l.sensors).collect::<Vec<_>>(), [120, 120]);
         assert!(Arc::ptr_eq(&encoded, &cache.get(&dir, "cached").unwrap()), "the same file is not read again");
 
-        let second = virtual_geometry("cached", 480);
+        let second = crate::view::virtual_geometry("cached", 480);
         second.publish(&dir).unwrap();
         let again = cache.get(&dir, "cached").unwrap();
         assert_eq!(again.message, protocol::encode_geometry(&second), "a geometry published again is read again");
@@ -677,7 +658,7 @@ mod tests {
     fn a_browser_receives_the_geometry_whole() {
         let dir = std::env::temp_dir().join(format!("skin-geometry-send-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let geometry = virtual_geometry("sent", 4_000);
+        let geometry = crate::view::virtual_geometry("sent", 4_000);
         geometry.publish(&dir).unwrap();
         let site = Site::new("sent", Some(dir.clone()), Arc::new(AtomicBool::new(false)));
         let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();

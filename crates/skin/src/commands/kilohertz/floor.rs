@@ -79,12 +79,7 @@ impl SkinReaders {
         let dir = skinware::shm::segment_dir();
         let geometry = skinware_geometry::SkinGeometry::open_in(&dir, skin)
             .with_context(|| format!("the floor server cannot read skin {skin:?}'s geometry in {}", dir.display()))?;
-        let layers = geometry
-            .layers
-            .iter()
-            .map(|layer| LayerToRead { name: layer.name.clone(), sensors: layer.sensors.len() })
-            .collect();
-        Ok(SkinReaders { samplers: Samplers::new(skin, Some(dir)), layers })
+        Ok(SkinReaders { samplers: Samplers::new(skin, Some(dir)), layers: LayerToRead::all_of(&geometry) })
     }
 
     /// The running readers, shared with every browser that holds them:
