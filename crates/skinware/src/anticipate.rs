@@ -36,16 +36,23 @@ impl Anticipation {
     }
 
     /// The phase of `published_ns` on the grid, in (-period/2, period/2].
+    /// In i128: the times are the writer's numbers (a reader takes them from
+    /// shared memory), and `observe` keeps the period in (0, MAX_PERIOD_NS],
+    /// so nothing here can overflow whatever the times are.
     fn phase(&self, published_ns: u64) -> i64 {
-        let period = self.period_ns as i64;
-        let offset = (published_ns.wrapping_sub(self.origin_ns) as i64).rem_euclid(period);
-        if offset > period / 2 { offset - period } else { offset }
+        let period = i128::from(self.period_ns.max(1));
+        let offset = (i128::from(published_ns) - i128::from(self.origin_ns)).rem_euclid(period);
+        let phase = if offset > period / 2 { offset - period } else { offset };
+        // |phase| <= period / 2 <= MAX_PERIOD_NS / 2, far inside i64.
+        phase as i64
     }
 
     /// Takes note of a frame published at `published_ns` by a writer of period `period_ns`.
     pub(crate) fn observe(&mut self, published_ns: u64, period_ns: u64) {
-        if period_ns == 0 {
-            // A sporadic writer (e.g. revived as one) has no grid to anticipate.
+        if period_ns == 0 || period_ns > MAX_PERIOD_NS {
+            // A sporadic writer (e.g. revived as one) has no grid to
+            // anticipate, and a period beyond an hour is no writer's: a
+            // forged header's. Neither is anticipated.
             self.seeded = false;
             return;
         }
@@ -74,13 +81,17 @@ impl Anticipation {
         if !self.seeded {
             return None;
         }
-        let earliest = self.earliest_now.min(self.earliest_before);
+        let earliest = i128::from(self.earliest_now.min(self.earliest_before));
         // The grid point of the last frame, then the next one.
-        let grid = (last_published_ns as i64).wrapping_sub(self.phase(last_published_ns));
-        let expected = grid.wrapping_add(self.period_ns as i64).wrapping_add(earliest);
+        let grid = i128::from(last_published_ns) - i128::from(self.phase(last_published_ns));
+        let expected = grid + i128::from(self.period_ns) + earliest;
         u64::try_from(expected).ok()
     }
 }
+
+/// The longest period anticipated: an hour. A writer's period comes from
+/// shared memory, where a fake writer can put any number.
+const MAX_PERIOD_NS: u64 = 3_600_000_000_000;
 
 /// Samples per window of [`RecentQuantile`].
 const QUANTILE_WINDOW: usize = 128;
@@ -153,6 +164,64 @@ mod tests {
     }
 
     const PERIOD: u64 = 5_000_000;
+
+    /// The regression of issue #36: a forged period of `u64::MAX` and two
+    /// frames 2^63 ns apart made `phase` compute `i64::MIN.rem_euclid(-1)`,
+    /// which panics in release builds too.
+    #[test]
+    fn a_forged_period_and_times_do_not_panic() {
+        let mut a = Anticipation::new(100_000);
+        a.observe(0, u64::MAX);
+        a.observe(1 << 63, u64::MAX);
+        assert_eq!(a.next_expected(1 << 63), None, "a period beyond an hour is not anticipated");
+        // The largest period accepted, with times at both ends of u64.
+        a.observe(u64::MAX, MAX_PERIOD_NS);
+        a.observe(0, MAX_PERIOD_NS);
+        a.observe(u64::MAX, MAX_PERIOD_NS);
+        let _ = a.next_expected(0);
+        let _ = a.next_expected(u64::MAX);
+    }
+
+    proptest::proptest! {
+        /// Whatever periods and times a writer's memory holds, observing and
+        /// predicting never panics (debug builds check every overflow).
+        #[test]
+        fn any_period_and_times_are_taken_without_panic(
+            frames in proptest::collection::vec((proptest::prelude::any::<u64>(), proptest::prelude::any::<u64>()), 1..40),
+            period_choice in 0usize..4,
+        ) {
+            let mut a = Anticipation::new(100_000);
+            for &(published, period) in &frames {
+                let period = match period_choice {
+                    0 => period,
+                    1 => period % (MAX_PERIOD_NS + 2),
+                    2 => u64::MAX - period % 4,
+                    _ => MAX_PERIOD_NS,
+                };
+                a.observe(published, period);
+                let _ = a.next_expected(published);
+            }
+        }
+
+        /// For a real grid, the frame after the last is predicted within one
+        /// period after it.
+        #[test]
+        fn a_real_grid_is_predicted_within_a_period(
+            start in 0u64..(1 << 62),
+            period in 1_000u64..1_000_000_000,
+            jitters in proptest::collection::vec(0u64..1_000, 2..50),
+        ) {
+            let mut a = Anticipation::new(100_000);
+            let mut last = start;
+            for (k, jitter) in jitters.iter().enumerate() {
+                last = start + k as u64 * period + jitter % (period / 4 + 1);
+                a.observe(last, period);
+            }
+            let expected = a.next_expected(last).expect("seeded");
+            proptest::prop_assert!(expected + period / 2 > last && expected <= last + period + period / 2,
+                "expected {} after a frame at {} with period {}", expected, last, period);
+        }
+    }
 
     #[test]
     fn the_earliest_phase_predicts_the_next_frame() {

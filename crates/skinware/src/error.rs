@@ -107,6 +107,23 @@ pub enum Error {
         found: &'static str,
     },
 
+    /// A file at one of a channel's paths that skinware will not open: a
+    /// symbolic link, a FIFO, a device, or a name lock owned by another user.
+    /// The segment directory is world-writable, so any local user can put one
+    /// there; opening it could follow a link to another file or block forever.
+    #[error(
+        "{path}: {reason}; skinware does not open it (a local user may have put it there). Remove it if it is stale \
+         (`skin clean --force`), or give the skin a directory only trusted users can write: SKINWARE_SHM_DIR (channel {channel})"
+    )]
+    UntrustedFile {
+        /// `skin/channel`.
+        channel: String,
+        /// The path.
+        path: PathBuf,
+        /// What is wrong with it.
+        reason: String,
+    },
+
     /// The reader may not read the channel.
     #[error(
         "no permission to read channel {channel} ({path}); start its writer with `access = \"group\"` (and be in its group) or `access = \"everyone\"`, or read as the writer's user"

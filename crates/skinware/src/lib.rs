@@ -84,7 +84,9 @@ pub use channel::ChannelKind;
 #[cfg(not(loom))]
 pub use channel::layout::{ABI_VERSION, MAX_SLOTS, MIN_SLOTS};
 #[cfg(not(loom))]
-pub use channel::registry::{ChannelInfo, list_channels, remove_channel_if_stale, remove_stale_channels};
+pub use channel::registry::{
+    ChannelInfo, list_channels, list_channels_where, list_skin_channels, remove_channel_if_stale, remove_stale_channels,
+};
 #[cfg(not(loom))]
 pub use driver::{Driver, DriverError, DriverHandler, HandlerOptions, LayerSource, LayerSpec};
 #[cfg(not(loom))]

@@ -15,6 +15,7 @@ use crate::channel::layout;
 use crate::channel::liveness::NameRecord;
 use crate::channel::ring::{Meta, ReadFailure};
 use crate::channel::segment::{self, Opened, Shared};
+use crate::channel::succession::{self, Follower};
 use crate::error::{Error, Result};
 use crate::frame::Frame;
 use crate::os::{self, SHARED_FUTEX};
@@ -46,6 +47,12 @@ pub struct ReaderOptions {
     /// frame; a frame later than that is waited for on the futex as usual.
     /// `None` (the default) never spins.
     pub anticipate: Option<Duration>,
+    /// Do not watch the segment directory for a successor of a dead writer:
+    /// find one only by re-checking every 100 ms in blocking reads (and by
+    /// [`Reader::follow_recreated`]), as readers did before the watcher. For
+    /// comparisons (`skin bench follow`); by default (`false`) a reader in
+    /// any mode follows a successor within a millisecond of its appearance.
+    pub no_successor_watch: bool,
 }
 
 /// Consecutive laps after which a read gives up with [`Error::Lapped`]. With
@@ -72,6 +79,9 @@ pub struct Reader {
     anticipation: Option<Anticipation>,
     /// Channels followed since it attached.
     follows: u64,
+    /// Where the process's watcher leaves a successor of a dead writer
+    /// ([`crate::channel::succession`]); `None` without a watcher.
+    follower: Option<Arc<Follower>>,
 }
 
 impl std::fmt::Debug for Reader {
@@ -143,7 +153,13 @@ impl Reader {
         let shared = Arc::new(shared);
         let stop = Stop::new();
         stop.watch(&shared);
+        let follower = if options.no_successor_watch || cfg!(fuzzing) {
+            None
+        } else {
+            succession::follow(&dir, skin, channel, &shared)
+        };
         Ok(Reader {
+            follower,
             shared,
             buffer: vec![0; words],
             copied: None,
@@ -166,9 +182,16 @@ impl Reader {
     /// in the new channel; [`writer_generation`](Self::writer_generation) is
     /// one higher.
     ///
-    /// The blocking reads call this on their own while they wait; call it
-    /// after [`latest`](Self::latest) keeps returning the same frame.
+    /// Every read does this on its own, at once, when the process's watcher
+    /// has seen a successor appear ([`crate::channel::succession`]), and the
+    /// blocking reads also re-check every 100 ms; a call is needed only
+    /// where the watcher cannot run (see
+    /// [`ReaderOptions::no_successor_watch`]). It asks the socket's writer
+    /// (waiting up to a second for a stopped one).
     pub fn follow_recreated(&mut self) -> bool {
+        if self.follow_successor() {
+            return true;
+        }
         if self.shared.writer_alive().unwrap_or(true) {
             return false;
         }
@@ -176,7 +199,25 @@ impl Reader {
         else {
             return false;
         };
-        if replacement.identity() == self.shared.identity() {
+        self.switch_to(Arc::new(replacement))
+    }
+
+    /// Takes the successor the watcher left, if it left one: `true` if the
+    /// reader now reads it. Costs one relaxed load when there is none.
+    fn follow_successor(&mut self) -> bool {
+        let Some(follower) = self.follower.as_ref().filter(|f| f.flagged()) else {
+            return false;
+        };
+        match follower.take() {
+            Some(successor) => self.switch_to(successor),
+            None => false,
+        }
+    }
+
+    /// Switches to `replacement` if it is new memory of the same shape and
+    /// this reader's writer is dead.
+    fn switch_to(&mut self, replacement: Arc<Shared>) -> bool {
+        if replacement.identity() == self.shared.identity() || self.shared.writer_alive().unwrap_or(true) {
             return false;
         }
         let same_shape = replacement.layout.payload_bytes == self.shared.layout.payload_bytes
@@ -195,8 +236,10 @@ impl Reader {
         if !same_shape || !replacement.writer_alive().unwrap_or(false) {
             return false;
         }
-        let replacement = Arc::new(replacement);
         self.stop.watch(&replacement);
+        if let Some(follower) = &self.follower {
+            follower.set_current(&replacement);
+        }
         tracing::info!(channel = %replacement.label, "following the re-created channel");
         self.shared = replacement;
         self.last = Meta::default();
@@ -313,7 +356,13 @@ impl Reader {
     }
 
     /// On request: the newest complete frame, now. Lock-free; never blocks.
+    ///
+    /// If the writer died and a successor took its name, this reads the
+    /// successor (whose frames start again from 1): the process's watcher has
+    /// seen it appear, and the check costs an unchanged channel one relaxed
+    /// load.
     pub fn latest(&mut self) -> Result<Frame<'_>> {
+        self.follow_successor();
         let started = os::monotonic_ns();
         let read = self.shared.ring().read_latest(&mut self.buffer, MAX_READ_ATTEMPTS);
         self.copied = read.as_ref().ok().map(|(meta, _)| *meta);
@@ -330,7 +379,11 @@ impl Reader {
                     let period = self.shared.header().period_ns.load(Ordering::Relaxed);
                     anticipation.observe(meta.published_ns, period);
                 }
-                let skipped = if fresh && self.last.seq != 0 { meta.seq.saturating_sub(self.last.seq + 1) } else { 0 };
+                let skipped = if fresh && self.last.seq != 0 {
+                    meta.seq.saturating_sub(self.last.seq.saturating_add(1))
+                } else {
+                    0
+                };
                 self.stats.record(os::monotonic_ns() - started, retries, skipped);
                 self.last = meta;
                 Ok(self.frame(skipped, fresh))
@@ -427,7 +480,12 @@ impl Reader {
         loop {
             let slice_end = os::monotonic_ns().saturating_add(RECHECK_NS).min(deadline);
             match self.wait_beyond(after, slice_end, timeout) {
-                Ok(()) => return Ok(Waited::Frame),
+                Ok(Woke::Frame) => return Ok(Waited::Frame),
+                Ok(Woke::Successor) => {
+                    if self.follow_successor() {
+                        return Ok(Waited::Followed);
+                    }
+                }
                 Err(Error::Timeout { .. }) => {
                     if self.follow_recreated() {
                         return Ok(Waited::Followed);
@@ -498,23 +556,29 @@ impl Reader {
 
     /// Sleeps until a frame with sequence number above `after` is published,
     /// or the absolute `deadline` (CLOCK_MONOTONIC ns) of a wait of `timeout`.
-    fn wait_beyond(&self, after: u64, deadline: u64, timeout: Duration) -> Result<()> {
+    /// Or until the watcher leaves a successor ([`Woke::Successor`]).
+    fn wait_beyond(&self, after: u64, deadline: u64, timeout: Duration) -> Result<Woke> {
         if self.anticipate(after, deadline)? {
-            return Ok(());
+            return Ok(Woke::Frame);
         }
         let ring = self.shared.ring();
         let stop = &self.stop;
+        let follower = self.follower.as_deref();
+        let successor_waits = || follower.is_some_and(Follower::flagged);
         let notify = &self.shared.doorbell().notify;
         match doorbell::wait_for_frame(
             notify,
             || ring.published(),
             after,
             deadline,
-            || stop.is_stopped(),
+            // The watcher nudges the doorbell after raising the flag, so a
+            // sleeper sees it like a stop.
+            || stop.is_stopped() || successor_waits(),
             &SHARED_FUTEX,
         ) {
-            Ok(WaitEnd::Ready) => Ok(()),
+            Ok(WaitEnd::Ready) => Ok(Woke::Frame),
             Ok(WaitEnd::TimedOut) => Err(Error::Timeout { channel: self.shared.label.clone(), timeout }),
+            Ok(WaitEnd::Stopped) if !stop.is_stopped() => Ok(Woke::Successor),
             Ok(WaitEnd::Stopped) => Err(Error::Stopped { channel: self.shared.label.clone() }),
             Err(source) => Err(Error::Os { op: "futex wait", path: self.shared.path.clone(), source }),
         }
@@ -526,6 +590,14 @@ impl Reader {
 /// bounds how long a reader can sleep past a publish if a hostile process
 /// clears the doorbell's "someone waits" bit.
 const RECHECK_NS: u64 = 100_000_000;
+
+/// Why a wait on the doorbell ended well.
+enum Woke {
+    /// A frame above the one waited beyond was published.
+    Frame,
+    /// The watcher left a successor of the dead writer.
+    Successor,
+}
 
 /// How a sliced wait ended well.
 enum Waited {

@@ -126,3 +126,106 @@ impl Drop for Mapping {
         let _ = unsafe { rustix::mm::munmap(self.ptr.as_ptr().cast(), self.len) };
     }
 }
+
+/// What a file is, in words, for messages.
+pub fn describe_file_type(file_type: rustix::fs::FileType) -> &'static str {
+    use rustix::fs::FileType;
+    match file_type {
+        FileType::RegularFile => "regular file",
+        FileType::Directory => "directory",
+        FileType::Symlink => "symbolic link",
+        FileType::Fifo => "FIFO (named pipe)",
+        FileType::Socket => "socket",
+        FileType::CharacterDevice => "character device",
+        FileType::BlockDevice => "block device",
+        _ => "file of an unknown type",
+    }
+}
+
+/// The error for a file at `path` that is not a regular file.
+fn not_regular(path: &Path, file_type: rustix::fs::FileType) -> std::io::Error {
+    std::io::Error::new(
+        std::io::ErrorKind::InvalidData,
+        format!(
+            "{} is a {}, not a regular file; skinware opens only regular files there (remove it, \
+             or use a directory only trusted users can write: SKINWARE_SHM_DIR)",
+            path.display(),
+            describe_file_type(file_type)
+        ),
+    )
+}
+
+/// Opens the regular file at `path`, read-only or read-write, without ever
+/// opening anything else there.
+///
+/// The segment directory is world-writable: a local user can put a symbolic
+/// link there (which a plain open follows, to a file of their choosing), a
+/// FIFO (whose open blocks until someone opens the other end), or a device.
+/// So the path is first opened with `O_PATH | O_NOFOLLOW`, which opens
+/// nothing but a handle to whatever is there (a link itself, not its target);
+/// only if that is a regular file is it opened for real, through the handle
+/// (`/proc/self/fd`), so that the file checked is the file opened.
+pub fn open_regular(path: &Path, writable: bool) -> std::io::Result<File> {
+    use rustix::fs::{FileType, Mode, OFlags};
+    let handle = rustix::fs::open(path, OFlags::PATH | OFlags::NOFOLLOW | OFlags::CLOEXEC, Mode::empty())?;
+    let file_type = FileType::from_raw_mode(rustix::fs::fstat(&handle)?.st_mode);
+    if file_type != FileType::RegularFile {
+        return Err(not_regular(path, file_type));
+    }
+    let access = if writable { OFlags::RDWR } else { OFlags::RDONLY };
+    let through_handle = format!("/proc/self/fd/{}", std::os::fd::AsRawFd::as_raw_fd(&handle));
+    let file = rustix::fs::open(through_handle.as_str(), access | OFlags::CLOEXEC | OFlags::NOCTTY, Mode::empty())?;
+    Ok(File::from(file))
+}
+
+/// Reads the regular file at `path` whole, refusing anything else there
+/// (see [`open_regular`]) and any file longer than `max_bytes`: its size is
+/// somebody else's number.
+pub fn read_regular(path: &Path, max_bytes: u64) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    let file = open_regular(path, false)?;
+    let size = file.metadata()?.len();
+    if size > max_bytes {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("{} holds {size} bytes, more than the {max_bytes} such a file can have", path.display()),
+        ));
+    }
+    let mut bytes = Vec::with_capacity(size as usize);
+    file.take(max_bytes.saturating_add(1)).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > max_bytes {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("{} grew past the {max_bytes} bytes such a file can have while it was read", path.display()),
+        ));
+    }
+    Ok(bytes)
+}
+
+/// Creates a new regular file at `path` with permissions `mode`, failing if
+/// anything (a symbolic link included) is already there: `O_CREAT | O_EXCL`
+/// never follows a link.
+pub fn create_new_regular(path: &Path, mode: u32) -> std::io::Result<File> {
+    use rustix::fs::{Mode, OFlags};
+    let flags = OFlags::WRONLY | OFlags::CREATE | OFlags::EXCL | OFlags::NOFOLLOW | OFlags::CLOEXEC;
+    let file = rustix::fs::open(path, flags, Mode::from_raw_mode(mode))?;
+    Ok(File::from(file))
+}
+
+/// Replaces the file at `path` with `bytes`, whole: written to a new
+/// temporary file beside it (named as skinware's temporary files are, so
+/// that `skin clean` removes one left by a process killed before the
+/// rename) and renamed over it. Readers see the old file or the new one.
+/// A symbolic link at `path` is replaced, never followed.
+pub fn replace_file(path: &Path, bytes: &[u8], mode: u32) -> std::io::Result<()> {
+    use std::io::Write;
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("file");
+    let temporary = dir.join(format!("{TEMP_PREFIX}{name}.{}.{}", std::process::id(), crate::os::monotonic_ns()));
+    let written = create_new_regular(&temporary, mode).and_then(|mut file| file.write_all(bytes));
+    let placed = written.and_then(|()| std::fs::rename(&temporary, path));
+    if placed.is_err() {
+        let _ = std::fs::remove_file(&temporary);
+    }
+    placed
+}

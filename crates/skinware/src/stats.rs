@@ -123,14 +123,16 @@ impl WriterStats {
 
 /// The upper edge of the histogram bucket holding the `q`-quantile.
 pub fn histogram_quantile(histogram: &[u64; HISTOGRAM_BUCKETS], q: f64) -> u64 {
-    let total: u64 = histogram.iter().sum();
+    // u128 sums: the counts are the writer's numbers, read from shared
+    // memory, and a fake writer's need not add up within u64.
+    let total: u128 = histogram.iter().map(|&count| u128::from(count)).sum();
     if total == 0 {
         return 0;
     }
-    let rank = ((q.clamp(0.0, 1.0) * total as f64).ceil() as u64).max(1);
-    let mut seen = 0;
+    let rank = ((q.clamp(0.0, 1.0) * total as f64).ceil() as u128).max(1);
+    let mut seen: u128 = 0;
     for (bucket, &count) in histogram.iter().enumerate() {
-        seen += count;
+        seen += u128::from(count);
         if seen >= rank {
             return 1u64 << (bucket + 1);
         }
@@ -239,6 +241,15 @@ mod tests {
         assert_eq!(histogram_quantile(&histogram, 0.5), 16);
         assert_eq!(histogram_quantile(&histogram, 0.99), 2048);
         assert_eq!(histogram_quantile(&[0; HISTOGRAM_BUCKETS], 0.5), 0);
+    }
+
+    /// A fake writer's counts that do not add up within u64 (they come from
+    /// shared memory) give an answer, not an overflow panic.
+    #[test]
+    fn forged_histogram_counts_do_not_overflow() {
+        let histogram = [u64::MAX; HISTOGRAM_BUCKETS];
+        assert_eq!(histogram_quantile(&histogram, 0.0), 2);
+        assert_eq!(histogram_quantile(&histogram, 1.0), 1u64 << HISTOGRAM_BUCKETS);
     }
 
     #[test]

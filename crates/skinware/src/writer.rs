@@ -285,6 +285,16 @@ impl Writer {
         self.revived
     }
 
+    /// Whether this writer still owns its channel's name. `false` once
+    /// someone removed the name's lock file and another writer took the name
+    /// (the hand-over thread checks every 250 ms): readers attached before
+    /// keep reading this writer, new readers attach to the other one, and
+    /// this writer no longer binds the socket again or removes the name when
+    /// dropped. Stop one of the two writers.
+    pub fn owns_name(&self) -> bool {
+        self.server.as_ref().is_some_and(|server| !server.name_lost())
+    }
+
     /// Payload bytes of one frame.
     pub fn payload_bytes(&self) -> usize {
         self.shared.layout.payload_bytes as usize
@@ -570,7 +580,7 @@ impl Drop for Writer {
         if let Some(name) = name
             && self.unlink_on_drop
         {
-            name.remove(&self.shared.path);
+            name.lock.remove(&self.shared.path, name.socket);
         }
     }
 }

@@ -27,7 +27,7 @@
 
 use std::fs::File;
 use std::io;
-use std::os::unix::fs::{FileExt, MetadataExt, OpenOptionsExt};
+use std::os::unix::fs::{FileExt, MetadataExt};
 use std::path::{Path, PathBuf};
 
 use super::layout::Header;
@@ -81,8 +81,10 @@ impl NameRecord {
     }
 
     /// The record of a channel name, if its lock file can be read.
+    /// It is only read if it is a regular file: a FIFO there would block
+    /// the open, a symbolic link lead anywhere ([`shm::open_regular`]).
     pub fn load(dir: &Path, skin: &str, channel: &str) -> Option<NameRecord> {
-        File::open(name_lock_path(dir, skin, channel)).ok().map(|file| NameRecord::read(&file))
+        shm::open_regular(&name_lock_path(dir, skin, channel), false).ok().map(|file| NameRecord::read(&file))
     }
 }
 
@@ -96,21 +98,22 @@ pub(crate) struct NameLock {
 
 impl NameLock {
     /// Takes the name of `skin`/`channel`, or fails with [`Error::Busy`] if a
-    /// live writer holds it.
+    /// live writer holds it. The lock file must be a regular file owned by
+    /// this process's user ([`Error::UntrustedFile`] otherwise): one planted
+    /// by another user could be held locked by them, or rewritten.
     pub fn acquire(dir: &Path, skin: &str, channel: &str, label: &str) -> Result<NameLock> {
+        NameLock::acquire_checked(dir, skin, channel, label, true)
+    }
+
+    /// As [`acquire`](Self::acquire); a cleaner (`own_only` false) may take
+    /// a lock file of another user, to remove a dead writer's name.
+    fn acquire_checked(dir: &Path, skin: &str, channel: &str, label: &str, own_only: bool) -> Result<NameLock> {
         let path = name_lock_path(dir, skin, channel);
         let os_error = |op, source| Error::Os { op, path: path.clone(), source };
         // Each pass either takes the lock or loses a race with a cleaner that
         // unlinked the file between our open and our lock.
         for _ in 0..16 {
-            let file = File::options()
-                .read(true)
-                .write(true)
-                .create(true)
-                .truncate(false)
-                .mode(0o644)
-                .open(&path)
-                .map_err(|e| os_error("open the channel's name lock", e))?;
+            let Some(file) = open_lock_file(&path, label, own_only)? else { continue };
             if !os::try_lock_writer(&file).map_err(|e| os_error("lock", e))? {
                 let pid = NameRecord::read(&file).writer_pid;
                 return Err(Error::Busy { channel: label.to_owned(), pid });
@@ -142,13 +145,10 @@ impl NameLock {
 
     /// Puts the lock file back if someone removed or replaced it (the lock
     /// on an unlinked file keeps nobody out), and takes it again. Returns
-    /// whether this writer still owns the name.
+    /// whether this writer still owns the name: `false` once another writer
+    /// took it meanwhile, and from then on.
     pub fn keep_in_place(&mut self) -> bool {
-        let in_place = match file_identity(&self.file, &self.path) {
-            Ok(ours) => path_identity(&self.path) == Some(ours),
-            Err(_) => false,
-        };
-        if in_place {
+        if self.is_in_place() {
             return true;
         }
         let Some(dir) = self.path.parent() else { return false };
@@ -166,11 +166,57 @@ impl NameLock {
         }
     }
 
-    /// Removes the name (its socket and lock file) while still holding it.
-    pub fn remove(self, socket: &Path) {
-        let _ = std::fs::remove_file(socket);
-        let _ = std::fs::remove_file(&self.path);
+    /// Whether the file at the lock's path is still the one this writer locked.
+    fn is_in_place(&self) -> bool {
+        match file_identity(&self.file, &self.path) {
+            Ok(ours) => path_identity(&self.path) == Some(ours),
+            Err(_) => false,
+        }
     }
+
+    /// Removes the name (the socket bound as `socket`, and the lock file)
+    /// while still holding it; only what is still this writer's: a writer
+    /// that lost its name must not remove its successor's.
+    pub fn remove(self, socket: &Path, socket_identity: Option<FileIdentity>) {
+        if socket_identity.is_some() && path_identity(socket) == socket_identity {
+            let _ = std::fs::remove_file(socket);
+        }
+        if self.is_in_place() {
+            let _ = std::fs::remove_file(&self.path);
+        }
+    }
+}
+
+/// Opens (creating it if need be) the name lock's file at `path`: a regular
+/// file, never a link followed or a FIFO opened ([`shm::open_regular`]),
+/// and with `own_only` one owned by this process's user. `None` if it
+/// vanished between two looks (a cleaner): try again.
+fn open_lock_file(path: &Path, label: &str, own_only: bool) -> Result<Option<File>> {
+    use rustix::fs::{Mode, OFlags};
+    let untrusted = |reason: String| Error::UntrustedFile { channel: label.to_owned(), path: path.to_owned(), reason };
+    let os_error = |source| Error::Os { op: "open the channel's name lock", path: path.to_owned(), source };
+    let create = OFlags::RDWR | OFlags::CREATE | OFlags::EXCL | OFlags::NOFOLLOW | OFlags::CLOEXEC;
+    match rustix::fs::open(path, create, Mode::from_raw_mode(0o644)) {
+        Ok(fd) => return Ok(Some(File::from(fd))),
+        Err(rustix::io::Errno::EXIST) => {}
+        Err(e) => return Err(os_error(e.into())),
+    }
+    let file = match shm::open_regular(path, true) {
+        Ok(file) => file,
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(None),
+        Err(e) if e.kind() == io::ErrorKind::InvalidData => return Err(untrusted(e.to_string())),
+        Err(e) => return Err(os_error(e)),
+    };
+    if own_only {
+        let owner = file.metadata().map_err(os_error)?.uid();
+        let me = rustix::process::geteuid().as_raw();
+        if owner != me {
+            return Err(untrusted(format!(
+                "the channel's name lock belongs to user {owner}, not to this writer's user {me}"
+            )));
+        }
+    }
+    Ok(Some(file))
 }
 
 impl Shared {
@@ -230,9 +276,11 @@ pub(crate) fn go_live(shared: &Shared) -> Result<()> {
 /// a writer holds it.
 pub(crate) fn remove_if_unowned(dir: &Path, skin: &str, channel: &str) -> Result<bool> {
     let label = super::label(skin, channel);
-    match NameLock::acquire(dir, skin, channel, &label) {
+    match NameLock::acquire_checked(dir, skin, channel, &label, false) {
         Ok(lock) => {
-            lock.remove(&shm::segment_path(dir, skin, channel));
+            let socket = shm::segment_path(dir, skin, channel);
+            let identity = path_identity(&socket);
+            lock.remove(&socket, identity);
             Ok(true)
         }
         Err(Error::Busy { .. }) => Ok(false),

@@ -36,6 +36,8 @@
 //!    data read-only; its permissions are the channel's read permission.
 //! 8. [`registry`]: the directory as the registry: listing channels and
 //!    removing dead writers' names.
+//! 9. [`succession`]: how readers learn at once that a successor took their
+//!    dead writer's name (a watcher thread per reading process, on inotify).
 //!
 //! [`crate::Writer`] and [`crate::Reader`] are thin public APIs over these
 //! parts; [`crate::shm`] and [`crate::os`] hold the only `unsafe` code (the
@@ -59,6 +61,8 @@ pub(crate) mod liveness;
 pub(crate) mod registry;
 #[cfg(not(loom))]
 pub(crate) mod segment;
+#[cfg(not(loom))]
+pub(crate) mod succession;
 
 /// What a channel carries.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -43,23 +43,54 @@ pub struct ChannelInfo {
 }
 
 /// Lists the channels in `dir` (all skins), sorted by skin and channel.
+///
+/// Every writer is asked at once: writers that do not answer (stopped or
+/// hung, whoever's they are) cost the listing one wait of at most 200 ms in
+/// all, and show with their problem ([`ChannelInfo::problem`]).
 pub fn list_channels(dir: &Path) -> Result<Vec<ChannelInfo>> {
-    let entries = std::fs::read_dir(dir).map_err(|source| Error::Os { op: "list", path: dir.to_owned(), source })?;
-    let mut found = Vec::new();
-    for entry in entries.flatten() {
-        let name = entry.file_name();
-        let Some((skin, channel)) = name.to_str().and_then(shm::parse_segment_name) else {
-            continue;
-        };
-        found.push(inspect(dir, skin, channel));
-    }
-    found.sort_by(|a, b| (&a.skin, &a.channel).cmp(&(&b.skin, &b.channel)));
-    Ok(found)
+    list_channels_where(dir, None, |_| true)
 }
 
-fn inspect(dir: &Path, skin: &str, channel: &str) -> ChannelInfo {
+/// Lists the channels of `skin` in `dir`, sorted by channel: only that
+/// skin's writers are asked, so nothing of another skin can slow it.
+pub fn list_skin_channels(dir: &Path, skin: &str) -> Result<Vec<ChannelInfo>> {
+    shm::validate_name("skin", skin)?;
+    list_channels_where(dir, Some(skin), |_| true)
+}
+
+/// Lists the channels of `skin` (or of every skin) in `dir` whose name
+/// record says their current or last writer is a process `writer` accepts,
+/// asking only those: e.g. a supervisor that must never wait on a process
+/// it does not supervise lists only its children's channels. The record is
+/// read from the name's lock file, without connecting to anyone.
+pub fn list_channels_where(dir: &Path, skin: Option<&str>, writer: impl Fn(u32) -> bool) -> Result<Vec<ChannelInfo>> {
+    let entries = std::fs::read_dir(dir).map_err(|source| Error::Os { op: "list", path: dir.to_owned(), source })?;
+    let mut names: Vec<(String, String, NameRecord)> = Vec::new();
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some((found_skin, channel)) = name.to_str().and_then(shm::parse_segment_name) else {
+            continue;
+        };
+        if skin.is_some_and(|skin| skin != found_skin) {
+            continue;
+        }
+        let record = NameRecord::load(dir, found_skin, channel).unwrap_or_default();
+        if writer(record.writer_pid) {
+            names.push((found_skin.to_owned(), channel.to_owned(), record));
+        }
+    }
+    names.sort_by(|a, b| (&a.0, &a.1).cmp(&(&b.0, &b.1)));
+    let asked: Vec<(&str, &str)> = names.iter().map(|(skin, channel, _)| (skin.as_str(), channel.as_str())).collect();
+    let opened = segment::open_segments(dir, &asked, LISTING_ANSWER_TIMEOUT);
+    Ok(names
+        .iter()
+        .zip(opened)
+        .map(|((skin, channel, record), opened)| inspect(dir, skin, channel, *record, opened))
+        .collect())
+}
+
+fn inspect(dir: &Path, skin: &str, channel: &str, record: NameRecord, opened: Result<Opened>) -> ChannelInfo {
     let path = shm::segment_path(dir, skin, channel);
-    let record = NameRecord::load(dir, skin, channel).unwrap_or_default();
     let mut info = ChannelInfo {
         skin: skin.to_owned(),
         channel: channel.to_owned(),
@@ -73,7 +104,7 @@ fn inspect(dir: &Path, skin: &str, channel: &str) -> ChannelInfo {
         stats: WriterStats::default(),
         problem: None,
     };
-    match segment::open_segment(dir, skin, channel, LISTING_ANSWER_TIMEOUT) {
+    match opened {
         Ok(Opened::Live(shared)) => {
             let header = shared.header();
             info.state = shared.writer_state();
@@ -101,23 +132,28 @@ fn inspect(dir: &Path, skin: &str, channel: &str) -> ChannelInfo {
 pub fn remove_stale_channels(dir: &Path, include_invalid: bool) -> Result<Vec<PathBuf>> {
     let entries = std::fs::read_dir(dir).map_err(|source| Error::Os { op: "list", path: dir.to_owned(), source })?;
     let mut removed = Vec::new();
+    let mut sockets: Vec<(String, String, PathBuf)> = Vec::new();
     for entry in entries.flatten() {
         let name = entry.file_name();
         let Some(name) = name.to_str() else { continue };
         let path = entry.path();
         let is_socket = entry.file_type().is_ok_and(|t| t.is_socket());
         if let Some((skin, channel)) = shm::parse_segment_name(name) {
-            if !is_socket {
-                if include_invalid && std::fs::remove_file(&path).is_ok() {
-                    removed.push(path);
-                }
-            } else if matches!(segment::open_segment(dir, skin, channel, LISTING_ANSWER_TIMEOUT), Ok(Opened::NoWriter))
-                && remove_if_unowned(dir, skin, channel)?
-            {
+            if is_socket {
+                sockets.push((skin.to_owned(), channel.to_owned(), path));
+            } else if include_invalid && std::fs::remove_file(&path).is_ok() {
                 removed.push(path);
             }
         } else if name.starts_with(shm::TEMP_PREFIX) && temp_is_stale(name) && std::fs::remove_file(&path).is_ok() {
             removed.push(path);
+        }
+    }
+    // Every writer asked at once: stopped ones cost one bounded wait in all.
+    let asked: Vec<(&str, &str)> = sockets.iter().map(|(skin, channel, _)| (skin.as_str(), channel.as_str())).collect();
+    let opened = segment::open_segments(dir, &asked, LISTING_ANSWER_TIMEOUT);
+    for ((skin, channel, path), opened) in sockets.iter().zip(opened) {
+        if matches!(opened, Ok(Opened::NoWriter)) && remove_if_unowned(dir, skin, channel)? {
+            removed.push(path.clone());
         }
     }
     removed.sort();

@@ -135,6 +135,31 @@ pub(crate) fn open_segment(dir: &Path, skin: &str, channel: &str, answer_timeout
     }
 }
 
+/// [`open_segment`] of several channels of `dir`, in the same order: all the
+/// writers are asked at once and answer within one `answer_timeout`
+/// ([`handover::fetch_all`]), so that a stopped writer costs a listing one
+/// bounded wait, not one per channel.
+pub(crate) fn open_segments(dir: &Path, channels: &[(&str, &str)], answer_timeout: Duration) -> Vec<Result<Opened>> {
+    let named: Vec<(PathBuf, String)> =
+        channels.iter().map(|&(skin, channel)| (shm::segment_path(dir, skin, channel), label(skin, channel))).collect();
+    let asked: Vec<(&Path, &str)> = named.iter().map(|(path, label)| (path.as_path(), label.as_str())).collect();
+    let mut fetched = handover::fetch_all(&asked, answer_timeout).into_iter();
+    channels
+        .iter()
+        .zip(named)
+        .map(|(&(skin, channel), (path, label))| {
+            shm::validate_name("skin", skin)?;
+            shm::validate_name("channel", channel)?;
+            match fetched.next() {
+                Some(Ok(Fetched::Memory { data, bell })) => map_received(label, path, data, bell).map(Opened::Live),
+                Some(Ok(Fetched::NoWriter)) => Ok(Opened::NoWriter),
+                Some(Err(e)) => Err(e),
+                None => Err(Error::NotAnswering { channel: label, path }),
+            }
+        })
+        .collect()
+}
+
 /// Validates memory received from a writer (or anyone claiming to be one)
 /// and maps it: the data read-only, the doorbell read-write.
 pub(crate) fn map_received(label: String, path: PathBuf, data: OwnedFd, bell: OwnedFd) -> Result<Shared> {

@@ -1,0 +1,265 @@
+//! Following a successor at once: how readers learn, within a millisecond,
+//! that a new writer has taken their dead writer's channel name.
+//!
+//! A dead writer's memory is never revived ([`super::liveness`]): its
+//! successor creates new memory and binds the channel's socket again, and
+//! attached readers must switch to it. Nothing in the old memory can tell
+//! them (only the dead writer could write it), and the successor cannot reach
+//! the old memory either. What every reader *can* see is the segment
+//! directory: the successor's socket appears in it under the channel's name
+//! (renamed into place, [`super::handover`]).
+//!
+//! So each process that reads channels has one watcher thread, started with
+//! its first reader, asleep on an `inotify` descriptor watching the segment
+//! directories its readers use. When a socket appears under the name of a
+//! channel some reader of this process follows, the thread asks the new
+//! writer for its memory (once for all those readers), checks that the
+//! reader's writer is really dead, leaves the memory with each reader and
+//! raises its flag, and wakes the readers asleep on the old channel's
+//! doorbell (a futex word in memory the readers may write).
+//!
+//! What it costs, and whom:
+//! * the writer: nothing. Its publish is unchanged; the successor's only
+//!   extra is the directory event the kernel makes for its rename anyway;
+//! * a reader reading an unchanged channel: one relaxed load of its flag per
+//!   read, no system call;
+//! * a hostile process that may write the directory can make events, but
+//!   only by creating names, and one under a live channel's name needs that
+//!   name removed first (the directory is sticky): the writer's user only.
+//!   Every event leads to a hand-over that is checked like any other: a
+//!   reader switches only to memory that validates, of the same shape, once
+//!   its own writer is dead;
+//! * if the process cannot watch (inotify's limit of 128 instances per user
+//!   reached, say), readers fall back to re-checking every 100 ms in their
+//!   blocking reads, as before, and the first reader says so in the log.
+
+#![forbid(unsafe_code)]
+
+use std::collections::HashMap;
+use std::mem::MaybeUninit;
+use std::os::fd::OwnedFd;
+use std::path::{Path, PathBuf};
+// Process-local flags and locks (not shared memory), so not through `crate::sync`.
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard, OnceLock, Weak};
+use std::time::Duration;
+
+use rustix::fs::inotify;
+
+use super::doorbell;
+use super::handover::LISTING_ANSWER_TIMEOUT;
+use super::segment::{self, Opened, Shared};
+use crate::os::{self, SHARED_FUTEX};
+use crate::shm;
+
+/// How long the watcher waits, after a successor appeared, for the old
+/// writer's death to be visible: a dying process lets go of the name lock
+/// and of its memory's liveness lock one after the other.
+const DEATH_GRACE: Duration = Duration::from_millis(20);
+
+/// One reader's link to the watcher.
+#[derive(Default)]
+pub(crate) struct Follower {
+    /// Raised (Release) once `successor` holds a new writer's memory.
+    flagged: AtomicBool,
+    /// The successor's memory, validated, left by the watcher.
+    successor: Mutex<Option<Arc<Shared>>>,
+    /// The channel the reader reads now: whose death is checked, and whose
+    /// doorbell wakes the reader.
+    current: Mutex<Weak<Shared>>,
+}
+
+impl Follower {
+    /// Whether the watcher has left a successor: a relaxed load, the whole
+    /// cost of this design on a read of an unchanged channel.
+    pub(crate) fn flagged(&self) -> bool {
+        self.flagged.load(Ordering::Relaxed)
+    }
+
+    /// Takes the successor the watcher left, if any.
+    pub(crate) fn take(&self) -> Option<Arc<Shared>> {
+        // Acquire: pairs with the Release in `leave`, after the memory was put.
+        if !self.flagged.swap(false, Ordering::Acquire) {
+            return None;
+        }
+        lock(&self.successor).take()
+    }
+
+    /// The reader now reads `shared`.
+    pub(crate) fn set_current(&self, shared: &Arc<Shared>) {
+        *lock(&self.current) = Arc::downgrade(shared);
+    }
+
+    /// Leaves `successor` with the reader and wakes it if it sleeps on its
+    /// current channel's doorbell.
+    fn leave(&self, successor: Arc<Shared>) {
+        *lock(&self.successor) = Some(successor);
+        self.flagged.store(true, Ordering::Release);
+        if let Some(current) = lock(&self.current).upgrade() {
+            doorbell::nudge(&current.doorbell().notify, &SHARED_FUTEX);
+        }
+    }
+}
+
+/// A poisoned lock still holds consistent data here (each critical section
+/// is a single assignment or a map update): take it.
+fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
+    mutex.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// Registers a reader of `skin`/`channel` in `dir`, now reading `current`,
+/// with the process's watcher. `None` if this process cannot watch `dir`:
+/// the reader then finds a successor only by its periodic re-check.
+pub(crate) fn follow(dir: &Path, skin: &str, channel: &str, current: &Arc<Shared>) -> Option<Arc<Follower>> {
+    let watcher = watcher()?;
+    let watch = watcher.watch(dir)?;
+    let follower = Arc::new(Follower::default());
+    follower.set_current(current);
+    let name = shm::segment_path(Path::new(""), skin, channel).into_os_string().into_string().ok()?;
+    let mut followed = lock(&watcher.followed);
+    let readers = followed.readers.entry((watch, name)).or_default();
+    readers.retain(|reader| reader.strong_count() > 0);
+    readers.push(Arc::downgrade(&follower));
+    Some(follower)
+}
+
+/// The process's watcher: one inotify descriptor and the thread reading it.
+struct Watcher {
+    inotify: OwnedFd,
+    followed: Mutex<Followed>,
+}
+
+#[derive(Default)]
+struct Followed {
+    /// Watched directories, by watch descriptor, and the other way round.
+    dirs: HashMap<i32, PathBuf>,
+    watches: HashMap<PathBuf, i32>,
+    /// The readers following each channel: (watch, socket file name).
+    readers: HashMap<(i32, String), Vec<Weak<Follower>>>,
+}
+
+static WATCHER: OnceLock<Option<Watcher>> = OnceLock::new();
+
+/// The process's watcher, started the first time a reader asks.
+fn watcher() -> Option<&'static Watcher> {
+    WATCHER
+        .get_or_init(|| {
+            let started = inotify::init(inotify::CreateFlags::CLOEXEC).map_err(std::io::Error::from).and_then(|fd| {
+                std::thread::Builder::new()
+                    .name("skinware-successions".into())
+                    .spawn(|| {
+                        if let Some(watcher) = watcher() {
+                            watcher.run();
+                        }
+                    })
+                    .map(|_| fd)
+            });
+            match started {
+                Ok(inotify) => Some(Watcher { inotify, followed: Mutex::new(Followed::default()) }),
+                Err(e) => {
+                    tracing::warn!(error = %e, "cannot watch the segment directory (inotify); readers follow a restarted writer within 100 ms instead of at once");
+                    None
+                }
+            }
+        })
+        .as_ref()
+}
+
+impl Watcher {
+    /// The watch of `dir`, added if new.
+    fn watch(&self, dir: &Path) -> Option<i32> {
+        let mut followed = lock(&self.followed);
+        if let Some(&watch) = followed.watches.get(dir) {
+            return Some(watch);
+        }
+        let flags = inotify::WatchFlags::CREATE | inotify::WatchFlags::MOVED_TO | inotify::WatchFlags::ONLYDIR;
+        match inotify::add_watch(&self.inotify, dir, flags) {
+            Ok(watch) => {
+                followed.watches.insert(dir.to_owned(), watch);
+                followed.dirs.insert(watch, dir.to_owned());
+                Some(watch)
+            }
+            Err(e) => {
+                tracing::warn!(dir = %dir.display(), error = %e, "cannot watch the segment directory; readers there follow a restarted writer within 100 ms instead of at once");
+                None
+            }
+        }
+    }
+
+    /// The thread: reads events forever, and hands successors to readers.
+    fn run(&self) {
+        let mut buffer = [MaybeUninit::<u8>::uninit(); 4096];
+        let mut events = inotify::Reader::new(&self.inotify, &mut buffer);
+        loop {
+            let (watch, name, overflow) = match events.next() {
+                Ok(event) => (
+                    event.wd(),
+                    event.file_name().and_then(|name| name.to_str().ok()).map(str::to_owned),
+                    event.events().contains(inotify::ReadFlags::QUEUE_OVERFLOW),
+                ),
+                Err(rustix::io::Errno::INTR) => continue,
+                Err(e) => {
+                    tracing::error!(error = %e, "the successor watcher cannot read its events; readers follow a restarted writer within 100 ms instead of at once");
+                    return;
+                }
+            };
+            if overflow {
+                // Events were lost: look at every followed channel.
+                let all: Vec<(i32, String)> = lock(&self.followed).readers.keys().cloned().collect();
+                for (watch, name) in all {
+                    self.hand_successor(watch, &name);
+                }
+            } else if let Some(name) = name {
+                self.hand_successor(watch, &name);
+            }
+        }
+    }
+
+    /// A socket appeared as `name` in the directory of `watch`: if readers
+    /// follow that channel, opens the new writer's memory once and leaves it
+    /// with each of them whose writer is dead.
+    fn hand_successor(&self, watch: i32, name: &str) {
+        let Some((skin, channel)) = shm::parse_segment_name(name) else { return };
+        let (dir, readers) = {
+            let mut followed = lock(&self.followed);
+            let Some(dir) = followed.dirs.get(&watch).cloned() else { return };
+            let key = (watch, name.to_owned());
+            let Some(readers) = followed.readers.get_mut(&key) else { return };
+            readers.retain(|reader| reader.strong_count() > 0);
+            let live: Vec<Arc<Follower>> = readers.iter().filter_map(Weak::upgrade).collect();
+            if live.is_empty() {
+                followed.readers.remove(&key);
+                return;
+            }
+            (dir, live)
+        };
+        let Ok(Opened::Live(successor)) = segment::open_segment(&dir, skin, channel, LISTING_ANSWER_TIMEOUT) else {
+            return;
+        };
+        let successor = Arc::new(successor);
+        let identity = successor.identity();
+        for reader in readers {
+            let Some(current) = lock(&reader.current).upgrade() else { continue };
+            if current.identity() == identity || !dies_soon(&current) {
+                // The same memory bound again (after someone unlinked the
+                // socket), or a second live writer: nothing to follow.
+                continue;
+            }
+            reader.leave(successor.clone());
+        }
+    }
+}
+
+/// Whether `current`'s writer is dead, or dies within [`DEATH_GRACE`].
+fn dies_soon(current: &Shared) -> bool {
+    let until = os::monotonic_ns().saturating_add(DEATH_GRACE.as_nanos() as u64);
+    loop {
+        if !current.writer_alive().unwrap_or(true) {
+            return true;
+        }
+        if os::monotonic_ns() >= until {
+            return false;
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
