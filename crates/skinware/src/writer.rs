@@ -237,11 +237,13 @@ impl Writer {
         let readers_data = segment::reopen_read_only(&shared)?;
         let readers_bell =
             shared.bell().try_clone().map_err(|source| Error::Os { op: "dup", path: path.clone(), source })?;
+        // A new doorbell: requests made to the dead writer are re-made by
+        // their readers when they follow this channel. Read before the socket
+        // is bound: a reader can follow (and ask) the moment it is, and its
+        // request must not count as served (issue #38's flaky test).
+        let served_requests = doorbell::requests_served(&shared.doorbell().requests);
         let server = Server::start(path, options.access.socket_mode(), label, name, readers_data, readers_bell.into())?;
         let revived = generation > 1;
-        // A new doorbell: requests made to the dead writer are re-made by
-        // their readers when they follow this channel.
-        let served_requests = doorbell::requests_served(&shared.doorbell().requests);
         let shared = Arc::new(shared);
         let stop = Stop::new();
         stop.watch(&shared);

@@ -11,6 +11,7 @@ mod attacks;
 mod bad_input;
 mod driver;
 mod exchange;
+mod neighbours;
 mod permissions;
 mod util;
 mod wire;

@@ -105,7 +105,6 @@ pub struct FakeWriter {
 impl FakeWriter {
     pub fn serve(dir: &SegmentDir, skin: &str, channel: &str, answer: Answer) -> FakeWriter {
         use rustix::fs::{MemfdFlags, SealFlags};
-        use rustix::net::{SendAncillaryBuffer, SendAncillaryMessage, SendFlags};
         use std::os::unix::fs::FileExt;
         let path = dir.segment(skin, channel);
         let listener = std::sync::Arc::new(std::os::unix::net::UnixListener::bind(&path).unwrap());
@@ -132,25 +131,48 @@ impl FakeWriter {
             Answer::Memory { data, sealed } => {
                 let data = memory_file(&data, sealed);
                 let bell = memory_file(&[0u8; 4096], sealed);
-                let listener = listener.clone();
-                Some(std::thread::spawn(move || {
-                    for stream in listener.incoming().flatten() {
-                        let fds = [std::os::fd::AsFd::as_fd(&data), std::os::fd::AsFd::as_fd(&bell)];
-                        let mut space = [std::mem::MaybeUninit::uninit(); rustix::cmsg_space!(ScmRights(2))];
-                        let mut control = SendAncillaryBuffer::new(&mut space);
-                        control.push(SendAncillaryMessage::ScmRights(&fds));
-                        let _ = rustix::net::sendmsg(
-                            &stream,
-                            &[std::io::IoSlice::new(b"SKINHND1")],
-                            &mut control,
-                            SendFlags::NOSIGNAL,
-                        );
-                    }
-                }))
+                Some(serve_memory(listener.clone(), data, bell))
             }
         };
         FakeWriter { path, _thread: thread, _listener: listener }
     }
+
+    /// Serves these memory files (the caller keeps its own descriptor of
+    /// the data, e.g. to rewrite it while readers read).
+    pub fn serve_files(
+        dir: &SegmentDir,
+        skin: &str,
+        channel: &str,
+        data: &std::fs::File,
+        bell: std::fs::File,
+    ) -> FakeWriter {
+        let path = dir.segment(skin, channel);
+        let listener = std::sync::Arc::new(std::os::unix::net::UnixListener::bind(&path).unwrap());
+        // Readers get their own open file, as from a real writer: an open
+        // file's own lock does not count as held when it asks.
+        let reopened = std::fs::File::open(format!("/proc/self/fd/{}", std::os::fd::AsRawFd::as_raw_fd(data))).unwrap();
+        let thread = serve_memory(listener.clone(), reopened, bell);
+        FakeWriter { path, _thread: Some(thread), _listener: listener }
+    }
+}
+
+/// Answers every connection with the two descriptors, as a writer does.
+fn serve_memory(
+    listener: std::sync::Arc<std::os::unix::net::UnixListener>,
+    data: std::fs::File,
+    bell: std::fs::File,
+) -> std::thread::JoinHandle<()> {
+    use rustix::net::{SendAncillaryBuffer, SendAncillaryMessage, SendFlags};
+    std::thread::spawn(move || {
+        for stream in listener.incoming().flatten() {
+            let fds = [std::os::fd::AsFd::as_fd(&data), std::os::fd::AsFd::as_fd(&bell)];
+            let mut space = [std::mem::MaybeUninit::uninit(); rustix::cmsg_space!(ScmRights(2))];
+            let mut control = SendAncillaryBuffer::new(&mut space);
+            control.push(SendAncillaryMessage::ScmRights(&fds));
+            let _ =
+                rustix::net::sendmsg(&stream, &[std::io::IoSlice::new(b"SKINHND1")], &mut control, SendFlags::NOSIGNAL);
+        }
+    })
 }
 
 impl Drop for FakeWriter {
