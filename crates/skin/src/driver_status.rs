@@ -104,18 +104,12 @@ impl DriverStatus {
     /// Writes it to its file in `dir`, whole: a temporary file renamed over it.
     pub fn publish(&self, dir: &Path) -> std::io::Result<PathBuf> {
         let path = status_path(dir, &self.skin, &self.driver);
-        // Named as skinware's temporary files are, so that `skin clean`
-        // removes one left by a process killed between write and rename.
-        let temporary = dir.join(format!(
-            ".skinware-tmp.skinware-driver-{}-{}.{}.{}",
-            self.skin,
-            self.driver,
-            std::process::id(),
-            now_ns()
-        ));
         let bytes = serde_json::to_vec_pretty(self).map_err(std::io::Error::other)?;
-        std::fs::write(&temporary, bytes)?;
-        std::fs::rename(&temporary, &path)?;
+        // A new file, named as skinware's temporary files are (so that `skin
+        // clean` removes one left by a process killed before the rename),
+        // renamed over the old: never a link followed or a FIFO opened that
+        // someone left in the world-writable directory.
+        skinware::shm::replace_file(&path, &bytes, 0o644)?;
         Ok(path)
     }
 
@@ -153,7 +147,7 @@ pub fn find(dir: &Path, skin: Option<&str>) -> std::io::Result<Vec<Found>> {
             continue;
         }
         let path = entry.path();
-        let status = std::fs::read(&path)
+        let status = skinware::shm::read_regular(&path, MAX_STATUS_BYTES as u64)
             .map_err(|e| format!("cannot read it: {e}"))
             .and_then(|bytes| DriverStatus::decode(&bytes));
         found.push(Found { path, status });

@@ -47,7 +47,7 @@ pub struct Sampled {
 /// Opens every channel of kind `kind` of `skin` (or of all skins) and
 /// measures their writers' rates over `window`.
 pub fn sample_channels(skin: Option<&str>, kind: ChannelKind, window: Duration) -> Result<Vec<Sampled>> {
-    let channels = skinware::list_channels(&skinware::shm::segment_dir())?;
+    let channels = skinware::list_channels_where(&skinware::shm::segment_dir(), skin, |_| true)?;
     let mut readers = Vec::new();
     for info in channels {
         if skin.is_some_and(|s| s != info.skin) || info.kind != Some(kind) {

@@ -318,7 +318,7 @@ impl Shared {
     /// Opens the channels not bridged yet and starts their threads.
     fn discover(self: &Arc<Self>) -> Result<usize, BridgeError> {
         let mut added = 0;
-        let listed = skinware::list_channels(&self.dir)?;
+        let listed = skinware::list_skin_channels(&self.dir, &self.options.skin)?;
         for info in listed.iter().filter(|c| c.skin == self.options.skin && self.wanted(c)) {
             if lock(&self.channels).contains_key(&info.channel) || info.state == WriterState::Gone {
                 continue;
@@ -379,7 +379,7 @@ impl Bridge {
             )));
         }
         let dir = options.dir.clone().unwrap_or_else(skinware::shm::segment_dir);
-        let live: Vec<skinware::ChannelInfo> = skinware::list_channels(&dir)?
+        let live: Vec<skinware::ChannelInfo> = skinware::list_skin_channels(&dir, &options.skin)?
             .into_iter()
             .filter(|c| c.skin == options.skin && c.state != WriterState::Gone)
             .collect();
@@ -776,7 +776,7 @@ fn serve_descriptions(shared: &Arc<Shared>) -> Result<(), BridgeError> {
         }
         while let Ok(Some(query)) = geometry.try_recv() {
             let path = SkinGeometry::published_path(&shared.dir, skin);
-            let _ = match std::fs::read(&path) {
+            let _ = match skinware::shm::read_regular(&path, SkinGeometry::MAX_PUBLISHED_BYTES) {
                 Ok(bytes) => query.reply(query.key_expr().clone(), bytes).wait(),
                 Err(e) => query
                     .reply_err(format!(

@@ -306,6 +306,11 @@ impl SkinGeometry {
         Ok(path)
     }
 
+    /// The largest published geometry file read (1 GiB): the file is in a
+    /// world-writable directory, so its size is anyone's number. A 300,000
+    /// taxel skin's geometry is tens of megabytes.
+    pub const MAX_PUBLISHED_BYTES: u64 = 1 << 30;
+
     /// The geometry published for `skin` in the segment directory.
     pub fn open(skin: &str) -> Result<SkinGeometry, GeometryError> {
         SkinGeometry::open_in(&skinware::shm::segment_dir(), skin)
@@ -314,7 +319,7 @@ impl SkinGeometry {
     /// The geometry published for `skin` in `dir`.
     pub fn open_in(dir: &Path, skin: &str) -> Result<SkinGeometry, GeometryError> {
         let path = SkinGeometry::published_path(dir, skin);
-        let bytes = match std::fs::read(&path) {
+        let bytes = match skinware::shm::read_regular(&path, SkinGeometry::MAX_PUBLISHED_BYTES) {
             Ok(bytes) => bytes,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
                 return Err(GeometryError::Missing { skin: skin.to_owned(), path });
@@ -465,17 +470,13 @@ pub fn cache_dir() -> PathBuf {
 }
 
 fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), GeometryError> {
-    // A hidden sibling, so that no reader or cleaner takes it for a geometry.
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let temporary = path.with_file_name(format!(".{name}.tmp{}", std::process::id()));
-    std::fs::write(&temporary, bytes).map_err(|source| GeometryError::Io {
+    // A new hidden file beside it (never a link or FIFO someone left at a
+    // guessable name; `skin clean` removes one its dead writer left),
+    // renamed over the published one.
+    skinware::shm::replace_file(path, bytes, 0o644).map_err(|source| GeometryError::Io {
         op: "write",
-        path: temporary.clone(),
+        path: path.to_owned(),
         source,
-    })?;
-    std::fs::rename(&temporary, path).map_err(|source| {
-        let _ = std::fs::remove_file(&temporary);
-        GeometryError::Io { op: "rename into", path: path.to_owned(), source }
     })
 }
 

@@ -51,7 +51,8 @@ impl ChannelInfo {
 #[pyo3(signature = (skin = None))]
 pub fn channels(py: Python<'_>, skin: Option<&str>) -> PyResult<Vec<ChannelInfo>> {
     let dir = skinware::shm::segment_dir();
-    let listed = py.detach(|| skinware::list_channels(&dir)).map_err(|e| errors::exchange(py, e))?;
+    let listed =
+        py.detach(|| skinware::list_channels_where(&dir, skin, |_| true)).map_err(|e| errors::exchange(py, e))?;
     Ok(listed
         .into_iter()
         .filter(|c| skin.is_none_or(|s| s == c.skin))

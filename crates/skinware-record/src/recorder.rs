@@ -241,7 +241,8 @@ impl Recorder {
         for name in &chosen {
             readers.push(Reader::open_with(&options.skin, name, &reader_options)?);
         }
-        let geometry_bytes = std::fs::read(SkinGeometry::published_path(&dir, &options.skin)).ok();
+        let geometry_path = SkinGeometry::published_path(&dir, &options.skin);
+        let geometry_bytes = skinware::shm::read_regular(&geometry_path, SkinGeometry::MAX_PUBLISHED_BYTES).ok();
         let geometry = geometry_bytes.as_deref().and_then(|bytes| match SkinGeometry::decode(bytes) {
             Ok(geometry) => Some(geometry),
             Err(e) => {
@@ -537,7 +538,7 @@ fn spawn(name: &str, job: impl FnOnce() + Send + 'static) -> Result<JoinHandle<(
 
 /// The channels of `options.skin` to record, by name, layers first.
 fn choose_channels(dir: &Path, options: &RecordOptions) -> Result<Vec<String>, RecordError> {
-    let listed = skinware::list_channels(dir)?;
+    let listed = skinware::list_skin_channels(dir, &options.skin)?;
     let live: Vec<_> = listed
         .iter()
         .filter(|c| c.skin == options.skin && c.state != WriterState::Gone && c.problem.is_none())

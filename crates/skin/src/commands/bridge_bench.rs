@@ -116,7 +116,7 @@ mod with_zenoh {
             Some(remote) => {
                 remote.channels().iter().filter(|c| c.kind == ChannelKind::Layer).map(|c| c.name.clone()).collect()
             }
-            None => skinware::list_channels(&skinware::shm::segment_dir())?
+            None => skinware::list_skin_channels(&skinware::shm::segment_dir(), &args.skin)?
                 .into_iter()
                 .filter(|c| c.skin == args.skin && c.kind == Some(ChannelKind::Layer))
                 .map(|c| c.channel)

@@ -108,7 +108,8 @@ pub fn run(args: &Args) -> Result<()> {
 /// A second demo (or a `skin run` of the same skin) would fight over the channels.
 fn refuse_if_running(skin: &str) -> Result<()> {
     let dir = skinware::shm::segment_dir();
-    let channels = skinware::list_channels(&dir).with_context(|| format!("cannot list {}", dir.display()))?;
+    let channels =
+        skinware::list_skin_channels(&dir, skin).with_context(|| format!("cannot list {}", dir.display()))?;
     if let Some(live) = channels.iter().find(|c| c.skin == skin && c.state != WriterState::Gone) {
         bail!(
             "skin {skin} is already running here (channel {}, writer pid {}); stop that `skin run` or `skin demo` \
@@ -157,7 +158,7 @@ fn not_running(dir: &Path, skin: &str) -> Vec<String> {
     let Ok(geometry) = SkinGeometry::open_in(dir, skin) else {
         return vec!["the geometry".to_owned()];
     };
-    let channels = skinware::list_channels(dir).unwrap_or_default();
+    let channels = skinware::list_skin_channels(dir, skin).unwrap_or_default();
     geometry
         .layers
         .iter()

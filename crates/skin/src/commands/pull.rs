@@ -28,7 +28,10 @@ pub fn run(args: &Args) -> Result<()> {
         }
         println!("{}/{}: cable plugged back in", args.skin, args.layer);
     } else {
-        std::fs::write(&file, b"pulled\n").with_context(|| format!("cannot create {}", file.display()))?;
+        // Replaced whole, never written through a link or into a FIFO that
+        // someone left at this name.
+        skinware::shm::replace_file(&file, b"pulled\n", 0o644)
+            .with_context(|| format!("cannot create {}", file.display()))?;
         println!("{}/{}: cable pulled (undo with --restore)", args.skin, args.layer);
     }
     Ok(())

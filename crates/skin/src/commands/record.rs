@@ -193,7 +193,7 @@ fn wait_for_skin(skin: &str, limit: Duration, shutdown: &std::sync::atomic::Atom
     let mut known: Vec<String> = Vec::new();
     let mut stable_since = Instant::now();
     loop {
-        let running: Vec<String> = skinware::list_channels(&dir)
+        let running: Vec<String> = skinware::list_skin_channels(&dir, skin)
             .unwrap_or_default()
             .into_iter()
             .filter(|c| c.skin == skin && c.state != skinware::WriterState::Gone)

@@ -6,7 +6,7 @@
 //! acquisition on any of its periodic channels for 20 periods, and at least
 //! 1 s) is killed and restarted the same way.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
 use std::sync::Arc;
@@ -127,6 +127,8 @@ pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
         config.services.len()
     );
     let mut layer_states: HashMap<String, &'static str> = HashMap::new();
+    // Every child process ever started: the writers whose channels it looks at.
+    let mut spawned: HashSet<u32> = HashSet::new();
     let mut next_state_poll = Instant::now();
     while !shutdown.load(Ordering::Relaxed) {
         let now = Instant::now();
@@ -135,13 +137,17 @@ pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
         }
         if now >= next_state_poll {
             next_state_poll = now + Duration::from_millis(100);
-            let channels: Vec<ChannelInfo> = skinware::list_channels(&skinware::shm::segment_dir())
-                .unwrap_or_default()
-                .into_iter()
-                .filter(|c| c.skin == config.skin)
-                .collect();
+            spawned.extend(children.iter().filter_map(|c| c.child.as_ref().map(Child::id)));
+            // Only this skin's channels, and only those its own children
+            // write (by the name record, read without asking anyone): a
+            // stopped process of anyone else's never costs this loop a wait.
+            let channels: Vec<ChannelInfo> =
+                skinware::list_channels_where(&skinware::shm::segment_dir(), Some(&config.skin), |pid| {
+                    spawned.contains(&pid)
+                })
+                .unwrap_or_default();
             for supervised in &mut children {
-                supervised.kill_if_hung(now);
+                supervised.kill_if_hung(now, &channels);
             }
             log_layer_changes(&channels, &mut layer_states);
             republish_if_removed(&geometry, &published);
@@ -252,21 +258,29 @@ impl Supervised {
     /// Kills the child if it lives but every one of its periodic channels
     /// (owned by it) has shown no progress for [`HANG_PERIODS`] periods; its
     /// exit is then handled like any other, with a restart after the backoff.
-    fn kill_if_hung(&mut self, now: Instant) {
+    ///
+    /// `listed` is this skin's channels as just listed: a reader is opened
+    /// (or opened again, for a restarted child) only on a channel listed as
+    /// this child's, so that the supervisor asks no other process for one.
+    fn kill_if_hung(&mut self, now: Instant, listed: &[ChannelInfo]) {
         let Some(child) = &mut self.child else { return };
         let pid = child.id();
         let (mut watched, mut hung) = (0, 0);
         let mut silent_for = Duration::ZERO;
         let Heartbeat { channels, progress, readers, skin } = &mut self.heartbeat;
         for (name, period) in channels.iter() {
-            if !readers.contains_key(name) {
+            if readers.get(name).is_none_or(|reader| reader.writer_pid() != pid) {
+                let written_by_child =
+                    listed.iter().any(|c| &c.channel == name && c.writer_pid == pid && c.state != WriterState::Gone);
+                if !written_by_child {
+                    continue;
+                }
                 match skinware::Reader::open(skin, name) {
                     Ok(reader) => readers.insert(name.clone(), reader),
                     Err(_) => continue,
                 };
             }
             let Some(reader) = readers.get_mut(name) else { continue };
-            reader.follow_recreated();
             // A paused writer is silent on purpose (a replay holding its
             // last frames, or between the recorded frames of a long pause).
             if reader.writer_pid() != pid || matches!(reader.writer_state(), WriterState::Gone | WriterState::Paused) {
@@ -385,7 +399,7 @@ fn log_layer_changes(channels: &[ChannelInfo], states: &mut HashMap<String, &'st
 /// drivers' status files and its cable-pull control files.
 fn remove_skin_channels(config: &Config) -> Result<()> {
     let dir = skinware::shm::segment_dir();
-    for channel in skinware::list_channels(&dir)?.into_iter().filter(|c| c.skin == config.skin) {
+    for channel in skinware::list_skin_channels(&dir, &config.skin)? {
         if !skinware::remove_channel_if_stale(&channel.path)? {
             tracing::warn!(channel = %channel.path.display(), "still has a live writer; left in place");
         }

@@ -103,7 +103,7 @@ impl OverlaySource {
         self.contacts.retain(|(_, reader)| reader.writer_state() != WriterState::Gone);
         self.motions.retain(|(_, reader)| reader.writer_state() != WriterState::Gone);
         let dir = self.dir.clone().unwrap_or_else(skinware::shm::segment_dir);
-        let Ok(channels) = skinware::list_channels(&dir) else {
+        let Ok(channels) = skinware::list_skin_channels(&dir, &self.skin) else {
             return;
         };
         let options = ReaderOptions { allow_gone: true, dir: self.dir.clone(), ..ReaderOptions::default() };

@@ -22,9 +22,7 @@ use std::os::fd::{AsFd, OwnedFd};
 use std::os::unix::fs::{FileTypeExt, PermissionsExt};
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::{Path, PathBuf};
-// Process-local flags (not shared memory), so not through `crate::sync`.
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
@@ -36,6 +34,7 @@ use rustix::net::{
 use super::liveness::{FileIdentity, NameLock, path_identity};
 use crate::error::{Error, Result};
 use crate::shm;
+use crate::sync::{AtomicU32, Ordering};
 
 /// The bytes that come with the two descriptors: what they are and the
 /// version of the hand-over.
@@ -57,7 +56,7 @@ pub(crate) struct Server {
     wake: OwnedFd,
     thread: Option<JoinHandle<HeldName>>,
     /// Set by the thread once another writer has taken the channel's name.
-    name_lost: Arc<AtomicBool>,
+    name_lost: Arc<AtomicU32>,
 }
 
 /// What the hand-over thread gives back when stopped: the name lock, and
@@ -85,7 +84,7 @@ impl Server {
             .map_err(|e| os_error("eventfd", e.into()))?;
         let stop = wake.try_clone().map_err(|e| os_error("dup", e))?;
         let spawn_error = |e| Error::Os { op: "spawn the hand-over thread", path: path.clone(), source: e };
-        let name_lost = Arc::new(AtomicBool::new(false));
+        let name_lost = Arc::new(AtomicU32::new(0));
         let served = Served { path: path.clone(), mode, label, name, data, bell, name_lost: name_lost.clone() };
         let thread = std::thread::Builder::new()
             .name("skinware-handover".into())
@@ -98,7 +97,7 @@ impl Server {
     /// someone removed its lock file); new readers then go to the other.
     pub fn name_lost(&self) -> bool {
         // Relaxed: a flag read for its own sake; nothing is published with it.
-        self.name_lost.load(Ordering::Relaxed)
+        self.name_lost.load(Ordering::Relaxed) != 0
     }
 }
 
@@ -134,7 +133,7 @@ struct Served {
     name: NameLock,
     data: OwnedFd,
     bell: OwnedFd,
-    name_lost: Arc<AtomicBool>,
+    name_lost: Arc<AtomicU32>,
 }
 
 impl Served {
@@ -165,7 +164,7 @@ impl Served {
                 // writer, and the two would then take turns: new readers
                 // go to the other from now on, and this writer says so.
                 name_held = false;
-                self.name_lost.store(true, Ordering::Relaxed);
+                self.name_lost.store(1, Ordering::Relaxed);
                 tracing::error!(channel = %self.label, "someone removed the channel's name lock and another writer took the name; this writer keeps publishing to the readers it has, but new readers go to the other writer. Stop one of them");
             }
             if name_held && path_identity(&self.path) != Some(bound.1) {

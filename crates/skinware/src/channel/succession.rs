@@ -39,8 +39,6 @@ use std::collections::HashMap;
 use std::mem::MaybeUninit;
 use std::os::fd::OwnedFd;
 use std::path::{Path, PathBuf};
-// Process-local flags and locks (not shared memory), so not through `crate::sync`.
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, OnceLock, Weak};
 use std::time::Duration;
 
@@ -51,6 +49,7 @@ use super::handover::LISTING_ANSWER_TIMEOUT;
 use super::segment::{self, Opened, Shared};
 use crate::os::{self, SHARED_FUTEX};
 use crate::shm;
+use crate::sync::{AtomicU32, Ordering};
 
 /// How long the watcher waits, after a successor appeared, for the old
 /// writer's death to be visible: a dying process lets go of the name lock
@@ -58,10 +57,9 @@ use crate::shm;
 const DEATH_GRACE: Duration = Duration::from_millis(20);
 
 /// One reader's link to the watcher.
-#[derive(Default)]
 pub(crate) struct Follower {
     /// Raised (Release) once `successor` holds a new writer's memory.
-    flagged: AtomicBool,
+    flagged: AtomicU32,
     /// The successor's memory, validated, left by the watcher.
     successor: Mutex<Option<Arc<Shared>>>,
     /// The channel the reader reads now: whose death is checked, and whose
@@ -70,16 +68,20 @@ pub(crate) struct Follower {
 }
 
 impl Follower {
+    fn new() -> Follower {
+        Follower { flagged: AtomicU32::new(0), successor: Mutex::new(None), current: Mutex::new(Weak::new()) }
+    }
+
     /// Whether the watcher has left a successor: a relaxed load, the whole
     /// cost of this design on a read of an unchanged channel.
     pub(crate) fn flagged(&self) -> bool {
-        self.flagged.load(Ordering::Relaxed)
+        self.flagged.load(Ordering::Relaxed) != 0
     }
 
     /// Takes the successor the watcher left, if any.
     pub(crate) fn take(&self) -> Option<Arc<Shared>> {
         // Acquire: pairs with the Release in `leave`, after the memory was put.
-        if !self.flagged.swap(false, Ordering::Acquire) {
+        if self.flagged.swap(0, Ordering::Acquire) == 0 {
             return None;
         }
         lock(&self.successor).take()
@@ -94,7 +96,7 @@ impl Follower {
     /// current channel's doorbell.
     fn leave(&self, successor: Arc<Shared>) {
         *lock(&self.successor) = Some(successor);
-        self.flagged.store(true, Ordering::Release);
+        self.flagged.store(1, Ordering::Release);
         if let Some(current) = lock(&self.current).upgrade() {
             doorbell::nudge(&current.doorbell().notify, &SHARED_FUTEX);
         }
@@ -113,7 +115,7 @@ fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
 pub(crate) fn follow(dir: &Path, skin: &str, channel: &str, current: &Arc<Shared>) -> Option<Arc<Follower>> {
     let watcher = watcher()?;
     let watch = watcher.watch(dir)?;
-    let follower = Arc::new(Follower::default());
+    let follower = Arc::new(Follower::new());
     follower.set_current(current);
     let name = shm::segment_path(Path::new(""), skin, channel).into_os_string().into_string().ok()?;
     let mut followed = lock(&watcher.followed);
