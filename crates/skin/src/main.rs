@@ -79,6 +79,9 @@ enum Command {
     /// One application process of a benchmark (what `skin bench` starts).
     #[command(hide = true)]
     BenchApp(commands::bench::AppArgs),
+    /// The writer process of `skin bench follow`.
+    #[command(hide = true)]
+    BenchFollowWriter(commands::bench::FollowWriterArgs),
     /// The floor server of `skin bench kilohertz`: one message of `--bytes` per acknowledgement.
     #[command(hide = true)]
     BenchFloor(commands::kilohertz::floor::FloorArgs),
@@ -154,6 +157,7 @@ fn main() -> std::process::ExitCode {
         Command::Bridge(args) => commands::bridge::run(&args),
         Command::BridgeProbe(args) => commands::bridge_bench::probe(&args),
         Command::BenchApp(args) => commands::bench::app(&args),
+        Command::BenchFollowWriter(args) => commands::bench::follow_writer(&args),
         Command::BenchFloor(args) => commands::kilohertz::floor::run(&args),
         Command::BenchEcatReader(args) => commands::bench::ecat_reader(&args),
         Command::BenchPeerReader(args) => commands::bench::peer_reader(&args),

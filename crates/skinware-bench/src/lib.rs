@@ -15,6 +15,9 @@
 //! * [`wake`]: a 1 kHz writer of the whole skin's frame with 0 or 15 readers
 //!   asleep on the futex, woken by the writer or by its ringer.
 //!
+//! * [`follow`]: how soon readers in every mode get a restarted writer's
+//!   first frame, with the successor watcher and with the old 100 ms re-check.
+//!
 //! * [`ethercat`]: the EtherCAT driver on a veth pair against the ESC
 //!   model: cycle rate and jitter at 1 kHz, latency from the SubDevice to a
 //!   reader, fault detection and recovery times.
@@ -30,6 +33,7 @@ pub mod app;
 pub mod can;
 pub mod contact;
 pub mod ethercat;
+pub mod follow;
 #[cfg(feature = "iceoryx2")]
 mod iceoryx2_peer;
 pub mod measure;

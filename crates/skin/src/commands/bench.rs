@@ -27,6 +27,8 @@ pub enum Which {
     Wake(Common),
     /// The paper's skin at 1 kHz alone, then with 15 applications, both services at 1 kHz, the viewer with 3 browsers and the recorder; then the viewer with 1 and 10 browsers: missed periods, publish times, CPU per component, latency from acquisition.
     Kilohertz(KilohertzArgs),
+    /// Readers in every mode beside a 1 kHz writer that is SIGKILLed and restarted: the successor's first publication to each reader holding a frame of it, with the successor watcher and with the 100 ms re-check of before.
+    Follow(FollowArgs),
     /// The paper's skin across a veth link between two network namespaces: `skin bridge` (feature `zenoh`) beside the local exchange, at 100/10/1 Mbit/s, and a cut link (needs root).
     Bridge(Common),
 }
@@ -126,6 +128,28 @@ pub struct Table1Args {
     /// namespace of the bench's own).
     #[arg(long, default_value = "memory", value_parser = ["memory", "slcan", "ethercat"])]
     transport: String,
+}
+
+/// Options of `skin bench follow`.
+#[derive(clap::Args)]
+pub struct FollowArgs {
+    #[command(flatten)]
+    common: Common,
+    /// Writer restarts to measure (default 100; 15 with --quick).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    rounds: Option<u32>,
+}
+
+/// Arguments of the hidden `bench-follow-writer` role.
+#[derive(clap::Args)]
+pub struct FollowWriterArgs {
+    #[arg(long)]
+    dir: PathBuf,
+}
+
+/// Runs the writer process of `skin bench follow`.
+pub fn follow_writer(args: &FollowWriterArgs) -> Result<()> {
+    skinware_bench::follow::run_writer(&skinware_bench::follow::FollowWriterArgs { dir: args.dir.clone() })
 }
 
 /// Arguments of the hidden `bench-app` role.
@@ -233,6 +257,15 @@ pub fn run(which: &Which) -> Result<()> {
             super::kilohertz::bench(common, &options)
         }
         Which::Bridge(common) => super::bridge_bench::bench(common),
+        Which::Follow(FollowArgs { common, rounds }) => {
+            let options = skinware_bench::follow::FollowOptions {
+                quick: common.quick,
+                out: common.out.clone(),
+                rounds: rounds.map(|r| r as usize),
+                exe,
+            };
+            skinware_bench::follow::run(&options).map(|_| ())
+        }
         Which::Contact(common) => {
             let options = skinware_bench::contact::ContactBenchOptions {
                 quick: common.quick,
