@@ -170,6 +170,14 @@ need(contact.get("service_frames", 0) > 0 and contact.get("service_ns_mean", 0) 
 khz = contact.get("service_at_1khz", {})
 need(khz.get("rate_hz") == 1000 and khz.get("frames", 0) > 0 and khz.get("ns_mean", 0) > 0, "contact.json: service at 1 kHz incomplete")
 
+follow = json.loads((out / "follow.json").read_text())
+rows = {(r.get("mode"), r.get("following")) for r in follow.get("rows", [])}
+need(rows == {(m, f) for m in ("periodic 1 kHz", "as soon as available", "on request", "anticipating") for f in ("watcher", "re-check")},
+     f"follow.json: rows {sorted(rows)}")
+for row in follow.get("rows", []):
+    need(row.get("followed", 0) + row.get("missed", 0) == follow.get("restarts"), f"follow.json: {row} does not account for every restart")
+    need(row.get("followed", 0) > 0 and row.get("p50_ms", -1) >= 0, f"follow.json: {row} followed no successor")
+
 if problems:
     print("benchmark JSON problems:\n  " + "\n  ".join(problems))
     sys.exit(1)

@@ -288,3 +288,79 @@ fn bad_config_is_reported_with_its_position() {
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(stderr.contains("bad.toml:5:1:") && stderr.contains("unknown field `sensorz`"), "{stderr}");
 }
+
+/// Set in the child process of the next test: the segment directory its
+/// stopped writers use.
+const FOREIGN_WRITERS_DIR: &str = "SKIN_TEST_FOREIGN_WRITERS_DIR";
+
+/// Issue #36, defect 5: `skin run` listed every channel of every skin every
+/// 100 ms, one after another with a 200 ms answer timeout each, so ten
+/// stopped writers of an unrelated skin made it restart a SIGKILLed driver
+/// after 3.05 s instead of 0.22 s, and `skin ls --skin OWN` took 2.41 s.
+#[test]
+fn the_supervisor_is_not_slowed_by_stopped_foreign_writers() {
+    use std::io::BufRead;
+    if let Some(dir) = std::env::var_os(FOREIGN_WRITERS_DIR) {
+        // The child: ten writers of an unrelated skin, to be stopped.
+        let options = skinware::WriterOptions { dir: Some(dir.into()), ..skinware::WriterOptions::default() };
+        let _writers: Vec<skinware::Writer> = (0..10)
+            .map(|k| skinware::Writer::create("foreign", &format!("c{k}"), 64, b"", &options).unwrap())
+            .collect();
+        println!("ready");
+        std::thread::sleep(Duration::from_secs(120));
+        return;
+    }
+    let _alone = one_skin_at_a_time();
+    let skin = start("foreign", &failover_config());
+    let mut victim = open(&skin, "victim-0");
+    victim.wait_newer(Duration::from_secs(10)).unwrap();
+    let mut foreign = Command::new(std::env::current_exe().unwrap())
+        .args(["--exact", "e2e::the_supervisor_is_not_slowed_by_stopped_foreign_writers", "--nocapture"])
+        .env(FOREIGN_WRITERS_DIR, &skin.dir)
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stdout = foreign.stdout.take().unwrap();
+    struct Reaped(Child);
+    impl Drop for Reaped {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+    let foreign = Reaped(foreign);
+    assert!(std::io::BufReader::new(stdout).lines().map_while(Result::ok).any(|l| l.contains("ready")));
+    let pid = rustix::process::Pid::from_raw(foreign.0.id() as i32).unwrap();
+    rustix::process::kill_process(pid, rustix::process::Signal::STOP).unwrap();
+    std::thread::sleep(Duration::from_millis(500));
+
+    let began = Instant::now();
+    let listed = skin_command(&skin.dir).args(["ls", "--skin", "failover"]).output().unwrap();
+    let listing = began.elapsed();
+    assert!(listed.status.success(), "{}", String::from_utf8_lossy(&listed.stderr));
+
+    let driver = victim.writer_pid();
+    let began = Instant::now();
+    rustix::process::kill_process(
+        rustix::process::Pid::from_raw(driver as i32).unwrap(),
+        rustix::process::Signal::KILL,
+    )
+    .unwrap();
+    wait_for_state(&mut victim, WriterState::Gone, Duration::from_secs(5));
+    let started = Instant::now();
+    while victim.writer_pid() == driver || victim.writer_state() != WriterState::Running {
+        victim.follow_recreated();
+        assert!(started.elapsed() < Duration::from_secs(20), "the victim's driver was never restarted");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let restarted = began.elapsed();
+    println!(
+        "e2e: beside 10 stopped foreign writers: skin ls --skin failover in {:.0} ms, a SIGKILLed driver running again after {:.0} ms",
+        listing.as_secs_f64() * 1e3,
+        restarted.as_secs_f64() * 1e3
+    );
+    // Generous bounds (not a real-time machine); before the fix: 2.41 s and 3.05 s.
+    assert!(listing < Duration::from_millis(1500), "skin ls --skin failover took {listing:?}");
+    assert!(restarted < Duration::from_millis(1500), "the driver was restarted after {restarted:?}");
+    drop(foreign);
+}
