@@ -205,7 +205,7 @@ fn measure(options: &FollowOptions, dir: &std::path::Path, rounds: usize) -> Res
             readers.push((mode, watched, firsts, thread));
         }
     }
-    let mut seed = 0x5eed_f011_0u64 ^ u64::from(std::process::id());
+    let mut seed = 0x5eed_f011_u64 ^ u64::from(std::process::id());
     for round in 0..rounds {
         seed ^= seed << 13;
         seed ^= seed >> 7;
