@@ -72,15 +72,23 @@ fuzz_target!(|input: &[u8]| {
         let options = ReaderOptions { dir: Some(dir.clone()), allow_gone: true, ..ReaderOptions::default() };
         Reader::open_with("fuzz", "layer", &options)
     } else {
-        Reader::from_memory(data.into(), bell.into())
+        // Bit 1: an anticipating reader, whose grid arithmetic takes the
+        // header's period and the frames' times (issue #36).
+        Reader::from_memory(data.into(), bell.into(), choice & 2 != 0)
     };
     if let Ok(mut reader) = opened {
         let _ = reader.topology();
         let _ = reader.schema();
         let _ = reader.writer_state();
-        let _ = reader.writer_stats();
+        // The statistics' quantiles add up the writer's counts.
+        let _ = reader.writer_stats().write_ns_quantile(0.99);
+        let _ = skinware::histogram_quantile(&reader.writer_stats().lateness_histogram, 0.5);
         let _ = reader.latest().map(|frame| frame.responses().len());
         let _ = reader.wait_newer(Duration::ZERO).map(|frame| frame.seq());
+        // A second look at the same memory: what the anticipation predicts
+        // from the first frame's time and the forged period.
+        let _ = reader.latest().map(|frame| frame.published_ns());
+        let _ = reader.wait_newer(Duration::from_micros(50)).map(|frame| frame.seq());
     }
     if choice >> 2 == 0 {
         let _ = skinware::list_channels(dir);

@@ -126,10 +126,11 @@ impl Reader {
     /// round trip per input. Only in fuzzing builds.
     #[cfg(fuzzing)]
     #[doc(hidden)]
-    pub fn from_memory(data: std::os::fd::OwnedFd, bell: std::os::fd::OwnedFd) -> Result<Reader> {
+    pub fn from_memory(data: std::os::fd::OwnedFd, bell: std::os::fd::OwnedFd, anticipate: bool) -> Result<Reader> {
         let dir = std::env::temp_dir();
         let shared = segment::map_received("fuzz/layer".into(), dir.join("fuzz"), data, bell)?;
-        let options = ReaderOptions { allow_gone: true, ..ReaderOptions::default() };
+        let anticipate = anticipate.then_some(Duration::from_micros(1));
+        let options = ReaderOptions { allow_gone: true, anticipate, ..ReaderOptions::default() };
         Reader::attach(shared, "fuzz", "layer", dir, &options)
     }
 
