@@ -82,6 +82,18 @@ enum Command {
     /// The floor server of `skin bench kilohertz`: one message of `--bytes` per acknowledgement.
     #[command(hide = true)]
     BenchFloor(commands::kilohertz::floor::FloorArgs),
+    /// One verifying reader process of `skin bench soak`.
+    #[command(hide = true)]
+    BenchSoakReader(commands::soak::ReaderArgs),
+    /// The stopped foreign writers of `skin bench soak`.
+    #[command(hide = true)]
+    BenchSoakForeign(commands::soak::ForeignArgs),
+    /// The CPU hog of `skin bench soak`.
+    #[command(hide = true)]
+    BenchSoakHog(commands::soak::HogArgs),
+    /// The viewer's browser-like client of `skin bench soak`.
+    #[command(hide = true)]
+    BenchSoakBrowser(commands::soak::BrowserArgs),
     /// Run one service of CONFIG in this process (what `skin run` starts).
     #[command(hide = true)]
     Service {
@@ -155,6 +167,10 @@ fn main() -> std::process::ExitCode {
         Command::BridgeProbe(args) => commands::bridge_bench::probe(&args),
         Command::BenchApp(args) => commands::bench::app(&args),
         Command::BenchFloor(args) => commands::kilohertz::floor::run(&args),
+        Command::BenchSoakReader(args) => commands::soak::reader(&args),
+        Command::BenchSoakForeign(args) => commands::soak::foreign(&args),
+        Command::BenchSoakHog(args) => commands::soak::hog(&args),
+        Command::BenchSoakBrowser(args) => commands::soak::browser(&args),
         Command::BenchEcatReader(args) => commands::bench::ecat_reader(&args),
         Command::BenchPeerReader(args) => commands::bench::peer_reader(&args),
     };

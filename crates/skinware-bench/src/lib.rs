@@ -19,6 +19,11 @@
 //!   model: cycle rate and jitter at 1 kHz, latency from the SubDevice to a
 //!   reader, fault detection and recovery times.
 //!
+//! * [`soak`]: an hour (or any time) of faults on a skin under `skin run`,
+//!   with readers that verify every frame: torn, backwards and silently
+//!   lost frames, stuck readers, leaks, and how long every layer takes to
+//!   run again after each kind of fault.
+//!
 //! Application processes are this same executable re-run with the
 //! `bench-app` role ([`app`]).
 
@@ -35,11 +40,13 @@ mod iceoryx2_peer;
 pub mod measure;
 pub mod netns;
 pub mod paper;
+pub mod procs;
 mod paper_record;
 pub mod peers;
 mod plot;
 pub mod python;
 pub mod record;
+pub mod soak;
 mod rwlock_peer;
 pub mod table1;
 pub mod wake;
