@@ -124,13 +124,15 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    // The soak's own readers follow every restarted driver: at `info` its
+    // console would hold a line per layer per restart among the faults' lines.
+    let soak = matches!(cli.command, Command::Bench { which: commands::bench::Which::Soak(_) });
+    let default_filter = if soak { "warn" } else { "info,zenoh=warn" };
     tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,zenoh=warn".into()),
-        )
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default_filter.into()))
         .with_writer(std::io::stderr)
         .init();
-    let cli = Cli::parse();
     // A reader of our stdout that goes away (`skin ls | head`) is not an
     // error of these commands; for the others a broken pipe is a real failure
     // (an SLCAN adapter unplugged gives one too).

@@ -169,6 +169,7 @@ impl RunningSkin {
             .arg(config)
             .env("SKINWARE_SHM_DIR", dir)
             .env("RUST_LOG", "info")
+            .env("NO_COLOR", "1")
             .stdout(std::process::Stdio::null())
             .stderr(file)
             .process_group(0)

@@ -235,6 +235,8 @@ struct BrowserReport {
     errors: u64,
     /// The longest time without an update once connected, ms.
     longest_gap_ms: f64,
+    /// When that gap ended (CLOCK_MONOTONIC ns), to find what caused it.
+    longest_gap_ended_ns: u64,
     /// The last error, if any.
     last_error: Option<String>,
 }
@@ -304,7 +306,11 @@ fn browse(
                 report.updates += 1;
                 unacked += 1;
                 if let Some(last) = last_update {
-                    report.longest_gap_ms = report.longest_gap_ms.max(last.elapsed().as_secs_f64() * 1e3);
+                    let gap_ms = last.elapsed().as_secs_f64() * 1e3;
+                    if gap_ms > report.longest_gap_ms {
+                        report.longest_gap_ms = gap_ms;
+                        report.longest_gap_ended_ns = skinware::os::monotonic_ns();
+                    }
                 }
                 last_update = Some(Instant::now());
             }

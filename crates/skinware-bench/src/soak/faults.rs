@@ -225,7 +225,11 @@ impl Soak<'_> {
             record.kind,
             record.target,
             record.held_s,
-            if record.note.is_empty() { String::new() } else { format!(" [{}]", record.note) }
+            match (&record.name_back_ms, record.note.is_empty()) {
+                (Some(ms), _) => format!("; its name back after {ms:.0} ms"),
+                (None, false) => format!(" [{}]", record.note),
+                (None, true) => String::new(),
+            }
         );
         self.report.faults.push(record);
     }

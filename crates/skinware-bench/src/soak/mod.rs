@@ -100,6 +100,8 @@ struct Soak<'o> {
     options: &'o SoakOptions,
     work: PathBuf,
     started: Instant,
+    /// The same moment on CLOCK_MONOTONIC, ns.
+    started_ns: u64,
     chaos: faults::Chaos,
     skin: Option<RunningSkin>,
     readers: Vec<ReaderProcess>,
@@ -138,6 +140,7 @@ pub fn run(options: &SoakOptions) -> Result<SoakReport> {
         options,
         work: work.clone(),
         started: Instant::now(),
+        started_ns: skinware::os::monotonic_ns(),
         chaos: faults::Chaos::new(seed),
         skin: None,
         readers: Vec::new(),
@@ -201,7 +204,12 @@ impl Soak<'_> {
             .append(true)
             .open(&log)
             .with_context(|| format!("cannot open {}", log.display()))?;
-        command.env("SKINWARE_SHM_DIR", &self.options.dir).env("RUST_LOG", "warn").stderr(file).process_group(0);
+        command
+            .env("SKINWARE_SHM_DIR", &self.options.dir)
+            .env("RUST_LOG", "warn")
+            .env("NO_COLOR", "1")
+            .stderr(file)
+            .process_group(0);
         Ok(command)
     }
 
@@ -362,6 +370,24 @@ impl Soak<'_> {
         stopped
     }
 
+    /// The fault during which the browser waited longest for an update, if
+    /// that wait overlapped one (from the fault's injection until every
+    /// layer and service was back, plus a second).
+    fn browser_gap_cause(&self, report: &SoakReport) -> Option<String> {
+        let browser = report.browser.as_ref()?;
+        let gap_s = browser.get("longest_gap_ms")?.as_f64()? / 1e3;
+        let ended_ns = browser.get("longest_gap_ended_ns")?.as_u64()?;
+        let ended_s = ended_ns.checked_sub(self.started_ns)? as f64 / 1e9;
+        let fault = report.faults.iter().find(|f| {
+            let back_s = f.services_back_after_end_ms.or(f.back_after_end_ms).unwrap_or(0.0) / 1e3;
+            ended_s - gap_s <= f.ended_s + back_s + 1.0 && ended_s >= f.injected_s
+        });
+        Some(match fault {
+            Some(f) => format!("{:.0} ms, ending at {ended_s:.1} s: during fault {} ({})", gap_s * 1e3, f.index, f.kind),
+            None => format!("{:.0} ms, ending at {ended_s:.1} s: during no fault", gap_s * 1e3),
+        })
+    }
+
     /// Adds up the readers' reports and the recovery times, and gives the verdict.
     fn summarize(&mut self) -> SoakReport {
         let mut report = std::mem::take(&mut self.report);
@@ -380,6 +406,7 @@ impl Soak<'_> {
             }
         }
         faults::summarize_recovery(&mut report);
+        report.browser_longest_gap_during = self.browser_gap_cause(&report);
         report.processes = self.monitor.series();
         report.segment_files_max = self.monitor.segment_files_max;
         report.supervisor_restarts = std::fs::read_to_string(self.work.join("skin-run.log"))

@@ -214,6 +214,8 @@ pub struct SoakReport {
     pub leaked_channels: usize,
     /// The browser-like client of the viewer: what it received.
     pub browser: Option<serde_json::Value>,
+    /// The browser's longest wait for an update, and the fault it fell in.
+    pub browser_longest_gap_during: Option<String>,
     /// What the recorder said at the end.
     pub recorder: Option<serde_json::Value>,
     /// The supervisor's restarts of each driver and service, from its log.
@@ -283,19 +285,25 @@ impl SoakReport {
             );
         }
         println!();
-        println!("| process | pid | s | RSS MiB first / last / max | fds first / last / max | grew |");
-        println!("|---|---|---|---|---|---|");
-        for p in self.processes.iter().filter(|p| p.samples.len() > 1) {
+        println!(
+            "| process | processes | longest-lived: pid, s sampled | its RSS MiB first / last / max | its fds first / last / max | RSS / fds most of any | grew |"
+        );
+        println!("|---|---|---|---|---|---|---|");
+        let mut names: Vec<&str> = self.processes.iter().map(|p| p.name.as_str()).collect();
+        names.dedup();
+        for name in names {
+            let all: Vec<&ProcessSeries> = self.processes.iter().filter(|p| p.name == name).collect();
+            let Some(p) = all.iter().copied().max_by(|a, b| a.seconds.total_cmp(&b.seconds)) else { continue };
             let mib = |kib: u64| kib as f64 / 1024.0;
-            let grew = match (p.rss_grew, p.fds_grew) {
-                (true, true) => "RSS, fds",
-                (true, false) => "RSS",
-                (false, true) => "fds",
-                (false, false) => "",
-            };
+            let grew: Vec<String> = all
+                .iter()
+                .filter(|p| p.rss_grew || p.fds_grew)
+                .map(|p| format!("{} ({}{})", p.pid, if p.rss_grew { "RSS " } else { "" }, if p.fds_grew { "fds" } else { "" }))
+                .collect();
             println!(
-                "| {} | {} | {:.0} | {:.1} / {:.1} / {:.1} | {} / {} / {} | {grew} |",
-                p.name,
+                "| {} | {} | {}, {:.0} | {:.1} / {:.1} / {:.1} | {} / {} / {} | {:.1} / {} | {} |",
+                name,
+                all.len(),
                 p.pid,
                 p.seconds,
                 mib(p.rss_kib_first),
@@ -303,7 +311,10 @@ impl SoakReport {
                 mib(p.rss_kib_max),
                 p.fds_first,
                 p.fds_last,
-                p.fds_max
+                p.fds_max,
+                mib(all.iter().map(|p| p.rss_kib_max).max().unwrap_or(0)),
+                all.iter().map(|p| p.fds_max).max().unwrap_or(0),
+                grew.join(", ")
             );
         }
         println!();
@@ -321,6 +332,9 @@ impl SoakReport {
         }
         if let Some(browser) = &self.browser {
             println!("viewer's browser: {browser}");
+        }
+        if let Some(gap) = &self.browser_longest_gap_during {
+            println!("  its longest wait for an update: {gap}");
         }
         if let Some(recorder) = &self.recorder {
             println!("recorder: {recorder}");
