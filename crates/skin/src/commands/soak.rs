@@ -335,3 +335,45 @@ fn browse(
     let _ = socket.close(None);
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scratch(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("skin-soak-test-{}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    #[test]
+    fn the_papers_skin_becomes_a_patterned_skin_with_its_services() {
+        let out = scratch("paper");
+        let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/paper-virtual-skin.toml");
+        let prepared = prepare(&config, Path::new("/dev/shm/soak-test"), &out).unwrap();
+        assert_eq!(prepared.layers.len(), 5);
+        assert_eq!(prepared.layers.iter().map(|l| l.taxels).sum::<usize>(), 30_848);
+        assert_eq!(prepared.layers[2].pull_file, Path::new("/dev/shm/soak-test/skinware-ctl.default.virtual-2.pulled"));
+        assert_eq!(prepared.services, ["contact", "contact-taxels", "motion"]);
+        let written = Config::load(&prepared.path).unwrap();
+        assert!(written.drivers.iter().all(|d| d.verify_pattern));
+        let _ = std::fs::remove_dir_all(out);
+    }
+
+    #[test]
+    fn services_are_added_and_other_drivers_refused() {
+        let out = scratch("small");
+        let config = out.join("small.toml");
+        std::fs::write(&config, "skin = \"s\"\n[[driver]]\nname = \"v\"\nkind = \"virtual\"\nsensors = 240\nlayers = 2\n")
+            .unwrap();
+        let prepared = prepare(&config, &out, &out).unwrap();
+        assert_eq!(prepared.skin, "s");
+        assert_eq!(prepared.services, ["contact", "contact-taxels", "motion"]);
+        std::fs::write(&config, "[[driver]]\nname = \"c\"\nkind = \"can\"\ninterface = \"candump:///x\"\nprotocol = \"icub-mtb\"\n")
+            .unwrap();
+        let error = format!("{:#}", prepare(&config, &out, &out).err().unwrap());
+        assert!(error.contains("virtual") || error.contains("board"), "{error}");
+        let _ = std::fs::remove_dir_all(out);
+    }
+}
