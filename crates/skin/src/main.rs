@@ -130,7 +130,9 @@ fn main() -> std::process::ExitCode {
     let soak = matches!(cli.command, Command::Bench { which: commands::bench::Which::Soak(_) });
     let default_filter = if soak { "warn" } else { "info,zenoh=warn" };
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default_filter.into()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default_filter.into()),
+        )
         .with_writer(std::io::stderr)
         .init();
     // A reader of our stdout that goes away (`skin ls | head`) is not an

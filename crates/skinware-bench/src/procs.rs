@@ -36,7 +36,9 @@ pub fn start_viewer(exe: &Path, dir: &Path, extra: &[&str], log: Option<&Path>) 
         .env("RUST_LOG", "warn")
         .stdout(Stdio::null());
     if let Some(log) = log {
-        command.env("NO_COLOR", "1").stderr(std::fs::File::create(log).with_context(|| format!("cannot create {}", log.display()))?);
+        command
+            .env("NO_COLOR", "1")
+            .stderr(std::fs::File::create(log).with_context(|| format!("cannot create {}", log.display()))?);
     }
     let child = Guarded(command.spawn().context("cannot start `skin view`")?);
     let deadline = Instant::now() + Duration::from_secs(20);

@@ -53,7 +53,8 @@ pub fn bench(args: &SoakArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
     let dir = skinware::shm::segment_dir().join(format!("skin-soak-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create the soak's segment directory {}", dir.display()))?;
+    std::fs::create_dir_all(&dir)
+        .with_context(|| format!("cannot create the soak's segment directory {}", dir.display()))?;
     let prepared = prepare(&args.config, &dir, &args.out);
     let prepared = match prepared {
         Ok(prepared) => prepared,
@@ -105,9 +106,13 @@ fn prepare(config: &Path, dir: &Path, out: &Path) -> Result<Prepared> {
     let base = config.parent().map(Path::to_path_buf).unwrap_or_default();
     let base = std::fs::canonicalize(if base.as_os_str().is_empty() { Path::new(".") } else { &base })?;
     if value.get("emulator").is_some() {
-        bail!("{}: the soak runs virtual drivers only (its readers check the virtual skin's pattern); remove the [[emulator]] tables", config.display());
+        bail!(
+            "{}: the soak runs virtual drivers only (its readers check the virtual skin's pattern); remove the [[emulator]] tables",
+            config.display()
+        );
     }
-    let drivers = value.get_mut("driver").and_then(toml::Value::as_array_mut).context("the config has no [[driver]]")?;
+    let drivers =
+        value.get_mut("driver").and_then(toml::Value::as_array_mut).context("the config has no [[driver]]")?;
     for driver in drivers.iter_mut() {
         let table = driver.as_table_mut().context("a [[driver]] that is not a table")?;
         let name = table.get("name").and_then(toml::Value::as_str).unwrap_or("?").to_owned();
@@ -262,15 +267,20 @@ pub fn browser(args: &BrowserArgs) -> Result<()> {
     };
     while !stop.load(std::sync::atomic::Ordering::Relaxed) {
         report.connections += 1;
-        if let Err(e) = browse(&args.address, &stop, &mut report, &mut || {
-            if last_written.elapsed() > Duration::from_millis(500) {
-                last_written = Instant::now();
-                true
-            } else {
-                false
-            }
-        }, &write)
-        {
+        if let Err(e) = browse(
+            &args.address,
+            &stop,
+            &mut report,
+            &mut || {
+                if last_written.elapsed() > Duration::from_millis(500) {
+                    last_written = Instant::now();
+                    true
+                } else {
+                    false
+                }
+            },
+            &write,
+        ) {
             report.errors += 1;
             report.last_error = Some(format!("{e:#}"));
             std::thread::sleep(Duration::from_millis(200));
@@ -365,13 +375,19 @@ mod tests {
     fn services_are_added_and_other_drivers_refused() {
         let out = scratch("small");
         let config = out.join("small.toml");
-        std::fs::write(&config, "skin = \"s\"\n[[driver]]\nname = \"v\"\nkind = \"virtual\"\nsensors = 240\nlayers = 2\n")
-            .unwrap();
+        std::fs::write(
+            &config,
+            "skin = \"s\"\n[[driver]]\nname = \"v\"\nkind = \"virtual\"\nsensors = 240\nlayers = 2\n",
+        )
+        .unwrap();
         let prepared = prepare(&config, &out, &out).unwrap();
         assert_eq!(prepared.skin, "s");
         assert_eq!(prepared.services, ["contact", "contact-taxels", "motion"]);
-        std::fs::write(&config, "[[driver]]\nname = \"c\"\nkind = \"can\"\ninterface = \"candump:///x\"\nprotocol = \"icub-mtb\"\n")
-            .unwrap();
+        std::fs::write(
+            &config,
+            "[[driver]]\nname = \"c\"\nkind = \"can\"\ninterface = \"candump:///x\"\nprotocol = \"icub-mtb\"\n",
+        )
+        .unwrap();
         let error = format!("{:#}", prepare(&config, &out, &out).err().unwrap());
         assert!(error.contains("virtual") || error.contains("board"), "{error}");
         let _ = std::fs::remove_dir_all(out);

@@ -144,9 +144,10 @@ fn clock(unix_s: f64) -> String {
 pub(super) fn remove_squat(path: &Path) {
     use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
     let Ok(meta) = std::fs::symlink_metadata(path) else { return };
-    let opened = meta.file_type().is_fifo().then(|| {
-        std::fs::OpenOptions::new().read(true).write(true).custom_flags(libc::O_NONBLOCK).open(path).ok()
-    });
+    let opened = meta
+        .file_type()
+        .is_fifo()
+        .then(|| std::fs::OpenOptions::new().read(true).write(true).custom_flags(libc::O_NONBLOCK).open(path).ok());
     let _ = std::fs::remove_file(path);
     drop(opened);
 }
@@ -210,7 +211,9 @@ impl Soak<'_> {
             record.back_after_injection_ms = Some(ms(r.layers_ns, injected_ns));
             record.services_back_after_end_ms = r.all_ns.map(|all| ms(all, ended_ns));
         }
+        record.interrupted = recovered.is_none() && self.interrupted();
         let back = match record.back_after_end_ms {
+            None if record.interrupted => "interrupted before every layer was back".to_owned(),
             Some(after_end) => format!(
                 "every layer back {after_end:.0} ms after its end ({:.0} ms after the injection)",
                 record.back_after_injection_ms.unwrap_or(0.0)
@@ -312,7 +315,8 @@ impl Soak<'_> {
                 procs::signal(pid, Signal::STOP);
                 self.stopped.push(pid);
                 self.idle(hold);
-                let killed = matches!(procs::state_of(pid), Some('Z') | None) || procs::parent_of(pid) != Some(self.monitor.skin_pid);
+                let killed = matches!(procs::state_of(pid), Some('Z') | None)
+                    || procs::parent_of(pid) != Some(self.monitor.skin_pid);
                 procs::signal(pid, Signal::CONT);
                 self.stopped.retain(|&p| p != pid);
                 self.end(&mut injected);
@@ -324,7 +328,11 @@ impl Soak<'_> {
             FaultKind::ReaderKill => {
                 let victim = self.chaos.below(self.readers.len() as u64) as usize;
                 let mut reader = self.readers.swap_remove(victim);
-                let injected = self.begin(kind, index, format!("reader {} (pid {}) killed", reader.mode.name(), reader.child.id()));
+                let injected = self.begin(
+                    kind,
+                    index,
+                    format!("reader {} (pid {}) killed", reader.mode.name(), reader.child.id()),
+                );
                 let _ = reader.child.kill();
                 let _ = reader.child.wait();
                 self.finished_reports.push((reader.mode, reader.report));
@@ -365,7 +373,8 @@ impl Soak<'_> {
             }
             FaultKind::ForeignStoppedWriters => self.foreign_stopped_writers(index),
             FaultKind::UnlinkLiveName => {
-                let layer = self.options.layers[self.chaos.below(self.options.layers.len() as u64) as usize].name.clone();
+                let layer =
+                    self.options.layers[self.chaos.below(self.options.layers.len() as u64) as usize].name.clone();
                 let paths = channel_paths(&self.options.dir, &self.options.skin, &layer);
                 let injected = self.begin(kind, index, format!("{layer}: socket and name lock unlinked"));
                 let mut injected = injected;
@@ -460,7 +469,8 @@ impl Soak<'_> {
             self.squats.push(path.clone());
             match kind {
                 FaultKind::SquatFifo => {
-                    let status = std::process::Command::new("mkfifo").arg(path).status().context("cannot run mkfifo")?;
+                    let status =
+                        std::process::Command::new("mkfifo").arg(path).status().context("cannot run mkfifo")?;
                     if !status.success() {
                         bail!("mkfifo {} failed ({status})", path.display());
                     }
@@ -492,7 +502,8 @@ impl Soak<'_> {
 /// within 1 s of every fault's end.
 pub(super) fn summarize_recovery(report: &mut SoakReport) {
     for kind in KINDS {
-        let faults: Vec<&FaultRecord> = report.faults.iter().filter(|f| f.kind == kind.name()).collect();
+        let faults: Vec<&FaultRecord> =
+            report.faults.iter().filter(|f| f.kind == kind.name() && !f.interrupted).collect();
         if faults.is_empty() {
             continue;
         }
@@ -510,8 +521,8 @@ pub(super) fn summarize_recovery(report: &mut SoakReport) {
             },
         );
     }
-    report.every_layer_back_within_1s =
-        !report.faults.is_empty() && report.faults.iter().all(|f| f.back_after_end_ms.is_some_and(|ms| ms <= 1000.0));
+    report.every_layer_back_within_1s = !report.faults.is_empty()
+        && report.faults.iter().filter(|f| !f.interrupted).all(|f| f.back_after_end_ms.is_some_and(|ms| ms <= 1000.0));
 }
 
 #[cfg(test)]

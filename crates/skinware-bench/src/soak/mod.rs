@@ -176,7 +176,8 @@ pub fn run(options: &SoakOptions) -> Result<SoakReport> {
     let _ = std::fs::remove_dir_all(&options.dir);
     report.print();
     let path = options.out.join("soak.json");
-    std::fs::write(&path, serde_json::to_vec_pretty(&report)?).with_context(|| format!("cannot write {}", path.display()))?;
+    std::fs::write(&path, serde_json::to_vec_pretty(&report)?)
+        .with_context(|| format!("cannot write {}", path.display()))?;
     println!("written: {} (faults, recovery, processes over time); logs in {}", path.display(), work.display());
     ran?;
     Ok(report)
@@ -246,7 +247,11 @@ impl Soak<'_> {
         self.monitor.recorder = Some(recorder.spawn().context("cannot start the recorder")?);
         // Everything attached and running before the first fault.
         self.idle(Duration::from_secs(3));
-        println!("soak: {:.1} s: the skin, {} verifying readers, the viewer, its browser and the recorder run; faults begin", self.elapsed_s(), self.readers.len());
+        println!(
+            "soak: {:.1} s: the skin, {} verifying readers, the viewer, its browser and the recorder run; faults begin",
+            self.elapsed_s(),
+            self.readers.len()
+        );
         self.run_faults()
     }
 
@@ -283,13 +288,27 @@ impl Soak<'_> {
         let layers: Vec<&str> = self.options.layers.iter().map(|l| l.name.as_str()).collect();
         let child = self
             .command(&format!("reader-{}.log", mode.name()))?
-            .args(["bench-soak-reader", "--skin", &self.options.skin, "--mode", mode.name(), "--layers", &layers.join(",")])
+            .args([
+                "bench-soak-reader",
+                "--skin",
+                &self.options.skin,
+                "--mode",
+                mode.name(),
+                "--layers",
+                &layers.join(","),
+            ])
             .arg("--report")
             .arg(&report)
             .stdin(Stdio::piped())
             .spawn()
             .context("cannot start a verifying reader")?;
-        self.readers.push(ReaderProcess { mode, child, report, since_ns: skinware::os::monotonic_ns(), stopped: false });
+        self.readers.push(ReaderProcess {
+            mode,
+            child,
+            report,
+            since_ns: skinware::os::monotonic_ns(),
+            stopped: false,
+        });
         Ok(())
     }
 
@@ -298,7 +317,8 @@ impl Soak<'_> {
         loop {
             let attached = self.readers.iter().all(|r| {
                 reader::ReaderReport::read(&r.report).is_some_and(|report| {
-                    report.layers.len() == self.options.layers.len() && report.layers.values().all(|t| t.last_new_ns > 0)
+                    report.layers.len() == self.options.layers.len()
+                        && report.layers.values().all(|t| t.last_new_ns > 0)
                 })
             });
             if attached {
@@ -383,7 +403,9 @@ impl Soak<'_> {
             ended_s - gap_s <= f.ended_s + back_s + 1.0 && ended_s >= f.injected_s
         });
         Some(match fault {
-            Some(f) => format!("{:.0} ms, ending at {ended_s:.1} s: during fault {} ({})", gap_s * 1e3, f.index, f.kind),
+            Some(f) => {
+                format!("{:.0} ms, ending at {ended_s:.1} s: during fault {} ({})", gap_s * 1e3, f.index, f.kind)
+            }
             None => format!("{:.0} ms, ending at {ended_s:.1} s: during no fault", gap_s * 1e3),
         })
     }

@@ -10,7 +10,7 @@ use std::path::Path;
 use std::process::Child;
 use std::time::Duration;
 
-use super::report::{ProcessSeries, SoakReport, StuckEpisode};
+use super::report::{ProcessSeries, Sample, SoakReport, StuckEpisode};
 use super::{STUCK_AFTER_S, Soak, reader::ReaderReport};
 use crate::procs::{self, Guarded};
 
@@ -28,7 +28,7 @@ pub(super) struct Monitor {
     pub(super) browser: Option<Child>,
     pub(super) recorder: Option<Child>,
     /// Samples by (name, pid): `(s since start, RSS KiB, fds)`.
-    samples: BTreeMap<(String, u32), Vec<(f64, u64, u64)>>,
+    samples: BTreeMap<(String, u32), Vec<Sample>>,
     next_sample_ns: u64,
     next_stuck_check_ns: u64,
     /// (reader pid, layer) found stuck and not yet moving again.
@@ -44,7 +44,12 @@ impl Monitor {
         self.samples
             .iter()
             .map(|((name, pid), samples)| {
-                let mut series = ProcessSeries { name: name.clone(), pid: *pid, samples: samples.clone(), ..ProcessSeries::default() };
+                let mut series = ProcessSeries {
+                    name: name.clone(),
+                    pid: *pid,
+                    samples: samples.clone(),
+                    ..ProcessSeries::default()
+                };
                 series.finish();
                 series
             })
@@ -57,7 +62,8 @@ impl Monitor {
         if let Some(mut browser) = self.browser.take() {
             drop(browser.stdin.take());
             wait_or_kill(&mut browser, Duration::from_secs(5));
-            report.browser = std::fs::read(work.join("browser.json")).ok().and_then(|b| serde_json::from_slice(&b).ok());
+            report.browser =
+                std::fs::read(work.join("browser.json")).ok().and_then(|b| serde_json::from_slice(&b).ok());
         }
         if let Some(mut recorder) = self.recorder.take() {
             procs::signal(recorder.id(), rustix::process::Signal::INT);
@@ -71,9 +77,9 @@ impl Monitor {
                 wait_or_kill(&mut recorder, Duration::from_secs(20));
                 text = reader.join().unwrap_or_default();
             }
-            report.recorder = serde_json::from_str(text.trim()).ok().or_else(|| {
-                (!text.trim().is_empty()).then(|| serde_json::Value::String(text.trim().to_owned()))
-            });
+            report.recorder = serde_json::from_str(text.trim())
+                .ok()
+                .or_else(|| (!text.trim().is_empty()).then(|| serde_json::Value::String(text.trim().to_owned())));
             let _ = std::fs::remove_file(work.join("soak.mcap"));
         }
         if let Some(viewer) = self.viewer.take() {

@@ -111,7 +111,11 @@ impl Observer {
     /// Frames `channel` published after `from_ns`.
     pub fn published_since(&self, channel: &str, from_ns: u64) -> usize {
         let views = self.views();
-        views.channels.iter().find(|c| c.name == channel).map_or(0, |c| c.published.iter().filter(|&&ns| ns > from_ns).count())
+        views
+            .channels
+            .iter()
+            .find(|c| c.name == channel)
+            .map_or(0, |c| c.published.iter().filter(|&&ns| ns > from_ns).count())
     }
 
     /// When `channel` first published after `from_ns`, if it did (within
@@ -145,7 +149,8 @@ struct Watch {
 }
 
 fn observe(skin: &str, dir: &std::path::Path, views: &Mutex<Views>, stop: &Stop) {
-    let names: Vec<String> = views.lock().unwrap_or_else(|p| p.into_inner()).channels.iter().map(|c| c.name.clone()).collect();
+    let names: Vec<String> =
+        views.lock().unwrap_or_else(|p| p.into_inner()).channels.iter().map(|c| c.name.clone()).collect();
     let options = ReaderOptions { dir: Some(dir.to_owned()), ..ReaderOptions::default() };
     let mut watches: Vec<Watch> =
         names.iter().map(|_| Watch { reader: None, last_new_ns: 0, next_open_ns: 0, stale_ns: 50_000_000 }).collect();
@@ -161,7 +166,8 @@ fn observe(skin: &str, dir: &std::path::Path, views: &Mutex<Views>, stop: &Stop)
             if watch.reader.is_none() && now >= watch.next_open_ns {
                 watch.next_open_ns = now + 100_000_000;
                 if let Ok(reader) = Reader::open_with(skin, &names[index], &options) {
-                    watch.stale_ns = reader.writer_period().map_or(50_000_000, |p| 3 * p.as_nanos() as u64 / 2).max(10_000_000);
+                    watch.stale_ns =
+                        reader.writer_period().map_or(50_000_000, |p| 3 * p.as_nanos() as u64 / 2).max(10_000_000);
                     watch.reader = Some(reader);
                 }
             }

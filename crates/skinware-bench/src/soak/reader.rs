@@ -56,9 +56,10 @@ impl Mode {
 
     /// The mode named `name`.
     pub fn parse(name: &str) -> Result<Mode> {
-        MODES.into_iter().find(|m| m.name() == name).with_context(|| {
-            format!("unknown reader mode {name:?}: give one of periodic, asap, request, anticipate")
-        })
+        MODES
+            .into_iter()
+            .find(|m| m.name() == name)
+            .with_context(|| format!("unknown reader mode {name:?}: give one of periodic, asap, request, anticipate"))
     }
 }
 
@@ -242,7 +243,8 @@ pub fn run(args: &ReaderArgs) -> Result<()> {
         args.layers.iter().map(|layer| (layer.clone(), Arc::new(Mutex::new(LayerTally::default())))).collect();
     let mut threads = Vec::new();
     for (index, (layer, tally)) in tallies.iter().enumerate() {
-        let (skin, layer, tally, stop, mode) = (args.skin.clone(), layer.clone(), tally.clone(), stop.clone(), args.mode);
+        let (skin, layer, tally, stop, mode) =
+            (args.skin.clone(), layer.clone(), tally.clone(), stop.clone(), args.mode);
         let seed = u64::from(std::process::id()) << 8 | index as u64;
         threads.push(
             std::thread::Builder::new()
@@ -278,10 +280,8 @@ pub fn run(args: &ReaderArgs) -> Result<()> {
 /// Reads one layer in `mode` until `stop`, counting into `tally`.
 fn read_layer(skin: &str, layer: &str, mode: Mode, tally: &Mutex<LayerTally>, stop: &Stop, seed: u64) {
     let lock = || tally.lock().unwrap_or_else(|p| p.into_inner());
-    let options = ReaderOptions {
-        anticipate: (mode == Mode::Anticipate).then_some(ANTICIPATE),
-        ..ReaderOptions::default()
-    };
+    let options =
+        ReaderOptions { anticipate: (mode == Mode::Anticipate).then_some(ANTICIPATE), ..ReaderOptions::default() };
     let mut reader = loop {
         match Reader::open_with(skin, layer, &options) {
             Ok(reader) => break reader,
@@ -301,7 +301,8 @@ fn read_layer(skin: &str, layer: &str, mode: Mode, tally: &Mutex<LayerTally>, st
     // A periodic reader's writer that published nothing for this long may
     // be gone: time to look for a successor (what a periodic application
     // does today; a reader that follows on its own makes it a no-op).
-    let stale_after = reader.writer_period().map_or(Duration::from_millis(100), |p| 2 * p).max(Duration::from_millis(20));
+    let stale_after =
+        reader.writer_period().map_or(Duration::from_millis(100), |p| 2 * p).max(Duration::from_millis(20));
     let mut last_fresh = std::time::Instant::now();
     loop {
         let result = match mode {

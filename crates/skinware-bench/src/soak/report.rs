@@ -53,6 +53,9 @@ pub struct FaultRecord {
     pub name_back_ms: Option<f64>,
     /// What else happened (e.g. the supervisor killed a stopped driver).
     pub note: String,
+    /// The soak was interrupted (Ctrl-C) before every layer was back: the
+    /// fault is logged but counts in no recovery figure.
+    pub interrupted: bool,
 }
 
 /// Percentiles of a set of durations, ms.
@@ -115,6 +118,9 @@ pub struct StuckEpisode {
     pub attached: bool,
 }
 
+/// One sample of a process: `(seconds since the start of the soak, RSS KiB, fds)`.
+pub type Sample = (f64, u64, u64);
+
 /// One process's resident memory and descriptors over the run.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct ProcessSeries {
@@ -143,7 +149,7 @@ pub struct ProcessSeries {
     /// Whether its descriptors grew: the last sample above the first quarter's most plus 2.
     pub fds_grew: bool,
     /// `[seconds since the start of the soak, RSS KiB, fds]`, one per sample.
-    pub samples: Vec<(f64, u64, u64)>,
+    pub samples: Vec<Sample>,
 }
 
 impl ProcessSeries {
@@ -157,7 +163,7 @@ impl ProcessSeries {
         self.rss_kib_max = self.samples.iter().map(|s| s.1).max().unwrap_or(0);
         self.fds_max = self.samples.iter().map(|s| s.2).max().unwrap_or(0);
         let quarter = (self.samples.len() / 4).max(1);
-        let median = |part: &[(f64, u64, u64)]| {
+        let median = |part: &[Sample]| {
             let mut rss: Vec<u64> = part.iter().map(|s| s.1).collect();
             rss.sort_unstable();
             rss[rss.len() / 2]
@@ -264,7 +270,15 @@ impl SoakReport {
         let t = &self.totals;
         println!(
             "| all | | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
-            t.verified, t.torn, t.backwards, t.lost_counted, t.lost_silently, t.over_counted, t.lost_at_follow, t.repeats, t.follows
+            t.verified,
+            t.torn,
+            t.backwards,
+            t.lost_counted,
+            t.lost_silently,
+            t.over_counted,
+            t.lost_at_follow,
+            t.repeats,
+            t.follows
         );
         println!();
         println!(
@@ -280,7 +294,11 @@ impl SoakReport {
                 r.count,
                 ms(&r.after_end_ms),
                 ms(&r.after_injection_ms),
-                if r.services_after_end_ms.samples == 0 { "–".into() } else { format!("{:.0}", r.services_after_end_ms.max) },
+                if r.services_after_end_ms.samples == 0 {
+                    "–".into()
+                } else {
+                    format!("{:.0}", r.services_after_end_ms.max)
+                },
                 r.not_back
             );
         }
@@ -298,7 +316,14 @@ impl SoakReport {
             let grew: Vec<String> = all
                 .iter()
                 .filter(|p| p.rss_grew || p.fds_grew)
-                .map(|p| format!("{} ({}{})", p.pid, if p.rss_grew { "RSS " } else { "" }, if p.fds_grew { "fds" } else { "" }))
+                .map(|p| {
+                    format!(
+                        "{} ({}{})",
+                        p.pid,
+                        if p.rss_grew { "RSS " } else { "" },
+                        if p.fds_grew { "fds" } else { "" }
+                    )
+                })
                 .collect();
             println!(
                 "| {} | {} | {}, {:.0} | {:.1} / {:.1} / {:.1} | {} / {} / {} | {:.1} / {} | {} |",

@@ -32,7 +32,8 @@ pub fn pattern_response(seq: u64, index: usize) -> u16 {
 /// span): a reader that does not know [`pattern_response`] can still check
 /// that a frame is whole.
 pub fn pattern_checksum(responses: &[u16]) -> u16 {
-    let hash = responses.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &r| (h ^ u64::from(r)).wrapping_mul(0x0100_0000_01b3));
+    let hash =
+        responses.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &r| (h ^ u64::from(r)).wrapping_mul(0x0100_0000_01b3));
     PATTERN_BASE + ((hash ^ (hash >> 32)) % PATTERN_SPAN) as u16
 }
 
