@@ -186,7 +186,7 @@ need(totals.get("verified", 0) == sum(t.get("counts", {}).get("verified", 0) for
      "soak.json: the totals are not the modes' sum")
 # A round of faults holds every kind once; two minutes hold at least one round.
 kinds = {"driver_sigkill", "driver_sigstop", "reader_sigkill", "reader_sigstop", "cable_pull", "foreign_stopped_writers",
-         "unlink_live_name", "squat_file", "squat_fifo", "squat_symlink", "cpu_hog"}
+         "unlink_live_name", "squat_file", "squat_fifo", "squat_symlink", "cpu_hog", "fifo_squat_driver_kill"}
 need(set(soak.get("recovery", {})) == kinds, f"soak.json: fault kinds {sorted(soak.get('recovery', {}))}")
 for fault in soak.get("faults", []):
     need(fault.get("kind") in kinds and fault.get("ended_s", -1) >= fault.get("injected_s", 0) > 0

@@ -44,10 +44,15 @@ pub enum FaultKind {
     SquatSymlink,
     /// Two busy threads per CPU at the normal priority for 2-5 s.
     CpuHog,
+    /// A stale socket and a FIFO name lock at a channel of a skin that does
+    /// not run (whoever lists the skins may block opening that FIFO); 0.5 s
+    /// later a driver is SIGKILLed beside them. They are removed once every
+    /// layer runs again, or 5 s after the kill.
+    FifoSquatDriverKill,
 }
 
 /// Every kind: each round of faults is a shuffle of them all.
-pub const KINDS: [FaultKind; 11] = [
+pub const KINDS: [FaultKind; 12] = [
     FaultKind::DriverKill,
     FaultKind::DriverStop,
     FaultKind::ReaderKill,
@@ -59,6 +64,7 @@ pub const KINDS: [FaultKind; 11] = [
     FaultKind::SquatFifo,
     FaultKind::SquatSymlink,
     FaultKind::CpuHog,
+    FaultKind::FifoSquatDriverKill,
 ];
 
 impl FaultKind {
@@ -76,6 +82,7 @@ impl FaultKind {
             FaultKind::SquatFifo => "squat_fifo",
             FaultKind::SquatSymlink => "squat_symlink",
             FaultKind::CpuHog => "cpu_hog",
+            FaultKind::FifoSquatDriverKill => "fifo_squat_driver_kill",
         }
     }
 }
@@ -265,8 +272,10 @@ impl Soak<'_> {
                 kind: kind.name().to_owned(),
                 target,
                 injected_s: at,
+                injected_monotonic_ns: injected_ns,
                 injected_unix_s: unix,
                 ended_s: at,
+                ended_monotonic_ns: injected_ns,
                 ended_unix_s: unix,
                 ..FaultRecord::default()
             },
@@ -277,6 +286,7 @@ impl Soak<'_> {
 
     fn end(&self, injected: &mut Injected) {
         injected.ended_ns = skinware::os::monotonic_ns();
+        injected.record.ended_monotonic_ns = injected.ended_ns;
         injected.record.ended_s = self.elapsed_s();
         injected.record.ended_unix_s = unix_now_s();
         injected.record.held_s = (injected.ended_ns - injected.injected_ns) as f64 / 1e9;
@@ -372,6 +382,7 @@ impl Soak<'_> {
                 Ok(injected)
             }
             FaultKind::ForeignStoppedWriters => self.foreign_stopped_writers(index),
+            FaultKind::FifoSquatDriverKill => self.fifo_squat_driver_kill(index),
             FaultKind::UnlinkLiveName => {
                 let layer =
                     self.options.layers[self.chaos.below(self.options.layers.len() as u64) as usize].name.clone();
@@ -454,6 +465,42 @@ impl Soak<'_> {
         Ok(injected)
     }
 
+    fn fifo_squat_driver_kill(&mut self, index: usize) -> Result<Injected> {
+        let channel = format!("layer{index}");
+        let [socket, lock] = channel_paths(&self.options.dir, GHOST_SKIN, &channel);
+        self.squats.push(socket.clone());
+        // A socket nobody listens on: what a writer killed without cleaning up leaves.
+        drop(
+            std::os::unix::net::UnixListener::bind(&socket)
+                .with_context(|| format!("cannot bind {}", socket.display()))?,
+        );
+        self.squats.push(lock.clone());
+        let status = std::process::Command::new("mkfifo").arg(&lock).status().context("cannot run mkfifo")?;
+        if !status.success() {
+            bail!("mkfifo {} failed ({status})", lock.display());
+        }
+        self.idle(Duration::from_millis(500));
+        let (name, driver) = self.driver()?;
+        let injected = self.begin(
+            FaultKind::FifoSquatDriverKill,
+            index,
+            format!("a stale socket and a FIFO lock at {GHOST_SKIN}/{channel}, then {name} (pid {driver}) killed"),
+        );
+        procs::signal(driver, Signal::KILL);
+        self.observer.mark(injected.ended_ns);
+        let killed = Instant::now();
+        while killed.elapsed() < Duration::from_secs(5) && self.observer.recovered().is_none() {
+            if !self.idle(Duration::from_millis(5)) {
+                break;
+            }
+        }
+        for path in [&socket, &lock] {
+            remove_squat(path);
+        }
+        self.squats.retain(|p| p != &socket && p != &lock);
+        Ok(injected)
+    }
+
     fn squat(&mut self, kind: FaultKind, index: usize) -> Result<Injected> {
         let channel = format!("layer{index}");
         let paths = channel_paths(&self.options.dir, GHOST_SKIN, &channel);
@@ -533,7 +580,7 @@ mod tests {
     fn a_seed_gives_the_same_faults_and_every_round_has_every_kind() {
         let draw = |seed| {
             let mut chaos = Chaos::new(seed);
-            (0..33).map(|_| chaos.next_kind()).collect::<Vec<_>>()
+            (0..36).map(|_| chaos.next_kind()).collect::<Vec<_>>()
         };
         assert_eq!(draw(7), draw(7));
         assert_ne!(draw(7), draw(8));

@@ -30,12 +30,19 @@ pub struct FaultRecord {
     pub target: String,
     /// Seconds from the start of the soak to the injection (CLOCK_MONOTONIC).
     pub injected_s: f64,
+    /// The injection on CLOCK_MONOTONIC, ns (the clock of the frames'
+    /// times and of the skin's logs' monotonic stamps).
+    pub injected_monotonic_ns: u64,
     /// The injection's wall-clock time, seconds since the Unix epoch.
     pub injected_unix_s: f64,
     /// Seconds from the start of the soak to the fault's end: the kill for a
-    /// SIGKILL, the SIGCONT for a stop, the restore for a cable pull, the
-    /// removal for a squat, the end of the CPU hog.
+    /// SIGKILL (also the driver's, beside stopped foreign writers or a
+    /// FIFO squat), the SIGCONT for a stop, the restore for a cable pull,
+    /// the removal for a squat, the unlink of a live name, the end of the
+    /// CPU hog.
     pub ended_s: f64,
+    /// The end on CLOCK_MONOTONIC, ns.
+    pub ended_monotonic_ns: u64,
     /// The end's wall-clock time, seconds since the Unix epoch.
     pub ended_unix_s: f64,
     /// How long the fault was held (0 for a kill or an unlink).
@@ -285,6 +292,7 @@ impl SoakReport {
             "| fault | count | every layer back after the fault's end, ms p50 / p99 / max | after the injection, ms p50 / p99 / max | layers and services after the end, max ms | not back |"
         );
         println!("|---|---|---|---|---|---|");
+        // Printed under the table too, since the two columns are easy to misread.
         for (kind, r) in &self.recovery {
             let ms = |s: &MsStats| {
                 if s.samples == 0 { "–".to_owned() } else { format!("{:.0} / {:.0} / {:.0}", s.p50, s.p99, s.max) }
@@ -302,6 +310,9 @@ impl SoakReport {
                 r.not_back
             );
         }
+        println!(
+            "back = the publication of the last layer's first frame after the moment (it includes waiting for each layer's next period, up to 33 ms on the paper's skin); the end is the kill, the SIGCONT, the restore, the removal or the hog's exit (docs/benchmarks.md)"
+        );
         println!();
         println!(
             "| process | processes | longest-lived: pid, s sampled | its RSS MiB first / last / max | its fds first / last / max | RSS / fds most of any | grew |"
