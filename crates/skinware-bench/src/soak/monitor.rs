@@ -140,9 +140,9 @@ impl Soak<'_> {
     }
 
     /// A reader is stuck when it is alive and running (not stopped, and
-    /// started or resumed [`STUCK_AFTER_S`] ago), its layer has had frames
-    /// to give for [`STUCK_AFTER_S`] since the reader's last new frame, and
-    /// it got none of them.
+    /// started or resumed [`STUCK_AFTER_S`] ago), its layer has been
+    /// publishing without a pause for [`STUCK_AFTER_S`] since the reader's
+    /// last new frame, and it got none of those frames.
     fn check_stuck(&mut self, now: u64) {
         let stuck_after = (STUCK_AFTER_S * 1e9) as u64;
         let at_s = self.elapsed_s();
@@ -159,8 +159,12 @@ impl Soak<'_> {
                 // process itself may have hung.
                 let last = tally.last_new_ns.max(reader.since_ns);
                 let key = (pid, layer.name.clone());
-                let available = self.observer.first_published_after(&layer.name, last);
-                let stuck = available.is_some_and(|first| now.saturating_sub(first) > stuck_after);
+                // Frames it could have had: the layer's current run of
+                // frames after the reader's last one (a writer that died
+                // just after that frame and a successor 2 s later do not
+                // make 2 s of frames to have).
+                let available = self.observer.publishing_since(&layer.name, last);
+                let stuck = available.is_some_and(|since| now.saturating_sub(since) > stuck_after);
                 if !stuck {
                     self.monitor.stuck_now.remove(&key);
                     continue;

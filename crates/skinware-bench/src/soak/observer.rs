@@ -15,6 +15,25 @@ use skinware::{Reader, ReaderOptions, RtOptions, Stop};
 const POLL_NS: u64 = 5_000_000;
 /// How long it remembers each channel's publications.
 const REMEMBER_NS: u64 = 30_000_000_000;
+/// The shortest pause between frames taken for a channel that stopped publishing.
+const MIN_PAUSE_NS: u64 = 250_000_000;
+
+/// Since when `channel` (whose frames were `published`, in order) has
+/// been publishing without a pause longer than `pause_ns`, counting only
+/// frames after `from_ns`; `None` if it published none after `from_ns` or
+/// has paused since its last frame (at `now_ns`).
+pub fn publishing_since(published: &[u64], from_ns: u64, now_ns: u64, pause_ns: u64) -> Option<u64> {
+    let mut frames = published.iter().copied().filter(|&ns| ns > from_ns);
+    let mut since = frames.next()?;
+    let mut last = since;
+    for ns in frames {
+        if ns.saturating_sub(last) > pause_ns {
+            since = ns;
+        }
+        last = ns;
+    }
+    (now_ns.saturating_sub(last) <= pause_ns).then_some(since)
+}
 
 /// One channel as the observer last saw it.
 #[derive(Clone, Debug, Default)]
@@ -26,6 +45,9 @@ struct ChannelView {
     published: VecDeque<u64>,
     /// The publication time of its first frame after the mark.
     first_after_mark: Option<u64>,
+    /// The longest pause between two frames of a channel that still
+    /// publishes (three periods, at least 250 ms), ns.
+    pause_ns: u64,
 }
 
 #[derive(Default)]
@@ -59,7 +81,12 @@ impl Observer {
             .iter()
             .map(|name| (name, true))
             .chain(services.iter().map(|name| (name, false)))
-            .map(|(name, is_layer)| ChannelView { name: name.clone(), is_layer, ..ChannelView::default() })
+            .map(|(name, is_layer)| ChannelView {
+                name: name.clone(),
+                is_layer,
+                pause_ns: MIN_PAUSE_NS,
+                ..ChannelView::default()
+            })
             .collect();
         let views = Arc::new(Mutex::new(Views { channels, mark_ns: u64::MAX }));
         let stop = Stop::new();
@@ -118,11 +145,13 @@ impl Observer {
             .map_or(0, |c| c.published.iter().filter(|&&ns| ns > from_ns).count())
     }
 
-    /// When `channel` first published after `from_ns`, if it did (within
-    /// what the observer remembers).
-    pub fn first_published_after(&self, channel: &str, from_ns: u64) -> Option<u64> {
+    /// Since when `channel` has been publishing frames after `from_ns`
+    /// without pausing (see [`publishing_since`]), if it is now.
+    pub fn publishing_since(&self, channel: &str, from_ns: u64) -> Option<u64> {
         let views = self.views();
-        views.channels.iter().find(|c| c.name == channel)?.published.iter().copied().find(|&ns| ns > from_ns)
+        let view = views.channels.iter().find(|c| c.name == channel)?;
+        let published: Vec<u64> = view.published.iter().copied().collect();
+        publishing_since(&published, from_ns, skinware::os::monotonic_ns(), view.pause_ns)
     }
 
     /// Whether every channel published after `from_ns`.
@@ -197,5 +226,27 @@ fn observe(skin: &str, dir: &std::path::Path, views: &Mutex<Views>, stop: &Stop)
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::publishing_since;
+
+    const MS: u64 = 1_000_000;
+
+    #[test]
+    fn publishing_counts_from_the_start_of_the_current_run_of_frames() {
+        // A frame 20 ms after the reader's last, a pause of 2.5 s (a dead
+        // writer), then a successor every 25 ms.
+        let mut published = vec![1_000 * MS, 1_020 * MS];
+        published.extend((0..8).map(|i| 3_500 * MS + 25 * MS * i));
+        let last = published.last().copied().unwrap();
+        assert_eq!(publishing_since(&published, 1_000 * MS, last + 10 * MS, 250 * MS), Some(3_500 * MS));
+        // Frames right after the reader's last one, still coming.
+        assert_eq!(publishing_since(&published, 3_540 * MS, last, 250 * MS), Some(3_550 * MS));
+        // Nothing after the reader's last frame, or a channel that has stopped.
+        assert_eq!(publishing_since(&published, last, last + MS, 250 * MS), None);
+        assert_eq!(publishing_since(&published, 1_000 * MS, last + 300 * MS, 250 * MS), None);
     }
 }
