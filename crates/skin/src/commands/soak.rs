@@ -242,9 +242,17 @@ struct BrowserReport {
     longest_gap_ms: f64,
     /// When that gap ended (CLOCK_MONOTONIC ns), to find what caused it.
     longest_gap_ended_ns: u64,
+    /// Every wait for an update longer than [`STALL_MS`]: when it ended
+    /// (CLOCK_MONOTONIC ns) and how long it was (ms), for the soak to match
+    /// with its faults (the first 10,000).
+    stalls: Vec<(u64, f64)>,
     /// The last error, if any.
     last_error: Option<String>,
 }
+
+/// The shortest wait for an update that the browser lists as a stall: ten
+/// times the viewer's period at 30-50 Hz layers.
+const STALL_MS: f64 = 300.0;
 
 /// The viewer's browser for the soak: takes the geometry, acknowledges
 /// the updates at 60 Hz as a page does, reconnects if the connection ends,
@@ -317,9 +325,13 @@ fn browse(
                 unacked += 1;
                 if let Some(last) = last_update {
                     let gap_ms = last.elapsed().as_secs_f64() * 1e3;
+                    let now_ns = skinware::os::monotonic_ns();
                     if gap_ms > report.longest_gap_ms {
                         report.longest_gap_ms = gap_ms;
-                        report.longest_gap_ended_ns = skinware::os::monotonic_ns();
+                        report.longest_gap_ended_ns = now_ns;
+                    }
+                    if gap_ms > STALL_MS && report.stalls.len() < 10_000 {
+                        report.stalls.push((now_ns, gap_ms));
                     }
                 }
                 last_update = Some(Instant::now());

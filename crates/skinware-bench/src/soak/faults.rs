@@ -545,9 +545,32 @@ impl Soak<'_> {
     }
 }
 
+/// Matches the browser's stalls (`(ended_ns, ms)`) with the faults: each
+/// fault gets the longest that overlapped it, from its injection until a
+/// second after every layer and service was back.
+fn match_viewer_stalls(report: &mut SoakReport) {
+    let Some(stalls) = report.browser.as_ref().and_then(|b| b.get("stalls")).and_then(|s| s.as_array()) else {
+        return;
+    };
+    let stalls: Vec<(u64, f64)> =
+        stalls.iter().filter_map(|stall| Some((stall.get(0)?.as_u64()?, stall.get(1)?.as_f64()?))).collect();
+    for fault in &mut report.faults {
+        let back_ms = fault.services_back_after_end_ms.or(fault.back_after_end_ms).unwrap_or(0.0);
+        let until = fault.ended_monotonic_ns + ((back_ms + 1000.0) * 1e6) as u64;
+        fault.viewer_longest_wait_ms = stalls
+            .iter()
+            .filter(|&&(ended, ms)| {
+                ended >= fault.injected_monotonic_ns && ended.saturating_sub((ms * 1e6) as u64) <= until
+            })
+            .map(|&(_, ms)| ms)
+            .reduce(f64::max);
+    }
+}
+
 /// The recovery figures per kind of fault, and whether every layer was back
 /// within 1 s of every fault's end.
 pub(super) fn summarize_recovery(report: &mut SoakReport) {
+    match_viewer_stalls(report);
     for kind in KINDS {
         let faults: Vec<&FaultRecord> =
             report.faults.iter().filter(|f| f.kind == kind.name() && !f.interrupted).collect();
@@ -565,6 +588,7 @@ pub(super) fn summarize_recovery(report: &mut SoakReport) {
                 after_end_ms: MsStats::of(&after_end),
                 after_injection_ms: MsStats::of(&after_injection),
                 services_after_end_ms: MsStats::of(&services),
+                viewer_longest_wait_ms: faults.iter().filter_map(|f| f.viewer_longest_wait_ms).fold(0.0, f64::max),
             },
         );
     }
@@ -590,6 +614,32 @@ mod tests {
             names.dedup();
             assert_eq!(names.len(), KINDS.len(), "{round:?}");
         }
+    }
+
+    #[test]
+    fn viewer_stalls_go_to_the_faults_they_overlap() {
+        const S: u64 = 1_000_000_000;
+        let fault = |index, injected_s: u64, ended_s: u64| FaultRecord {
+            index,
+            injected_monotonic_ns: injected_s * S,
+            ended_monotonic_ns: ended_s * S,
+            back_after_end_ms: Some(500.0),
+            ..FaultRecord::default()
+        };
+        let mut report = SoakReport {
+            faults: vec![fault(1, 10, 12), fault(2, 30, 30)],
+            // Ends inside fault 1; started before fault 2 and ended in it; long after both.
+            browser: Some(
+                serde_json::json!({"stalls": [[11 * S, 400.0], [31 * S, 2_000.0], [60 * S, 900.0], [11 * S, 350.0]]}),
+            ),
+            ..SoakReport::default()
+        };
+        match_viewer_stalls(&mut report);
+        assert_eq!(report.faults[0].viewer_longest_wait_ms, Some(400.0));
+        assert_eq!(report.faults[1].viewer_longest_wait_ms, Some(2_000.0));
+        report.browser = Some(serde_json::json!({"stalls": [[50 * S, 400.0]]}));
+        match_viewer_stalls(&mut report);
+        assert_eq!(report.faults[0].viewer_longest_wait_ms, None);
     }
 
     #[test]

@@ -58,6 +58,10 @@ pub struct FaultRecord {
     /// For an unlinked name: from the unlink until the writer's socket and
     /// name lock were back at their paths.
     pub name_back_ms: Option<f64>,
+    /// The viewer's browser's longest wait for an update (over 300 ms) that
+    /// overlapped the fault, from its injection until a second after every
+    /// layer and service was back; `None` if it had no such wait.
+    pub viewer_longest_wait_ms: Option<f64>,
     /// What else happened (e.g. the supervisor killed a stopped driver).
     pub note: String,
     /// The soak was interrupted (Ctrl-C) before every layer was back: the
@@ -104,6 +108,9 @@ pub struct Recovery {
     pub after_injection_ms: MsStats,
     /// From the fault's end until every layer and service published again, ms.
     pub services_after_end_ms: MsStats,
+    /// The viewer's browser's longest wait for an update during a fault of
+    /// this kind, ms (0: none over 300 ms).
+    pub viewer_longest_wait_ms: f64,
 }
 
 /// A verifying reader that stopped getting frames while its layer published.
@@ -289,9 +296,9 @@ impl SoakReport {
         );
         println!();
         println!(
-            "| fault | count | every layer back after the fault's end, ms p50 / p99 / max | after the injection, ms p50 / p99 / max | layers and services after the end, max ms | not back |"
+            "| fault | count | every layer back after the fault's end, ms p50 / p99 / max | after the injection, ms p50 / p99 / max | layers and services after the end, max ms | not back | viewer's longest wait for an update, ms |"
         );
-        println!("|---|---|---|---|---|---|");
+        println!("|---|---|---|---|---|---|---|");
         // Printed under the table too, since the two columns are easy to misread.
         for (kind, r) in &self.recovery {
             let ms = |s: &MsStats| {
@@ -367,7 +374,13 @@ impl SoakReport {
             println!("  left behind: {file}");
         }
         if let Some(browser) = &self.browser {
-            println!("viewer's browser: {browser}");
+            let mut shown = browser.clone();
+            if let Some(stalls) = shown.as_object_mut().and_then(|o| o.remove("stalls")) {
+                let count = stalls.as_array().map_or(0, Vec::len);
+                println!("viewer's browser: {shown}; {count} wait(s) over 300 ms for an update");
+            } else {
+                println!("viewer's browser: {shown}");
+            }
         }
         if let Some(gap) = &self.browser_longest_gap_during {
             println!("  its longest wait for an update: {gap}");
