@@ -305,7 +305,7 @@ impl SoakReport {
                 if s.samples == 0 { "–".to_owned() } else { format!("{:.0} / {:.0} / {:.0}", s.p50, s.p99, s.max) }
             };
             println!(
-                "| {kind} | {} | {} | {} | {} | {} |",
+                "| {kind} | {} | {} | {} | {} | {} | {} |",
                 r.count,
                 ms(&r.after_end_ms),
                 ms(&r.after_injection_ms),
@@ -314,7 +314,12 @@ impl SoakReport {
                 } else {
                     format!("{:.0}", r.services_after_end_ms.max)
                 },
-                r.not_back
+                r.not_back,
+                if r.viewer_longest_wait_ms > 0.0 {
+                    format!("{:.0}", r.viewer_longest_wait_ms)
+                } else {
+                    "< 300".into()
+                }
             );
         }
         println!(
