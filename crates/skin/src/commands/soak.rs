@@ -23,7 +23,8 @@ pub struct SoakArgs {
     /// verification pattern during the soak; the contact and motion
     /// services are added if it has no service.
     config: PathBuf,
-    /// Minutes of faults (the start and the end take some seconds more).
+    /// Minutes of faults (the start and the end take some seconds more; at
+    /// least one round of every kind of fault, about 80 s, however short).
     #[arg(long, value_parser = parse_minutes)]
     minutes: Option<f64>,
     /// Two minutes, as CI runs it (unless --minutes says otherwise).

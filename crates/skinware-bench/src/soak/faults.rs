@@ -166,14 +166,16 @@ fn channel_paths(dir: &Path, skin: &str, channel: &str) -> [PathBuf; 2] {
 
 impl Soak<'_> {
     /// Injects faults one at a time, each after a pause of 2-5 s and once
-    /// every layer runs again after the previous one, for the soak's minutes.
+    /// every layer runs again after the previous one, for the soak's minutes
+    /// and at least one round of every kind.
     pub(super) fn run_faults(&mut self) -> Result<()> {
         let phase = Instant::now();
         let minutes = Duration::from_secs_f64(self.options.minutes * 60.0);
         let mut index = 0;
         let result = loop {
             let pause = self.chaos.seconds(2.0, 5.0);
-            if !self.idle(pause) || phase.elapsed() >= minutes {
+            // At least one round, so that a short run (CI's) has every kind.
+            if !self.idle(pause) || (phase.elapsed() >= minutes && index >= KINDS.len()) {
                 break Ok(());
             }
             index += 1;
