@@ -2,7 +2,6 @@
 //! log lines, and their recovery times summed up per kind.
 
 use std::io::BufRead;
-use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
@@ -11,6 +10,7 @@ use rustix::process::Signal;
 
 use super::helpers::FOREIGN_SKIN;
 use super::report::{FaultRecord, MsStats, Recovery, SoakReport};
+use super::squats::{channel_paths, remove_squat};
 use super::{RECOVERY_WAIT, Soak};
 use crate::procs::{self, Guarded};
 
@@ -87,9 +87,6 @@ impl FaultKind {
     }
 }
 
-/// The skin whose channel names the squats take: no skin runs under it.
-const GHOST_SKIN: &str = "soak-ghost";
-
 /// xorshift64*: the faults' order, targets and durations from a printed seed.
 pub(super) struct Chaos {
     state: u64,
@@ -128,10 +125,10 @@ impl Chaos {
 }
 
 /// A fault as injected: its record and its two moments (CLOCK_MONOTONIC ns).
-struct Injected {
-    record: FaultRecord,
-    injected_ns: u64,
-    ended_ns: u64,
+pub(super) struct Injected {
+    pub(super) record: FaultRecord,
+    pub(super) injected_ns: u64,
+    pub(super) ended_ns: u64,
 }
 
 fn unix_now_s() -> f64 {
@@ -143,25 +140,6 @@ fn clock(unix_s: f64) -> String {
     let ms = (unix_s * 1000.0) as u64;
     let (s, ms) = (ms / 1000, ms % 1000);
     format!("{:02}:{:02}:{:02}.{ms:03}", s / 3600 % 24, s / 60 % 60, s % 60)
-}
-
-/// Removes a path the soak put in the segment directory. A FIFO is opened
-/// first (read-write, non-blocking), which lets anyone blocked opening it
-/// go on (they then read its end).
-pub(super) fn remove_squat(path: &Path) {
-    use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
-    let Ok(meta) = std::fs::symlink_metadata(path) else { return };
-    let opened = meta
-        .file_type()
-        .is_fifo()
-        .then(|| std::fs::OpenOptions::new().read(true).write(true).custom_flags(libc::O_NONBLOCK).open(path).ok());
-    let _ = std::fs::remove_file(path);
-    drop(opened);
-}
-
-/// The socket and name-lock paths of `skin`/`channel` in `dir`.
-fn channel_paths(dir: &Path, skin: &str, channel: &str) -> [PathBuf; 2] {
-    [dir.join(format!("skinware.{skin}.{channel}")), dir.join(format!(".skinware-lock.{skin}.{channel}"))]
 }
 
 impl Soak<'_> {
@@ -264,7 +242,7 @@ impl Soak<'_> {
         Ok(())
     }
 
-    fn begin(&self, kind: FaultKind, index: usize, target: String) -> Injected {
+    pub(super) fn begin(&self, kind: FaultKind, index: usize, target: String) -> Injected {
         let injected_ns = skinware::os::monotonic_ns();
         let at = self.elapsed_s();
         let unix = unix_now_s();
@@ -286,7 +264,7 @@ impl Soak<'_> {
         }
     }
 
-    fn end(&self, injected: &mut Injected) {
+    pub(super) fn end(&self, injected: &mut Injected) {
         injected.ended_ns = skinware::os::monotonic_ns();
         injected.record.ended_monotonic_ns = injected.ended_ns;
         injected.record.ended_s = self.elapsed_s();
@@ -295,7 +273,7 @@ impl Soak<'_> {
     }
 
     /// A driver process, waiting (up to 10 s) for one to run.
-    fn driver(&mut self) -> Result<(String, u32)> {
+    pub(super) fn driver(&mut self) -> Result<(String, u32)> {
         let deadline = Instant::now() + Duration::from_secs(10);
         loop {
             let drivers: Vec<(String, u32)> = procs::supervised_pids(self.monitor.skin_pid)
@@ -464,85 +442,6 @@ impl Soak<'_> {
             format!("{WRITERS} writers of skin {FOREIGN_SKIN} stopped, then {name} (pid {driver}) killed"),
         );
         procs::signal(driver, Signal::KILL);
-        Ok(injected)
-    }
-
-    fn fifo_squat_driver_kill(&mut self, index: usize) -> Result<Injected> {
-        let channel = format!("layer{index}");
-        let [socket, lock] = channel_paths(&self.options.dir, GHOST_SKIN, &channel);
-        self.squats.push(socket.clone());
-        // A socket nobody listens on: what a writer killed without cleaning up leaves.
-        drop(
-            std::os::unix::net::UnixListener::bind(&socket)
-                .with_context(|| format!("cannot bind {}", socket.display()))?,
-        );
-        self.squats.push(lock.clone());
-        let status = std::process::Command::new("mkfifo").arg(&lock).status().context("cannot run mkfifo")?;
-        if !status.success() {
-            bail!("mkfifo {} failed ({status})", lock.display());
-        }
-        self.idle(Duration::from_millis(500));
-        let (name, driver) = self.driver()?;
-        let injected = self.begin(
-            FaultKind::FifoSquatDriverKill,
-            index,
-            format!("a stale socket and a FIFO lock at {GHOST_SKIN}/{channel}, then {name} (pid {driver}) killed"),
-        );
-        procs::signal(driver, Signal::KILL);
-        self.observer.mark(injected.ended_ns);
-        let killed = Instant::now();
-        while killed.elapsed() < Duration::from_secs(5) && self.observer.recovered().is_none() {
-            if !self.idle(Duration::from_millis(5)) {
-                break;
-            }
-        }
-        for path in [&socket, &lock] {
-            remove_squat(path);
-        }
-        self.squats.retain(|p| p != &socket && p != &lock);
-        Ok(injected)
-    }
-
-    fn squat(&mut self, kind: FaultKind, index: usize) -> Result<Injected> {
-        let channel = format!("layer{index}");
-        let paths = channel_paths(&self.options.dir, GHOST_SKIN, &channel);
-        let hold = self.chaos.seconds(1.0, 3.0);
-        let what = match kind {
-            FaultKind::SquatFifo => "FIFOs",
-            FaultKind::SquatSymlink => "symlinks to nowhere",
-            _ => "regular files",
-        };
-        let mut injected = self.begin(kind, index, format!("{what} at {GHOST_SKIN}/{channel}'s socket and lock"));
-        let targets: Vec<PathBuf> = (0..2).map(|i| self.work.join(format!("symlink-target-{index}-{i}"))).collect();
-        for (path, target) in paths.iter().zip(&targets) {
-            self.squats.push(path.clone());
-            match kind {
-                FaultKind::SquatFifo => {
-                    let status =
-                        std::process::Command::new("mkfifo").arg(path).status().context("cannot run mkfifo")?;
-                    if !status.success() {
-                        bail!("mkfifo {} failed ({status})", path.display());
-                    }
-                }
-                FaultKind::SquatSymlink => std::os::unix::fs::symlink(target, path)
-                    .with_context(|| format!("cannot create the symlink {}", path.display()))?,
-                _ => std::fs::write(path, b"squatted by skin bench soak\n")
-                    .with_context(|| format!("cannot create {}", path.display()))?,
-            }
-        }
-        self.idle(hold);
-        for path in &paths {
-            remove_squat(path);
-        }
-        self.squats.retain(|p| !paths.contains(p));
-        self.end(&mut injected);
-        let created: Vec<String> = targets.iter().filter(|t| t.exists()).map(|t| t.display().to_string()).collect();
-        if !created.is_empty() {
-            injected.record.note = format!("something created the symlinks' targets: {}", created.join(", "));
-            for target in targets {
-                let _ = std::fs::remove_file(target);
-            }
-        }
         Ok(injected)
     }
 }

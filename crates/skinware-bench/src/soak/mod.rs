@@ -23,6 +23,7 @@ mod monitor;
 mod observer;
 pub mod reader;
 pub mod report;
+mod squats;
 
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
@@ -356,7 +357,7 @@ impl Soak<'_> {
             procs::signal(pid, rustix::process::Signal::CONT);
         }
         for squat in self.squats.drain(..) {
-            faults::remove_squat(&squat);
+            squats::remove_squat(&squat);
         }
         self.helpers.clear();
         let mut readers = std::mem::take(&mut self.readers);
