@@ -177,6 +177,43 @@ need(rows == {(m, f) for m in ("periodic 1 kHz", "as soon as available", "on req
 for row in follow.get("rows", []):
     need(row.get("followed", 0) + row.get("missed", 0) == follow.get("restarts"), f"follow.json: {row} does not account for every restart")
     need(row.get("followed", 0) > 0 and row.get("p50_ms", -1) >= 0, f"follow.json: {row} followed no successor")
+soak = json.loads((out / "soak.json").read_text())
+need(soak.get("passed") is True and soak.get("failures") == [], f"soak.json: not passed: {soak.get('failures')}")
+need(sum(soak.get("layers", {}).values()) == 30848 and len(soak.get("layers", {})) == 5, "soak.json: not the paper's skin")
+need(soak.get("services") == ["contact", "contact-taxels", "motion"], f"soak.json: services {soak.get('services')}")
+need(is_count(soak.get("seed")) and soak.get("seconds", 0) >= 110, "soak.json: seed or its two minutes of faults")
+need(sorted(soak.get("readers", {})) == ["anticipate", "asap", "periodic", "request"], f"soak.json: reader modes {sorted(soak.get('readers', {}))}")
+for mode, totals in soak.get("readers", {}).items():
+    counts = totals.get("counts", {})
+    need(counts.get("verified", 0) > 0 and totals.get("incarnations", 0) >= 1, f"soak.json: {mode} readers verified nothing")
+    for key in ("torn", "backwards", "lost_counted", "lost_silently", "over_counted", "lost_at_follow", "repeats", "follows"):
+        need(is_count(counts.get(key)), f"soak.json: {mode}: {key} not counted")
+totals = soak.get("totals", {})
+need(totals.get("verified", 0) == sum(t.get("counts", {}).get("verified", 0) for t in soak.get("readers", {}).values()),
+     "soak.json: the totals are not the modes' sum")
+# A round of faults holds every kind once; two minutes hold at least one round.
+kinds = {"driver_sigkill", "driver_sigstop", "reader_sigkill", "reader_sigstop", "cable_pull", "foreign_stopped_writers",
+         "unlink_live_name", "squat_file", "squat_fifo", "squat_symlink", "cpu_hog", "fifo_squat_driver_kill"}
+need(set(soak.get("recovery", {})) == kinds, f"soak.json: fault kinds {sorted(soak.get('recovery', {}))}")
+for fault in soak.get("faults", []):
+    need(fault.get("kind") in kinds and fault.get("ended_s", -1) >= fault.get("injected_s", 0) > 0
+         and fault.get("injected_unix_s", 0) > 1.6e9 and bool(fault.get("target")), f"soak.json: fault {fault.get('index')} incomplete")
+    # Every fault is either timed or counted as not back.
+    need(fault.get("back_after_end_ms") is None or fault["back_after_end_ms"] <= fault.get("back_after_injection_ms", -1),
+         f"soak.json: fault {fault.get('index')}: back sooner after the end than after the injection")
+for kind, recovery in soak.get("recovery", {}).items():
+    need(recovery.get("count", 0) >= 1 and recovery.get("after_end_ms", {}).get("samples", 0) + recovery.get("not_back", -1) == recovery["count"],
+         f"soak.json: {kind}: faults neither timed nor counted not back")
+need(isinstance(soak.get("every_layer_back_within_1s"), bool), "soak.json: the 1 s goal")
+names = {p.get("name") for p in soak.get("processes", [])}
+need({"skin run", "driver virtual", "service contact", "service motion", "viewer", "recorder", "browser client",
+      "reader periodic", "reader asap", "reader request", "reader anticipate"} <= names, f"soak.json: processes sampled {sorted(names)}")
+need(all(p.get("rss_kib_max", 0) > 0 and p.get("fds_max", 0) > 0 and len(p.get("samples", [])) >= 1 for p in soak.get("processes", [])),
+     "soak.json: a process's memory or descriptors missing")
+need(soak.get("leaked_files") == [] and soak.get("leaked_channels") == 0 and soak.get("stuck_readers") == [],
+     "soak.json: leaks or stuck readers")
+need(soak.get("browser", {}).get("updates", 0) > 0, "soak.json: the viewer's browser got no update")
+need(isinstance(soak.get("recorder"), dict) and soak["recorder"].get("frames", 0) > 0, "soak.json: the recorder's summary")
 
 if problems:
     print("benchmark JSON problems:\n  " + "\n  ".join(problems))

@@ -85,6 +85,18 @@ enum Command {
     /// The floor server of `skin bench kilohertz`: one message of `--bytes` per acknowledgement.
     #[command(hide = true)]
     BenchFloor(commands::kilohertz::floor::FloorArgs),
+    /// One verifying reader process of `skin bench soak`.
+    #[command(hide = true)]
+    BenchSoakReader(commands::soak::ReaderArgs),
+    /// The stopped foreign writers of `skin bench soak`.
+    #[command(hide = true)]
+    BenchSoakForeign(commands::soak::ForeignArgs),
+    /// The CPU hog of `skin bench soak`.
+    #[command(hide = true)]
+    BenchSoakHog(commands::soak::HogArgs),
+    /// The viewer's browser-like client of `skin bench soak`.
+    #[command(hide = true)]
+    BenchSoakBrowser(commands::soak::BrowserArgs),
     /// Run one service of CONFIG in this process (what `skin run` starts).
     #[command(hide = true)]
     Service {
@@ -115,13 +127,17 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    // The soak's own readers follow every restarted driver: at `info` its
+    // console would hold a line per layer per restart among the faults' lines.
+    let soak = matches!(cli.command, Command::Bench { which: commands::bench::Which::Soak(_) });
+    let default_filter = if soak { "warn" } else { "info,zenoh=warn" };
     tracing_subscriber::fmt()
         .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,zenoh=warn".into()),
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default_filter.into()),
         )
         .with_writer(std::io::stderr)
         .init();
-    let cli = Cli::parse();
     // A reader of our stdout that goes away (`skin ls | head`) is not an
     // error of these commands; for the others a broken pipe is a real failure
     // (an SLCAN adapter unplugged gives one too).
@@ -159,6 +175,10 @@ fn main() -> std::process::ExitCode {
         Command::BenchApp(args) => commands::bench::app(&args),
         Command::BenchFollowWriter(args) => commands::bench::follow_writer(&args),
         Command::BenchFloor(args) => commands::kilohertz::floor::run(&args),
+        Command::BenchSoakReader(args) => commands::soak::reader(&args),
+        Command::BenchSoakForeign(args) => commands::soak::foreign(&args),
+        Command::BenchSoakHog(args) => commands::soak::hog(&args),
+        Command::BenchSoakBrowser(args) => commands::soak::browser(&args),
         Command::BenchEcatReader(args) => commands::bench::ecat_reader(&args),
         Command::BenchPeerReader(args) => commands::bench::peer_reader(&args),
     };

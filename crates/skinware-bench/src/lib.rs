@@ -22,6 +22,11 @@
 //!   model: cycle rate and jitter at 1 kHz, latency from the SubDevice to a
 //!   reader, fault detection and recovery times.
 //!
+//! * [`soak`]: an hour (or any time) of faults on a skin under `skin run`,
+//!   with readers that verify every frame: torn, backwards and silently
+//!   lost frames, stuck readers, leaks, and how long every layer takes to
+//!   run again after each kind of fault.
+//!
 //! Application processes are this same executable re-run with the
 //! `bench-app` role ([`app`]).
 
@@ -42,8 +47,10 @@ pub mod paper;
 mod paper_record;
 pub mod peers;
 mod plot;
+pub mod procs;
 pub mod python;
 pub mod record;
 mod rwlock_peer;
+pub mod soak;
 pub mod table1;
 pub mod wake;

@@ -154,14 +154,64 @@ impl RunningSkin {
         Ok(RunningSkin(child))
     }
 
+    /// Starts `exe run config` with its channels in `dir`, in a process
+    /// group of its own (Ctrl-C reaches only its starter, which stops it),
+    /// its standard error appended to `log`.
+    pub fn start_logged(exe: &Path, config: &Path, dir: &Path, log: &Path) -> Result<RunningSkin> {
+        use std::os::unix::process::CommandExt;
+        let file = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(log)
+            .with_context(|| format!("cannot open {}", log.display()))?;
+        let child = Command::new(exe)
+            .arg("run")
+            .arg(config)
+            .env("SKINWARE_SHM_DIR", dir)
+            .env("RUST_LOG", "info")
+            .env("NO_COLOR", "1")
+            .stdout(std::process::Stdio::null())
+            .stderr(file)
+            .process_group(0)
+            .spawn()
+            .context("cannot start `skin run`")?;
+        Ok(RunningSkin(child))
+    }
+
     /// The process id of `skin run`.
     pub fn pid(&self) -> u32 {
         self.0.id()
+    }
+
+    /// Its exit status, if it has exited.
+    pub fn try_wait(&mut self) -> Option<std::process::ExitStatus> {
+        self.0.try_wait().ok().flatten()
+    }
+
+    /// Stops it with SIGINT (as Ctrl-C would) and waits up to `patience`
+    /// for it to stop its children and remove its channels; fails if it had
+    /// to be killed or exited with a failure.
+    pub fn stop(mut self, patience: Duration) -> Result<()> {
+        let _ = Command::new("kill").args(["-INT", &self.0.id().to_string()]).status();
+        let deadline = std::time::Instant::now() + patience;
+        loop {
+            if let Ok(Some(status)) = self.0.try_wait() {
+                return if status.success() { Ok(()) } else { Err(anyhow::anyhow!("`skin run` exited with {status}")) };
+            }
+            if std::time::Instant::now() > deadline {
+                let _ = self.0.kill();
+                anyhow::bail!("`skin run` did not stop within {} s of SIGINT; killed", patience.as_secs());
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
     }
 }
 
 impl Drop for RunningSkin {
     fn drop(&mut self) {
+        if let Ok(Some(_)) = self.0.try_wait() {
+            return;
+        }
         let _ = Command::new("kill").args(["-INT", &self.0.id().to_string()]).status();
         let deadline = std::time::Instant::now() + Duration::from_secs(10);
         while std::time::Instant::now() < deadline {

@@ -31,6 +31,8 @@ pub enum Which {
     Follow(FollowArgs),
     /// The paper's skin across a veth link between two network namespaces: `skin bridge` (feature `zenoh`) beside the local exchange, at 100/10/1 Mbit/s, and a cut link (needs root).
     Bridge(Common),
+    /// Faults for N minutes on a skin of virtual drivers under `skin run`, with verifying readers in every mode, both services, the viewer and a browser, and a recorder: torn, backwards and lost frames, stuck readers, leaks, and how long every layer takes to run again after each kind of fault.
+    Soak(super::soak::SoakArgs),
 }
 
 /// Options every benchmark takes.
@@ -62,7 +64,7 @@ fn parse_bench_seconds(text: &str) -> Result<f64, String> {
 }
 
 /// `--seconds` of a bench's helper process (hidden roles).
-fn parse_helper_seconds(text: &str) -> Result<f64, String> {
+pub(crate) fn parse_helper_seconds(text: &str) -> Result<f64, String> {
     parse_seconds_up_to(text, MAX_HELPER_SECONDS, "two days")
 }
 
@@ -266,6 +268,7 @@ pub fn run(which: &Which) -> Result<()> {
             };
             skinware_bench::follow::run(&options).map(|_| ())
         }
+        Which::Soak(args) => super::soak::bench(args),
         Which::Contact(common) => {
             let options = skinware_bench::contact::ContactBenchOptions {
                 quick: common.quick,

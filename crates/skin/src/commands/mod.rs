@@ -19,5 +19,6 @@ pub mod replay;
 pub mod run;
 pub mod service;
 pub mod services;
+pub mod soak;
 pub mod top;
 pub mod view;

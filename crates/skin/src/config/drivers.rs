@@ -128,6 +128,10 @@ pub struct DriverConfig {
     /// Uids of simulated stuck (saturated) taxels.
     #[serde(default)]
     pub stuck_taxels: Vec<u32>,
+    /// Virtual skin: publish a checkable pattern instead of the simulation
+    /// (for verifying readers, `skin bench soak`).
+    #[serde(default)]
+    pub verify_pattern: bool,
     /// A calibration file (skinware or skin.calib format); the virtual skin
     /// calibrates itself when absent.
     pub calibration: Option<PathBuf>,
@@ -339,7 +343,13 @@ fn default_slots() -> usize {
 
 /// The file whose existence pulls the cable of `layer` (see `skin pull`).
 pub fn pull_file(skin: &str, layer: &str) -> PathBuf {
-    skinware::shm::segment_dir().join(format!("skinware-ctl.{skin}.{layer}.pulled"))
+    pull_file_in(&skinware::shm::segment_dir(), skin, layer)
+}
+
+/// The file whose existence pulls the cable of `layer` of a skin whose
+/// channels are in the segment directory `dir`.
+pub fn pull_file_in(dir: &std::path::Path, skin: &str, layer: &str) -> PathBuf {
+    dir.join(format!("skinware-ctl.{skin}.{layer}.pulled"))
 }
 
 impl DriverConfig {
@@ -411,6 +421,7 @@ impl DriverConfig {
                     random_contacts: self.random_contacts.unwrap_or(true),
                     dead_taxels: self.dead_taxels.clone(),
                     stuck_taxels: self.stuck_taxels.clone(),
+                    verify_pattern: self.verify_pattern,
                 };
                 if !self.explicit_layers.is_empty() {
                     if self.sensors.is_some() || self.layers.is_some() {

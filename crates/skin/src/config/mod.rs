@@ -14,7 +14,7 @@ mod topology;
 
 // What the rest of the crate names; the types nested deeper in a section
 // (RtConfig, LayerConfig, InLayer, ...) are reached through their tables.
-pub use drivers::{DriverConfig, pull_file};
+pub use drivers::{DriverConfig, pull_file, pull_file_in};
 pub use emulators::{Emulation, EmulatorConfig};
 pub use process::RestartConfig;
 pub use regions::RegionConfig;

@@ -11,6 +11,7 @@ use skinware_geometry::{Calibration, SensorCalibration};
 mod body;
 mod contacts;
 mod faults;
+pub mod pattern;
 
 pub use body::{SensorPlace, VirtualBody};
 pub use contacts::ScriptedContact;
@@ -77,6 +78,11 @@ pub struct VirtualSkinConfig {
     pub dead_taxels: Vec<u32>,
     /// Uids of taxels that are stuck at saturation.
     pub stuck_taxels: Vec<u32>,
+    /// Publish the [`pattern`] (a function of each frame's sequence number
+    /// and each sensor's index) instead of the simulation, for readers that
+    /// verify every frame (`skin bench soak`). Contacts, dead and stuck
+    /// taxels are then not simulated; cable pulls still are.
+    pub verify_pattern: bool,
 }
 
 impl Default for VirtualSkinConfig {
@@ -97,6 +103,7 @@ impl Default for VirtualSkinConfig {
             random_contacts: true,
             dead_taxels: Vec::new(),
             stuck_taxels: Vec::new(),
+            verify_pattern: false,
         }
     }
 }
@@ -284,6 +291,7 @@ impl Driver for VirtualSkin {
                 started,
                 noise: SplitMix(self.config.seed ^ (l as u64 + 1).wrapping_mul(0x5851_F42D)),
                 responses: vec![0; count],
+                verify_pattern: self.config.verify_pattern,
             }));
         }
         Ok(sources)
@@ -300,6 +308,8 @@ struct VirtualLayer {
     started: Instant,
     noise: SplitMix,
     responses: Vec<u16>,
+    /// Publish [`pattern`] frames instead of the simulation.
+    verify_pattern: bool,
 }
 
 /// The responses of the sensors at `places` (whose [`drift_phases`] are
@@ -389,6 +399,13 @@ impl LayerSource for VirtualLayer {
         let t = self.started.elapsed().as_secs_f64();
         if self.faults.cable_pulled(t) {
             return Err(format!("cable pulled: layer {} does not answer", self.name).into());
+        }
+        if self.verify_pattern {
+            // The frame's own number: the one it is published under, since a
+            // frame that fails is discarded without using its number.
+            pattern::fill_pattern(frame.seq(), &mut self.responses);
+            frame.write_responses(0, &self.responses)?;
+            return Ok(());
         }
         let places = &self.body.places[self.sensors.clone()];
         pressures(t, places, &self.phases, &self.contacts, &mut self.responses);

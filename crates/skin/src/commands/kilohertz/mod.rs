@@ -19,7 +19,7 @@
 use std::collections::BTreeMap;
 use std::net::TcpStream;
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
@@ -29,6 +29,7 @@ use serde::Serialize;
 use skinware::{Reader, ReaderOptions, WriterStats, histogram_quantile};
 use skinware_bench::app::AppSamples;
 use skinware_bench::measure::{Percentiles, RunningSkin};
+use skinware_bench::procs::{Guarded, start_viewer, supervised_pids};
 
 use super::bench::Common;
 
@@ -385,16 +386,6 @@ fn config(with_services: bool, wake: Option<Wake>) -> Result<String> {
     })
 }
 
-/// A child process killed (and reaped) when dropped.
-struct Guarded(Child);
-
-impl Drop for Guarded {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 fn start_skin(
     exe: &Path,
     (dir, wake): (&Path, Option<Wake>),
@@ -468,7 +459,7 @@ fn run_phase(
                 .context("cannot start an application process")?;
             apps.push((Guarded(child), samples));
         }
-        let (child, address) = start_viewer(viewer_exe, dir)?;
+        let (child, address) = start_viewer(viewer_exe, dir, &[], None)?;
         viewer = Some(child);
         for _ in 0..BROWSERS {
             let (stop, marks, clock, address) = (stop.clone(), marks.clone(), clock.clone(), address.clone());
@@ -654,27 +645,6 @@ fn cpu_ticks(pids: &[(String, u32)]) -> Vec<u64> {
         .collect()
 }
 
-/// The driver and service processes `skin run` started, named by their
-/// command lines (`skin driver CONFIG --name virtual`: "driver virtual").
-fn supervised_pids(parent: u32) -> Vec<(String, u32)> {
-    let mut found = Vec::new();
-    let Ok(entries) = std::fs::read_dir("/proc") else { return found };
-    for entry in entries.flatten() {
-        let Some(pid) = entry.file_name().to_str().and_then(|name| name.parse::<u32>().ok()) else { continue };
-        let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
-        let ppid = stat.rsplit_once(')').and_then(|(_, rest)| rest.split_whitespace().nth(1)?.parse::<u32>().ok());
-        if ppid != Some(parent) {
-            continue;
-        }
-        let cmdline = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
-        let words: Vec<String> = cmdline.split(|&b| b == 0).map(|w| String::from_utf8_lossy(w).into_owned()).collect();
-        let role = words.get(1).cloned().unwrap_or_default();
-        let name = words.iter().skip_while(|w| *w != "--name").nth(1).cloned().unwrap_or_else(|| pid.to_string());
-        found.push((format!("{role} {name}"), pid));
-    }
-    found
-}
-
 /// Acquisition times of layer 0's frames by sequence number, for the
 /// browsers to date what they receive. Its reader stops with `stop`, or
 /// when the last clone is dropped.
@@ -784,28 +754,6 @@ fn start_floor(exe: &Path, floor: Floor, dir: &Path) -> Result<(Guarded, String)
     let address = address.trim().to_owned();
     if address.is_empty() {
         bail!("the floor server (`skin bench-floor`) exited before it said where it listens");
-    }
-    Ok((child, address))
-}
-
-/// Starts `skin view` on a free loopback port and waits until it answers.
-fn start_viewer(exe: &Path, dir: &Path) -> Result<(Guarded, String)> {
-    let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
-    let address = format!("127.0.0.1:{port}");
-    let child = Command::new(exe)
-        .args(["view", "--listen", &address])
-        .env("SKINWARE_SHM_DIR", dir)
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::null())
-        .spawn()
-        .context("cannot start `skin view`")?;
-    let child = Guarded(child);
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while TcpStream::connect(&address).is_err() {
-        if Instant::now() > deadline {
-            bail!("`skin view` did not listen on {address} within 20 s");
-        }
-        std::thread::sleep(Duration::from_millis(50));
     }
     Ok((child, address))
 }
@@ -988,7 +936,7 @@ fn viewer_scaling(
     floor_options: Floor,
 ) -> Result<(Vec<ViewerRun>, Vec<FloorRun>)> {
     let (skin, _readers) = start_skin(exe, (dir, None), false)?;
-    let (mut viewer, address) = start_viewer(viewer_exe, dir)?;
+    let (mut viewer, address) = start_viewer(viewer_exe, dir, &[], None)?;
     let (mut floor_server, floor_address) = start_floor(exe, floor_options, dir)?;
     let floor_pid = floor_server.0.id();
     let (mut runs, mut floor_runs) = (Vec::new(), Vec::new());
