@@ -32,6 +32,13 @@ struct Supervised {
     backoff_s: f64,
     restarts: u32,
     heartbeat: Heartbeat,
+    /// Whether this child has been seen healthy: every periodic channel of
+    /// it written by it, running, with a frame published. A child that dies
+    /// after that is restarted after the shortest backoff; the backoff
+    /// doubles only for children that die before they ever were healthy
+    /// (a crash loop), so that a driver killed now and then by a fault is
+    /// always back within a fraction of a second.
+    healthy: bool,
 }
 
 /// The periodic channels of one child and when each last showed progress: a
@@ -212,6 +219,7 @@ fn start_children(config: &Config, config_path: &Path) -> Result<Vec<Supervised>
             backoff_s: restart.min_backoff_s,
             restarts: 0,
             heartbeat,
+            healthy: false,
         });
     }
     Ok(children)
@@ -265,7 +273,7 @@ impl Supervised {
     fn kill_if_hung(&mut self, now: Instant, listed: &[ChannelInfo]) {
         let Some(child) = &mut self.child else { return };
         let pid = child.id();
-        let (mut watched, mut hung) = (0, 0);
+        let (mut watched, mut hung, mut publishing) = (0, 0, 0);
         let mut silent_for = Duration::ZERO;
         let Heartbeat { channels, progress, readers, skin } = &mut self.heartbeat;
         for (name, period) in channels.iter() {
@@ -287,6 +295,9 @@ impl Supervised {
                 continue;
             }
             let stats = reader.writer_stats();
+            if stats.frames > 0 && reader.writer_state() == WriterState::Running {
+                publishing += 1;
+            }
             let beat = stats.frames.wrapping_add(stats.faults);
             let seen = progress.entry(name.clone()).or_insert((beat, now));
             if seen.0 != beat {
@@ -298,6 +309,9 @@ impl Supervised {
                 hung += 1;
                 silent_for = silent_for.max(silence);
             }
+        }
+        if !channels.is_empty() && publishing == channels.len() {
+            self.healthy = true;
         }
         if watched > 0 && hung == watched {
             tracing::warn!(
@@ -318,12 +332,19 @@ impl Supervised {
         let (name, role) = (&self.name, self.role);
         if let Some(child) = &mut self.child {
             if let Some(status) = child.try_wait()? {
+                if self.healthy {
+                    // It had been working: not a crash loop.
+                    self.backoff_s = self.restart.min_backoff_s;
+                }
                 tracing::warn!(role, name = %name, %status, backoff_s = self.backoff_s, "exited; restarting");
                 self.child = None;
+                self.healthy = false;
                 self.restart_at = Some(now + Duration::from_secs_f64(self.backoff_s));
                 self.backoff_s = (self.backoff_s * 2.0).min(self.restart.max_backoff_s);
             } else if now.duration_since(self.started) > Duration::from_secs(30) {
-                // Up for a while: the next crash starts from the shortest backoff again.
+                // Up for a while (a child with no periodic channel to be
+                // seen healthy by): the next crash starts from the shortest
+                // backoff again.
                 self.backoff_s = self.restart.min_backoff_s;
             }
         } else if self.restart_at.is_some_and(|at| at <= now) {
