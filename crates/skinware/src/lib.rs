@@ -85,7 +85,8 @@ pub use channel::ChannelKind;
 pub use channel::layout::{ABI_VERSION, MAX_SLOTS, MIN_SLOTS};
 #[cfg(not(loom))]
 pub use channel::registry::{
-    ChannelInfo, list_channels, list_channels_where, list_skin_channels, remove_channel_if_stale, remove_stale_channels,
+    ChannelInfo, WriterRecord, list_channels, list_channels_where, list_skin_channels, remove_channel_if_stale,
+    remove_stale_channels,
 };
 #[cfg(not(loom))]
 pub use driver::{Driver, DriverError, DriverHandler, HandlerOptions, LayerSource, LayerSpec};

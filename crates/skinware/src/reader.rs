@@ -246,6 +246,10 @@ impl Reader {
         self.last = Meta::default();
         self.copied = None;
         self.follows += 1;
+        // The successor's grid is its own: learn it afresh.
+        if let Some(anticipation) = &mut self.anticipation {
+            *anticipation = Anticipation::new(anticipation.window_ns);
+        }
         true
     }
 

@@ -156,7 +156,7 @@ fn not_regular(path: &Path, file_type: rustix::fs::FileType) -> std::io::Error {
 }
 
 /// Opens the regular file at `path`, read-only or read-write, without ever
-/// opening anything else there.
+/// opening anything else there, and without waiting.
 ///
 /// The segment directory is world-writable: a local user can put a symbolic
 /// link there (which a plain open follows, to a file of their choosing), a
@@ -164,17 +164,63 @@ fn not_regular(path: &Path, file_type: rustix::fs::FileType) -> std::io::Error {
 /// So the path is first opened with `O_PATH | O_NOFOLLOW`, which opens
 /// nothing but a handle to whatever is there (a link itself, not its target);
 /// only if that is a regular file is it opened for real, through the handle
-/// (`/proc/self/fd`), so that the file checked is the file opened.
+/// (`/proc/self/fd`), so that the file checked is the file opened. That open
+/// is non-blocking too: a file its owner holds a lease on would otherwise
+/// make it wait for the lease's break time (45 s), and refuses instead.
 pub fn open_regular(path: &Path, writable: bool) -> std::io::Result<File> {
+    open_regular_as(path, writable, None)
+}
+
+/// What a file must be besides regular, for [`open_regular_as`].
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Expected {
+    /// The user who must own it.
+    pub owner: u32,
+    /// The most bytes it may hold.
+    pub max_bytes: u64,
+}
+
+/// [`open_regular`], refusing also, with `expected`, a file of another
+/// owner, one with more than one name (a hard link to some other file of
+/// that owner's: a root writer would write into it), or a longer one; all
+/// checked on the handle, before the file is opened.
+pub(crate) fn open_regular_as(path: &Path, writable: bool, expected: Option<Expected>) -> std::io::Result<File> {
     use rustix::fs::{FileType, Mode, OFlags};
     let handle = rustix::fs::open(path, OFlags::PATH | OFlags::NOFOLLOW | OFlags::CLOEXEC, Mode::empty())?;
-    let file_type = FileType::from_raw_mode(rustix::fs::fstat(&handle)?.st_mode);
+    let stat = rustix::fs::fstat(&handle)?;
+    let file_type = FileType::from_raw_mode(stat.st_mode);
     if file_type != FileType::RegularFile {
         return Err(not_regular(path, file_type));
     }
+    if let Some(expected) = expected {
+        let refuse =
+            |why: String| std::io::Error::new(std::io::ErrorKind::InvalidData, format!("{} {why}", path.display()));
+        if stat.st_uid != expected.owner {
+            return Err(refuse(format!("belongs to user {}, not to user {}", stat.st_uid, expected.owner)));
+        }
+        if stat.st_nlink != 1 {
+            return Err(refuse(format!(
+                "has {} names (hard links): it may be another file linked here",
+                stat.st_nlink
+            )));
+        }
+        if stat.st_size as u64 > expected.max_bytes {
+            return Err(refuse(format!("holds {} bytes, more than the {} expected", stat.st_size, expected.max_bytes)));
+        }
+    }
     let access = if writable { OFlags::RDWR } else { OFlags::RDONLY };
     let through_handle = format!("/proc/self/fd/{}", std::os::fd::AsRawFd::as_raw_fd(&handle));
-    let file = rustix::fs::open(through_handle.as_str(), access | OFlags::CLOEXEC | OFlags::NOCTTY, Mode::empty())?;
+    let flags = access | OFlags::CLOEXEC | OFlags::NOCTTY | OFlags::NONBLOCK;
+    let file = match rustix::fs::open(through_handle.as_str(), flags, Mode::empty()) {
+        Ok(file) => file,
+        Err(rustix::io::Errno::AGAIN) => {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!("{} is leased by another process: opening it would wait for the lease", path.display()),
+            ));
+        }
+        Err(e) => return Err(e.into()),
+    };
     Ok(File::from(file))
 }
 
@@ -191,7 +237,8 @@ pub fn read_regular(path: &Path, max_bytes: u64) -> std::io::Result<Vec<u8>> {
             format!("{} holds {size} bytes, more than the {max_bytes} such a file can have", path.display()),
         ));
     }
-    let mut bytes = Vec::with_capacity(size as usize);
+    // The size is a claim until read: reserve no more than a megabyte for it.
+    let mut bytes = Vec::with_capacity(size.min(1 << 20) as usize);
     file.take(max_bytes.saturating_add(1)).read_to_end(&mut bytes)?;
     if bytes.len() as u64 > max_bytes {
         return Err(std::io::Error::new(

@@ -222,7 +222,7 @@ impl Writer {
         let mut name = NameLock::acquire(&dir, skin, channel, &label)?;
         let previous = name.record();
         let generation = previous.generation.saturating_add(1);
-        name.write_record(NameRecord { generation, writer_pid: std::process::id() })?;
+        name.write_record(NameRecord { generation, writer_pid: std::process::id(), ..NameRecord::default() })?;
         let init = SegmentInit {
             kind: options.kind,
             description,

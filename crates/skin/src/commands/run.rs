@@ -33,12 +33,15 @@ struct Supervised {
     restarts: u32,
     heartbeat: Heartbeat,
     /// Whether this child has been seen healthy: every periodic channel of
-    /// it written by it, running, with a frame published. A child that dies
+    /// it written by it, running and publishing, for as long as it takes to
+    /// call a silent channel hung (20 periods, at least 1 s). A child that dies
     /// after that is restarted after the shortest backoff; the backoff
     /// doubles only for children that die before they ever were healthy
     /// (a crash loop), so that a driver killed now and then by a fault is
     /// always back within a fraction of a second.
     healthy: bool,
+    /// Since when every periodic channel of it has been publishing.
+    healthy_since: Option<Instant>,
 }
 
 /// The periodic channels of one child and when each last showed progress: a
@@ -136,6 +139,8 @@ pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
     let mut layer_states: HashMap<String, &'static str> = HashMap::new();
     // Every child process ever started: the writers whose channels it looks at.
     let mut spawned: HashSet<u32> = HashSet::new();
+    // Only records its children wrote, as this user, are trusted.
+    let own_uid = rustix::process::geteuid().as_raw();
     let mut next_state_poll = Instant::now();
     while !shutdown.load(Ordering::Relaxed) {
         let now = Instant::now();
@@ -149,8 +154,8 @@ pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
             // write (by the name record, read without asking anyone): a
             // stopped process of anyone else's never costs this loop a wait.
             let channels: Vec<ChannelInfo> =
-                skinware::list_channels_where(&skinware::shm::segment_dir(), Some(&config.skin), |pid| {
-                    spawned.contains(&pid)
+                skinware::list_channels_where(&skinware::shm::segment_dir(), Some(&config.skin), |writer| {
+                    spawned.contains(&writer.pid) && writer.owner_uid == own_uid
                 })
                 .unwrap_or_default();
             for supervised in &mut children {
@@ -220,6 +225,7 @@ fn start_children(config: &Config, config_path: &Path) -> Result<Vec<Supervised>
             restarts: 0,
             heartbeat,
             healthy: false,
+            healthy_since: None,
         });
     }
     Ok(children)
@@ -277,16 +283,31 @@ impl Supervised {
         let mut silent_for = Duration::ZERO;
         let Heartbeat { channels, progress, readers, skin } = &mut self.heartbeat;
         for (name, period) in channels.iter() {
+            let hang_after = (*period * HANG_PERIODS).max(MIN_HANG);
             if readers.get(name).is_none_or(|reader| reader.writer_pid() != pid) {
-                let written_by_child =
-                    listed.iter().any(|c| &c.channel == name && c.writer_pid == pid && c.state != WriterState::Gone);
-                if !written_by_child {
-                    continue;
+                readers.remove(name);
+                match listed.iter().find(|c| &c.channel == name && c.writer_pid == pid) {
+                    Some(c) if c.problem.is_none() && c.state != WriterState::Gone => {
+                        match skinware::Reader::open(skin, name) {
+                            Ok(reader) => readers.insert(name.clone(), reader),
+                            Err(_) => continue,
+                        };
+                    }
+                    Some(c) if c.problem.is_some() => {
+                        // Recorded as this child's, but it hands nothing
+                        // over (stopped or hung before a reader was opened
+                        // on it): as silent as a writer can be.
+                        let seen = progress.entry(name.clone()).or_insert((u64::MAX, now));
+                        watched += 1;
+                        let silence = now.duration_since(seen.1);
+                        if silence > hang_after {
+                            hung += 1;
+                            silent_for = silent_for.max(silence);
+                        }
+                        continue;
+                    }
+                    _ => continue,
                 }
-                match skinware::Reader::open(skin, name) {
-                    Ok(reader) => readers.insert(name.clone(), reader),
-                    Err(_) => continue,
-                };
             }
             let Some(reader) = readers.get_mut(name) else { continue };
             // A paused writer is silent on purpose (a replay holding its
@@ -305,13 +326,22 @@ impl Supervised {
             }
             watched += 1;
             let silence = now.duration_since(seen.1);
-            if silence > (*period * HANG_PERIODS).max(MIN_HANG) {
+            if silence > hang_after {
                 hung += 1;
                 silent_for = silent_for.max(silence);
             }
         }
+        // Healthy: every periodic channel publishing, for as long as it
+        // takes to call a silent one hung (a child that dies right after
+        // its first frame is a crash loop, and keeps backing off).
         if !channels.is_empty() && publishing == channels.len() {
-            self.healthy = true;
+            let since = *self.healthy_since.get_or_insert(now);
+            let longest = channels.iter().map(|(_, period)| *period).max().unwrap_or_default();
+            if now.duration_since(since) >= (longest * HANG_PERIODS).max(MIN_HANG) {
+                self.healthy = true;
+            }
+        } else {
+            self.healthy_since = None;
         }
         if watched > 0 && hung == watched {
             tracing::warn!(
@@ -339,6 +369,11 @@ impl Supervised {
                 tracing::warn!(role, name = %name, %status, backoff_s = self.backoff_s, "exited; restarting");
                 self.child = None;
                 self.healthy = false;
+                self.healthy_since = None;
+                // The next child starts with no history: a beat of the dead
+                // one's must not make the new one look silent.
+                self.heartbeat.progress.clear();
+                self.heartbeat.readers.clear();
                 self.restart_at = Some(now + Duration::from_secs_f64(self.backoff_s));
                 self.backoff_s = (self.backoff_s * 2.0).min(self.restart.max_backoff_s);
             } else if now.duration_since(self.started) > Duration::from_secs(30) {

@@ -31,7 +31,7 @@ use rustix::net::{
     RecvAncillaryBuffer, RecvAncillaryMessage, RecvFlags, SendAncillaryBuffer, SendAncillaryMessage, SendFlags,
 };
 
-use super::liveness::{FileIdentity, NameLock, path_identity};
+use super::liveness::{FileIdentity, Kept, NameLock, path_identity};
 use crate::error::{Error, Result};
 use crate::shm;
 use crate::sync::{AtomicU32, Ordering};
@@ -158,7 +158,7 @@ impl Served {
             while let Ok((stream, _)) = bound.0.accept() {
                 hand_over(&stream, &self.data, &self.bell);
             }
-            if name_held && !self.name.keep_in_place() {
+            if name_held && self.name.keep_in_place() == Kept::Lost {
                 // Another writer took the name while its lock file was gone.
                 // Binding the socket again would take it back from that
                 // writer, and the two would then take turns: new readers

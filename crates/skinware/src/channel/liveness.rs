@@ -64,6 +64,8 @@ pub(crate) struct NameRecord {
     pub generation: u64,
     /// The current (or last) writer's process id.
     pub writer_pid: u32,
+    /// Who owns the lock file: who wrote the record.
+    pub owner_uid: u32,
 }
 
 impl NameRecord {
@@ -75,6 +77,7 @@ impl NameRecord {
             Ok(()) => NameRecord {
                 generation: u64::from_le_bytes(bytes[..8].try_into().unwrap_or_default()),
                 writer_pid: u32::from_le_bytes(bytes[8..12].try_into().unwrap_or_default()),
+                owner_uid: file.metadata().map_or(u32::MAX, |meta| meta.uid()),
             },
             Err(_) => NameRecord::default(),
         }
@@ -86,6 +89,17 @@ impl NameRecord {
     pub fn load(dir: &Path, skin: &str, channel: &str) -> Option<NameRecord> {
         shm::open_regular(&name_lock_path(dir, skin, channel), false).ok().map(|file| NameRecord::read(&file))
     }
+}
+
+/// Whether a writer still owns its channel's name ([`NameLock::keep_in_place`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Kept {
+    /// The lock file is in place, or was put back.
+    Held,
+    /// Another live writer took the name.
+    Lost,
+    /// The lock file could not be put back yet; nobody else holds the name.
+    NotYet,
 }
 
 /// Ownership of a channel name, for a writer's life.
@@ -144,25 +158,31 @@ impl NameLock {
     }
 
     /// Puts the lock file back if someone removed or replaced it (the lock
-    /// on an unlinked file keeps nobody out), and takes it again. Returns
-    /// whether this writer still owns the name: `false` once another writer
-    /// took it meanwhile, and from then on.
-    pub fn keep_in_place(&mut self) -> bool {
+    /// on an unlinked file keeps nobody out), and takes it again. Says
+    /// whether this writer still owns the name: [`Kept::Lost`] only when
+    /// another live writer holds it now; a lock file that cannot be put
+    /// back for another reason (no room, something planted at its path) is
+    /// [`Kept::NotYet`], tried again at the next look.
+    pub fn keep_in_place(&mut self) -> Kept {
         if self.is_in_place() {
-            return true;
+            return Kept::Held;
         }
-        let Some(dir) = self.path.parent() else { return false };
-        let Some(name) = self.path.file_name().and_then(|n| n.to_str()) else { return false };
+        let Some(dir) = self.path.parent() else { return Kept::NotYet };
+        let Some(name) = self.path.file_name().and_then(|n| n.to_str()) else { return Kept::NotYet };
         let Some((skin, channel)) = name.strip_prefix(shm::LOCK_PREFIX).and_then(|rest| rest.split_once('.')) else {
-            return false;
+            return Kept::NotYet;
         };
         match NameLock::acquire(dir, skin, channel, &super::label(skin, channel)) {
             Ok(mut again) => {
                 let _ = again.write_record(self.written);
                 *self = again;
-                true
+                Kept::Held
             }
-            Err(_) => false,
+            Err(Error::Busy { .. }) => Kept::Lost,
+            Err(e) => {
+                tracing::warn!(path = %self.path.display(), error = %e, "cannot put the channel's name lock back; trying again");
+                Kept::NotYet
+            }
         }
     }
 
@@ -201,22 +221,17 @@ fn open_lock_file(path: &Path, label: &str, own_only: bool) -> Result<Option<Fil
         Err(rustix::io::Errno::EXIST) => {}
         Err(e) => return Err(os_error(e.into())),
     }
-    let file = match shm::open_regular(path, true) {
-        Ok(file) => file,
-        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(None),
-        Err(e) if e.kind() == io::ErrorKind::InvalidData => return Err(untrusted(e.to_string())),
-        Err(e) => return Err(os_error(e)),
-    };
-    if own_only {
-        let owner = file.metadata().map_err(os_error)?.uid();
-        let me = rustix::process::geteuid().as_raw();
-        if owner != me {
-            return Err(untrusted(format!(
-                "the channel's name lock belongs to user {owner}, not to this writer's user {me}"
-            )));
-        }
+    // A writer's lock file must be its user's, of one name and at most a
+    // record long: a hard link planted here to another file of that user
+    // (root's geometry, say) would otherwise get the record written into it.
+    let expected = own_only
+        .then(|| shm::Expected { owner: rustix::process::geteuid().as_raw(), max_bytes: NameRecord::BYTES as u64 });
+    match shm::open_regular_as(path, true, expected) {
+        Ok(file) => Ok(Some(file)),
+        Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(None),
+        Err(e) if e.kind() == io::ErrorKind::InvalidData => Err(untrusted(e.to_string())),
+        Err(e) => Err(os_error(e)),
     }
-    Ok(Some(file))
 }
 
 impl Shared {

@@ -58,12 +58,28 @@ pub fn list_skin_channels(dir: &Path, skin: &str) -> Result<Vec<ChannelInfo>> {
     list_channels_where(dir, Some(skin), |_| true)
 }
 
+/// What a channel name's lock file says of its current (or last) writer,
+/// read without connecting to anyone: for [`list_channels_where`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct WriterRecord {
+    /// The writer's process id, as the writer recorded it.
+    pub pid: u32,
+    /// The user owning the lock file (who wrote the record): a record in a
+    /// file of another user is that user's claim.
+    pub owner_uid: u32,
+}
+
 /// Lists the channels of `skin` (or of every skin) in `dir` whose name
-/// record says their current or last writer is a process `writer` accepts,
+/// record says their current or last writer is one `writer` accepts,
 /// asking only those: e.g. a supervisor that must never wait on a process
-/// it does not supervise lists only its children's channels. The record is
-/// read from the name's lock file, without connecting to anyone.
-pub fn list_channels_where(dir: &Path, skin: Option<&str>, writer: impl Fn(u32) -> bool) -> Result<Vec<ChannelInfo>> {
+/// it does not supervise lists only its children's channels (recorded by
+/// its own user). The record is read from the name's lock file, without
+/// connecting to anyone.
+pub fn list_channels_where(
+    dir: &Path,
+    skin: Option<&str>,
+    writer: impl Fn(WriterRecord) -> bool,
+) -> Result<Vec<ChannelInfo>> {
     let entries = std::fs::read_dir(dir).map_err(|source| Error::Os { op: "list", path: dir.to_owned(), source })?;
     let mut names: Vec<(String, String, NameRecord)> = Vec::new();
     for entry in entries.flatten() {
@@ -75,7 +91,7 @@ pub fn list_channels_where(dir: &Path, skin: Option<&str>, writer: impl Fn(u32) 
             continue;
         }
         let record = NameRecord::load(dir, found_skin, channel).unwrap_or_default();
-        if writer(record.writer_pid) {
+        if writer(WriterRecord { pid: record.writer_pid, owner_uid: record.owner_uid }) {
             names.push((found_skin.to_owned(), channel.to_owned(), record));
         }
     }
@@ -152,8 +168,16 @@ pub fn remove_stale_channels(dir: &Path, include_invalid: bool) -> Result<Vec<Pa
     let asked: Vec<(&str, &str)> = sockets.iter().map(|(skin, channel, _)| (skin.as_str(), channel.as_str())).collect();
     let opened = segment::open_segments(dir, &asked, LISTING_ANSWER_TIMEOUT);
     for ((skin, channel, path), opened) in sockets.iter().zip(opened) {
-        if matches!(opened, Ok(Opened::NoWriter)) && remove_if_unowned(dir, skin, channel)? {
-            removed.push(path.clone());
+        // One name that cannot be removed (a lock file planted by someone,
+        // say) does not stop the others from being cleaned.
+        if matches!(opened, Ok(Opened::NoWriter)) {
+            match remove_if_unowned(dir, skin, channel) {
+                Ok(true) => removed.push(path.clone()),
+                Ok(false) => {}
+                Err(e) => {
+                    tracing::warn!(channel = %path.display(), error = %e, "cannot remove this dead writer's channel")
+                }
+            }
         }
     }
     removed.sort();

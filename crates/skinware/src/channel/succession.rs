@@ -16,7 +16,12 @@
 //! writer for its memory (once for all those readers), checks that the
 //! reader's writer is really dead, leaves the memory with each reader and
 //! raises its flag, and wakes the readers asleep on the old channel's
-//! doorbell (a futex word in memory the readers may write).
+//! doorbell (a futex word in memory the readers may write). A successor
+//! that does not answer at once (stopped, or not scheduled yet), or a
+//! reader's writer that is not dead yet, is tried again, 20 ms later and
+//! then less often, up to a second apart, for about ten minutes. A process
+//! forked from one with a watcher starts its own (threads do not survive a
+//! fork).
 //!
 //! What it costs, and whom:
 //! * the writer: nothing. Its publish is unchanged; the successor's only
@@ -39,13 +44,12 @@ use std::collections::HashMap;
 use std::mem::MaybeUninit;
 use std::os::fd::OwnedFd;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex, MutexGuard, OnceLock, Weak};
+use std::sync::{Arc, Mutex, MutexGuard, Weak};
 use std::time::Duration;
 
 use rustix::fs::inotify;
 
 use super::doorbell;
-use super::handover::LISTING_ANSWER_TIMEOUT;
 use super::segment::{self, Opened, Shared};
 use crate::os::{self, SHARED_FUTEX};
 use crate::shm;
@@ -140,31 +144,59 @@ struct Followed {
     readers: HashMap<(i32, String), Vec<Weak<Follower>>>,
 }
 
-static WATCHER: OnceLock<Option<Watcher>> = OnceLock::new();
+/// A channel whose successor could not be handed over yet, and when to try
+/// again: (attempts so far, next try, CLOCK_MONOTONIC ns).
+type Pending = HashMap<(i32, String), (u32, u64)>;
 
-/// The process's watcher, started the first time a reader asks.
+/// How long the watcher waits for a successor's hand-over: short, since the
+/// thread serves every channel of the process, and it tries again.
+const ANSWER_TIMEOUT: Duration = Duration::from_millis(100);
+/// Tries at handing over a successor, 20 ms apart and doubling to a second:
+/// about ten minutes in all (a successor stopped, a writer not dead yet).
+const MAX_ATTEMPTS: u32 = 600;
+
+/// The process's watcher, and the process it belongs to: a child forked
+/// from a process that had one inherits the value but not the thread, and
+/// starts its own.
+static WATCHER: Mutex<Option<(u32, &'static Watcher)>> = Mutex::new(None);
+
+/// Whether the warning that the process cannot watch was given.
+static WARNED: AtomicU32 = AtomicU32::new(0);
+
+/// The process's watcher, started the first time a reader asks (and again
+/// in a forked child). Failing to start it is not remembered: the next
+/// reader tries again.
 fn watcher() -> Option<&'static Watcher> {
-    WATCHER
-        .get_or_init(|| {
-            let started = inotify::init(inotify::CreateFlags::CLOEXEC).map_err(std::io::Error::from).and_then(|fd| {
-                std::thread::Builder::new()
-                    .name("skinware-successions".into())
-                    .spawn(|| {
-                        if let Some(watcher) = watcher() {
-                            watcher.run();
-                        }
-                    })
-                    .map(|_| fd)
-            });
-            match started {
-                Ok(inotify) => Some(Watcher { inotify, followed: Mutex::new(Followed::default()) }),
-                Err(e) => {
-                    tracing::warn!(error = %e, "cannot watch the segment directory (inotify); readers follow a restarted writer within 100 ms instead of at once");
-                    None
-                }
+    let pid = std::process::id();
+    let mut current = lock(&WATCHER);
+    if let Some((owner, watcher)) = *current
+        && owner == pid
+    {
+        return Some(watcher);
+    }
+    let started = inotify::init(inotify::CreateFlags::CLOEXEC | inotify::CreateFlags::NONBLOCK)
+        .map_err(std::io::Error::from)
+        .and_then(|inotify| {
+            // One per process (per fork): it lives as long as the process.
+            let watcher: &'static Watcher =
+                Box::leak(Box::new(Watcher { inotify, followed: Mutex::new(Followed::default()) }));
+            std::thread::Builder::new()
+                .name("skinware-successions".into())
+                .spawn(move || watcher.run())
+                .map(|_| watcher)
+        });
+    match started {
+        Ok(watcher) => {
+            *current = Some((pid, watcher));
+            Some(watcher)
+        }
+        Err(e) => {
+            if WARNED.swap(1, Ordering::Relaxed) == 0 {
+                tracing::warn!(error = %e, "cannot watch the segment directory (inotify); readers follow a restarted writer within 100 ms instead of at once");
             }
-        })
-        .as_ref()
+            None
+        }
+    }
 }
 
 impl Watcher {
@@ -188,67 +220,127 @@ impl Watcher {
         }
     }
 
-    /// The thread: reads events forever, and hands successors to readers.
+    /// The thread: waits for events, or for the next try at a successor that
+    /// could not be handed over yet, for ever.
     fn run(&self) {
         let mut buffer = [MaybeUninit::<u8>::uninit(); 4096];
-        let mut events = inotify::Reader::new(&self.inotify, &mut buffer);
+        let mut pending = Pending::new();
         loop {
-            let (watch, name, overflow) = match events.next() {
-                Ok(event) => (
-                    event.wd(),
-                    event.file_name().and_then(|name| name.to_str().ok()).map(str::to_owned),
-                    event.events().contains(inotify::ReadFlags::QUEUE_OVERFLOW),
-                ),
-                Err(rustix::io::Errno::INTR) => continue,
+            let now = os::monotonic_ns();
+            let next = pending.values().map(|&(_, at)| at).min();
+            let timeout = next.map(|at| {
+                let left = at.saturating_sub(now);
+                rustix::time::Timespec { tv_sec: (left / 1_000_000_000) as i64, tv_nsec: (left % 1_000_000_000) as i64 }
+            });
+            let mut fds = [rustix::event::PollFd::new(&self.inotify, rustix::event::PollFlags::IN)];
+            match rustix::event::poll(&mut fds, timeout.as_ref()) {
+                Ok(_) | Err(rustix::io::Errno::INTR) => {}
                 Err(e) => {
-                    tracing::error!(error = %e, "the successor watcher cannot read its events; readers follow a restarted writer within 100 ms instead of at once");
+                    tracing::error!(error = %e, "the successor watcher cannot wait for events; readers follow a restarted writer within 100 ms instead of at once");
                     return;
                 }
-            };
-            if overflow {
-                // Events were lost: look at every followed channel.
-                let all: Vec<(i32, String)> = lock(&self.followed).readers.keys().cloned().collect();
-                for (watch, name) in all {
-                    self.hand_successor(watch, &name);
+            }
+            if !self.take_events(&mut buffer, &mut pending) {
+                return;
+            }
+            let now = os::monotonic_ns();
+            let due: Vec<(i32, String)> =
+                pending.iter().filter(|(_, (_, at))| *at <= now).map(|(key, _)| key.clone()).collect();
+            for key in due {
+                if self.hand_successor(key.0, &key.1) {
+                    pending.remove(&key);
+                } else if let Some((attempts, at)) = pending.get_mut(&key) {
+                    *attempts += 1;
+                    if *attempts >= MAX_ATTEMPTS {
+                        pending.remove(&key);
+                    } else {
+                        let delay_ms = 20u64.saturating_mul(1 << (*attempts).min(6)).min(1000);
+                        *at = os::monotonic_ns() + delay_ms * 1_000_000;
+                    }
                 }
-            } else if let Some(name) = name {
-                self.hand_successor(watch, &name);
+            }
+        }
+    }
+
+    /// Reads every event there is; a socket appearing under a followed
+    /// channel's name makes that channel due now. `false` if the descriptor
+    /// cannot be read any more.
+    fn take_events(&self, buffer: &mut [MaybeUninit<u8>], pending: &mut Pending) -> bool {
+        let mut events = inotify::Reader::new(&self.inotify, buffer);
+        let now = os::monotonic_ns();
+        loop {
+            match events.next() {
+                Ok(event) => {
+                    if event.events().contains(inotify::ReadFlags::QUEUE_OVERFLOW) {
+                        // Events were lost: look at every followed channel.
+                        for key in lock(&self.followed).readers.keys() {
+                            pending.insert(key.clone(), (0, now));
+                        }
+                    } else if let Some(name) = event.file_name().and_then(|name| name.to_str().ok())
+                        && shm::parse_segment_name(name).is_some()
+                    {
+                        let key = (event.wd(), name.to_owned());
+                        if lock(&self.followed).readers.contains_key(&key) {
+                            pending.insert(key, (0, now));
+                        }
+                    }
+                }
+                Err(rustix::io::Errno::AGAIN) => return true,
+                Err(rustix::io::Errno::INTR) => {}
+                Err(e) => {
+                    tracing::error!(error = %e, "the successor watcher cannot read its events; readers follow a restarted writer within 100 ms instead of at once");
+                    return false;
+                }
             }
         }
     }
 
     /// A socket appeared as `name` in the directory of `watch`: if readers
     /// follow that channel, opens the new writer's memory once and leaves it
-    /// with each of them whose writer is dead.
-    fn hand_successor(&self, watch: i32, name: &str) {
-        let Some((skin, channel)) = shm::parse_segment_name(name) else { return };
+    /// with each of them whose writer is dead. `true` when done (handed, or
+    /// nothing to hand); `false` to try again later (the successor did not
+    /// answer, or a reader's writer is not dead yet).
+    fn hand_successor(&self, watch: i32, name: &str) -> bool {
+        let Some((skin, channel)) = shm::parse_segment_name(name) else { return true };
         let (dir, readers) = {
             let mut followed = lock(&self.followed);
-            let Some(dir) = followed.dirs.get(&watch).cloned() else { return };
+            let Some(dir) = followed.dirs.get(&watch).cloned() else { return true };
             let key = (watch, name.to_owned());
-            let Some(readers) = followed.readers.get_mut(&key) else { return };
+            let Some(readers) = followed.readers.get_mut(&key) else { return true };
             readers.retain(|reader| reader.strong_count() > 0);
             let live: Vec<Arc<Follower>> = readers.iter().filter_map(Weak::upgrade).collect();
             if live.is_empty() {
                 followed.readers.remove(&key);
-                return;
+                return true;
             }
             (dir, live)
         };
-        let Ok(Opened::Live(successor)) = segment::open_segment(&dir, skin, channel, LISTING_ANSWER_TIMEOUT) else {
-            return;
+        let successor = match segment::open_segment(&dir, skin, channel, ANSWER_TIMEOUT) {
+            Ok(Opened::Live(successor)) => Arc::new(successor),
+            // Nobody behind the socket, or no socket: nothing to follow.
+            Ok(Opened::NoWriter) | Err(crate::Error::Missing { .. }) => return true,
+            // Not answering (stopped, busy), or nothing valid: try again.
+            Err(_) => return false,
         };
-        let successor = Arc::new(successor);
         let identity = successor.identity();
+        let mut done = true;
+        // Whether each current memory's writer is dead, asked once per memory.
+        let mut dead: HashMap<Option<(u64, u64)>, bool> = HashMap::new();
         for reader in readers {
             let Some(current) = lock(&reader.current).upgrade() else { continue };
-            if current.identity() == identity || !dies_soon(&current) {
-                // The same memory bound again (after someone unlinked the
-                // socket), or a second live writer: nothing to follow.
+            let current_identity = current.identity();
+            if current_identity == identity {
+                // The same memory bound again (after someone unlinked the socket).
+                continue;
+            }
+            if !*dead.entry(current_identity).or_insert_with(|| dies_soon(&current)) {
+                // A second live writer under the name: wait for this one's end.
+                done = false;
                 continue;
             }
             reader.leave(successor.clone());
         }
+        done
     }
 }
 

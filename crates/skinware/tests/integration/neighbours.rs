@@ -346,3 +346,52 @@ fn a_reader_that_only_reads_latest_follows_a_successor() {
     assert_eq!(polling.follows(), 0);
     assert!(polling.follow_recreated(), "an explicit follow still works");
 }
+
+/// On review of issue #36's fix: a hard link at the name lock's path to
+/// another file of the writer's own user (root's geometry, for a root
+/// writer) passed the owner check, and the writer wrote its record into that
+/// file. A lock file must have one name and a record's size.
+#[test]
+fn a_hard_link_at_the_name_lock_is_refused() {
+    let dir = SegmentDir::new("lock-hardlink");
+    let precious = dir.path.join("precious");
+    std::fs::write(&precious, b"what must not be overwritten").unwrap();
+    std::fs::hard_link(&precious, dir.path.join(".skinware-lock.skin.layer")).unwrap();
+    let err = Writer::create("skin", "layer", 8, b"", &dir.writer()).unwrap_err();
+    assert!(matches!(err, Error::UntrustedFile { .. }), "{err}");
+    assert!(err.to_string().contains("hard links"), "{err}");
+    assert_eq!(std::fs::read(&precious).unwrap(), b"what must not be overwritten");
+    // The same file alone at the lock's path is too long to be a record.
+    std::fs::remove_file(&precious).unwrap();
+    let err = Writer::create("skin", "layer", 8, b"", &dir.writer()).unwrap_err();
+    assert!(err.to_string().contains("bytes"), "{err}");
+}
+
+/// On review: the watcher tried once. A successor that appears while the
+/// reader's writer still lives (two writers, after the name lock was
+/// removed) must still be handed over once that writer dies, to a reader
+/// that only reads `latest()`.
+#[test]
+fn a_successor_seen_before_its_predecessor_died_is_handed_over_later() {
+    let dir = SegmentDir::new("handed-later");
+    let mut a = Writer::create("skin", "layer", 8, b"topology", &dir.writer()).unwrap();
+    a.publish_bytes(&[1; 8], FrameStatus::OK).unwrap();
+    let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+    assert_eq!(reader.latest().unwrap().seq(), 1);
+    std::fs::remove_file(dir.segment("skin", "layer")).unwrap();
+    std::fs::remove_file(dir.path.join(".skinware-lock.skin.layer")).unwrap();
+    let mut b = Writer::create("skin", "layer", 8, b"topology", &dir.writer()).unwrap();
+    b.publish_bytes(&[2; 8], FrameStatus::OK).unwrap();
+    // The watcher sees B while A lives: nothing to hand over yet.
+    std::thread::sleep(Duration::from_millis(300));
+    let _ = reader.latest();
+    assert_eq!(reader.follows(), 0, "followed a second writer while its own lived");
+    drop(a);
+    let started = Instant::now();
+    while reader.follows() == 0 && started.elapsed() < Duration::from_secs(10) {
+        let _ = reader.latest();
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    assert_eq!(reader.follows(), 1, "the successor was never handed over after its predecessor died");
+    assert_eq!(reader.latest().unwrap().bytes(), &[2u8; 8][..]);
+}
