@@ -198,6 +198,10 @@ pub(crate) fn open_regular_as(path: &Path, writable: bool, expected: Option<Expe
         if stat.st_uid != expected.owner {
             return Err(refuse(format!("belongs to user {}, not to user {}", stat.st_uid, expected.owner)));
         }
+        if stat.st_nlink == 0 {
+            // Unlinked between the look and the handle (a cleaner): gone.
+            return Err(std::io::ErrorKind::NotFound.into());
+        }
         if stat.st_nlink != 1 {
             return Err(refuse(format!(
                 "has {} names (hard links): it may be another file linked here",
