@@ -25,7 +25,7 @@ pub mod reader;
 pub mod report;
 mod squats;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -100,6 +100,10 @@ struct ReaderProcess {
 struct Soak<'o> {
     options: &'o SoakOptions,
     work: PathBuf,
+    /// Where the verifying readers write their reports: on tmpfs, so that
+    /// a disk busy with someone else's writes cannot delay a report and
+    /// make a reader look stuck.
+    reports: PathBuf,
     started: Instant,
     /// The same moment on CLOCK_MONOTONIC, ns.
     started_ns: u64,
@@ -120,6 +124,32 @@ struct Soak<'o> {
     report: SoakReport,
 }
 
+/// A new directory of the soak's own on tmpfs (`/dev/shm`), private to
+/// this user, for the readers' reports.
+fn reports_dir() -> Result<PathBuf> {
+    use std::os::unix::fs::DirBuilderExt;
+    let path = PathBuf::from(format!(
+        "/dev/shm/skinware-soak-reports-{}-{}",
+        std::process::id(),
+        skinware::os::monotonic_ns()
+    ));
+    // Not recursive: a path someone else made first is refused, not used.
+    std::fs::DirBuilder::new()
+        .mode(0o700)
+        .create(&path)
+        .with_context(|| format!("cannot create {} for the readers' reports (is /dev/shm mounted?)", path.display()))?;
+    Ok(path)
+}
+
+/// Moves the readers' reports from tmpfs into the work directory, for the
+/// record.
+fn keep_reports(reports: &Path, work: &Path) {
+    for entry in std::fs::read_dir(reports).into_iter().flatten().flatten() {
+        let _ = std::fs::copy(entry.path(), work.join(entry.file_name()));
+    }
+    let _ = std::fs::remove_dir_all(reports);
+}
+
 /// Runs the soak, prints its tables and writes `soak.json` into `out`.
 pub fn run(options: &SoakOptions) -> Result<SoakReport> {
     if !(options.minutes.is_finite() && options.minutes > 0.0 && options.minutes <= 24.0 * 60.0) {
@@ -129,6 +159,7 @@ pub fn run(options: &SoakOptions) -> Result<SoakReport> {
     let work = options.out.join("soak-work");
     let _ = std::fs::remove_dir_all(&work);
     std::fs::create_dir_all(&work).with_context(|| format!("cannot create {}", work.display()))?;
+    let reports = reports_dir()?;
     println!(
         "soak: {} minute(s) of faults on {} (seed {seed}; the same seed gives the same faults), segment directory {}",
         options.minutes,
@@ -140,6 +171,7 @@ pub fn run(options: &SoakOptions) -> Result<SoakReport> {
     let mut soak = Soak {
         options,
         work: work.clone(),
+        reports: reports.clone(),
         started: Instant::now(),
         started_ns: skinware::os::monotonic_ns(),
         chaos: faults::Chaos::new(seed),
@@ -175,6 +207,7 @@ pub fn run(options: &SoakOptions) -> Result<SoakReport> {
         report.passed = false;
     }
     let _ = std::fs::remove_dir_all(&options.dir);
+    keep_reports(&reports, &work);
     report.print();
     let path = options.out.join("soak.json");
     std::fs::write(&path, serde_json::to_vec_pretty(&report)?)
@@ -285,7 +318,7 @@ impl Soak<'_> {
     /// Starts a verifying reader process of `mode` over every layer.
     fn spawn_reader(&mut self, mode: Mode) -> Result<()> {
         self.incarnations += 1;
-        let report = self.work.join(format!("reader-{}-{}.json", mode.name(), self.incarnations));
+        let report = self.reports.join(format!("reader-{}-{}.json", mode.name(), self.incarnations));
         let layers: Vec<&str> = self.options.layers.iter().map(|l| l.name.as_str()).collect();
         let child = self
             .command(&format!("reader-{}.log", mode.name()))?

@@ -35,6 +35,25 @@ pub fn publishing_since(published: &[u64], from_ns: u64, now_ns: u64, pause_ns: 
     (now_ns.saturating_sub(last) <= pause_ns).then_some(since)
 }
 
+/// The longest run of `channel`'s frames (`published`, in order) strictly
+/// between `from_ns` and `to_ns` without a pause longer than `pause_ns`:
+/// from its first frame to its last, ns (0 for fewer than two frames). A
+/// reader whose pause between frames held such a run of more than a few
+/// periods could have had its frames and did not.
+pub fn longest_run_within(published: &[u64], from_ns: u64, to_ns: u64, pause_ns: u64) -> u64 {
+    let mut frames = published.iter().copied().filter(|&ns| ns > from_ns && ns < to_ns);
+    let Some(first) = frames.next() else { return 0 };
+    let (mut since, mut last, mut longest) = (first, first, 0);
+    for ns in frames {
+        if ns.saturating_sub(last) > pause_ns {
+            since = ns;
+        }
+        last = ns;
+        longest = longest.max(last - since);
+    }
+    longest
+}
+
 /// One channel as the observer last saw it.
 #[derive(Clone, Debug, Default)]
 struct ChannelView {
@@ -135,14 +154,23 @@ impl Observer {
         Some(Recovered { layers_ns: latest(true)?, all_ns: latest(false) })
     }
 
-    /// Frames `channel` published after `from_ns`.
-    pub fn published_since(&self, channel: &str, from_ns: u64) -> usize {
+    /// Frames `channel` published strictly between `from_ns` and `to_ns`.
+    pub fn published_between(&self, channel: &str, from_ns: u64, to_ns: u64) -> usize {
         let views = self.views();
         views
             .channels
             .iter()
             .find(|c| c.name == channel)
-            .map_or(0, |c| c.published.iter().filter(|&&ns| ns > from_ns).count())
+            .map_or(0, |c| c.published.iter().filter(|&&ns| ns > from_ns && ns < to_ns).count())
+    }
+
+    /// The longest run of frames `channel` published between `from_ns` and
+    /// `to_ns` without pausing (see [`longest_run_within`]), ns.
+    pub fn longest_run_within(&self, channel: &str, from_ns: u64, to_ns: u64) -> u64 {
+        let views = self.views();
+        let Some(view) = views.channels.iter().find(|c| c.name == channel) else { return 0 };
+        let published: Vec<u64> = view.published.iter().copied().collect();
+        longest_run_within(&published, from_ns, to_ns, view.pause_ns)
     }
 
     /// Since when `channel` has been publishing frames after `from_ns`
@@ -231,7 +259,7 @@ fn observe(skin: &str, dir: &std::path::Path, views: &Mutex<Views>, stop: &Stop)
 
 #[cfg(test)]
 mod tests {
-    use super::publishing_since;
+    use super::{longest_run_within, publishing_since};
 
     const MS: u64 = 1_000_000;
 
@@ -248,5 +276,20 @@ mod tests {
         // Nothing after the reader's last frame, or a channel that has stopped.
         assert_eq!(publishing_since(&published, last, last + MS, 250 * MS), None);
         assert_eq!(publishing_since(&published, 1_000 * MS, last + 300 * MS, 250 * MS), None);
+    }
+
+    #[test]
+    fn the_longest_run_within_a_readers_pause_is_measured_between_its_ends() {
+        // A writer every 25 ms until 1 s, dead for 2.5 s, then a successor
+        // every 25 ms for 3 s.
+        let mut published: Vec<u64> = (0..40).map(|i| 25 * MS * i).collect();
+        published.extend((0..120).map(|i| 3_500 * MS + 25 * MS * i));
+        // The reader's pause covered the death and 1 s of the successor.
+        assert_eq!(longest_run_within(&published, 900 * MS, 4_510 * MS, 250 * MS), 1_000 * MS);
+        // It covered 2.4 s of the successor.
+        assert_eq!(longest_run_within(&published, 3_000 * MS, 5_910 * MS, 250 * MS), 2_400 * MS);
+        // Nothing in between, or one frame.
+        assert_eq!(longest_run_within(&published, 1_000 * MS, 3_500 * MS, 250 * MS), 0);
+        assert_eq!(longest_run_within(&published, 3_490 * MS, 3_510 * MS, 250 * MS), 0);
     }
 }

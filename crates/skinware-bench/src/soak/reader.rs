@@ -63,6 +63,26 @@ impl Mode {
     }
 }
 
+/// A pause between two fresh frames longer than this is kept in the
+/// tally ([`LayerTally::long_gaps`]): the reader's own record of when it got
+/// nothing, which the soak holds against when the layer published.
+pub const LONG_GAP_NS: u64 = 1_000_000_000;
+
+/// How many long gaps a tally keeps (the first ones; a reader with more is
+/// far past failing the soak).
+const MAX_LONG_GAPS: usize = 256;
+
+/// A long pause between two fresh frames of one layer, as the reader saw it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Gap {
+    /// When the frame before it was obtained (CLOCK_MONOTONIC ns).
+    pub from_ns: u64,
+    /// When the frame after it was obtained.
+    pub to_ns: u64,
+    /// Whether the frame after it came from a successor writer.
+    pub followed: bool,
+}
+
 /// One reader's counts of one layer.
 #[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct LayerTally {
@@ -102,6 +122,9 @@ pub struct LayerTally {
     pub last_seq: u64,
     /// The first torn frame's description, for the log.
     pub first_torn: Option<String>,
+    /// Pauses between fresh frames longer than [`LONG_GAP_NS`], oldest first.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub long_gaps: Vec<Gap>,
 }
 
 impl LayerTally {
@@ -131,6 +154,12 @@ impl LayerTally {
             return;
         }
         let seq = seen.seq;
+        if self.last_new_ns != 0
+            && now_ns.saturating_sub(self.last_new_ns) > LONG_GAP_NS
+            && self.long_gaps.len() < MAX_LONG_GAPS
+        {
+            self.long_gaps.push(Gap { from_ns: self.last_new_ns, to_ns: now_ns, followed: follows != self.follows });
+        }
         if follows != self.follows {
             // A new writer: its numbers start again from 1, and the frames
             // it published before this one are lost to this reader, uncounted.
@@ -387,5 +416,23 @@ mod tests {
         tally.observe(&Seen { mismatch: Some(7), ..seen(5, 0) }, 1, 4);
         assert_eq!(tally.torn, 1);
         assert!(tally.first_torn.as_deref().unwrap().contains("frame 5"));
+    }
+
+    #[test]
+    fn long_pauses_between_fresh_frames_are_kept() {
+        const S: u64 = 1_000_000_000;
+        let mut tally = LayerTally::default();
+        tally.observe(&seen(1, 0), 0, 10 * S);
+        tally.observe(&Seen { fresh: false, ..seen(1, 0) }, 0, 12 * S); // a repeat ends nothing
+        tally.observe(&seen(2, 0), 0, 12 * S + 500); // 2 s without a fresh frame
+        tally.observe(&seen(3, 0), 0, 13 * S); // under a second: not kept
+        tally.observe(&seen(1, 0), 1, 15 * S); // from a successor
+        assert_eq!(
+            tally.long_gaps,
+            vec![
+                Gap { from_ns: 10 * S, to_ns: 12 * S + 500, followed: false },
+                Gap { from_ns: 13 * S, to_ns: 15 * S, followed: true },
+            ]
+        );
     }
 }

@@ -130,6 +130,30 @@ pub struct StuckEpisode {
     pub published_meanwhile: usize,
     /// Whether the reader was attached (else it could not open the layer).
     pub attached: bool,
+    /// How it was found: live from the reader's report, in the reader's own
+    /// record of its pauses, or from its reports not coming (its process did
+    /// not run; `layer` is empty then).
+    pub found_by: String,
+}
+
+/// The longest a verifying reader went without a new frame while its
+/// layer published without pausing: the soak's measure of "no reader gets
+/// stuck", from the readers' own records of their pauses over a second.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct LongestWait {
+    /// The layer's run of frames within the reader's pause, ms (0: no pause
+    /// over a second held more than one frame).
+    pub ms: f64,
+    /// The reader's mode.
+    pub mode: String,
+    /// Its process id.
+    pub pid: u32,
+    /// The layer.
+    pub layer: String,
+    /// Seconds from the start of the soak to the end of the pause.
+    pub at_s: f64,
+    /// Whether the pause ended with a successor writer's frame.
+    pub followed: bool,
 }
 
 /// One sample of a process: `(seconds since the start of the soak, RSS KiB, fds)`.
@@ -218,6 +242,9 @@ pub struct SoakReport {
     pub stuck_readers: Vec<StuckEpisode>,
     /// Readers that could not attach to a publishing layer for as long.
     pub unattached_readers: Vec<StuckEpisode>,
+    /// The longest any reader went without a new frame while its layer
+    /// published.
+    pub longest_reader_wait_while_publishing: LongestWait,
     /// Every fault, in order.
     pub faults: Vec<FaultRecord>,
     /// Per kind of fault.
@@ -375,6 +402,22 @@ impl SoakReport {
             self.leaked_channels,
             self.segment_files_max
         );
+        let wait = &self.longest_reader_wait_while_publishing;
+        if wait.ms > 0.0 {
+            println!(
+                "longest a reader went without a frame while its layer published: {:.0} ms ({} reader pid {}, {}, ending at {:.1} s{})",
+                wait.ms,
+                wait.mode,
+                wait.pid,
+                wait.layer,
+                wait.at_s,
+                if wait.followed { ", ended by following a successor" } else { "" }
+            );
+        } else {
+            println!(
+                "longest a reader went without a frame while its layer published: no pause over 1 s held two frames"
+            );
+        }
         for file in &self.leaked_files {
             println!("  left behind: {file}");
         }
