@@ -92,13 +92,27 @@ pub fn now_ns() -> u64 {
     skinware::os::monotonic_ns()
 }
 
+/// Why a status file's bytes are not a driver status.
+#[derive(Debug, thiserror::Error)]
+pub enum StatusDecodeError {
+    /// More bytes than any status has.
+    #[error("{bytes} bytes, more than a driver status has ({MAX_STATUS_BYTES})")]
+    TooLong {
+        /// Its length.
+        bytes: usize,
+    },
+    /// Not the JSON of a status.
+    #[error("not a driver status: {0}")]
+    NotAStatus(#[from] serde_json::Error),
+}
+
 impl DriverStatus {
     /// Decodes a status file's bytes.
-    pub fn decode(bytes: &[u8]) -> Result<DriverStatus, String> {
+    pub fn decode(bytes: &[u8]) -> Result<DriverStatus, StatusDecodeError> {
         if bytes.len() > MAX_STATUS_BYTES {
-            return Err(format!("{} bytes, more than a driver status has ({MAX_STATUS_BYTES})", bytes.len()));
+            return Err(StatusDecodeError::TooLong { bytes: bytes.len() });
         }
-        serde_json::from_slice(bytes).map_err(|e| format!("not a driver status: {e}"))
+        Ok(serde_json::from_slice(bytes)?)
     }
 
     /// Writes it to its file in `dir`, whole: a temporary file renamed over it.
@@ -149,7 +163,7 @@ pub fn find(dir: &Path, skin: Option<&str>) -> std::io::Result<Vec<Found>> {
         let path = entry.path();
         let status = skinware::shm::read_regular(&path, MAX_STATUS_BYTES as u64)
             .map_err(|e| format!("cannot read it: {e}"))
-            .and_then(|bytes| DriverStatus::decode(&bytes));
+            .and_then(|bytes| DriverStatus::decode(&bytes).map_err(|e| e.to_string()));
         found.push(Found { path, status });
     }
     found.sort_by(|a, b| a.path.cmp(&b.path));
@@ -218,6 +232,6 @@ mod tests {
         for bytes in [&b""[..], b"{", b"[]", b"{\"skin\":1}", &[0xff; 64]] {
             assert!(DriverStatus::decode(bytes).is_err(), "{bytes:?}");
         }
-        assert!(DriverStatus::decode(&vec![b' '; MAX_STATUS_BYTES + 1]).unwrap_err().contains("more than"));
+        assert!(DriverStatus::decode(&vec![b' '; MAX_STATUS_BYTES + 1]).unwrap_err().to_string().contains("more than"));
     }
 }

@@ -132,7 +132,7 @@ pub fn run(options: &CanOptions) -> Result<CanReport> {
             .find(|&p| p % 200 == residue && sent_ns[p as usize % REMEMBERED].load(Ordering::Relaxed) <= copied);
         if let Some(p) = sending {
             let sent = sent_ns[p as usize % REMEMBERED].load(Ordering::Relaxed);
-            latencies.lock().unwrap_or_else(|e| e.into_inner()).push(copied.saturating_sub(sent) / 1000);
+            skinware::lock(&latencies).push(copied.saturating_sub(sent) / 1000);
         }
     }
     let elapsed = started.elapsed().as_secs_f64();

@@ -235,7 +235,7 @@ fn stamped_segment(stamps: Arc<Stamps>) -> Result<Segment> {
             *taxel = (now >> (16 * k)) as u16;
         }
         if stamps.recording.load(Ordering::Relaxed) {
-            stamps.at_ns.lock().unwrap_or_else(|p| p.into_inner()).push(now);
+            skinware::lock(&stamps.at_ns).push(now);
         }
     };
     let subdevice = TactileSubDevice::new(TactileConfig::new(TAXELS, 1), source)
@@ -305,7 +305,7 @@ pub fn run(options: &EthercatOptions) -> Result<EthercatReport> {
 
         // Cycles and latency, together.
         let frames_before = watcher.writer_stats().frames;
-        stamps.at_ns.lock().unwrap_or_else(|p| p.into_inner()).reserve((seconds * RATE_HZ * 1.2) as usize);
+        skinware::lock(&stamps.at_ns).reserve((seconds * RATE_HZ * 1.2) as usize);
         stamps.recording.store(true, Ordering::Relaxed);
         let started = Instant::now();
         let samples_file = options.out.join("ethercat-reader.json");
@@ -327,7 +327,7 @@ pub fn run(options: &EthercatOptions) -> Result<EthercatReport> {
         stamps.recording.store(false, Ordering::Relaxed);
         let elapsed = started.elapsed().as_secs_f64();
         let layer_frames_per_s = (watcher.writer_stats().frames - frames_before) as f64 / elapsed;
-        let at = std::mem::take(&mut *stamps.at_ns.lock().unwrap_or_else(|p| p.into_inner()));
+        let at = std::mem::take(&mut *skinware::lock(&stamps.at_ns));
         let cycles = cycle_report(&at, layer_frames_per_s);
         let latency = LatencyReport {
             reader: "another process (SCHED_FIFO 70), wait_newer (futex wake)",

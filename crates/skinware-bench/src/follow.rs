@@ -227,7 +227,7 @@ fn measure(options: &FollowOptions, dir: &std::path::Path, rounds: usize) -> Res
     let mut rows = Vec::new();
     for (mode, watched, firsts, thread) in readers {
         let _ = thread.join();
-        let held = firsts.lock().unwrap_or_else(|p| p.into_inner()).clone();
+        let held = skinware::lock(&firsts).clone();
         let mut latencies: Vec<f64> = Vec::new();
         let mut missed = 0;
         for &(generation, published) in first_published.iter().skip(1) {
@@ -286,7 +286,7 @@ fn read_until_stopped(mut reader: Reader, mode: Mode, watched: bool, stop: &Stop
             let generation = reader.writer_generation();
             if generation != seen_generation {
                 seen_generation = generation;
-                firsts.lock().unwrap_or_else(|p| p.into_inner()).push((generation, now));
+                skinware::lock(firsts).push((generation, now));
             }
         } else if mode == Mode::Periodic && !watched && last_fresh.elapsed() >= RECHECK {
             // What a periodic reader had to do before: re-check its writer

@@ -117,7 +117,7 @@ impl EmulatedBus {
 
     /// Locks the segment (to throw a fault switch).
     pub fn lock(&self) -> std::sync::MutexGuard<'_, Segment> {
-        self.segment.lock().unwrap_or_else(|p| p.into_inner())
+        skinware::lock(&self.segment)
     }
 
     /// Whether the emulator's thread ended (it failed).

@@ -202,7 +202,7 @@ pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
         .collect();
     let mut rows = rows;
     if options.transport == Transport::Ethercat {
-        let samples = after_bus_data.lock().unwrap_or_else(|p| p.into_inner());
+        let samples = skinware::lock(&after_bus_data);
         rows[0].after_bus_data_ns = Some(Percentiles::of(&mut measure::steady_state(&samples, &window)?));
     }
     println!(
@@ -313,7 +313,7 @@ mod ecat {
                     let result = source.acquire(frame);
                     if result.is_ok() {
                         let data = frame.acquired_ns().unwrap_or(started);
-                        acquisitions.lock().unwrap_or_else(|p| p.into_inner()).push((started, data));
+                        skinware::lock(&acquisitions).push((started, data));
                     }
                     result
                 });
@@ -333,7 +333,7 @@ mod ecat {
                 std::thread::sleep(Duration::from_millis(2));
             }
             let _ = writing.join();
-            let acquisitions = std::mem::take(&mut *acquisitions.lock().unwrap_or_else(|p| p.into_inner()));
+            let acquisitions = std::mem::take(&mut *skinware::lock(&acquisitions));
             let mut samples = Vec::with_capacity(acquisitions.len());
             let mut after = Vec::with_capacity(acquisitions.len());
             for (k, &(started, data)) in acquisitions.iter().enumerate() {
@@ -342,7 +342,7 @@ mod ecat {
                 let published = started + took;
                 after.push(WriterSample { started_ns: started, took_ns: published.saturating_sub(data.max(started)) });
             }
-            *after_bus_data.lock().unwrap_or_else(|p| p.into_inner()) = after;
+            *skinware::lock(&after_bus_data) = after;
             samples
         }))
     }

@@ -50,7 +50,7 @@ impl Driver for FourTaxelSkin {
                 if frame.bytes().len() != 8 {
                     continue;
                 }
-                let mut values = shared.lock().unwrap_or_else(|p| p.into_inner());
+                let mut values = skinware::lock(&shared);
                 for (k, pair) in frame.bytes().chunks_exact(2).enumerate() {
                     values[4 * m as usize + k] = u16::from_be_bytes([pair[0], pair[1]]);
                 }
@@ -67,7 +67,7 @@ struct Fingers {
 
 impl LayerSource for Fingers {
     fn acquire(&mut self, frame: &mut FrameWriter<'_>) -> Result<(), DriverError> {
-        let values = self.newest.lock().unwrap_or_else(|p| p.into_inner());
+        let values = skinware::lock(&self.newest);
         frame.write_responses(0, &values)?;
         Ok(())
     }

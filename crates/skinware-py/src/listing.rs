@@ -5,7 +5,6 @@ use pyo3::prelude::*;
 use skinware::ChannelKind;
 
 use crate::errors;
-use crate::reader::state_name;
 
 /// One channel of a skin, as `skin ls` sees it.
 #[pyclass(module = "skinware", frozen, get_all)]
@@ -62,7 +61,7 @@ pub fn channels(py: Python<'_>, skin: Option<&str>) -> PyResult<Vec<ChannelInfo>
                 ChannelKind::Service => "service",
             }),
             sensors: if c.kind == Some(ChannelKind::Layer) { (c.payload_bytes / 2) as usize } else { 0 },
-            state: state_name(c.state),
+            state: c.state.as_str(),
             payload_bytes: c.payload_bytes,
             frames: c.stats.frames,
             writer_pid: c.writer_pid,

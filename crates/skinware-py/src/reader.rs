@@ -16,16 +16,6 @@ use crate::errors;
 use crate::ticks::{self, SIGNAL_CHECK, Schedule};
 use crate::topology::{Topology, readonly};
 
-/// A writer's state as Python sees it.
-pub fn state_name(state: WriterState) -> &'static str {
-    match state {
-        WriterState::Running => "running",
-        WriterState::Paused => "paused",
-        WriterState::Faulted => "faulted",
-        WriterState::Gone => "gone",
-    }
-}
-
 /// One frame: a private, read-only copy of a layer's responses (`uint16`,
 /// one per sensor) or of a service's records (a structured array), with its
 /// metadata.
@@ -282,7 +272,7 @@ impl Reader {
     }
 
     fn lock(&self) -> MutexGuard<'_, Option<skinware::Reader>> {
-        self.core.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+        skinware::lock(&self.core)
     }
 
     /// Runs `f` on the open reader, taking the reader's lock with the GIL
@@ -373,7 +363,7 @@ impl Reader {
                     self.skin,
                     self.channel,
                     timeout.map_or(f64::INFINITY, |t| t.as_secs_f64()),
-                    state_name(self.state_now(py))
+                    self.state_now(py).as_str()
                 ),
             ),
             Failure::Exchange(error) => self.explain(py, error),
@@ -652,7 +642,7 @@ impl Reader {
     /// The writer's state: "running", "paused", "faulted" or "gone".
     #[getter]
     fn state(&self, py: Python<'_>) -> &'static str {
-        state_name(self.state_now(py))
+        self.state_now(py).as_str()
     }
 
     /// The layer's topology.
@@ -765,7 +755,7 @@ impl Reader {
                 format!("service {} v{}, {} records", info.schema.0, info.schema.1, self.__len__())
             }
         };
-        format!("<{} {}/{} ({what}), {}>", "skinware.Reader", self.skin, self.channel, state_name(self.state_now(py)))
+        format!("<{} {}/{} ({what}), {}>", "skinware.Reader", self.skin, self.channel, self.state_now(py).as_str())
     }
 }
 
@@ -863,7 +853,7 @@ impl Periodic {
 
     /// Whether the writer has been gone too long; resets when it is back.
     fn gone_too_long(&self, gone: bool) -> bool {
-        let mut since = self.gone_since.lock().unwrap_or_else(|p| p.into_inner());
+        let mut since = skinware::lock(&self.gone_since);
         if !gone {
             *since = None;
             return false;

@@ -12,7 +12,7 @@ use skinware::{Access, FrameStatus, Stop, WriterOptions, WriterState};
 use skinware_services::{ServiceMode, ServiceSpec};
 
 use crate::errors;
-use crate::reader::{state_name, writer_stats_dict};
+use crate::reader::writer_stats_dict;
 use crate::ticks::{self, Schedule};
 use crate::topology::Topology;
 
@@ -26,12 +26,11 @@ fn access(py: Python<'_>, access: &str) -> PyResult<Access> {
 }
 
 fn writer_state(py: Python<'_>, state: &str) -> PyResult<WriterState> {
-    match state {
-        "running" => Ok(WriterState::Running),
-        "paused" => Ok(WriterState::Paused),
-        "faulted" => Ok(WriterState::Faulted),
-        other => {
-            Err(errors::invalid(py, format!("state {other:?}: a writer can be \"running\", \"paused\" or \"faulted\"")))
+    // "gone" is a state readers see, never one a writer sets.
+    match state.parse::<WriterState>() {
+        Ok(state) if state != WriterState::Gone => Ok(state),
+        _ => {
+            Err(errors::invalid(py, format!("state {state:?}: a writer can be \"running\", \"paused\" or \"faulted\"")))
         }
     }
 }
@@ -64,7 +63,7 @@ impl ChannelWriter {
     }
 
     fn lock(&self) -> MutexGuard<'_, Option<skinware::Writer>> {
-        self.writer.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+        skinware::lock(&self.writer)
     }
 
     /// Runs `f` on the open writer, taking the lock with the GIL released (a
@@ -142,7 +141,7 @@ impl ChannelWriter {
     }
 
     fn state_impl(&self, py: Python<'_>) -> PyResult<&'static str> {
-        self.peek(py, |w| state_name(w.state())).ok_or_else(|| self.closed(py))
+        self.peek(py, |w| w.state().as_str()).ok_or_else(|| self.closed(py))
     }
 
     fn set_state_impl(&self, py: Python<'_>, state: &str) -> PyResult<()> {

@@ -62,6 +62,8 @@ pub mod driver;
 mod error;
 #[cfg(not(loom))]
 mod frame;
+// The one poison-tolerant lock helper.
+mod locks;
 #[cfg(not(loom))]
 pub mod os;
 #[cfg(not(loom))]
@@ -94,12 +96,14 @@ pub use driver::{Driver, DriverError, DriverHandler, HandlerOptions, LayerSource
 pub use error::{Error, Result};
 #[cfg(not(loom))]
 pub use frame::{Frame, FrameStatus};
+/// The one way skinware takes a lock whose holder panicked.
+pub use locks::lock;
 #[cfg(not(loom))]
 pub use reader::{Reader, ReaderOptions};
 #[cfg(not(loom))]
 pub use rt::{RtOptions, Stop, Tick, Ticker};
 #[cfg(not(loom))]
-pub use stats::{ReaderStats, WriterState, WriterStats, histogram_quantile};
+pub use stats::{ReaderStats, UnknownWriterState, WriterState, WriterStats, histogram_quantile};
 #[cfg(not(loom))]
 pub use topology::{LayerTopology, TopologyBuilder, TopologyError};
 #[cfg(not(loom))]

@@ -45,7 +45,7 @@ impl Stop {
     pub fn stop(&self) {
         self.inner.word.store(1, Ordering::Release);
         PRIVATE_FUTEX.wake_all(&self.inner.word);
-        let channels = self.inner.channels.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        let channels = crate::lock(&self.inner.channels);
         for shared in channels.iter().filter_map(Weak::upgrade) {
             let doorbell = shared.doorbell();
             doorbell::nudge(&doorbell.notify, &SHARED_FUTEX);
@@ -60,7 +60,7 @@ impl Stop {
 
     /// Makes `stop` also wake sleepers on this channel's futex words.
     pub(crate) fn watch(&self, shared: &Arc<Shared>) {
-        let mut channels = self.inner.channels.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        let mut channels = crate::lock(&self.inner.channels);
         channels.retain(|weak| weak.strong_count() > 0);
         channels.push(Arc::downgrade(shared));
     }
@@ -231,7 +231,7 @@ static CPU_LATENCY_REQUEST: Mutex<Option<(u32, std::fs::File)>> = Mutex::new(Non
 /// of the process's life. A request looser than one already held changes nothing.
 fn hold_cpu_wake_latency(latency_us: u32) -> std::io::Result<()> {
     use std::io::Write;
-    let mut held = CPU_LATENCY_REQUEST.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    let mut held = crate::lock(&CPU_LATENCY_REQUEST);
     if held.as_ref().is_some_and(|(value, _)| *value <= latency_us) {
         return Ok(());
     }
@@ -246,7 +246,7 @@ fn hold_cpu_wake_latency(latency_us: u32) -> std::io::Result<()> {
 
 /// The CPU wake latency this process holds a request for, µs, if any.
 pub fn held_cpu_wake_latency_us() -> Option<u32> {
-    CPU_LATENCY_REQUEST.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).as_ref().map(|(value, _)| *value)
+    crate::lock(&CPU_LATENCY_REQUEST).as_ref().map(|(value, _)| *value)
 }
 
 #[cfg(test)]

@@ -28,6 +28,10 @@ impl WriterState {
     pub(crate) const FAULTED: u32 = 3;
     pub(crate) const STOPPED: u32 = 4;
 
+    /// Every state, in the order of their codes.
+    pub const ALL: [WriterState; 4] =
+        [WriterState::Running, WriterState::Paused, WriterState::Faulted, WriterState::Gone];
+
     /// Combines the state code a writer left in the header with whether its
     /// liveness lock is still held: a dead writer is gone whatever it last said.
     pub(crate) fn from_code(code: u32, alive: bool) -> WriterState {
@@ -39,7 +43,11 @@ impl WriterState {
         }
     }
 
-    pub(crate) fn code(self) -> u32 {
+    /// The state's number: 1 running, 2 paused, 3 faulted, 4 gone. The same
+    /// number the writer stores in shared memory, and the one every encoding
+    /// of a state uses (recordings, the bridge, the viewer), so that there is
+    /// one table.
+    pub const fn code(self) -> u32 {
         match self {
             WriterState::Running => WriterState::RUNNING,
             WriterState::Paused => WriterState::PAUSED,
@@ -48,8 +56,20 @@ impl WriterState {
         }
     }
 
-    /// The lower-case name used by the CLI and its JSON: `running|paused|faulted|gone`.
-    pub fn as_str(self) -> &'static str {
+    /// The state numbered `code` (see [`code`](Self::code)); `None` for a
+    /// number that is none of them (from a file or a peer: hostile input).
+    pub const fn from_number(code: u32) -> Option<WriterState> {
+        match code {
+            WriterState::RUNNING => Some(WriterState::Running),
+            WriterState::PAUSED => Some(WriterState::Paused),
+            WriterState::FAULTED => Some(WriterState::Faulted),
+            WriterState::STOPPED => Some(WriterState::Gone),
+            _ => None,
+        }
+    }
+
+    /// The lower-case name used by the CLI, its JSON and Python: `running|paused|faulted|gone`.
+    pub const fn as_str(self) -> &'static str {
         match self {
             WriterState::Running => "running",
             WriterState::Paused => "paused",
@@ -62,6 +82,25 @@ impl WriterState {
 impl std::fmt::Display for WriterState {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(self.as_str())
+    }
+}
+
+/// A name that is not a writer state's ([`WriterState::as_str`]).
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{given:?} is not a writer state: give one of running, paused, faulted, gone")]
+pub struct UnknownWriterState {
+    /// The name given.
+    pub given: String,
+}
+
+impl std::str::FromStr for WriterState {
+    type Err = UnknownWriterState;
+
+    fn from_str(name: &str) -> Result<WriterState, UnknownWriterState> {
+        WriterState::ALL
+            .into_iter()
+            .find(|state| state.as_str() == name)
+            .ok_or_else(|| UnknownWriterState { given: name.to_owned() })
     }
 }
 
@@ -222,6 +261,19 @@ impl ReaderStats {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_writer_state_has_one_number_and_one_name() {
+        for state in WriterState::ALL {
+            assert_eq!(WriterState::from_number(state.code()), Some(state));
+            assert_eq!(state.as_str().parse::<WriterState>(), Ok(state));
+            assert_eq!(WriterState::from_code(state.code(), true), state);
+        }
+        assert_eq!(WriterState::from_number(0), None);
+        assert_eq!(WriterState::from_number(u32::MAX), None);
+        let refused = "stopped".parse::<WriterState>().unwrap_err();
+        assert!(refused.to_string().contains("running, paused, faulted, gone"), "{refused}");
+    }
 
     #[test]
     fn buckets_are_powers_of_two() {

@@ -12,7 +12,7 @@ use skinware::{Reader, WriterState};
 pub fn one_skin_at_a_time() -> MutexGuard<'static, ()> {
     static LOCK: Mutex<()> = Mutex::new(());
     // A test that failed while holding it poisoned it; the others still run.
-    LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+    skinware::lock(&LOCK)
 }
 
 /// Waits until `reader`'s writer is in `state` (following a re-created

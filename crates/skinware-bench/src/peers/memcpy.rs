@@ -33,7 +33,7 @@ pub(super) fn measure_memcpy_cross_core() -> u64 {
         scope.spawn(|| {
             let _ = skinware::os::pin_to_cpus(&[0]);
             for round in 0..rounds {
-                source.lock().unwrap_or_else(|p| p.into_inner()).fill(round as u8);
+                skinware::lock(&source).fill(round as u8);
                 turn.wait();
                 turn.wait();
             }
@@ -44,7 +44,7 @@ pub(super) fn measure_memcpy_cross_core() -> u64 {
             let mut samples = Vec::with_capacity(rounds as usize);
             for _ in 0..rounds {
                 turn.wait();
-                let frame = source.lock().unwrap_or_else(|p| p.into_inner());
+                let frame = skinware::lock(&source);
                 let started = skinware::os::monotonic_ns();
                 target.copy_from_slice(std::hint::black_box(&frame));
                 std::hint::black_box(&mut target);
@@ -76,7 +76,7 @@ pub(super) fn measure_memcpy_woken(rounds: u32) -> u64 {
                 if ticker.wait(&stop).is_none() {
                     break;
                 }
-                let mut frame = shared.lock().unwrap_or_else(|p| p.into_inner());
+                let mut frame = skinware::lock(&shared);
                 frame.1.fill(round as u8);
                 frame.0 = round;
                 drop(frame);
@@ -90,7 +90,7 @@ pub(super) fn measure_memcpy_woken(rounds: u32) -> u64 {
             let mut samples = Vec::with_capacity(rounds as usize);
             let mut last = 0;
             while last < rounds {
-                let guard = shared.lock().unwrap_or_else(|p| p.into_inner());
+                let guard = skinware::lock(&shared);
                 let (frame, timed_out) = published
                     .wait_timeout_while(guard, Duration::from_secs(1), |frame| frame.0 == last)
                     .unwrap_or_else(|p| p.into_inner());

@@ -339,11 +339,14 @@ impl Soak<'_> {
                 procs::signal(pid, Signal::STOP);
                 self.stopped.push(pid);
                 self.idle(hold);
+                // Before the signal: the reader may get a frame before
+                // `kill` returns, and its pause must count from here.
+                let resumed_ns = skinware::os::monotonic_ns();
                 procs::signal(pid, Signal::CONT);
                 self.stopped.retain(|&p| p != pid);
                 if let Some(reader) = self.readers.iter_mut().find(|r| r.child.id() == pid) {
                     reader.stopped = false;
-                    reader.since_ns = skinware::os::monotonic_ns();
+                    reader.since_ns = resumed_ns;
                 }
                 self.end(&mut injected);
                 Ok(injected)

@@ -127,7 +127,7 @@ impl Observer {
     }
 
     fn views(&self) -> std::sync::MutexGuard<'_, Views> {
-        self.views.lock().unwrap_or_else(|p| p.into_inner())
+        skinware::lock(&self.views)
     }
 
     /// From now on, note each channel's first frame published after `at_ns`.
@@ -206,8 +206,7 @@ struct Watch {
 }
 
 fn observe(skin: &str, dir: &std::path::Path, views: &Mutex<Views>, stop: &Stop) {
-    let names: Vec<String> =
-        views.lock().unwrap_or_else(|p| p.into_inner()).channels.iter().map(|c| c.name.clone()).collect();
+    let names: Vec<String> = skinware::lock(views).channels.iter().map(|c| c.name.clone()).collect();
     let options = ReaderOptions { dir: Some(dir.to_owned()), ..ReaderOptions::default() };
     let mut watches: Vec<Watch> =
         names.iter().map(|_| Watch { reader: None, last_new_ns: 0, next_open_ns: 0, stale_ns: 50_000_000 }).collect();
@@ -236,7 +235,7 @@ fn observe(skin: &str, dir: &std::path::Path, views: &Mutex<Views>, stop: &Stop)
             match published {
                 Some(published_ns) => {
                     watch.last_new_ns = now;
-                    let mut views = views.lock().unwrap_or_else(|p| p.into_inner());
+                    let mut views = skinware::lock(views);
                     let mark = views.mark_ns;
                     let view = &mut views.channels[index];
                     view.published.push_back(published_ns);

@@ -292,10 +292,7 @@ pub fn run(args: &ReaderArgs) -> Result<()> {
         pid: std::process::id(),
         written_ns: skinware::os::monotonic_ns(),
         done,
-        layers: tallies
-            .iter()
-            .map(|(layer, tally)| (layer.clone(), tally.lock().unwrap_or_else(|p| p.into_inner()).clone()))
-            .collect(),
+        layers: tallies.iter().map(|(layer, tally)| (layer.clone(), skinware::lock(tally).clone())).collect(),
     };
     while stop.sleep_until(skinware::os::monotonic_ns() + 250_000_000) {
         report(false).write(&args.report)?;
@@ -308,7 +305,7 @@ pub fn run(args: &ReaderArgs) -> Result<()> {
 
 /// Reads one layer in `mode` until `stop`, counting into `tally`.
 fn read_layer(skin: &str, layer: &str, mode: Mode, tally: &Mutex<LayerTally>, stop: &Stop, seed: u64) {
-    let lock = || tally.lock().unwrap_or_else(|p| p.into_inner());
+    let lock = || skinware::lock(tally);
     let options =
         ReaderOptions { anticipate: (mode == Mode::Anticipate).then_some(ANTICIPATE), ..ReaderOptions::default() };
     let mut reader = loop {

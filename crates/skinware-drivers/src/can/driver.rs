@@ -12,7 +12,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use skinware::driver::{Driver, DriverError, LayerSource, LayerSpec};
-use skinware::{FrameWriter, LayerTopology, RtOptions, TopologyBuilder};
+use skinware::{FrameWriter, LayerTopology, RtOptions, TopologyBuilder, TopologyError};
 
 use super::icub_mtb::{self, Board, BoardSettings, Message};
 use super::{BusError, CanBus, CanFrame, cyskin, xela};
@@ -58,6 +58,53 @@ pub struct CanDriverConfig {
     pub rt: RtOptions,
 }
 
+/// What is wrong with a CAN driver's settings; each message names the
+/// setting and the fix.
+#[derive(Debug, thiserror::Error)]
+pub enum CanConfigError {
+    /// The rate is not a positive number.
+    #[error("rate {rate_hz} Hz: give a positive rate")]
+    Rate {
+        /// The rate given.
+        rate_hz: f64,
+    },
+    /// The bus URL cannot be understood.
+    #[error(transparent)]
+    Interface(#[from] BusError),
+    /// An iCub layer without boards.
+    #[error("no boards: list at least one `[[driver.board]]` with its address and triangles")]
+    NoBoards,
+    /// An MTB board address outside 1..=15.
+    #[error("board address {address} is not 1 to 15")]
+    BoardAddress {
+        /// The address given.
+        address: u8,
+    },
+    /// An MTB triangle outside 0..=15.
+    #[error("board {board}: triangle {triangle} is not 0 to 15")]
+    Triangle {
+        /// The board's address.
+        board: u8,
+        /// The triangle given.
+        triangle: u8,
+    },
+    /// A CySkin patch whose four frames would not fit below 0x800.
+    #[error("CySkin base identifier {base:#x} leaves no room for its 4 frames below 0x800")]
+    CySkinBase {
+        /// The base identifier given.
+        base: u16,
+    },
+    /// A XELA board with no taxels or too many.
+    #[error("a XELA board has 1 to {max} taxels, not {taxels}", max = xela::MAX_TAXELS)]
+    XelaTaxels {
+        /// The taxels given.
+        taxels: usize,
+    },
+    /// The layer's topology was refused.
+    #[error(transparent)]
+    Topology(#[from] TopologyError),
+}
+
 /// A module is stale once it has not been complete for this many periods.
 const STALE_PERIODS: f64 = 1.5;
 const RECEIVE_SLICE: Duration = Duration::from_millis(5);
@@ -69,21 +116,21 @@ impl CanDriverConfig {
     /// The layer's topology: MTB boards are patches and triangles modules;
     /// CySkin patches are patches of one 16-taxel module; a XELA board is a
     /// patch whose taxels are modules of three sensors (X, Y, Z).
-    pub fn topology(&self) -> Result<LayerTopology, String> {
+    pub fn topology(&self) -> Result<LayerTopology, CanConfigError> {
         let mut builder = TopologyBuilder::new(&self.layer, "pressure", self.rate_hz);
         match &self.protocol {
             Protocol::IcubMtb { boards, .. } => {
                 if boards.is_empty() {
-                    return Err("no boards: list at least one `[[driver.board]]` with its address and triangles".into());
+                    return Err(CanConfigError::NoBoards);
                 }
                 for board in boards {
                     if !(1..=15).contains(&board.address) {
-                        return Err(format!("board address {} is not 1 to 15", board.address));
+                        return Err(CanConfigError::BoardAddress { address: board.address });
                     }
                     builder.patch(u32::from(board.address));
                     for &triangle in &board.triangles {
                         if triangle > 15 {
-                            return Err(format!("board {}: triangle {triangle} is not 0 to 15", board.address));
+                            return Err(CanConfigError::Triangle { board: board.address, triangle });
                         }
                         let base = u32::from(board.address) << 8 | u32::from(triangle) << 4;
                         builder.module(u32::from(board.address) << 4 | u32::from(triangle), (0..12).map(|k| base | k));
@@ -93,9 +140,7 @@ impl CanDriverConfig {
             Protocol::CySkin { base_ids } => {
                 for (i, &base) in base_ids.iter().enumerate() {
                     if base > 0x7F9 {
-                        return Err(format!(
-                            "CySkin base identifier {base:#x} leaves no room for its 4 frames below 0x800"
-                        ));
+                        return Err(CanConfigError::CySkinBase { base });
                     }
                     builder.patch(i as u32 + 1);
                     builder.module(u32::from(base), (0..cyskin::TAXELS as u32).map(|t| u32::from(base) << 4 | t));
@@ -103,7 +148,7 @@ impl CanDriverConfig {
             }
             Protocol::Xela { board, taxels } => {
                 if *taxels == 0 || *taxels > xela::MAX_TAXELS {
-                    return Err(format!("a XELA board has 1 to {} taxels, not {taxels}", xela::MAX_TAXELS));
+                    return Err(CanConfigError::XelaTaxels { taxels: *taxels });
                 }
                 builder.patch(u32::from(*board));
                 for taxel in 0..*taxels as u32 {
@@ -111,7 +156,7 @@ impl CanDriverConfig {
                 }
             }
         }
-        builder.build().map_err(|e| e.to_string())
+        Ok(builder.build()?)
     }
 }
 
@@ -136,11 +181,11 @@ pub struct CanDriver {
 
 impl CanDriver {
     /// Checks the settings and builds the topology; nothing is opened yet.
-    pub fn new(config: CanDriverConfig) -> Result<CanDriver, String> {
+    pub fn new(config: CanDriverConfig) -> Result<CanDriver, CanConfigError> {
         if !(config.rate_hz.is_finite() && config.rate_hz > 0.0) {
-            return Err(format!("rate {} Hz: give a positive rate", config.rate_hz));
+            return Err(CanConfigError::Rate { rate_hz: config.rate_hz });
         }
-        super::bus::BusUrl::parse(&config.interface).map_err(|e| e.to_string())?;
+        super::bus::BusUrl::parse(&config.interface)?;
         let topology = config.topology()?;
         Ok(CanDriver { config, topology, stop: Arc::new(AtomicBool::new(false)), thread: None })
     }
@@ -354,7 +399,7 @@ impl Link {
             match bus.receive(RECEIVE_SLICE) {
                 Ok(Some(frame)) => {
                     last_frame = Instant::now();
-                    let mut image = self.image.lock().unwrap_or_else(|p| p.into_inner());
+                    let mut image = skinware::lock(&self.image);
                     image.link_down = None;
                     self.decoder.apply(&frame, &mut image, &topology_modules);
                 }
@@ -376,7 +421,7 @@ impl Link {
     }
 
     fn set_link_down(&self, why: String) {
-        self.image.lock().unwrap_or_else(|p| p.into_inner()).link_down = Some(why);
+        skinware::lock(&self.image).link_down = Some(why);
     }
 }
 
@@ -389,7 +434,7 @@ struct CanLayer {
 
 impl LayerSource for CanLayer {
     fn acquire(&mut self, frame: &mut FrameWriter<'_>) -> Result<(), DriverError> {
-        let image = self.image.lock().unwrap_or_else(|p| p.into_inner());
+        let image = skinware::lock(&self.image);
         if let Some(why) = &image.link_down {
             return Err(why.clone().into());
         }
@@ -452,12 +497,24 @@ mod tests {
 
     #[test]
     fn bad_settings_are_explained() {
-        assert!(mtb(vec![]).topology().unwrap_err().contains("no boards"));
-        assert!(mtb(vec![Board { address: 16, triangles: vec![0] }]).topology().unwrap_err().contains("1 to 15"));
-        assert!(mtb(vec![Board { address: 1, triangles: vec![16] }]).topology().unwrap_err().contains("0 to 15"));
+        assert!(mtb(vec![]).topology().unwrap_err().to_string().contains("no boards"));
+        assert!(
+            mtb(vec![Board { address: 16, triangles: vec![0] }])
+                .topology()
+                .unwrap_err()
+                .to_string()
+                .contains("1 to 15")
+        );
+        assert!(
+            mtb(vec![Board { address: 1, triangles: vec![16] }])
+                .topology()
+                .unwrap_err()
+                .to_string()
+                .contains("0 to 15")
+        );
         let bad_url =
             CanDriverConfig { interface: "ttyACM0".into(), ..mtb(vec![Board { address: 1, triangles: vec![0] }]) };
-        assert!(CanDriver::new(bad_url).err().unwrap().contains("scheme"));
+        assert!(CanDriver::new(bad_url).err().unwrap().to_string().contains("scheme"));
     }
 
     #[test]

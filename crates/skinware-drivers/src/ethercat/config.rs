@@ -3,7 +3,7 @@
 
 use std::time::Duration;
 
-use skinware::{LayerTopology, RtOptions, TopologyBuilder};
+use skinware::{LayerTopology, RtOptions, TopologyBuilder, TopologyError};
 
 use super::{INPUTS_HEADER_BYTES, MAX_SEGMENTS, MAX_TAXELS};
 
@@ -27,6 +27,75 @@ pub struct SegmentConfig {
     pub baseline: bool,
 }
 
+/// What is wrong with an EtherCAT driver's settings; each message names
+/// the setting and the fix.
+#[derive(Debug, thiserror::Error)]
+pub enum EthercatConfigError {
+    /// The rate is not above 0 and at most 10 kHz.
+    #[error("rate {rate_hz} Hz: give a rate above 0 and at most 10 kHz")]
+    Rate {
+        /// The rate given.
+        rate_hz: f64,
+    },
+    /// No segments, or more than the ring can have.
+    #[error("{segments} segments: list 1 to {MAX_SEGMENTS} `[[driver.segment]]` tables, in ring order")]
+    Segments {
+        /// How many were given.
+        segments: usize,
+    },
+    /// A segment with no taxels or too many.
+    #[error("segment {position}: {taxels} taxels; a segment has 1 to {MAX_TAXELS}")]
+    Taxels {
+        /// The segment's position on the ring.
+        position: usize,
+        /// Its taxels.
+        taxels: usize,
+    },
+    /// A segment whose modules do not add up to its taxels.
+    #[error("segment {position}: its modules hold {in_modules} taxels but it has {taxels}; make them add up")]
+    ModulesDisagree {
+        /// The segment's position on the ring.
+        position: usize,
+        /// The taxels its modules hold.
+        in_modules: usize,
+        /// Its taxels.
+        taxels: usize,
+    },
+    /// A module of no taxels.
+    #[error("segment {position}: a module of 0 taxels; drop it")]
+    EmptyModule {
+        /// The segment's position on the ring.
+        position: usize,
+    },
+    /// Two segments publishing one layer.
+    #[error("segments {first} and {position} both publish layer {layer:?}; give each its own layer")]
+    SharedLayer {
+        /// The earlier segment.
+        first: usize,
+        /// The later one.
+        position: usize,
+        /// The layer.
+        layer: String,
+    },
+    /// A segment position past the last segment.
+    #[error("no segment {position}: the ring has {segments}")]
+    NoSegment {
+        /// The position asked for.
+        position: usize,
+        /// The segments there are.
+        segments: usize,
+    },
+    /// A segment's layer topology was refused.
+    #[error("segment {position}: {source}")]
+    Topology {
+        /// The segment's position on the ring.
+        position: usize,
+        /// Why.
+        #[source]
+        source: TopologyError,
+    },
+}
+
 /// An EtherCAT skin driver's settings.
 #[derive(Clone, Debug)]
 pub struct EthercatDriverConfig {
@@ -47,36 +116,27 @@ pub struct EthercatDriverConfig {
 
 impl EthercatDriverConfig {
     /// Checks the settings; the explanation names the setting and the fix.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), EthercatConfigError> {
         if !(self.rate_hz.is_finite() && self.rate_hz > 0.0 && self.rate_hz <= 10_000.0) {
-            return Err(format!("rate {} Hz: give a rate above 0 and at most 10 kHz", self.rate_hz));
+            return Err(EthercatConfigError::Rate { rate_hz: self.rate_hz });
         }
         if self.segments.is_empty() || self.segments.len() > MAX_SEGMENTS {
-            return Err(format!(
-                "{} segments: list 1 to {MAX_SEGMENTS} `[[driver.segment]]` tables, in ring order",
-                self.segments.len()
-            ));
+            return Err(EthercatConfigError::Segments { segments: self.segments.len() });
         }
         for (position, segment) in self.segments.iter().enumerate() {
             if segment.taxels == 0 || segment.taxels > MAX_TAXELS {
-                return Err(format!("segment {position}: {} taxels; a segment has 1 to {MAX_TAXELS}", segment.taxels));
+                return Err(EthercatConfigError::Taxels { position, taxels: segment.taxels });
             }
             // Saturating: module sizes come from a file, and their sum must not overflow.
             let in_modules = segment.modules.iter().fold(0usize, |sum, &m| sum.saturating_add(m));
             if !segment.modules.is_empty() && in_modules != segment.taxels {
-                return Err(format!(
-                    "segment {position}: its modules hold {in_modules} taxels but it has {}; make them add up",
-                    segment.taxels
-                ));
+                return Err(EthercatConfigError::ModulesDisagree { position, in_modules, taxels: segment.taxels });
             }
             if segment.modules.contains(&0) {
-                return Err(format!("segment {position}: a module of 0 taxels; drop it"));
+                return Err(EthercatConfigError::EmptyModule { position });
             }
-            if let Some(other) = self.segments[..position].iter().position(|s| s.layer == segment.layer) {
-                return Err(format!(
-                    "segments {other} and {position} both publish layer {:?}; give each its own layer",
-                    segment.layer
-                ));
+            if let Some(first) = self.segments[..position].iter().position(|s| s.layer == segment.layer) {
+                return Err(EthercatConfigError::SharedLayer { first, position, layer: segment.layer.clone() });
             }
         }
         Ok(())
@@ -94,8 +154,11 @@ impl EthercatDriverConfig {
 
     /// The topology of segment `position`'s layer: one patch, its modules,
     /// taxel uids `(position + 1) << 16 | taxel`.
-    pub fn topology(&self, position: usize) -> Result<LayerTopology, String> {
-        let segment = self.segments.get(position).ok_or_else(|| format!("no segment {position}"))?;
+    pub fn topology(&self, position: usize) -> Result<LayerTopology, EthercatConfigError> {
+        let segment = self
+            .segments
+            .get(position)
+            .ok_or(EthercatConfigError::NoSegment { position, segments: self.segments.len() })?;
         let mut builder = TopologyBuilder::new(&segment.layer, "pressure", self.rate_hz);
         builder.patch(segment.patch);
         let modules = if segment.modules.is_empty() { vec![segment.taxels] } else { segment.modules.clone() };
@@ -106,7 +169,7 @@ impl EthercatDriverConfig {
             builder.module(module as u32 + 1, (first..first + taxels).map(|k| base | k));
             first += taxels;
         }
-        builder.build().map_err(|e| format!("segment {position}: {e}"))
+        builder.build().map_err(|source| EthercatConfigError::Topology { position, source })
     }
 }
 
@@ -161,14 +224,14 @@ mod tests {
 
     #[test]
     fn bad_settings_are_explained() {
-        let err = |segments| config(segments).check().unwrap_err();
+        let err = |segments| config(segments).check().unwrap_err().to_string();
         assert!(err(vec![]).contains("1 to 16"));
         assert!(err(vec![segment("a", 0, vec![])]).contains("1 to 2048"));
         assert!(err(vec![segment("a", 24, vec![12, 10])]).contains("add up"));
         assert!(err(vec![segment("a", 4, vec![]), segment("a", 4, vec![])]).contains("its own layer"));
         let mut slow = config(vec![segment("a", 4, vec![])]);
         slow.rate_hz = 0.0;
-        assert!(slow.check().unwrap_err().contains("rate"));
+        assert!(slow.check().unwrap_err().to_string().contains("rate"));
     }
 
     #[test]

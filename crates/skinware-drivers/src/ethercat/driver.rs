@@ -149,11 +149,11 @@ struct WriterView {
 
 impl Shared {
     fn segment(&self, position: usize) -> std::sync::MutexGuard<'_, SegmentImage> {
-        self.segments[position].lock().unwrap_or_else(|p| p.into_inner())
+        skinware::lock(&self.segments[position])
     }
 
     fn set_bus_fault(&self, fault: Option<String>) {
-        let mut bus = self.bus_fault.lock().unwrap_or_else(|p| p.into_inner());
+        let mut bus = skinware::lock(&self.bus_fault);
         if *bus != fault {
             match &fault {
                 Some(why) => tracing::warn!(error = %why, "EtherCAT bus down"),
@@ -196,7 +196,7 @@ pub struct EthercatDriver {
 impl EthercatDriver {
     /// Checks the settings and builds the layers' topologies; nothing is
     /// opened yet.
-    pub fn new(config: EthercatDriverConfig, link: FrameLink) -> Result<EthercatDriver, String> {
+    pub fn new(config: EthercatDriverConfig, link: FrameLink) -> Result<EthercatDriver, super::EthercatConfigError> {
         config.check()?;
         let topologies = (0..config.segments.len()).map(|p| config.topology(p)).collect::<Result<Vec<_>, _>>()?;
         let shared = Arc::new(Shared {
@@ -256,7 +256,7 @@ impl EthercatStatus {
 
     /// Each segment's identity, state, fault and newest sample, in ring order.
     pub fn segments(&self) -> Vec<SegmentStatus> {
-        let mut snapshot = self.snapshot.lock().unwrap_or_else(|p| p.into_inner());
+        let mut snapshot = skinware::lock(&self.snapshot);
         for (position, segment) in self.shared.segments.iter().enumerate() {
             let image = match segment.try_lock() {
                 Ok(image) => image,
@@ -274,7 +274,7 @@ impl EthercatStatus {
 
     /// Why the whole bus is down, if it is.
     pub fn bus_fault(&self) -> Option<String> {
-        let mut snapshot = self.snapshot.lock().unwrap_or_else(|p| p.into_inner());
+        let mut snapshot = skinware::lock(&self.snapshot);
         match self.shared.bus_fault.try_lock() {
             Ok(fault) => snapshot.bus_fault.clone_from(&fault),
             Err(std::sync::TryLockError::Poisoned(poisoned)) => snapshot.bus_fault.clone_from(&poisoned.into_inner()),
@@ -366,7 +366,7 @@ impl SegmentLayer {
         let started = Instant::now();
         let mut image = self.shared.segment(self.position);
         loop {
-            if let Some(why) = self.shared.bus_fault.lock().unwrap_or_else(|p| p.into_inner()).as_ref() {
+            if let Some(why) = skinware::lock(&self.shared.bus_fault).as_ref() {
                 // The bus fault covers the segments' faults before it.
                 self.faults_reported = image.faults_begun;
                 return Err(why.clone().into());

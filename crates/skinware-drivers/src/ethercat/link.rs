@@ -77,7 +77,7 @@ fn run_in_process(bus: &Mutex<dyn FrameExchange>, mut tx: PduTx<'_>, mut rx: Pdu
             if sent_ok.is_err() {
                 continue;
             }
-            let returned = bus.lock().unwrap_or_else(|p| p.into_inner()).exchange(&mut buffer);
+            let returned = skinware::lock(bus).exchange(&mut buffer);
             // An answer ethercrab no longer waits for (it gave the frame up)
             // is refused; that is the lost frame's business, not the link's.
             if returned && let Err(e) = rx.receive_frame(&buffer) {
@@ -174,7 +174,7 @@ fn send_frames(
         tx.replace_waker(&waker);
         let mut failure = None;
         while let Some(frame) = tx.next_sendable_frame() {
-            let _sending = sending.lock().unwrap_or_else(|p| p.into_inner());
+            let _sending = skinware::lock(sending);
             let sent = frame.send_blocking(|bytes| match sender.send_to(bytes, None) {
                 Some(Ok(())) => Ok(bytes.len()),
                 Some(Err(e)) => {
@@ -228,7 +228,7 @@ fn receive_answers(
         // A refused answer is late (ethercrab gave its frame up: that
         // frame's timeout reports it) or not ours; the link carries on.
         let taken = {
-            let _sent = sending.lock().unwrap_or_else(|p| p.into_inner());
+            let _sent = skinware::lock(sending);
             rx.receive_frame(bytes)
         };
         if let Err(e) = taken {

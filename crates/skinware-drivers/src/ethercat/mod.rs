@@ -20,7 +20,7 @@ mod config;
 mod driver;
 mod link;
 
-pub use config::{EthercatDriverConfig, SegmentConfig, expected_working_counter};
+pub use config::{EthercatConfigError, EthercatDriverConfig, SegmentConfig, expected_working_counter};
 pub use driver::{EthercatDriver, EthercatStatus, SegmentStatus};
 pub use link::{FrameExchange, FrameLink};
 

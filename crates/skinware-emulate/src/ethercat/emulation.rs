@@ -142,7 +142,7 @@ impl EthercatEmulation {
                 scope.spawn(move || {
                     while !stop() && !served.load(std::sync::atomic::Ordering::Relaxed) {
                         if started.elapsed() >= after {
-                            segment.lock().unwrap_or_else(|p| p.into_inner()).faults_mut().link_down = true;
+                            skinware::lock(segment).faults_mut().link_down = true;
                             return;
                         }
                         std::thread::sleep(Duration::from_millis(5));

@@ -92,7 +92,7 @@ pub fn serve_interface(
             scope.spawn(|| {
                 for (due, answer) in held_back {
                     std::thread::sleep(due.saturating_duration_since(Instant::now()));
-                    let _ = tx.lock().unwrap_or_else(|p| p.into_inner()).send_to(&answer, None);
+                    let _ = skinware::lock(&tx).send_to(&answer, None);
                 }
             });
             while !stop() {
@@ -121,7 +121,7 @@ pub fn serve_interface(
                 stats.frames += 1;
                 frame.clear();
                 frame.extend_from_slice(received);
-                let fate = segment.lock().unwrap_or_else(|p| p.into_inner()).process(&mut frame);
+                let fate = skinware::lock(segment).process(&mut frame);
                 let answered = matches!(fate, Ok(Fate::Returned | Fate::Late(_)));
                 if let Some(on_frame) = on_frame.as_mut() {
                     // `frame` was changed in place; `received` is still the frame as it came.
@@ -130,7 +130,7 @@ pub fn serve_interface(
                 match fate {
                     Ok(Fate::Returned) => {
                         // An answer that cannot go is lost with the link, as on a cable.
-                        if let Some(Ok(())) = tx.lock().unwrap_or_else(|p| p.into_inner()).send_to(&frame, None) {
+                        if let Some(Ok(())) = skinware::lock(&tx).send_to(&frame, None) {
                             stats.answered += 1;
                         }
                     }

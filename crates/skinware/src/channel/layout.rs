@@ -174,7 +174,7 @@ fn round_up(value: u64, to: u64) -> u64 {
 
 impl Layout {
     /// Computes a layout, or says which parameter is out of range.
-    pub fn compute(payload_bytes: u64, slot_count: u64, description_bytes: u64) -> Result<Layout, String> {
+    pub(crate) fn compute(payload_bytes: u64, slot_count: u64, description_bytes: u64) -> Result<Layout, String> {
         if !(MIN_SLOTS as u64..=MAX_SLOTS as u64).contains(&slot_count) {
             return Err(format!("{slot_count} frame buffers requested, {MIN_SLOTS} to {MAX_SLOTS} are allowed"));
         }
@@ -207,7 +207,7 @@ impl Layout {
     }
 
     /// Reads the layout a header declares, checking it is self-consistent.
-    pub fn from_header(header: &Header) -> Result<Layout, String> {
+    pub(crate) fn from_header(header: &Header) -> Result<Layout, String> {
         use crate::sync::Ordering::Relaxed;
         let declared = Layout {
             payload_bytes: header.payload_bytes.load(Relaxed),

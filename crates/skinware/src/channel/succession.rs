@@ -44,13 +44,14 @@ use std::collections::HashMap;
 use std::mem::MaybeUninit;
 use std::os::fd::OwnedFd;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex, MutexGuard, Weak};
+use std::sync::{Arc, Mutex, Weak};
 use std::time::Duration;
 
 use rustix::fs::inotify;
 
 use super::doorbell;
 use super::segment::{self, Opened, Shared};
+use crate::lock;
 use crate::os::{self, SHARED_FUTEX};
 use crate::shm;
 use crate::sync::{AtomicU32, Ordering};
@@ -105,12 +106,6 @@ impl Follower {
             doorbell::nudge(&current.doorbell().notify, &SHARED_FUTEX);
         }
     }
-}
-
-/// A poisoned lock still holds consistent data here (each critical section
-/// is a single assignment or a map update): take it.
-fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
-    mutex.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
 /// Registers a reader of `skin`/`channel` in `dir`, now reading `current`,
