@@ -370,6 +370,65 @@ impl Reader {
         }
     }
 
+    /// One read of `mode` that waits at most `slice`, into `into` or a new
+    /// array, by `reader` (this reader's, locked).
+    fn read_once(
+        &self,
+        reader: &mut skinware::Reader,
+        mode: Mode,
+        slice: Duration,
+        into: Option<&mut [u16]>,
+        requested_after: &mut Option<(u64, u64)>,
+    ) -> skinware::Result<Copied> {
+        let copy_out = |frame: &skinware::Frame<'_>, into: Option<&mut [u16]>| match into {
+            Some(out) => {
+                out.copy_from_slice(frame.responses());
+                Copied::new(frame, Data::Into)
+            }
+            None => self.copy(frame),
+        };
+        let result = match (mode, *requested_after) {
+            (Mode::Latest, _) => reader.latest().map(|f| copy_out(&f, into)),
+            (Mode::Newer, _) => reader.wait_newer(slice).map(|f| copy_out(&f, into)),
+            // A request is made again to a successor (whose numbers
+            // start again from 1).
+            (Mode::Request, None) => {
+                let after = (reader.published_seq(), reader.follows());
+                let result = reader.request(slice).map(|f| copy_out(&f, into));
+                if result.is_err() {
+                    *requested_after = Some(after);
+                }
+                result
+            }
+            (Mode::Request, Some((_, follows))) if follows != reader.follows() => {
+                *requested_after = None;
+                Err(skinware::Error::Timeout { channel: String::new(), timeout: slice })
+            }
+            (Mode::Request, Some((after, _))) => match reader.wait_newer(slice) {
+                Ok(f) if f.seq() > after => Ok(copy_out(&f, into)),
+                Ok(_) => Err(skinware::Error::Timeout { channel: String::new(), timeout: slice }),
+                Err(e) => Err(e),
+            },
+        };
+        let mut result = result.map(|mut copied| {
+            copied.follows = reader.follows();
+            copied.state = reader.writer_state();
+            copied
+        });
+        // A writer that died: follow its successor if it has one (the waits
+        // do it themselves), so that a caller of `latest()` reads the
+        // successor's frames next time.
+        if let Ok(copied) = &mut result
+            && mode == Mode::Latest
+            && !copied.fresh
+            && copied.state == WriterState::Gone
+            && reader.follow_recreated()
+        {
+            copied.follows = reader.follows();
+        }
+        result
+    }
+
     fn read_raw(
         &self,
         py: Python<'_>,
@@ -378,13 +437,6 @@ impl Reader {
         into: Option<&mut [u16]>,
     ) -> Result<Copied, Failure> {
         let deadline = timeout.map(|t| ticks::monotonic_ns().saturating_add(t.as_nanos() as u64));
-        let copy_out = |frame: &skinware::Frame<'_>, into: Option<&mut [u16]>| match into {
-            Some(out) => {
-                out.copy_from_slice(frame.responses());
-                Copied::new(frame, Data::Into)
-            }
-            None => self.copy(frame),
-        };
         let mut into = into;
         // A request is made once; later slices wait for a frame newer than
         // those published when it was made.
@@ -399,46 +451,7 @@ impl Reader {
             let result = py.detach(|| {
                 let mut guard = self.lock();
                 let reader = guard.as_mut()?;
-                let result = match (mode, requested_after) {
-                    (Mode::Latest, _) => reader.latest().map(|f| copy_out(&f, into_slice)),
-                    (Mode::Newer, _) => reader.wait_newer(slice).map(|f| copy_out(&f, into_slice)),
-                    // A request is made again to a successor (whose numbers
-                    // start again from 1).
-                    (Mode::Request, None) => {
-                        let after = (reader.published_seq(), reader.follows());
-                        let result = reader.request(slice).map(|f| copy_out(&f, into_slice));
-                        if result.is_err() {
-                            requested_after = Some(after);
-                        }
-                        result
-                    }
-                    (Mode::Request, Some((_, follows))) if follows != reader.follows() => {
-                        requested_after = None;
-                        Err(skinware::Error::Timeout { channel: String::new(), timeout: slice })
-                    }
-                    (Mode::Request, Some((after, _))) => match reader.wait_newer(slice) {
-                        Ok(f) if f.seq() > after => Ok(copy_out(&f, into_slice)),
-                        Ok(_) => Err(skinware::Error::Timeout { channel: String::new(), timeout: slice }),
-                        Err(e) => Err(e),
-                    },
-                };
-                let mut result = result.map(|mut copied| {
-                    copied.follows = reader.follows();
-                    copied.state = reader.writer_state();
-                    copied
-                });
-                // A writer that died: follow its successor if it has one
-                // (the waits do it themselves), so that a caller of
-                // `latest()` reads the successor's frames next time.
-                if let Ok(copied) = &mut result
-                    && mode == Mode::Latest
-                    && !copied.fresh
-                    && copied.state == WriterState::Gone
-                    && reader.follow_recreated()
-                {
-                    copied.follows = reader.follows();
-                }
-                Some(result)
+                Some(self.read_once(reader, mode, slice, into_slice, &mut requested_after))
             });
             let error = match result {
                 None => return Err(Failure::Closed),

@@ -107,6 +107,14 @@ fn default_priority() -> u8 {
     70
 }
 
+/// Refuses a duration that is not 0 or more seconds.
+fn check_seconds(key: &str, value: Option<f64>) -> Result<()> {
+    match value {
+        Some(s) if !(s.is_finite() && s >= 0.0) => bail!("`{key}` must be 0 or more seconds"),
+        _ => Ok(()),
+    }
+}
+
 impl EmulatorConfig {
     /// Refuses values no bus of its kind has, settings of the other kind,
     /// and an MTB table without exactly one link.
@@ -115,91 +123,88 @@ impl EmulatorConfig {
         if self.fifo_priority > 99 {
             bail!("`fifo_priority` is 0 (normal scheduler) or 1 to 99");
         }
-        let seconds = |key: &str, value: Option<f64>| -> Result<()> {
-            match value {
-                Some(s) if !(s.is_finite() && s >= 0.0) => bail!("`{key}` must be 0 or more seconds"),
-                _ => Ok(()),
-            }
-        };
         match self.kind {
-            EmulatorKind::IcubMtb => {
-                let ethercat_keys = [
-                    ("interface", self.interface.is_some()),
-                    ("segments", self.segments.is_some()),
-                    ("taxels", self.taxels.is_some()),
-                    ("drop_every", self.drop_every.is_some()),
-                    ("late_every", self.late_every.is_some()),
-                    ("late_by_ms", self.late_by_ms.is_some()),
-                    ("fault_segment", self.fault_segment.is_some()),
-                    ("wrong_wkc", self.wrong_wkc),
-                    ("leave_op_after_s", self.leave_op_after_s.is_some()),
-                    ("link_down_after_s", self.link_down_after_s.is_some()),
-                    ("capture", self.capture.is_some()),
-                ];
-                if let Some((key, _)) = ethercat_keys.iter().find(|(_, given)| *given) {
-                    bail!("`{key}` is a setting of kind = \"ethercat\", not of \"icub-mtb\"");
-                }
-                let boards = self.boards.unwrap_or(DEFAULT_BOARDS);
-                let triangles = self.triangles.unwrap_or(DEFAULT_TRIANGLES);
-                if !(1..=15).contains(&boards) || !(1..=16).contains(&triangles) {
-                    bail!(
-                        "`boards` must be 1 to 15 and `triangles` 1 to 16 (an MTB bus addresses 15 boards of 16 triangles)"
-                    );
-                }
-                let rate_hz = self.rate_hz.unwrap_or(DEFAULT_RATE_HZ);
-                if !(rate_hz.is_finite() && rate_hz > 0.0 && rate_hz <= 1000.0) {
-                    bail!("`rate_hz` {rate_hz} must be above 0 and at most 1000");
-                }
-                if self.error_nibble.is_some_and(|e| e > 15) {
-                    bail!("`error_nibble` is 0 to 15");
-                }
-                seconds("silence_after_s", self.silence_after_s)?;
-                match (&self.link, &self.cannelloni, &self.peer) {
-                    (Some(_), None, None) | (None, Some(_), Some(_)) => {}
-                    _ => bail!(
-                        "give either `link` (SLCAN on a pseudo-terminal, e.g. \"/tmp/skinware-bus0\") or both `cannelloni` and `peer` (UDP addresses)"
-                    ),
-                }
-            }
-            EmulatorKind::Ethercat => {
-                let mtb_keys = [
-                    ("boards", self.boards.is_some()),
-                    ("triangles", self.triangles.is_some()),
-                    ("rate_hz", self.rate_hz.is_some()),
-                    ("link", self.link.is_some()),
-                    ("cannelloni", self.cannelloni.is_some()),
-                    ("peer", self.peer.is_some()),
-                    ("candump", self.candump.is_some()),
-                    ("drop_tails", self.drop_tails),
-                    ("error_nibble", self.error_nibble.is_some()),
-                    ("silence_after_s", self.silence_after_s.is_some()),
-                ];
-                if let Some((key, _)) = mtb_keys.iter().find(|(_, given)| *given) {
-                    bail!("`{key}` is a setting of kind = \"icub-mtb\", not of \"ethercat\"");
-                }
-                if self.interface.as_deref().is_none_or(str::is_empty) {
-                    bail!(
-                        "kind = \"ethercat\" needs `interface`, the network interface to answer on (one end of a veth pair)"
-                    );
-                }
-                let segments = self.segments.unwrap_or(DEFAULT_SEGMENTS);
-                let taxels = self.taxels.unwrap_or(DEFAULT_TAXELS);
-                if !(1..=16).contains(&segments) || !(1..=2048).contains(&taxels) {
-                    bail!("`segments` must be 1 to 16 and `taxels` 1 to 2048");
-                }
-                if self.fault_segment.is_some_and(|k| k >= usize::from(segments)) {
-                    bail!("`fault_segment` must be one of the {segments} segments (0 to {})", segments - 1);
-                }
-                seconds("leave_op_after_s", self.leave_op_after_s)?;
-                seconds("link_down_after_s", self.link_down_after_s)?;
-                if self.late_every.is_some() != self.late_by_ms.is_some() {
-                    bail!(
-                        "`late_every` and `late_by_ms` go together: every Nth process-data frame is answered that many milliseconds late"
-                    );
-                }
-            }
+            EmulatorKind::IcubMtb => self.check_mtb()?,
+            EmulatorKind::Ethercat => self.check_ethercat()?,
         }
         self.restart.check()
+    }
+
+    /// The checks of an `icub-mtb` table.
+    fn check_mtb(&self) -> Result<()> {
+        let ethercat_keys = [
+            ("interface", self.interface.is_some()),
+            ("segments", self.segments.is_some()),
+            ("taxels", self.taxels.is_some()),
+            ("drop_every", self.drop_every.is_some()),
+            ("late_every", self.late_every.is_some()),
+            ("late_by_ms", self.late_by_ms.is_some()),
+            ("fault_segment", self.fault_segment.is_some()),
+            ("wrong_wkc", self.wrong_wkc),
+            ("leave_op_after_s", self.leave_op_after_s.is_some()),
+            ("link_down_after_s", self.link_down_after_s.is_some()),
+            ("capture", self.capture.is_some()),
+        ];
+        if let Some((key, _)) = ethercat_keys.iter().find(|(_, given)| *given) {
+            bail!("`{key}` is a setting of kind = \"ethercat\", not of \"icub-mtb\"");
+        }
+        let boards = self.boards.unwrap_or(DEFAULT_BOARDS);
+        let triangles = self.triangles.unwrap_or(DEFAULT_TRIANGLES);
+        if !(1..=15).contains(&boards) || !(1..=16).contains(&triangles) {
+            bail!("`boards` must be 1 to 15 and `triangles` 1 to 16 (an MTB bus addresses 15 boards of 16 triangles)");
+        }
+        let rate_hz = self.rate_hz.unwrap_or(DEFAULT_RATE_HZ);
+        if !(rate_hz.is_finite() && rate_hz > 0.0 && rate_hz <= 1000.0) {
+            bail!("`rate_hz` {rate_hz} must be above 0 and at most 1000");
+        }
+        if self.error_nibble.is_some_and(|e| e > 15) {
+            bail!("`error_nibble` is 0 to 15");
+        }
+        check_seconds("silence_after_s", self.silence_after_s)?;
+        match (&self.link, &self.cannelloni, &self.peer) {
+            (Some(_), None, None) | (None, Some(_), Some(_)) => Ok(()),
+            _ => bail!(
+                "give either `link` (SLCAN on a pseudo-terminal, e.g. \"/tmp/skinware-bus0\") or both `cannelloni` and `peer` (UDP addresses)"
+            ),
+        }
+    }
+
+    /// The checks of an `ethercat` table.
+    fn check_ethercat(&self) -> Result<()> {
+        let mtb_keys = [
+            ("boards", self.boards.is_some()),
+            ("triangles", self.triangles.is_some()),
+            ("rate_hz", self.rate_hz.is_some()),
+            ("link", self.link.is_some()),
+            ("cannelloni", self.cannelloni.is_some()),
+            ("peer", self.peer.is_some()),
+            ("candump", self.candump.is_some()),
+            ("drop_tails", self.drop_tails),
+            ("error_nibble", self.error_nibble.is_some()),
+            ("silence_after_s", self.silence_after_s.is_some()),
+        ];
+        if let Some((key, _)) = mtb_keys.iter().find(|(_, given)| *given) {
+            bail!("`{key}` is a setting of kind = \"icub-mtb\", not of \"ethercat\"");
+        }
+        if self.interface.as_deref().is_none_or(str::is_empty) {
+            bail!("kind = \"ethercat\" needs `interface`, the network interface to answer on (one end of a veth pair)");
+        }
+        let segments = self.segments.unwrap_or(DEFAULT_SEGMENTS);
+        let taxels = self.taxels.unwrap_or(DEFAULT_TAXELS);
+        if !(1..=16).contains(&segments) || !(1..=2048).contains(&taxels) {
+            bail!("`segments` must be 1 to 16 and `taxels` 1 to 2048");
+        }
+        if self.fault_segment.is_some_and(|k| k >= usize::from(segments)) {
+            bail!("`fault_segment` must be one of the {segments} segments (0 to {})", segments - 1);
+        }
+        check_seconds("leave_op_after_s", self.leave_op_after_s)?;
+        check_seconds("link_down_after_s", self.link_down_after_s)?;
+        if self.late_every.is_some() != self.late_by_ms.is_some() {
+            bail!(
+                "`late_every` and `late_by_ms` go together: every Nth process-data frame is answered that many milliseconds late"
+            );
+        }
+        Ok(())
     }
 
     /// What `skin emulator` runs for this table (checked by [`Self::check`]).

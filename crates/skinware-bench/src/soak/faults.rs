@@ -298,118 +298,129 @@ impl Soak<'_> {
                 procs::signal(pid, Signal::KILL);
                 Ok(injected)
             }
-            FaultKind::DriverStop => {
-                let (name, pid) = self.driver()?;
-                let hold = self.chaos.seconds(0.2, 2.5);
-                let mut injected = self.begin(kind, index, format!("{name} (pid {pid}) stopped"));
-                procs::signal(pid, Signal::STOP);
-                self.stopped.push(pid);
-                self.idle(hold);
-                let killed = matches!(procs::state_of(pid), Some('Z') | None)
-                    || procs::parent_of(pid) != Some(self.monitor.skin_pid);
-                procs::signal(pid, Signal::CONT);
-                self.stopped.retain(|&p| p != pid);
-                self.end(&mut injected);
-                if killed {
-                    injected.record.note = "the supervisor killed it as hung while it was stopped".into();
-                }
-                Ok(injected)
-            }
-            FaultKind::ReaderKill => {
-                let victim = self.chaos.below(self.readers.len() as u64) as usize;
-                let mut reader = self.readers.swap_remove(victim);
-                let injected = self.begin(
-                    kind,
-                    index,
-                    format!("reader {} (pid {}) killed", reader.mode.name(), reader.child.id()),
-                );
-                let _ = reader.child.kill();
-                let _ = reader.child.wait();
-                self.finished_reports.push((reader.mode, reader.report));
-                self.spawn_reader(reader.mode)?;
-                Ok(injected)
-            }
-            FaultKind::ReaderStop => {
-                let victim = self.chaos.below(self.readers.len() as u64) as usize;
-                let hold = self.chaos.seconds(0.3, 3.0);
-                let pid = self.readers[victim].child.id();
-                let mut injected =
-                    self.begin(kind, index, format!("reader {} (pid {pid}) stopped", self.readers[victim].mode.name()));
-                self.readers[victim].stopped = true;
-                procs::signal(pid, Signal::STOP);
-                self.stopped.push(pid);
-                self.idle(hold);
-                // Before the signal: the reader may get a frame before
-                // `kill` returns, and its pause must count from here.
-                let resumed_ns = skinware::os::monotonic_ns();
-                procs::signal(pid, Signal::CONT);
-                self.stopped.retain(|&p| p != pid);
-                if let Some(reader) = self.readers.iter_mut().find(|r| r.child.id() == pid) {
-                    reader.stopped = false;
-                    reader.since_ns = resumed_ns;
-                }
-                self.end(&mut injected);
-                Ok(injected)
-            }
-            FaultKind::CablePull => {
-                let layer = self.options.layers[self.chaos.below(self.options.layers.len() as u64) as usize].clone();
-                let hold = self.chaos.seconds(0.5, 3.0);
-                let mut injected = self.begin(kind, index, format!("{} cable pulled", layer.name));
-                std::fs::write(&layer.pull_file, b"pulled by skin bench soak\n")
-                    .with_context(|| format!("cannot create {}", layer.pull_file.display()))?;
-                self.squats.push(layer.pull_file.clone());
-                self.idle(hold);
-                remove_squat(&layer.pull_file);
-                self.squats.retain(|p| p != &layer.pull_file);
-                self.end(&mut injected);
-                Ok(injected)
-            }
+            FaultKind::DriverStop => self.driver_stop(index),
+            FaultKind::ReaderKill => self.reader_kill(index),
+            FaultKind::ReaderStop => self.reader_stop(index),
+            FaultKind::CablePull => self.cable_pull(index),
             FaultKind::ForeignStoppedWriters => self.foreign_stopped_writers(index),
             FaultKind::FifoSquatDriverKill => self.fifo_squat_driver_kill(index),
-            FaultKind::UnlinkLiveName => {
-                let layer =
-                    self.options.layers[self.chaos.below(self.options.layers.len() as u64) as usize].name.clone();
-                let paths = channel_paths(&self.options.dir, &self.options.skin, &layer);
-                let injected = self.begin(kind, index, format!("{layer}: socket and name lock unlinked"));
-                let mut injected = injected;
-                for path in &paths {
-                    let _ = std::fs::remove_file(path);
-                }
-                let unlinked = Instant::now();
-                while unlinked.elapsed() < Duration::from_secs(5) && !paths.iter().all(|p| p.exists()) {
-                    self.idle(Duration::from_millis(5));
-                }
-                if paths.iter().all(|p| p.exists()) {
-                    injected.record.name_back_ms = Some(unlinked.elapsed().as_secs_f64() * 1e3);
-                } else {
-                    let missing: Vec<String> = paths
-                        .iter()
-                        .filter(|p| !p.exists())
-                        .map(|p| p.file_name().unwrap_or_default().to_string_lossy().into_owned())
-                        .collect();
-                    injected.record.note = format!("not put back within 5 s: {}", missing.join(", "));
-                }
-                Ok(injected)
-            }
+            FaultKind::UnlinkLiveName => self.unlink_live_name(index),
             FaultKind::SquatFile | FaultKind::SquatFifo | FaultKind::SquatSymlink => self.squat(kind, index),
-            FaultKind::CpuHog => {
-                let threads = 2 * std::thread::available_parallelism().map_or(2, |n| n.get());
-                let hold = self.chaos.seconds(2.0, 5.0);
-                let mut injected = self.begin(kind, index, format!("{threads} busy threads"));
-                let hog = self
-                    .command("hog.log")?
-                    .args(["bench-soak-hog", "--threads", &threads.to_string(), "--seconds"])
-                    .arg(format!("{:.3}", hold.as_secs_f64()))
-                    .spawn()
-                    .context("cannot start the CPU hog")?;
-                let mut hog = Guarded(hog);
-                while hog.0.try_wait()?.is_none() {
-                    self.idle(Duration::from_millis(5));
-                }
-                self.end(&mut injected);
-                Ok(injected)
-            }
+            FaultKind::CpuHog => self.cpu_hog(index),
         }
+    }
+
+    fn driver_stop(&mut self, index: usize) -> Result<Injected> {
+        let (name, pid) = self.driver()?;
+        let hold = self.chaos.seconds(0.2, 2.5);
+        let mut injected = self.begin(FaultKind::DriverStop, index, format!("{name} (pid {pid}) stopped"));
+        procs::signal(pid, Signal::STOP);
+        self.stopped.push(pid);
+        self.idle(hold);
+        let killed =
+            matches!(procs::state_of(pid), Some('Z') | None) || procs::parent_of(pid) != Some(self.monitor.skin_pid);
+        procs::signal(pid, Signal::CONT);
+        self.stopped.retain(|&p| p != pid);
+        self.end(&mut injected);
+        if killed {
+            injected.record.note = "the supervisor killed it as hung while it was stopped".into();
+        }
+        Ok(injected)
+    }
+
+    fn reader_kill(&mut self, index: usize) -> Result<Injected> {
+        let victim = self.chaos.below(self.readers.len() as u64) as usize;
+        let mut reader = self.readers.swap_remove(victim);
+        let injected = self.begin(
+            FaultKind::ReaderKill,
+            index,
+            format!("reader {} (pid {}) killed", reader.mode.name(), reader.child.id()),
+        );
+        let _ = reader.child.kill();
+        let _ = reader.child.wait();
+        self.finished_reports.push((reader.mode, reader.report));
+        self.spawn_reader(reader.mode)?;
+        Ok(injected)
+    }
+
+    fn reader_stop(&mut self, index: usize) -> Result<Injected> {
+        let victim = self.chaos.below(self.readers.len() as u64) as usize;
+        let hold = self.chaos.seconds(0.3, 3.0);
+        let pid = self.readers[victim].child.id();
+        let what = format!("reader {} (pid {pid}) stopped", self.readers[victim].mode.name());
+        let mut injected = self.begin(FaultKind::ReaderStop, index, what);
+        self.readers[victim].stopped = true;
+        procs::signal(pid, Signal::STOP);
+        self.stopped.push(pid);
+        self.idle(hold);
+        // Before the signal: the reader may get a frame before `kill`
+        // returns, and its pause must count from here.
+        let resumed_ns = skinware::os::monotonic_ns();
+        procs::signal(pid, Signal::CONT);
+        self.stopped.retain(|&p| p != pid);
+        if let Some(reader) = self.readers.iter_mut().find(|r| r.child.id() == pid) {
+            reader.stopped = false;
+            reader.since_ns = resumed_ns;
+        }
+        self.end(&mut injected);
+        Ok(injected)
+    }
+
+    fn cable_pull(&mut self, index: usize) -> Result<Injected> {
+        let layer = self.options.layers[self.chaos.below(self.options.layers.len() as u64) as usize].clone();
+        let hold = self.chaos.seconds(0.5, 3.0);
+        let mut injected = self.begin(FaultKind::CablePull, index, format!("{} cable pulled", layer.name));
+        std::fs::write(&layer.pull_file, b"pulled by skin bench soak\n")
+            .with_context(|| format!("cannot create {}", layer.pull_file.display()))?;
+        self.squats.push(layer.pull_file.clone());
+        self.idle(hold);
+        remove_squat(&layer.pull_file);
+        self.squats.retain(|p| p != &layer.pull_file);
+        self.end(&mut injected);
+        Ok(injected)
+    }
+
+    fn unlink_live_name(&mut self, index: usize) -> Result<Injected> {
+        let layer = self.options.layers[self.chaos.below(self.options.layers.len() as u64) as usize].name.clone();
+        let paths = channel_paths(&self.options.dir, &self.options.skin, &layer);
+        let mut injected =
+            self.begin(FaultKind::UnlinkLiveName, index, format!("{layer}: socket and name lock unlinked"));
+        for path in &paths {
+            let _ = std::fs::remove_file(path);
+        }
+        let unlinked = Instant::now();
+        while unlinked.elapsed() < Duration::from_secs(5) && !paths.iter().all(|p| p.exists()) {
+            self.idle(Duration::from_millis(5));
+        }
+        if paths.iter().all(|p| p.exists()) {
+            injected.record.name_back_ms = Some(unlinked.elapsed().as_secs_f64() * 1e3);
+        } else {
+            let missing: Vec<String> = paths
+                .iter()
+                .filter(|p| !p.exists())
+                .map(|p| p.file_name().unwrap_or_default().to_string_lossy().into_owned())
+                .collect();
+            injected.record.note = format!("not put back within 5 s: {}", missing.join(", "));
+        }
+        Ok(injected)
+    }
+
+    fn cpu_hog(&mut self, index: usize) -> Result<Injected> {
+        let threads = 2 * std::thread::available_parallelism().map_or(2, |n| n.get());
+        let hold = self.chaos.seconds(2.0, 5.0);
+        let mut injected = self.begin(FaultKind::CpuHog, index, format!("{threads} busy threads"));
+        let hog = self
+            .command("hog.log")?
+            .args(["bench-soak-hog", "--threads", &threads.to_string(), "--seconds"])
+            .arg(format!("{:.3}", hold.as_secs_f64()))
+            .spawn()
+            .context("cannot start the CPU hog")?;
+        let mut hog = Guarded(hog);
+        while hog.0.try_wait()?.is_none() {
+            self.idle(Duration::from_millis(5));
+        }
+        self.end(&mut injected);
+        Ok(injected)
     }
 
     fn foreign_stopped_writers(&mut self, index: usize) -> Result<Injected> {

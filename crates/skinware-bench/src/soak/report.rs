@@ -287,6 +287,13 @@ impl SoakReport {
             self.seconds,
             self.seed
         );
+        self.print_readers();
+        self.print_recovery();
+        self.print_processes();
+        self.print_verdict();
+    }
+
+    fn print_readers(&self) {
         println!();
         println!(
             "| readers | processes | frames verified | torn | backwards | lost, counted | lost silently | over-counted | lost at a writer change | repeats | follows |"
@@ -321,6 +328,9 @@ impl SoakReport {
             t.repeats,
             t.follows
         );
+    }
+
+    fn print_recovery(&self) {
         println!();
         println!(
             "| fault | count | every layer back after the fault's end, ms p50 / p99 / max | after the injection, ms p50 / p99 / max | layers and services after the end, max ms | not back | viewer's longest wait for an update, ms |"
@@ -352,6 +362,9 @@ impl SoakReport {
         println!(
             "back = the publication of the last layer's first frame after the moment (it includes waiting for each layer's next period, up to 33 ms on the paper's skin); the end is the kill, the SIGCONT, the restore, the removal or the hog's exit (docs/benchmarks.md)"
         );
+    }
+
+    fn print_processes(&self) {
         println!();
         println!(
             "| process | processes | longest-lived: pid, s sampled | its RSS MiB first / last / max | its fds first / last / max | RSS / fds most of any | grew |"
@@ -392,6 +405,9 @@ impl SoakReport {
                 grew.join(", ")
             );
         }
+    }
+
+    fn print_verdict(&self) {
         println!();
         println!(
             "stuck readers: {}; readers unable to attach for {} s: {}; leaked files: {} ({} channel files); most files in the segment directory at once: {}",
