@@ -29,6 +29,7 @@ use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use skinware::driver::DriverHandler;
 use skinware::{HandlerOptions, Reader, ReaderOptions, RtOptions, WriterState};
+use skinware_drivers::ethercat::EthercatStatus;
 use skinware_emulate::ethercat::{AlState, LeaveOp, Segment, TactileConfig, TactileSubDevice};
 
 use crate::measure::Percentiles;
@@ -248,6 +249,19 @@ fn stamp_of(responses: &[u16]) -> u64 {
     responses.iter().take(4).enumerate().fold(0, |at, (k, &word)| at | u64::from(word) << (16 * k))
 }
 
+/// What the applied real-time settings refused, found once on a thread of
+/// its own (the wake latency is held for the process's life from here on;
+/// the driver's threads apply the rest).
+fn refused_rt(rt: &RtOptions) -> Result<Vec<String>> {
+    let rt = rt.clone();
+    let refused =
+        std::thread::spawn(move || rt.apply()).join().map_err(|_| anyhow::anyhow!("probe thread panicked"))?;
+    for refused in &refused {
+        eprintln!("warning: {refused}");
+    }
+    Ok(refused)
+}
+
 /// Runs the measurement (inside the bench's own network namespace), prints
 /// it and writes `ethercat.json`.
 pub fn run(options: &EthercatOptions) -> Result<EthercatReport> {
@@ -265,15 +279,7 @@ pub fn run(options: &EthercatOptions) -> Result<EthercatReport> {
         cpu_wake_latency_us: Some(CPU_WAKE_LATENCY_US),
         ..RtOptions::default()
     };
-    // What the system refuses, found once (the wake latency is held for the
-    // process's life from here on; the driver's threads apply the rest).
-    let rt_refused = {
-        let rt = rt.clone();
-        std::thread::spawn(move || rt.apply()).join().map_err(|_| anyhow::anyhow!("probe thread panicked"))?
-    };
-    for refused in &rt_refused {
-        eprintln!("warning: {refused}");
-    }
+    let rt_refused = refused_rt(&rt)?;
     let stamps = Arc::new(Stamps::default());
     let bus = EmulatedBus::start(stamped_segment(stamps.clone())?, Some(PEER_PRIORITY))?;
 
@@ -281,87 +287,13 @@ pub fn run(options: &EthercatOptions) -> Result<EthercatReport> {
     let dir = channels.0.clone();
     let driver = netns::driver("skin", 1, TAXELS, RATE_HZ, rt)?;
     let status = driver.status_handle();
-    let frame_timeout_ms = (2.0 / RATE_HZ * 1e3).max(10.0);
     let handler = DriverHandler::start(
         "bench-ecat",
         Box::new(driver),
         &HandlerOptions { dir: Some(dir.clone()), ..HandlerOptions::default() },
     )?;
-    let open =
-        || Reader::open_with("bench-ecat", "skin", &ReaderOptions { dir: Some(dir.clone()), ..Default::default() });
-    let mut watcher = open()?;
-    let result = (|| -> Result<EthercatReport> {
-        if !netns::wait_until(Duration::from_secs(10), || watcher.writer_state() == WriterState::Running) {
-            if bus.ended() {
-                bail!("the emulated EtherCAT segment stopped before the layer ran");
-            }
-            bail!(
-                "the EtherCAT layer was not running 10 s after start: bus {:?}, segments {:?}",
-                status.bus_fault(),
-                status.segments()
-            );
-        }
-        std::thread::sleep(Duration::from_millis(500));
-
-        // Cycles and latency, together.
-        let frames_before = watcher.writer_stats().frames;
-        skinware::lock(&stamps.at_ns).reserve((seconds * RATE_HZ * 1.2) as usize);
-        stamps.recording.store(true, Ordering::Relaxed);
-        let started = Instant::now();
-        let samples_file = options.out.join("ethercat-reader.json");
-        let status_of_reader = std::process::Command::new(&options.exe)
-            .arg("bench-ecat-reader")
-            .arg("--dir")
-            .arg(&dir)
-            .args(["--seconds", &seconds.to_string()])
-            .arg("--out")
-            .arg(&samples_file)
-            .status()
-            .with_context(|| format!("cannot start the reader process {}", options.exe.display()))?;
-        if !status_of_reader.success() {
-            bail!("the reader process failed ({status_of_reader})");
-        }
-        let samples: ReaderSamples = serde_json::from_slice(&std::fs::read(&samples_file)?)?;
-        let _ = std::fs::remove_file(&samples_file);
-        let ReaderSamples { mut latency, mut to_driver, mut driver_to_reader, skipped } = samples;
-        stamps.recording.store(false, Ordering::Relaxed);
-        let elapsed = started.elapsed().as_secs_f64();
-        let layer_frames_per_s = (watcher.writer_stats().frames - frames_before) as f64 / elapsed;
-        let at = std::mem::take(&mut *skinware::lock(&stamps.at_ns));
-        let cycles = cycle_report(&at, layer_frames_per_s);
-        let latency = LatencyReport {
-            reader: "another process (SCHED_FIFO 70), wait_newer (futex wake)",
-            latency_ns: Percentiles::of(&mut latency),
-            to_driver_ns: Percentiles::of(&mut to_driver),
-            driver_to_reader_ns: Percentiles::of(&mut driver_to_reader),
-            skipped,
-        };
-
-        let repetitions = if options.quick { 1 } else { 5 };
-        let mut faults = Vec::new();
-        // Above the driver, so that the polls of the layer's state (every
-        // 100 µs) are on time: they take microseconds each.
-        let watcher_fifo = skinware::os::set_fifo_priority(WATCHER_PRIORITY).is_ok();
-        for fault in &FAULTS {
-            faults.push(measure_fault(fault, repetitions, !options.quick, &bus, &status, &mut watcher)?);
-        }
-        if watcher_fifo {
-            let _ = skinware::os::set_normal_scheduling();
-        }
-        Ok(EthercatReport {
-            taxels: TAXELS,
-            rate_hz: RATE_HZ,
-            seconds,
-            fifo_priority: DRIVER_PRIORITY,
-            rt_refused,
-            requested_cpu_wake_latency_us: Some(CPU_WAKE_LATENCY_US),
-            cpu_wake_latency_us: skinware::rt::held_cpu_wake_latency_us(),
-            frame_timeout_ms,
-            cycles,
-            latency,
-            faults,
-        })
-    })();
+    let bench = Bench { options, seconds, dir: &dir, bus: &bus, status: &status, stamps: &stamps };
+    let result = bench.measure(rt_refused);
     handler.stop();
     let served = bus.stop();
     drop(channels);
@@ -379,7 +311,102 @@ pub fn run(options: &EthercatOptions) -> Result<EthercatReport> {
     Ok(report)
 }
 
-/// The bench's own directory of channels, under the segments' directory
+/// The running bench: the emulated segment, the driver's status and the
+/// channel directory.
+struct Bench<'a> {
+    options: &'a EthercatOptions,
+    seconds: f64,
+    dir: &'a PathBuf,
+    bus: &'a EmulatedBus,
+    status: &'a EthercatStatus,
+    stamps: &'a Stamps,
+}
+
+impl Bench<'_> {
+    /// Waits for the layer to run, then measures cycles, latency and faults.
+    fn measure(&self, rt_refused: Vec<String>) -> Result<EthercatReport> {
+        let mut watcher = Reader::open_with(
+            "bench-ecat",
+            "skin",
+            &ReaderOptions { dir: Some(self.dir.clone()), ..Default::default() },
+        )?;
+        if !netns::wait_until(Duration::from_secs(10), || watcher.writer_state() == WriterState::Running) {
+            if self.bus.ended() {
+                bail!("the emulated EtherCAT segment stopped before the layer ran");
+            }
+            bail!(
+                "the EtherCAT layer was not running 10 s after start: bus {:?}, segments {:?}",
+                self.status.bus_fault(),
+                self.status.segments()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(500));
+        let (cycles, latency) = self.cycles_and_latency(&watcher)?;
+        let repetitions = if self.options.quick { 1 } else { 5 };
+        let mut faults = Vec::new();
+        // Above the driver, so that the polls of the layer's state (every
+        // 100 µs) are on time: they take microseconds each.
+        let watcher_fifo = skinware::os::set_fifo_priority(WATCHER_PRIORITY).is_ok();
+        for fault in &FAULTS {
+            faults.push(measure_fault(fault, repetitions, !self.options.quick, self.bus, self.status, &mut watcher)?);
+        }
+        if watcher_fifo {
+            let _ = skinware::os::set_normal_scheduling();
+        }
+        Ok(EthercatReport {
+            taxels: TAXELS,
+            rate_hz: RATE_HZ,
+            seconds: self.seconds,
+            fifo_priority: DRIVER_PRIORITY,
+            rt_refused,
+            requested_cpu_wake_latency_us: Some(CPU_WAKE_LATENCY_US),
+            cpu_wake_latency_us: skinware::rt::held_cpu_wake_latency_us(),
+            frame_timeout_ms: (2.0 / RATE_HZ * 1e3).max(10.0),
+            cycles,
+            latency,
+            faults,
+        })
+    }
+
+    /// Cycles and latency, together: the segment stamps each cycle, and a
+    /// reader in another process reads every frame.
+    fn cycles_and_latency(&self, watcher: &Reader) -> Result<(CycleReport, LatencyReport)> {
+        let (options, seconds, stamps) = (self.options, self.seconds, self.stamps);
+        let frames_before = watcher.writer_stats().frames;
+        skinware::lock(&stamps.at_ns).reserve((seconds * RATE_HZ * 1.2) as usize);
+        stamps.recording.store(true, Ordering::Relaxed);
+        let started = Instant::now();
+        let samples_file = options.out.join("ethercat-reader.json");
+        let status_of_reader = std::process::Command::new(&options.exe)
+            .arg("bench-ecat-reader")
+            .arg("--dir")
+            .arg(self.dir)
+            .args(["--seconds", &seconds.to_string()])
+            .arg("--out")
+            .arg(&samples_file)
+            .status()
+            .with_context(|| format!("cannot start the reader process {}", options.exe.display()))?;
+        if !status_of_reader.success() {
+            bail!("the reader process failed ({status_of_reader})");
+        }
+        let samples: ReaderSamples = serde_json::from_slice(&std::fs::read(&samples_file)?)?;
+        let _ = std::fs::remove_file(&samples_file);
+        let ReaderSamples { mut latency, mut to_driver, mut driver_to_reader, skipped } = samples;
+        stamps.recording.store(false, Ordering::Relaxed);
+        let elapsed = started.elapsed().as_secs_f64();
+        let layer_frames_per_s = (watcher.writer_stats().frames - frames_before) as f64 / elapsed;
+        let at = std::mem::take(&mut *skinware::lock(&stamps.at_ns));
+        let latency = LatencyReport {
+            reader: "another process (SCHED_FIFO 70), wait_newer (futex wake)",
+            latency_ns: Percentiles::of(&mut latency),
+            to_driver_ns: Percentiles::of(&mut to_driver),
+            driver_to_reader_ns: Percentiles::of(&mut driver_to_reader),
+            skipped,
+        };
+        Ok((cycle_report(&at, layer_frames_per_s), latency))
+    }
+}
+
 /// (`$SKINWARE_SHM_DIR` or `/dev/shm`), removed however the bench ends.
 struct ChannelDir(PathBuf);
 

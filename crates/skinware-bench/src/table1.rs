@@ -6,10 +6,10 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use serde::Serialize;
-use skinware::{Stop, TopologyBuilder};
+use skinware::{LayerTopology, Stop, TopologyBuilder};
 
 use crate::app::AppSamples;
-use crate::measure::{self, Percentiles};
+use crate::measure::{self, Percentiles, WriterSample};
 
 /// Options of `skin bench table1`.
 #[derive(Clone, Debug)]
@@ -93,16 +93,9 @@ const PAPER: [(&str, [f64; 3]); 4] = [
     ("reader_CAN", [6703.0, 47102.0, 1733.0]),
 ];
 
-/// Runs the test, prints the table beside the paper's and writes `table1.json`.
-pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
-    let seconds = options.seconds.unwrap_or(if options.quick { 2.0 } else { 60.0 });
-    if !(seconds.is_finite() && seconds > 0.0) {
-        bail!("--seconds must be a positive number of seconds");
-    }
-    std::fs::create_dir_all(&options.out).with_context(|| format!("cannot create {}", options.out.display()))?;
-    let skin = format!("table1-{}", std::process::id());
-    // The paper's saddle: 15 modules on CAN; 12 + 3 x 16 modules on EtherCAT,
-    // 12 taxels each (one EtherCAT module broken: 59 x 12 = 708).
+/// The paper's saddle: 15 modules on CAN; 12 + 3 x 16 modules on EtherCAT,
+/// 12 taxels each (one EtherCAT module broken: 59 x 12 = 708).
+fn saddle() -> Result<Vec<LayerTopology>> {
     let mut can = TopologyBuilder::new("can", "pressure", 50.0);
     can.patch(1);
     for module in 0..15u32 {
@@ -120,51 +113,85 @@ pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
     }
     let topologies = vec![ethercat.build()?, can.build()?];
     debug_assert_eq!((topologies[0].sensors.len(), topologies[1].sensors.len()), (708, 180));
-    let stop = Stop::new();
-    let mut emulator = None;
-    let mut ethercat_bus = None;
-    let after_bus_data = Arc::new(Mutex::new(Vec::new()));
-    let writers = match options.transport {
-        Transport::Memory => measure::run_writers(&skin, &topologies, &stop, None)?,
-        Transport::Ethercat => {
-            if !crate::netns::inside() {
-                bail!(
-                    "the ethercat transport runs in a network namespace of its own: start it as \
-                     `skin bench table1 --transport ethercat`, which enters one"
-                );
+    Ok(topologies)
+}
+
+/// The writers, on the transport asked for, and what must be stopped after them.
+struct Writers {
+    threads: Vec<std::thread::JoinHandle<Vec<WriterSample>>>,
+    emulator: Option<slcan::Running>,
+    ethercat_bus: Option<crate::netns::EmulatedBus>,
+    /// The EtherCAT writer's time from its bus data to the end of publish.
+    after_bus_data: Arc<Mutex<Vec<WriterSample>>>,
+}
+
+impl Writers {
+    fn start(transport: Transport, skin: &str, topologies: &[LayerTopology], stop: &Stop) -> Result<Writers> {
+        let mut writers =
+            Writers { threads: Vec::new(), emulator: None, ethercat_bus: None, after_bus_data: Arc::default() };
+        writers.threads = match transport {
+            Transport::Memory => measure::run_writers(skin, topologies, stop, None)?,
+            Transport::Ethercat => {
+                if !crate::netns::inside() {
+                    bail!(
+                        "the ethercat transport runs in a network namespace of its own: start it as \
+                         `skin bench table1 --transport ethercat`, which enters one"
+                    );
+                }
+                crate::netns::make_veth_pair()?;
+                writers.ethercat_bus = Some(crate::netns::EmulatedBus::start(ecat::segment()?, Some(75))?);
+                let mut threads = vec![ecat::run_ec_writer(skin, stop, writers.after_bus_data.clone())?];
+                threads.extend(measure::run_writers(skin, &topologies[1..], stop, None)?);
+                threads
             }
-            crate::netns::make_veth_pair()?;
-            ethercat_bus = Some(crate::netns::EmulatedBus::start(ecat::segment()?, Some(75))?);
-            let mut writers = vec![ecat::run_ec_writer(&skin, &stop, after_bus_data.clone())?];
-            writers.extend(measure::run_writers(&skin, &topologies[1..], &stop, None)?);
-            writers
+            Transport::Slcan => {
+                let mut threads = measure::run_writers(skin, &topologies[..1], stop, None)?;
+                let (device, thread) = slcan::start_emulator()?;
+                writers.emulator = Some(thread);
+                threads.push(slcan::run_can_writer(skin, &device, stop)?);
+                threads
+            }
+        };
+        Ok(writers)
+    }
+
+    /// Joins the writers (stopped by their stop signal) and stops the emulators.
+    fn join(self) -> Result<Vec<Vec<WriterSample>>> {
+        let mut samples = Vec::new();
+        for writer in self.threads {
+            samples.push(writer.join().map_err(|_| anyhow::anyhow!("writer thread panicked"))?);
         }
-        Transport::Slcan => {
-            let mut writers = measure::run_writers(&skin, &topologies[..1], &stop, None)?;
-            let (device, thread) = slcan::start_emulator()?;
-            emulator = Some(thread);
-            writers.push(slcan::run_can_writer(&skin, &device, &stop)?);
-            writers
+        if let Some((stop_emulator, thread)) = self.emulator {
+            stop_emulator.store(true, std::sync::atomic::Ordering::Relaxed);
+            let _ = thread.join();
         }
-    };
+        if let Some(bus) = self.ethercat_bus {
+            let served = bus.stop()?;
+            println!("emulated EtherCAT segment: {} frames taken, {} answered", served.frames, served.answered);
+        }
+        Ok(samples)
+    }
+}
+
+/// Runs the test, prints the table beside the paper's and writes `table1.json`.
+pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
+    let seconds = options.seconds.unwrap_or(if options.quick { 2.0 } else { 60.0 });
+    if !(seconds.is_finite() && seconds > 0.0) {
+        bail!("--seconds must be a positive number of seconds");
+    }
+    std::fs::create_dir_all(&options.out).with_context(|| format!("cannot create {}", options.out.display()))?;
+    let skin = format!("table1-{}", std::process::id());
+    let topologies = saddle()?;
+    let stop = Stop::new();
+    let writers = Writers::start(options.transport, &skin, &topologies, &stop)?;
+    let after_bus_data = writers.after_bus_data.clone();
     let out = options.out.join("table1-app.json");
     let names: Vec<String> = topologies.iter().map(|t| t.name.clone()).collect();
     let mut app = measure::spawn_app(&options.exe, &skin, &names, "asap", seconds, 1, &out)?;
     let status = app.wait()?;
     std::thread::sleep(Duration::from_millis(50));
     stop.stop();
-    let mut writer_samples = Vec::new();
-    for writer in writers {
-        writer_samples.push(writer.join().map_err(|_| anyhow::anyhow!("writer thread panicked"))?);
-    }
-    if let Some((stop_emulator, thread)) = emulator {
-        stop_emulator.store(true, std::sync::atomic::Ordering::Relaxed);
-        let _ = thread.join();
-    }
-    if let Some(bus) = ethercat_bus {
-        let served = bus.stop()?;
-        println!("emulated EtherCAT segment: {} frames taken, {} answered", served.frames, served.answered);
-    }
+    let writer_samples = writers.join()?;
     if !status.success() {
         bail!("the application process failed ({status})");
     }
@@ -177,12 +204,26 @@ pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
         app_samples.read_ns.first().cloned().unwrap_or_default(),
         app_samples.read_ns.get(1).cloned().unwrap_or_default(),
     ];
-    let rows: Vec<Table1Row> = PAPER
+    let mut rows = rows_of(options.transport, &mut all);
+    if options.transport == Transport::Ethercat {
+        let samples = skinware::lock(&after_bus_data);
+        rows[0].after_bus_data_ns = Some(Percentiles::of(&mut measure::steady_state(&samples, &window)?));
+    }
+    print_table(options.transport, seconds, &rows);
+    let json = options.out.join("table1.json");
+    std::fs::write(&json, serde_json::to_vec_pretty(&rows)?)?;
+    println!("\nwrote {}", json.display());
+    Ok(rows)
+}
+
+/// The table's rows from the samples of each, in the paper's order.
+fn rows_of(transport: Transport, all: &mut [Vec<u64>; 4]) -> Vec<Table1Row> {
+    PAPER
         .iter()
         .zip(all.iter_mut())
         .map(|(&(name, paper), samples)| {
             let p = Percentiles::of(samples);
-            let driven = |t: Transport| if options.transport == t { t.name() } else { Transport::Memory.name() };
+            let driven = |t: Transport| if transport == t { t.name() } else { Transport::Memory.name() };
             let transport = match name {
                 "writer_CAN" => Some(driven(Transport::Slcan)),
                 "writer_EC" => Some(driven(Transport::Ethercat)),
@@ -199,15 +240,13 @@ pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
                 after_bus_data_ns: None,
             }
         })
-        .collect();
-    let mut rows = rows;
-    if options.transport == Transport::Ethercat {
-        let samples = skinware::lock(&after_bus_data);
-        rows[0].after_bus_data_ns = Some(Percentiles::of(&mut measure::steady_state(&samples, &window)?));
-    }
+        .collect()
+}
+
+fn print_table(transport: Transport, seconds: f64, rows: &[Table1Row]) {
     println!(
         "skin bench table1: EtherCAT layer 708 sensors, CAN layer 180 sensors ({} transport), writers at 50 Hz, aperiodic readers",
-        options.transport.name()
+        transport.name()
     );
     if let Some(p) = &rows[0].after_bus_data_ns {
         println!(
@@ -221,16 +260,12 @@ pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
         "{:<12} {:>12} {:>12} {:>10} | {:>12} {:>12} {:>10}",
         "", "avg (ns)", "worst (ns)", "std", "paper avg", "paper worst", "paper std"
     );
-    for row in &rows {
+    for row in rows {
         println!(
             "{:<12} {:>12.0} {:>12} {:>10.0} | {:>12.0} {:>12.0} {:>10.0}",
             row.name, row.avg_ns, row.worst_ns, row.std_ns, row.paper[0], row.paper[1], row.paper[2]
         );
     }
-    let json = options.out.join("table1.json");
-    std::fs::write(&json, serde_json::to_vec_pretty(&rows)?)?;
-    println!("\nwrote {}", json.display());
-    Ok(rows)
 }
 
 /// The EtherCAT writer on the real driver path: ESC model → veth → ethercrab.
