@@ -40,10 +40,12 @@ fn in_own_namespace(test: &str) -> bool {
         }
     }
     let exe = std::env::current_exe().unwrap();
+    // The test's full name in the test binary: this module's path without the crate.
+    let test = format!("{}::{test}", module_path!().split_once("::").map_or("", |(_, module)| module));
     let status = Command::new("unshare")
         .arg("-rn")
         .arg(exe)
-        .args([test, "--exact", "--nocapture", "--test-threads=1"])
+        .args([test.as_str(), "--exact", "--nocapture", "--test-threads=1"])
         .env(INSIDE, "1")
         .status()
         .unwrap();
