@@ -12,7 +12,9 @@ use std::time::{Duration, Instant};
 
 use skinware::driver::DriverHandler;
 use skinware::{HandlerOptions, Reader, ReaderOptions, WriterState};
-use skinware_drivers::ethercat::{EthercatDriver, EthercatDriverConfig, FrameExchange, FrameLink, SegmentConfig};
+use skinware_drivers::ethercat::{
+    EthercatDriver, EthercatDriverConfig, EthercatStatus, FrameExchange, FrameLink, SegmentConfig,
+};
 use skinware_emulate::ethercat::tactile::{EMULATED_PRODUCT_CODE, EMULATED_VENDOR_ID};
 use skinware_emulate::ethercat::{Segment, TactileConfig, TactileSubDevice, serve_interface};
 
@@ -112,14 +114,7 @@ fn wait_for(reader: &mut Reader, state: WriterState, within: Duration) -> Durati
 
 #[test]
 fn driver_and_segments_over_veth() {
-    if !in_own_namespace("driver_and_segments_over_veth") {
-        return;
-    }
-    let veth = ip(&["link", "add", DRIVER_END, "type", "veth", "peer", "name", SEGMENT_END])
-        .and_then(|()| ip(&["link", "set", DRIVER_END, "up"]))
-        .and_then(|()| ip(&["link", "set", SEGMENT_END, "up"]));
-    if let Err(why) = veth {
-        println!("skipped: no veth pair: {why}");
+    if !in_own_namespace("driver_and_segments_over_veth") || !veth_pair_up() {
         return;
     }
     let taxels = [708, 708, 708];
@@ -136,27 +131,7 @@ fn driver_and_segments_over_veth() {
 
     let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-veth-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let segments = segment_configs(&taxels);
-    let config = EthercatDriverConfig {
-        name: "ecat".into(),
-        segments: segments.clone(),
-        // A shared machine (2 cores, builds running) stalls threads for
-        // milliseconds; the layers fail on data 2 periods old.
-        rate_hz: 200.0,
-        frame_timeout: Some(Duration::from_millis(20)),
-        rt: Default::default(),
-    };
-    let driver = EthercatDriver::new(config, FrameLink::Interface(DRIVER_END.into())).unwrap();
-    let status = driver.status_handle();
-    let options = HandlerOptions { dir: Some(dir.clone()), ..HandlerOptions::default() };
-    let handler = DriverHandler::start("ecat", Box::new(driver), &options).unwrap();
-    let mut readers: Vec<Reader> = segments
-        .iter()
-        .map(|s| {
-            Reader::open_with("ecat", &s.layer, &ReaderOptions { dir: Some(dir.clone()), ..Default::default() })
-                .unwrap()
-        })
-        .collect();
+    let (handler, status, mut readers) = start_driver(&dir, &taxels, Duration::from_millis(20));
     let started = Instant::now();
     for reader in &mut readers {
         wait_for(reader, WriterState::Running, Duration::from_secs(10));
@@ -169,40 +144,8 @@ fn driver_and_segments_over_veth() {
         assert!(looked.elapsed() < Duration::from_secs(2), "not every segment in OP: {:?}", status.segments());
         std::thread::sleep(Duration::from_millis(5));
     }
-    for _ in 0..100 {
-        for (position, reader) in readers.iter_mut().enumerate() {
-            let frame = reader.wait_newer(Duration::from_secs(1)).unwrap();
-            let responses = frame.responses();
-            let sample = responses[0].wrapping_sub(1000 * position as u16);
-            for (k, &value) in responses.iter().enumerate() {
-                assert_eq!(value, taxel_value(position, u64::from(sample), k), "segment {position} taxel {k}");
-            }
-        }
-    }
-
-    for reader in &mut readers {
-        // Running (a stall of this loaded VM may fault a layer for a cycle).
-        wait_for(reader, WriterState::Running, Duration::from_secs(5));
-        println!("veth: {}: {} faults before the cable pull", reader.label(), reader.writer_stats().faults);
-    }
-    // Cable pull: the segment's end of the pair goes down.
-    let pulled = Instant::now();
-    ip(&["link", "set", SEGMENT_END, "down"]).unwrap();
-    for reader in &mut readers {
-        wait_for(reader, WriterState::Faulted, Duration::from_secs(5));
-    }
-    println!("veth: link down: every layer faulted after {:.1} ms", pulled.elapsed().as_secs_f64() * 1e3);
-    // Long enough for the driver to declare the bus down and start again.
-    while status.bus_fault().is_none() {
-        assert!(pulled.elapsed() < Duration::from_secs(5), "the bus never counted as down");
-        std::thread::sleep(Duration::from_millis(1));
-    }
-    println!(
-        "veth: link down: bus down after {:.1} ms: {:?}",
-        pulled.elapsed().as_secs_f64() * 1e3,
-        status.bus_fault()
-    );
-    std::thread::sleep(Duration::from_millis(300));
+    check_frames(&mut readers, 100);
+    pull_the_cable(&mut readers, &status);
     let plugged = Instant::now();
     ip(&["link", "set", SEGMENT_END, "up"]).unwrap();
     while readers.iter().any(|r| r.writer_state() != WriterState::Running) {
@@ -225,6 +168,114 @@ fn driver_and_segments_over_veth() {
     assert!(stats.answered > 100, "{stats:?}");
     assert_eq!(stats.frames, *frames.lock().unwrap());
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The driver at 200 Hz on the driver's end of the pair, with a reader of
+/// each segment's layer. A shared machine (2 cores, builds running) stalls
+/// threads for milliseconds; the layers fail on data 2 periods old.
+fn start_driver(
+    dir: &std::path::Path,
+    taxels: &[usize],
+    frame_timeout: Duration,
+) -> (DriverHandler, EthercatStatus, Vec<Reader>) {
+    let segments = segment_configs(taxels);
+    let config = EthercatDriverConfig {
+        name: "ecat".into(),
+        segments: segments.clone(),
+        rate_hz: 200.0,
+        frame_timeout: Some(frame_timeout),
+        rt: Default::default(),
+    };
+    let driver = EthercatDriver::new(config, FrameLink::Interface(DRIVER_END.into())).unwrap();
+    let status = driver.status_handle();
+    let options = HandlerOptions { dir: Some(dir.to_owned()), ..HandlerOptions::default() };
+    let handler = DriverHandler::start("ecat", Box::new(driver), &options).unwrap();
+    let readers = segments
+        .iter()
+        .map(|s| {
+            Reader::open_with("ecat", &s.layer, &ReaderOptions { dir: Some(dir.to_owned()), ..Default::default() })
+                .unwrap()
+        })
+        .collect();
+    (handler, status, readers)
+}
+
+/// Makes the veth pair and brings both ends up; `false` (and says why) where
+/// the namespace allows no veth pair.
+fn veth_pair_up() -> bool {
+    let veth = ip(&["link", "add", DRIVER_END, "type", "veth", "peer", "name", SEGMENT_END])
+        .and_then(|()| ip(&["link", "set", DRIVER_END, "up"]))
+        .and_then(|()| ip(&["link", "set", SEGMENT_END, "up"]));
+    if let Err(why) = veth {
+        println!("skipped: no veth pair: {why}");
+        return false;
+    }
+    true
+}
+
+/// Reads `frames` frames of every layer and checks every taxel.
+fn check_frames(readers: &mut [Reader], frames: usize) {
+    for _ in 0..frames {
+        for (position, reader) in readers.iter_mut().enumerate() {
+            let frame = reader.wait_newer(Duration::from_secs(1)).unwrap();
+            let responses = frame.responses();
+            let sample = responses[0].wrapping_sub(1000 * position as u16);
+            for (k, &value) in responses.iter().enumerate() {
+                assert_eq!(value, taxel_value(position, u64::from(sample), k), "segment {position} taxel {k}");
+            }
+        }
+    }
+}
+
+/// Faults begun, per segment, as seen by polling the driver's status for
+/// `how_long` (a short one may be missed); asserts meanwhile that the bus
+/// stays up, every segment in OP, and that every fault is a lost frame.
+fn segment_faults_for(status: &EthercatStatus, how_long: Duration) -> [u64; 3] {
+    let started = Instant::now();
+    let mut faults_seen = [0u64; 3];
+    let mut faulted = [false; 3];
+    while started.elapsed() < how_long {
+        assert_eq!(status.bus_fault(), None, "late answers brought the bus down; segments {:?}", status.segments());
+        for (position, s) in status.segments().iter().enumerate() {
+            assert_eq!(s.state, "OP", "segment {position}: {:?}", status.segments());
+            if let Some(why) = &s.fault {
+                assert!(why.contains("frame lost"), "segment {position}: {why}");
+                if !faulted[position] {
+                    faults_seen[position] += 1;
+                }
+            }
+            faulted[position] = s.fault.is_some();
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    faults_seen
+}
+
+/// Takes the segment's end of the pair down: every layer faults, then the
+/// driver counts the bus as down.
+fn pull_the_cable(readers: &mut [Reader], status: &EthercatStatus) {
+    for reader in readers.iter_mut() {
+        // Running (a stall of this loaded VM may fault a layer for a cycle).
+        wait_for(reader, WriterState::Running, Duration::from_secs(5));
+        println!("veth: {}: {} faults before the cable pull", reader.label(), reader.writer_stats().faults);
+    }
+    let pulled = Instant::now();
+    ip(&["link", "set", SEGMENT_END, "down"]).unwrap();
+    for reader in readers.iter_mut() {
+        wait_for(reader, WriterState::Faulted, Duration::from_secs(5));
+    }
+    println!("veth: link down: every layer faulted after {:.1} ms", pulled.elapsed().as_secs_f64() * 1e3);
+    // Long enough for the driver to declare the bus down and start again.
+    while status.bus_fault().is_none() {
+        assert!(pulled.elapsed() < Duration::from_secs(5), "the bus never counted as down");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    println!(
+        "veth: link down: bus down after {:.1} ms: {:?}",
+        pulled.elapsed().as_secs_f64() * 1e3,
+        status.bus_fault()
+    );
+    std::thread::sleep(Duration::from_millis(300));
 }
 
 /// The golden capture: a veth run of one 12-taxel segment, bring-up and
@@ -365,14 +416,7 @@ fn segment_of_lrw(frame: &[u8], taxels: &[usize]) -> Option<usize> {
 /// first one, and the whole bus was brought up again.
 #[test]
 fn late_answers_fault_only_their_segment_and_never_the_bus() {
-    if !in_own_namespace("late_answers_fault_only_their_segment_and_never_the_bus") {
-        return;
-    }
-    let veth = ip(&["link", "add", DRIVER_END, "type", "veth", "peer", "name", SEGMENT_END])
-        .and_then(|()| ip(&["link", "set", DRIVER_END, "up"]))
-        .and_then(|()| ip(&["link", "set", SEGMENT_END, "up"]));
-    if let Err(why) = veth {
-        println!("skipped: no veth pair: {why}");
+    if !in_own_namespace("late_answers_fault_only_their_segment_and_never_the_bus") || !veth_pair_up() {
         return;
     }
     // Different sizes, so that a frame's length tells its segment.
@@ -401,26 +445,8 @@ fn late_answers_fault_only_their_segment_and_never_the_bus() {
     };
     let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-late-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let segments = segment_configs(&taxels);
     let frame_timeout = Duration::from_millis(20);
-    let config = EthercatDriverConfig {
-        name: "ecat".into(),
-        segments: segments.clone(),
-        rate_hz: 200.0,
-        frame_timeout: Some(frame_timeout),
-        rt: Default::default(),
-    };
-    let driver = EthercatDriver::new(config, FrameLink::Interface(DRIVER_END.into())).unwrap();
-    let status = driver.status_handle();
-    let options = HandlerOptions { dir: Some(dir.clone()), ..HandlerOptions::default() };
-    let handler = DriverHandler::start("ecat", Box::new(driver), &options).unwrap();
-    let mut readers: Vec<Reader> = segments
-        .iter()
-        .map(|s| {
-            Reader::open_with("ecat", &s.layer, &ReaderOptions { dir: Some(dir.clone()), ..Default::default() })
-                .unwrap()
-        })
-        .collect();
+    let (handler, status, mut readers) = start_driver(&dir, &taxels, frame_timeout);
     for reader in &mut readers {
         wait_for(reader, WriterState::Running, Duration::from_secs(10));
     }
@@ -433,24 +459,7 @@ fn late_answers_fault_only_their_segment_and_never_the_bus() {
         faults.late_every_nth_frame = std::num::NonZeroU64::new(LATE_EVERY);
         faults.late_by = frame_timeout * 2;
     }
-    let started = Instant::now();
-    // Faults begun, per segment, as seen by polling (a short one may be missed).
-    let mut faults_seen = [0u64; 3];
-    let mut faulted = [false; 3];
-    while started.elapsed() < Duration::from_secs(1) {
-        assert_eq!(status.bus_fault(), None, "late answers brought the bus down; segments {:?}", status.segments());
-        for (position, s) in status.segments().iter().enumerate() {
-            assert_eq!(s.state, "OP", "segment {position}: {:?}", status.segments());
-            if let Some(why) = &s.fault {
-                assert!(why.contains("frame lost"), "segment {position}: {why}");
-                if !faulted[position] {
-                    faults_seen[position] += 1;
-                }
-            }
-            faulted[position] = s.fault.is_some();
-        }
-        std::thread::sleep(Duration::from_millis(1));
-    }
+    let faults_seen = segment_faults_for(&status, Duration::from_secs(1));
     let late = {
         let mut segment = segment.lock().unwrap();
         segment.faults_mut().late_every_nth_frame = None;
@@ -472,14 +481,10 @@ fn late_answers_fault_only_their_segment_and_never_the_bus() {
             hit[position]
         );
     }
-    for (position, reader) in readers.iter_mut().enumerate() {
+    for reader in &mut readers {
         wait_for(reader, WriterState::Running, Duration::from_secs(5));
-        let responses = reader.wait_newer(Duration::from_secs(1)).unwrap().responses().to_vec();
-        let sample = responses[0].wrapping_sub(1000 * position as u16);
-        for (k, &value) in responses.iter().enumerate() {
-            assert_eq!(value, taxel_value(position, u64::from(sample), k), "segment {position} taxel {k}");
-        }
     }
+    check_frames(&mut readers, 1);
     assert_eq!(status.bus_fault(), None);
     handler.stop();
     stop.store(true, Ordering::Relaxed);
