@@ -202,8 +202,33 @@ fn ethercat_skin_through_skin_run_reaches_a_reader_in_another_process() {
         println!("{} running {took:?} after its channel appeared", reader.label());
     }
 
-    // Each SubDevice's identity and state, as `skin ls --json` shows them.
-    let listing = wait_for_ls(&skin, "both SubDevices in OP", Duration::from_secs(10), |listing| {
+    check_listing(&skin);
+
+    // Frames as this process copies them.
+    let mut copied: Vec<Vec<Vec<u16>>> = vec![Vec::new(); LAYERS.len()];
+    for _ in 0..50 {
+        for (k, reader) in readers.iter_mut().enumerate() {
+            let frame = reader.wait_newer(Duration::from_secs(2)).unwrap();
+            assert_eq!(frame.responses().len(), TAXELS);
+            copied[k].push(frame.responses().to_vec());
+        }
+    }
+
+    pull_the_cable(&skin, &mut readers);
+
+    skin.stop();
+    assert!(
+        !skin.dir.join(format!("skinware-driver.{SKIN}.arm.json")).exists(),
+        "the driver's status file outlived the driver"
+    );
+
+    check_against_the_capture(&skin, &copied);
+}
+
+/// Each SubDevice's identity and state, as `skin ls --json` and `skin ls`
+/// show them.
+fn check_listing(skin: &Skin) {
+    let listing = wait_for_ls(skin, "both SubDevices in OP", Duration::from_secs(10), |listing| {
         listing["drivers"][0]["devices"]
             .as_array()
             .is_some_and(|d| d.len() == 2 && d.iter().all(|d| d["state"] == "OP"))
@@ -235,27 +260,20 @@ fn ethercat_skin_through_skin_run_reaches_a_reader_in_another_process() {
     let text = String::from_utf8_lossy(&text.stdout);
     assert!(text.contains("vendor 0x00534b4e product 0x00007ac7"), "{text}");
     assert!(text.contains("driver ecat-e2e/arm (ethercat"), "{text}");
+}
 
-    // Frames as this process copies them.
-    let mut copied: Vec<Vec<Vec<u16>>> = vec![Vec::new(); LAYERS.len()];
-    for _ in 0..50 {
-        for (k, reader) in readers.iter_mut().enumerate() {
-            let frame = reader.wait_newer(Duration::from_secs(2)).unwrap();
-            assert_eq!(frame.responses().len(), TAXELS);
-            copied[k].push(frame.responses().to_vec());
-        }
-    }
-
-    // A cable pull: the segments' end of the pair down, then up again.
+/// A cable pull: the segments' end of the pair down, then up again; every
+/// layer faults, then runs again.
+fn pull_the_cable(skin: &Skin, readers: &mut [Reader]) {
     match skin.in_namespace(&["ip", "link", "set", SEGMENT_END, "down"]) {
         Ok(()) => {
-            for reader in &mut readers {
+            for reader in readers.iter_mut() {
                 let took = wait_for(reader, WriterState::Faulted, Duration::from_secs(5));
                 println!("{} faulted {took:?} after the cable pull", reader.label());
             }
-            wait_for_ls(&skin, "the bus down", Duration::from_secs(5), |l| l["drivers"][0]["bus_fault"].is_string());
+            wait_for_ls(skin, "the bus down", Duration::from_secs(5), |l| l["drivers"][0]["bus_fault"].is_string());
             skin.in_namespace(&["ip", "link", "set", SEGMENT_END, "up"]).unwrap();
-            for reader in &mut readers {
+            for reader in readers.iter_mut() {
                 let took = wait_for(reader, WriterState::Running, Duration::from_secs(30));
                 println!("{} running again {took:?} after the cable was back", reader.label());
                 reader.wait_newer(Duration::from_secs(2)).unwrap();
@@ -266,17 +284,13 @@ fn ethercat_skin_through_skin_run_reaches_a_reader_in_another_process() {
             println!("cable pull skipped: {why}");
         }
     }
+}
 
-    skin.stop();
-    assert!(
-        !skin.dir.join(format!("skinware-driver.{SKIN}.arm.json")).exists(),
-        "the driver's status file outlived the driver"
-    );
-
-    // Every copied frame is what a segment answered, taxel for taxel: the
-    // taxels of one answer's process data (an LRW datagram, at the segment's
-    // logical address; its inputs come first: counter, status, then the
-    // taxels, so a frame read one word off is no answer).
+/// Every copied frame is what a segment answered, taxel for taxel: the
+/// taxels of one answer's process data (an LRW datagram, at the segment's
+/// logical address; its inputs come first: counter, status, then the
+/// taxels, so a frame read one word off is no answer).
+fn check_against_the_capture(skin: &Skin, copied: &[Vec<Vec<u16>>]) {
     let capture = std::fs::read(skin.dir.join("segments.pcapng")).unwrap();
     let frames = skinware_emulate::ethercat::pcapng::read_frames(&capture).unwrap();
     // The segments mark an answer's source address as locally administered.
