@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 use serde_json::{Value, json};
 use skinware::{Reader, ReaderOptions};
 
-use crate::util::one_skin_at_a_time;
+use crate::util::{interrupt_and_wait, one_skin_at_a_time};
 
 /// The skin of `examples/demo.toml`.
 const SKIN: &str = "default";
@@ -146,8 +146,7 @@ impl Demo {
 
     /// Ctrl-C; returns the names left in the segment directory.
     fn interrupt(&mut self) -> Vec<String> {
-        send_signal(self.child.id(), rustix::process::Signal::INT);
-        let status = wait_for_exit(&mut self.child, Duration::from_secs(30)).expect("skin demo did not stop on SIGINT");
+        let status = interrupt_and_wait(&mut self.child, "skin demo", Duration::from_secs(30));
         assert!(status.success(), "skin demo exited with {status} on SIGINT");
         std::fs::read_dir(&self.dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect()
     }

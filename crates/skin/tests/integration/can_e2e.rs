@@ -13,7 +13,7 @@ use skinware::{Reader, ReaderOptions, WriterState};
 use skinware_drivers::can::candump;
 use skinware_drivers::can::icub_mtb::{self, Message};
 
-use crate::util::{one_skin_at_a_time, wait_for};
+use crate::util::{interrupt_and_wait, one_skin_at_a_time, wait_for};
 
 struct Skin {
     dir: PathBuf,
@@ -110,9 +110,7 @@ impl Skin {
     /// Stops the skin with SIGINT, as a user would (the boards flush their log).
     fn stop(&mut self) {
         if let Some(mut supervisor) = self.supervisor.take() {
-            let pid = rustix::process::Pid::from_raw(supervisor.id() as i32).unwrap();
-            let _ = rustix::process::kill_process(pid, rustix::process::Signal::INT);
-            let _ = supervisor.wait();
+            interrupt_and_wait(&mut supervisor, "skin run", Duration::from_secs(20));
         }
     }
 

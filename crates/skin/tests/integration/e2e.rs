@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use skinware::{Reader, ReaderOptions, WriterState};
 
-use crate::util::one_skin_at_a_time;
+use crate::util::{interrupt_and_wait, one_skin_at_a_time};
 
 const RATE_HZ: f64 = 100.0;
 
@@ -261,12 +261,7 @@ fn top_reports_every_layer(skin: &Skin) {
 
 /// Step 4: SIGINT: everything stops and no channel is left behind.
 fn sigint_stops_everything(skin: &mut Skin) {
-    rustix::process::kill_process(
-        rustix::process::Pid::from_raw(skin.supervisor.id() as i32).unwrap(),
-        rustix::process::Signal::INT,
-    )
-    .unwrap();
-    let status = skin.supervisor.wait().unwrap();
+    let status = interrupt_and_wait(&mut skin.supervisor, "skin run", Duration::from_secs(20));
     assert!(status.success(), "skin run exited with {status}");
     let left: Vec<String> = std::fs::read_dir(&skin.dir)
         .unwrap()

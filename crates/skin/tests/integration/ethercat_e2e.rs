@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 
 use skinware::{Reader, ReaderOptions, WriterState};
 
-use crate::util::{one_skin_at_a_time, wait_for};
+use crate::util::{interrupt_and_wait, one_skin_at_a_time, wait_for};
 
 const SKIN: &str = "ecat-e2e";
 const LAYERS: [&str; 2] = ["forearm", "upperarm"];
@@ -144,17 +144,7 @@ impl Skin {
     /// capture); one still running 20 s later fails the test.
     fn stop(&mut self) {
         if let Some(mut supervisor) = self.supervisor.take() {
-            let pid = rustix::process::Pid::from_raw(supervisor.id() as i32).unwrap();
-            let _ = rustix::process::kill_process(pid, rustix::process::Signal::INT);
-            let started = Instant::now();
-            while supervisor.try_wait().unwrap().is_none() {
-                if started.elapsed() > Duration::from_secs(20) {
-                    let _ = supervisor.kill();
-                    let _ = supervisor.wait();
-                    panic!("skin run did not stop within 20 s of SIGINT");
-                }
-                std::thread::sleep(Duration::from_millis(20));
-            }
+            interrupt_and_wait(&mut supervisor, "skin run", Duration::from_secs(20));
         }
     }
 }

@@ -19,7 +19,7 @@ use skinware_record::file::{RecordStream, RecordingHeader, read_header};
 use skinware_record::mcap::records::{MessageHeader, Record};
 use skinware_record::msgs::{self, Gap, Image, LayerStats, SkinFrame};
 
-use crate::util::one_skin_at_a_time;
+use crate::util::{interrupt_and_wait, one_skin_at_a_time};
 
 struct Dir(PathBuf);
 
@@ -57,15 +57,7 @@ fn json(dir: &Path, args: &[&str]) -> serde_json::Value {
 }
 
 fn interrupt(child: &mut Child) {
-    let _ = Command::new("kill").args(["-INT", &child.id().to_string()]).status();
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while Instant::now() < deadline {
-        if let Ok(Some(_)) = child.try_wait() {
-            return;
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    panic!("process {} did not stop on SIGINT", child.id());
+    interrupt_and_wait(child, "the recorder", Duration::from_secs(20));
 }
 
 fn python() -> Option<String> {

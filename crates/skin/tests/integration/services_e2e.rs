@@ -11,7 +11,7 @@ use skinware::{FrameStatus, ReaderOptions};
 use skinware_services::framework::ServiceReader;
 use skinware_services::{MotionRecord, motion_flags};
 
-use crate::util::one_skin_at_a_time;
+use crate::util::{interrupt_and_wait, one_skin_at_a_time};
 
 const CONFIG: &str = r#"
 skin = "svc"
@@ -212,12 +212,7 @@ fn killed_contact_service_is_reported_and_restarted(
 /// Ctrl-C: everything stops and nothing is left behind.
 fn ctrl_c_stops_everything(dir: &Path, running: &mut Skin) {
     let mut supervisor = running.supervisor.take().unwrap();
-    rustix::process::kill_process(
-        rustix::process::Pid::from_raw(supervisor.id() as i32).unwrap(),
-        rustix::process::Signal::INT,
-    )
-    .unwrap();
-    let status = poll("supervisor exits", Duration::from_secs(10), || supervisor.try_wait().unwrap());
+    let status = interrupt_and_wait(&mut supervisor, "skin run", Duration::from_secs(10));
     assert!(status.success());
     let left: Vec<_> = std::fs::read_dir(dir)
         .unwrap()

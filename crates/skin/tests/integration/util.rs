@@ -1,5 +1,6 @@
 //! What the test modules share.
 
+use std::process::{Child, ExitStatus};
 use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
@@ -29,5 +30,26 @@ pub fn wait_for(reader: &mut Reader, state: WriterState, within: Duration) -> Du
         }
         assert!(started.elapsed() < within, "{} never became {state} (is {})", reader.label(), reader.writer_state());
         std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+/// Sends `child` SIGINT, as Ctrl-C does, and waits up to `within` for it to
+/// exit; one still running then is killed, and the test fails naming
+/// `what`. The one way the tests stop a process as a user would.
+pub fn interrupt_and_wait(child: &mut Child, what: &str, within: Duration) -> ExitStatus {
+    if let Some(pid) = rustix::process::Pid::from_raw(child.id() as i32) {
+        let _ = rustix::process::kill_process(pid, rustix::process::Signal::INT);
+    }
+    let started = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            return status;
+        }
+        if started.elapsed() > within {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("{what} did not stop within {within:?} of SIGINT");
+        }
+        std::thread::sleep(Duration::from_millis(20));
     }
 }
