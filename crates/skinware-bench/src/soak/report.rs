@@ -360,7 +360,7 @@ impl SoakReport {
             );
         }
         println!(
-            "back = the publication of the last layer's first frame after the moment (it includes waiting for each layer's next period, up to 33 ms on the paper's skin); the end is the kill, the SIGCONT, the restore, the removal or the hog's exit (docs/benchmarks.md)"
+            "back = the publication of the last layer's first frame after the moment (it includes waiting for each layer's next period, up to 33 ms on the paper's skin); the end is the kill, the SIGCONT, the restore, the removal or the hog's exit (docs/bench/soak.md)"
         );
     }
 

@@ -89,7 +89,7 @@ pub enum ReaderWake {
     /// Not the default: on the 2-vCPU development VM it spent about 70 µs
     /// of the other CPU per frame, and the paper's skin at 1 kHz (5 writers)
     /// took 31–46 % of a core more with it, for no gain to readers in the
-    /// normal scheduler (`docs/benchmarks.md`). Real-time readers of a
+    /// normal scheduler (`docs/bench/kilohertz.md`). Real-time readers of a
     /// writer with CPU to spare gain the most.
     Lookout,
 }
