@@ -101,12 +101,10 @@ pub use locks::lock;
 #[cfg(not(loom))]
 pub use reader::{Reader, ReaderOptions};
 #[cfg(not(loom))]
-pub use rt::{RtOptions, Stop, Tick, Ticker};
+pub use rt::{ReaderWake, RtOptions, Stop, Tick, Ticker};
 #[cfg(not(loom))]
 pub use stats::{ReaderStats, UnknownWriterState, WriterState, WriterStats, histogram_quantile};
 #[cfg(not(loom))]
 pub use topology::{LayerTopology, TopologyBuilder, TopologyError};
 #[cfg(not(loom))]
-pub use writer::{
-    Access, DEFAULT_SLOTS, FrameWriter, ReaderWake, WakeCounts, Writer, WriterOptions, WriterStateHandle,
-};
+pub use writer::{Access, DEFAULT_SLOTS, FrameWriter, WakeCounts, Writer, WriterOptions, WriterStateHandle};

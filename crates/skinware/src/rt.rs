@@ -152,6 +152,48 @@ impl Ticker {
     }
 }
 
+/// Which thread makes the system call that wakes as-soon-as-available readers
+/// asleep on a channel. Whichever it is, the frame is visible to readers before the
+/// wake, and the writer makes no system call when no reader sleeps.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ReaderWake {
+    /// A thread of the writer's process, its *ringer*, which follows the
+    /// writer onto its CPU one real-time priority below it and so runs as
+    /// soon as the writer sleeps. The writer pays a wake on its own CPU
+    /// (about 2 µs on a 2-vCPU VM) instead of an interrupt to another CPU
+    /// (14–60 µs there), and readers wake later (about 14 µs at p50 there).
+    /// If the ringer has not rung the previous publish when the writer
+    /// publishes again, the writer wakes the readers itself, so a reader is
+    /// never more than one frame late. Started at the writer's first frame,
+    /// from its thread, and only if that thread is real-time (SCHED_FIFO or
+    /// SCHED_RR): a writer in the normal scheduler wakes its readers itself.
+    #[default]
+    Ringer,
+    /// The writer's own thread, right after the publish: readers wake
+    /// sooner than with the ringer, and the acquisition thread pays the
+    /// interrupt.
+    Writer,
+    /// A thread of the writer's process, its *lookout*, which keeps off the
+    /// writer's CPU, learns the writer's grid, and is spinning on another
+    /// CPU when each frame is due (from a timer set as early as its own
+    /// wake-ups are late, p97), for frames some reader sleeps for. The
+    /// writer makes no system call (one compare-and-swap) and readers are
+    /// woken by a CPU that is already awake, so they wake sooner than with
+    /// either of the others. The cost is the lookout's spinning, CPU time on
+    /// another CPU every period a reader sleeps. When the lookout is not
+    /// watching (it or the frame was late), the writer hands the wake to its
+    /// ringer, which it also has. Needs what the ringer needs, a periodic writer
+    /// ([`WriterOptions::period`](crate::WriterOptions::period)) and a second CPU it may run on; otherwise
+    /// the writer uses the ringer, or wakes its readers itself.
+    ///
+    /// Not the default: on the 2-vCPU development VM it spent about 70 µs
+    /// of the other CPU per frame, and the paper's skin at 1 kHz (5 writers)
+    /// took 31–46 % of a core more with it, for no gain to readers in the
+    /// normal scheduler (`docs/bench/kilohertz.md`). Real-time readers of a
+    /// writer with CPU to spare gain the most.
+    Lookout,
+}
+
 /// Real-time settings for a writer or reader thread.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct RtOptions {
@@ -179,7 +221,7 @@ pub struct RtOptions {
     /// frames ([`crate::ReaderWake`]; a reader's thread ignores it). Like
     /// the others, it takes effect where a writer is created with these
     /// settings (a driver's layers, a service), not by [`RtOptions::apply`].
-    pub reader_wake: crate::ReaderWake,
+    pub reader_wake: ReaderWake,
 }
 
 impl RtOptions {

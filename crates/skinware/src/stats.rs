@@ -207,16 +207,16 @@ pub(crate) fn record_write(shared: &SharedStats, write_ns: u64, faulted: bool) {
 }
 
 /// Records a periodic wake-up: its lateness, and any overrun. Only the writer calls it.
-pub(crate) fn record_tick(shared: &SharedStats, tick: &crate::rt::Tick) {
-    if tick.lateness_ns > shared.lateness_ns_max.load(Relaxed) {
-        shared.lateness_ns_max.store(tick.lateness_ns, Relaxed);
+pub(crate) fn record_tick(shared: &SharedStats, lateness_ns: u64, missed: u64) {
+    if lateness_ns > shared.lateness_ns_max.load(Relaxed) {
+        shared.lateness_ns_max.store(lateness_ns, Relaxed);
     }
-    bump(&shared.lateness_ns_sum, tick.lateness_ns);
+    bump(&shared.lateness_ns_sum, lateness_ns);
     bump(&shared.lateness_samples, 1);
-    bump(&shared.lateness_histogram[bucket_of(tick.lateness_ns)], 1);
-    if tick.missed > 0 {
+    bump(&shared.lateness_histogram[bucket_of(lateness_ns)], 1);
+    if missed > 0 {
         bump(&shared.overruns, 1);
-        bump(&shared.missed_periods, tick.missed);
+        bump(&shared.missed_periods, missed);
     }
 }
 

@@ -31,7 +31,6 @@ use std::os::unix::fs::{FileExt, MetadataExt};
 use std::path::{Path, PathBuf};
 
 use super::layout::Header;
-use super::segment::Shared;
 use crate::error::{Error, Result};
 use crate::os;
 use crate::shm;
@@ -234,25 +233,6 @@ fn open_lock_file(path: &Path, label: &str, own_only: bool) -> Result<Option<Fil
     }
 }
 
-impl Shared {
-    /// Whether a live process holds this segment's liveness lock. It only
-    /// asks, so probing can never get in a reviving writer's way.
-    pub fn writer_alive(&self) -> io::Result<bool> {
-        os::writer_lock_held(&self.data)
-    }
-
-    /// The writer's state as readers see it: its last word, unless it is dead.
-    pub fn writer_state(&self) -> WriterState {
-        let alive = self.writer_alive().unwrap_or(false);
-        WriterState::from_code(self.header().state.load(Ordering::Acquire), alive)
-    }
-
-    /// The state the live writer last stored (not combined with liveness).
-    pub fn stored_state(&self) -> WriterState {
-        WriterState::from_code(self.header().state.load(Ordering::Acquire), true)
-    }
-}
-
 /// Stores the writer's state for readers, stamping the time of a change. Only
 /// the live writer (or a handle it gave out) calls it.
 pub(crate) fn set_state(header: &Header, state: WriterState) {
@@ -275,15 +255,6 @@ pub(crate) fn introduce_writer(header: &Header, period_ns: u64, generation: u64)
 pub(crate) fn retire_writer(header: &Header) {
     header.state.store(WriterState::STOPPED, Ordering::Release);
     header.state_changed_ns.store(os::monotonic_ns(), Ordering::Relaxed);
-}
-
-/// Takes the liveness lock on a new channel's data, before anyone can reach it.
-pub(crate) fn go_live(shared: &Shared) -> Result<()> {
-    match os::try_lock_writer(&shared.data) {
-        Ok(true) => Ok(()),
-        Ok(false) => Err(Error::Os { op: "lock", path: shared.path.clone(), source: io::ErrorKind::WouldBlock.into() }),
-        Err(source) => Err(Error::Os { op: "lock", path: shared.path.clone(), source }),
-    }
 }
 
 /// Removes a channel name (its socket and lock file) if no live writer holds

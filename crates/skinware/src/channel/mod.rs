@@ -46,6 +46,9 @@
 pub(crate) mod copy;
 pub(crate) mod doorbell;
 pub(crate) mod lookout;
+// The loom models of the doorbell with its ringer and lookout: above all three.
+#[cfg(all(test, loom))]
+mod models;
 pub(crate) mod ring;
 pub(crate) mod ringer;
 

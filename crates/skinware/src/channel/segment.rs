@@ -27,7 +27,9 @@ use super::handover::{self, Fetched};
 use super::layout::{ABI_VERSION, Doorbell, Header, Layout, MAGIC, PAGE};
 use super::ring::{self, Ring};
 use crate::error::{Error, Result};
+use crate::os;
 use crate::shm::{self, Mapping};
+use crate::stats::WriterState;
 use crate::sync::{AtomicU64, Ordering};
 
 /// The seals every channel memory file must carry before a reader maps it.
@@ -331,4 +333,34 @@ pub(crate) struct SegmentInit<'a> {
     pub data_mode: u32,
     /// Permissions of the doorbell memory file.
     pub bell_mode: u32,
+}
+
+// A segment's liveness: the writer holds a lock on its data for as long as
+// it lives ([`super::liveness`] explains the protocol).
+impl Shared {
+    /// Whether a live process holds this segment's liveness lock. It only
+    /// asks, so probing can never get in a reviving writer's way.
+    pub fn writer_alive(&self) -> io::Result<bool> {
+        os::writer_lock_held(&self.data)
+    }
+
+    /// The writer's state as readers see it: its last word, unless it is dead.
+    pub fn writer_state(&self) -> WriterState {
+        let alive = self.writer_alive().unwrap_or(false);
+        WriterState::from_code(self.header().state.load(Ordering::Acquire), alive)
+    }
+
+    /// The state the live writer last stored (not combined with liveness).
+    pub fn stored_state(&self) -> WriterState {
+        WriterState::from_code(self.header().state.load(Ordering::Acquire), true)
+    }
+}
+
+/// Takes the liveness lock on a new channel's data, before anyone can reach it.
+pub(crate) fn go_live(shared: &Shared) -> Result<()> {
+    match os::try_lock_writer(&shared.data) {
+        Ok(true) => Ok(()),
+        Ok(false) => Err(Error::Os { op: "lock", path: shared.path.clone(), source: io::ErrorKind::WouldBlock.into() }),
+        Err(source) => Err(Error::Os { op: "lock", path: shared.path.clone(), source }),
+    }
 }

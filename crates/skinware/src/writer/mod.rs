@@ -19,7 +19,7 @@ use crate::channel::{self, ChannelKind};
 use crate::error::{Error, Result};
 use crate::frame::FrameStatus;
 use crate::os::{self, SHARED_FUTEX};
-use crate::rt::{Stop, Ticker};
+use crate::rt::{ReaderWake, Stop, Ticker};
 use crate::shm;
 use crate::stats::{self, WriterState, WriterStats};
 use crate::sync::{AtomicU64, Ordering};
@@ -50,48 +50,6 @@ pub struct WriterOptions {
     pub dir: Option<PathBuf>,
     /// Which thread wakes the readers asleep for a frame.
     pub reader_wake: ReaderWake,
-}
-
-/// Which thread makes the system call that wakes as-soon-as-available readers
-/// asleep on a channel. Whichever it is, the frame is visible to readers before the
-/// wake, and the writer makes no system call when no reader sleeps.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum ReaderWake {
-    /// A thread of the writer's process, its *ringer*, which follows the
-    /// writer onto its CPU one real-time priority below it and so runs as
-    /// soon as the writer sleeps. The writer pays a wake on its own CPU
-    /// (about 2 µs on a 2-vCPU VM) instead of an interrupt to another CPU
-    /// (14–60 µs there), and readers wake later (about 14 µs at p50 there).
-    /// If the ringer has not rung the previous publish when the writer
-    /// publishes again, the writer wakes the readers itself, so a reader is
-    /// never more than one frame late. Started at the writer's first frame,
-    /// from its thread, and only if that thread is real-time (SCHED_FIFO or
-    /// SCHED_RR): a writer in the normal scheduler wakes its readers itself.
-    #[default]
-    Ringer,
-    /// The writer's own thread, right after the publish: readers wake
-    /// sooner than with the ringer, and the acquisition thread pays the
-    /// interrupt.
-    Writer,
-    /// A thread of the writer's process, its *lookout*, which keeps off the
-    /// writer's CPU, learns the writer's grid, and is spinning on another
-    /// CPU when each frame is due (from a timer set as early as its own
-    /// wake-ups are late, p97), for frames some reader sleeps for. The
-    /// writer makes no system call (one compare-and-swap) and readers are
-    /// woken by a CPU that is already awake, so they wake sooner than with
-    /// either of the others. The cost is the lookout's spinning, CPU time on
-    /// another CPU every period a reader sleeps. When the lookout is not
-    /// watching (it or the frame was late), the writer hands the wake to its
-    /// ringer, which it also has. Needs what the ringer needs, a periodic writer
-    /// ([`WriterOptions::period`]) and a second CPU it may run on; otherwise
-    /// the writer uses the ringer, or wakes its readers itself.
-    ///
-    /// Not the default: on the 2-vCPU development VM it spent about 70 µs
-    /// of the other CPU per frame, and the paper's skin at 1 kHz (5 writers)
-    /// took 31–46 % of a core more with it, for no gain to readers in the
-    /// normal scheduler (`docs/bench/kilohertz.md`). Real-time readers of a
-    /// writer with CPU to spare gain the most.
-    Lookout,
 }
 
 /// How many publishes with readers asleep had them woken by which thread.
@@ -233,7 +191,7 @@ impl Writer {
         };
         let shared = segment::create_segment(&path, label.clone(), layout, &init)?;
         liveness::introduce_writer(shared.header(), options.period.map_or(0, |p| p.as_nanos() as u64), generation);
-        liveness::go_live(&shared)?;
+        segment::go_live(&shared)?;
         let readers_data = segment::reopen_read_only(&shared)?;
         let readers_bell =
             shared.bell().try_clone().map_err(|source| Error::Os { op: "dup", path: path.clone(), source })?;
@@ -437,7 +395,7 @@ impl Writer {
     {
         let stop = self.stop.clone();
         while let Some(tick) = ticker.wait(&stop) {
-            stats::record_tick(&self.shared.header().stats, &tick);
+            stats::record_tick(&self.shared.header().stats, tick.lateness_ns, tick.missed);
             self.publishing.period_deadline_ns = Some(tick.deadline_ns);
             self.fill_once(&mut fill);
             self.publishing.period_deadline_ns = None;

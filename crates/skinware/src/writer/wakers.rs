@@ -10,13 +10,13 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use super::ReaderWake;
 use crate::anticipate::{Anticipation, RecentQuantile};
 use crate::channel::doorbell::{self, Futex as _};
 use crate::channel::lookout::{WakeBy, Watch};
 use crate::channel::ringer::Handoff;
 use crate::channel::segment::Shared;
 use crate::os::{self, PRIVATE_FUTEX, SHARED_FUTEX};
+use crate::rt::ReaderWake;
 use crate::sync::AtomicU32;
 
 /// The writer's side of publishing: the next sequence number and who wakes
