@@ -4,12 +4,12 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use skin::viewer_message::{self, ClientMessage, MAX_PERIODIC_HZ, MIN_PERIODIC_HZ, ReadMode};
+use skinware_viewer::message::{self, ClientMessage, MAX_PERIODIC_HZ, MIN_PERIODIC_HZ, ReadMode};
 
 fuzz_target!(|bytes: &[u8]| {
     // tungstenite hands over text messages only once they are valid UTF-8.
     if let Ok(text) = std::str::from_utf8(bytes) {
-        match viewer_message::decode(text) {
+        match message::decode(text) {
             Ok(ClientMessage::Mode(ReadMode::Periodic { rate_hz })) => {
                 assert!((MIN_PERIODIC_HZ..=MAX_PERIODIC_HZ).contains(&rate_hz), "{rate_hz} Hz accepted");
             }

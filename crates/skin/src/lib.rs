@@ -6,9 +6,10 @@
 //!   parsed and checked from text by [`config::Config::parse`];
 //! - [`driver_status`]: what a driver process publishes of its devices (an
 //!   EtherCAT SubDevice's identity and state) for `skin ls`, read back by
-//!   [`driver_status::DriverStatus::decode`];
-//! - [`viewer_message`]: the JSON text messages that the web viewer's page
-//!   sends to `skin view`, decoded by [`viewer_message::decode`].
+//!   [`driver_status::DriverStatus::decode`].
+//!
+//! The decoder of the web viewer's messages is in `skinware-viewer`, with
+//! the viewer.
 //!
 //! ```
 //! use std::path::Path;
@@ -16,14 +17,11 @@
 //! let text = "skin = \"hand\"\n[[driver]]\nname = \"v\"\nkind = \"virtual\"\nsensors = 240\nlayers = 2\n";
 //! let config = skin::config::Config::parse(text, Path::new("hand.toml"))?;
 //! assert_eq!(config.drivers[0].name, "v");
-//!
-//! let message = skin::viewer_message::decode(r#"{"ack":2}"#)?;
-//! assert_eq!(message, skin::viewer_message::ClientMessage::Ack(2));
 //! # Ok::<(), anyhow::Error>(())
 //! ```
 //!
 //! Cargo features: `cli` (default) builds the `skin` binary and its
-//! dependencies (the web server, plots, the CLI parser); the library needs
+//! dependencies (the web viewer, plots, the CLI parser); the library needs
 //! none of them, and the fuzz targets build it without (`default-features =
 //! false`). `iceoryx2` adds iceoryx2 to `skin bench peers`.
 
@@ -31,4 +29,3 @@
 
 pub mod config;
 pub mod driver_status;
-pub mod viewer_message;

@@ -5,7 +5,6 @@
 mod commands;
 mod geometry;
 mod layers;
-mod view;
 
 use std::path::PathBuf;
 

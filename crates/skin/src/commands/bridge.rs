@@ -154,7 +154,7 @@ mod with_zenoh {
     use skinware_bridge::remote::{Mirror, RemoteSkin};
 
     use super::{Args, EchoMode, RemoteArgs, RemoteEcho};
-    use crate::view::{self, Site};
+    use skinware_viewer::{self as view, Site};
 
     fn rate_limits(options: &mut BridgeOptions, specs: &[String]) -> Result<()> {
         for spec in specs {

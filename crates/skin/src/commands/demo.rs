@@ -10,8 +10,8 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use skinware::WriterState;
 use skinware_geometry::SkinGeometry;
+use skinware_viewer::{self as view, Site};
 
-use crate::view::{self, Site};
 use skin::config::Config;
 
 /// The demo's skin: drivers (and, later, services) in one place.

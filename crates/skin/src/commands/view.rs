@@ -2,8 +2,7 @@
 
 use anyhow::{Context, Result};
 use skinware_geometry::SkinGeometry;
-
-use crate::view::{self, Site};
+use skinware_viewer::{self as view, Site};
 
 /// Arguments of `skin view`.
 #[derive(clap::Args)]

@@ -39,10 +39,10 @@ use std::time::Duration;
 use anyhow::{Context, Result};
 use tungstenite::Message;
 
-use crate::view::protocol::{KIND_GEOMETRY, KIND_UPDATE, LAYER_RECORD_BYTES, UPDATE_HEADER_BYTES, responses_le};
-use crate::view::sampler::{LayerToRead, Sampler, Samplers};
-use crate::view::server::BROWSER_READ_BYTES;
-use crate::view::session::{BrowserStream, INITIAL_MODE, WebSocketHeader, send_message};
+use skinware_viewer::protocol::{KIND_GEOMETRY, KIND_UPDATE, LAYER_RECORD_BYTES, UPDATE_HEADER_BYTES, responses_le};
+use skinware_viewer::sampler::{LayerToRead, Sampler, Samplers};
+use skinware_viewer::server::BROWSER_READ_BYTES;
+use skinware_viewer::session::{BrowserStream, INITIAL_MODE, WebSocketHeader, send_message};
 
 /// How long a connection's read waits before it looks at the stop flag.
 const STOP_POLL: Duration = Duration::from_millis(100);
@@ -250,7 +250,7 @@ fn accept_browsers(listener: &TcpListener, shared: &Arc<Shared>) {
 fn serve_browser(stream: TcpStream, shared: &Shared) -> Result<()> {
     stream.set_read_timeout(Some(STOP_POLL))?;
     stream.set_nodelay(true)?;
-    // The viewer's read buffer (`view::server`): tungstenite zeroes it before every read.
+    // The viewer's read buffer (`skinware_viewer::server`): tungstenite zeroes it before every read.
     let config = tungstenite::protocol::WebSocketConfig::default().read_buffer_size(BROWSER_READ_BYTES);
     let mut socket = tungstenite::accept_with_config(BrowserStream::new(stream), Some(config))
         .map_err(|e| anyhow::anyhow!("WebSocket handshake with a browser failed: {e}"))?;

@@ -226,8 +226,9 @@ impl Wake {
 
 /// Bytes of the viewer's update of the paper's skin at 1 kHz (every layer's
 /// responses, no overlays): the floor server's message unless told otherwise.
-const UPDATE_BYTES: usize =
-    crate::view::protocol::UPDATE_HEADER_BYTES + LAYERS * crate::view::protocol::LAYER_RECORD_BYTES + 2 * TAXELS;
+const UPDATE_BYTES: usize = skinware_viewer::protocol::UPDATE_HEADER_BYTES
+    + LAYERS * skinware_viewer::protocol::LAYER_RECORD_BYTES
+    + 2 * TAXELS;
 
 /// What `skin bench kilohertz` runs, besides the options every bench takes.
 #[derive(Clone, Copy, Debug, Default)]
@@ -785,7 +786,7 @@ fn browse(
     (stop, marks): (&AtomicBool, &WindowMarks),
     clock: &SeqClock,
 ) -> Result<BrowserFigures> {
-    use crate::view::session::{BrowserStream, Reads};
+    use skinware_viewer::session::{BrowserStream, Reads};
     use tungstenite::Message;
     let stream = BrowserStream::new(TcpStream::connect(address)?);
     let (mut socket, _) = tungstenite::client(format!("ws://{address}/ws"), stream)
@@ -976,7 +977,7 @@ fn viewer_scaling(
                 &plan,
                 (dir, seconds),
                 (&|| thread_cpu_ns(viewer_pid, None), &|| {
-                    thread_cpu_ns(viewer_pid, Some(crate::view::server::BROWSER_THREAD_PREFIX))
+                    thread_cpu_ns(viewer_pid, Some(skinware_viewer::server::BROWSER_THREAD_PREFIX))
                 }),
                 &|| cpu_ticks(&pids)[0],
                 &mut check,

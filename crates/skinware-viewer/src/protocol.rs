@@ -1,17 +1,17 @@
 //! The viewer's wire format: binary WebSocket messages from the server, small
-//! JSON text messages from the browser (decoded by [`skin::viewer_message`]).
+//! JSON text messages from the browser (decoded by [`crate::message`]).
 //! `docs/viewer.md` documents it byte by byte; `page.js` decodes it. Everything is little-endian, and every array
 //! starts at an offset aligned to its element size, so that the browser can
 //! view it in place with a typed array.
 
 #![forbid(unsafe_code)]
 
-use skin::viewer_message::ReadMode;
 use skinware::WriterState;
 use skinware_geometry::{SensorRef, SkinGeometry};
 
-use super::overlays::Overlays;
-use super::sampler::LayerSlot;
+use crate::message::ReadMode;
+use crate::overlays::Overlays;
+use crate::sampler::LayerSlot;
 
 /// Bumped on any change of the layout below; the page refuses other versions.
 pub const PROTOCOL_VERSION: u8 = 1;
@@ -185,7 +185,7 @@ pub fn responses_le<'a>(values: &'a [u16], scratch: &'a mut Vec<u8>) -> &'a [u8]
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::view::overlays::{Arrow, Marker};
+    use crate::overlays::{Arrow, Marker};
 
     fn f32_at(bytes: &[u8], offset: usize) -> f32 {
         f32::from_le_bytes(bytes[offset..offset + 4].try_into().unwrap())
@@ -258,7 +258,7 @@ mod tests {
 
     #[test]
     fn geometry_message_holds_layers_names_positions_and_ids_where_documented() {
-        let geometry = crate::view::virtual_geometry("small", 240);
+        let geometry = crate::virtual_geometry("small", 240);
         let out = encode_geometry(&geometry);
         let u32_at = |offset: usize| u32::from_le_bytes(out[offset..offset + 4].try_into().unwrap());
         assert_eq!(&out[..4], &[KIND_GEOMETRY, PROTOCOL_VERSION, 2, 0]);

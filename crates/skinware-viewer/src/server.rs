@@ -1,5 +1,5 @@
 //! The HTTP side: one thread per connection, serving the embedded page and
-//! upgrading `/ws` to the WebSocket of a [`session`](super::session).
+//! upgrading `/ws` to the WebSocket of a [`session`].
 
 #![forbid(unsafe_code)]
 
@@ -12,7 +12,7 @@ use anyhow::{Context, Result, bail};
 use tungstenite::WebSocket;
 use tungstenite::protocol::{Role, WebSocketConfig};
 
-use super::session::{self, Site};
+use crate::session::{self, Site};
 
 const PAGE_HTML: &str = include_str!("page.html");
 const PAGE_JS: &str = include_str!("page.js");
@@ -22,7 +22,7 @@ const PAGE_CSS: &str = include_str!("page.css");
 const MAX_HEAD_BYTES: usize = 16 * 1024;
 /// A WebSocket message or frame from the browser larger than this ends the
 /// connection before it is buffered (tungstenite's default is 64 MiB): the
-/// page's messages are under [`skin::viewer_message::MAX_MESSAGE_BYTES`].
+/// page's messages are under [`crate::message::MAX_MESSAGE_BYTES`].
 const MAX_INCOMING_BYTES: usize = 64 * 1024;
 /// The start of the name of a connection's thread (then the browser's port,
 /// within Linux's 15 characters): what `top -H` shows, and what `skin bench

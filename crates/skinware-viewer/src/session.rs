@@ -1,6 +1,6 @@
 //! One browser: the geometry at connect, then updates as the browser grants
 //! credit. The browser acknowledges each update it has drawn; the server never
-//! has more than [`MAX_CREDIT`] updates unacknowledged, and each update holds
+//! has more than `MAX_CREDIT` updates unacknowledged, and each update holds
 //! the newest frames at the moment it is sent, so a slow browser gets fewer,
 //! fresher updates instead of a growing queue.
 
@@ -15,13 +15,13 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use skin::viewer_message::{self, ClientMessage, ReadMode};
 use skinware_geometry::SkinGeometry;
 use tungstenite::{Message, WebSocket};
 
-use super::overlays::{NO_OVERLAYS, SharedOverlays};
-use super::protocol::{self, LayerUpdate};
-use super::sampler::{LayerToRead, Sampler, Samplers};
+use crate::message::{self, ClientMessage, ReadMode};
+use crate::overlays::{NO_OVERLAYS, SharedOverlays};
+use crate::protocol::{self, LayerUpdate};
+use crate::sampler::{LayerToRead, Sampler, Samplers};
 
 /// Updates the server may send ahead of the browser's acknowledgements.
 const MAX_CREDIT: u32 = 4;
@@ -389,7 +389,7 @@ impl<'a> Session<'a> {
         };
         loop {
             match self.socket.read() {
-                Ok(Message::Text(text)) => match viewer_message::decode(text.as_str()) {
+                Ok(Message::Text(text)) => match message::decode(text.as_str()) {
                     Ok(message) => self.obey(message)?,
                     Err(e) => tracing::warn!("browser message ignored: {e}"),
                 },
@@ -628,14 +628,14 @@ mod tests {
         let missing = cache.get(&dir, "cached").unwrap_err();
         assert!(matches!(missing, skinware_geometry::GeometryError::Missing { .. }), "{missing}");
 
-        let first = crate::view::virtual_geometry("cached", 240);
+        let first = crate::virtual_geometry("cached", 240);
         first.publish(&dir).unwrap();
         let encoded = cache.get(&dir, "cached").unwrap();
         assert_eq!(encoded.message, protocol::encode_geometry(&first));
         assert_eq!(encoded.layers.iter().map(|l| l.sensors).collect::<Vec<_>>(), [120, 120]);
         assert!(Arc::ptr_eq(&encoded, &cache.get(&dir, "cached").unwrap()), "the same file is not read again");
 
-        let second = crate::view::virtual_geometry("cached", 480);
+        let second = crate::virtual_geometry("cached", 480);
         second.publish(&dir).unwrap();
         let again = cache.get(&dir, "cached").unwrap();
         assert_eq!(again.message, protocol::encode_geometry(&second), "a geometry published again is read again");
@@ -658,7 +658,7 @@ mod tests {
     fn a_browser_receives_the_geometry_whole() {
         let dir = std::env::temp_dir().join(format!("skin-geometry-send-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let geometry = crate::view::virtual_geometry("sent", 4_000);
+        let geometry = crate::virtual_geometry("sent", 4_000);
         geometry.publish(&dir).unwrap();
         let site = Site::new("sent", Some(dir.clone()), Arc::new(AtomicBool::new(false)));
         let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();

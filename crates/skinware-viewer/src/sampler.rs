@@ -11,8 +11,9 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard, Weak};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use skin::viewer_message::ReadMode;
 use skinware::{Error, Reader, ReaderOptions, Stop, Ticker, WriterState};
+
+use crate::message::ReadMode;
 
 /// How long a blocking read waits before it looks at the writer's state again,
 /// so that a fault or a vanished writer shows within this time.

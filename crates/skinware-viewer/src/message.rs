@@ -104,7 +104,7 @@ struct Fields {
 /// Decodes one text message of the page.
 ///
 /// ```
-/// use skin::viewer_message::{ClientMessage, MessageError, ReadMode, decode};
+/// use skinware_viewer::message::{ClientMessage, MessageError, ReadMode, decode};
 ///
 /// assert_eq!(decode(r#"{"mode":"asap"}"#), Ok(ClientMessage::Mode(ReadMode::Asap)));
 /// assert!(matches!(decode(r#"{"mode":"periodic","rate_hz":0}"#), Err(MessageError::RateOutOfRange { .. })));
