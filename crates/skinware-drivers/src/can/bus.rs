@@ -128,18 +128,6 @@ impl<'a> BusUrl<'a> {
     }
 }
 
-/// Opens the bus a URL names.
-pub fn open(url: &str) -> Result<Box<dyn CanBus>, BusError> {
-    let parsed = BusUrl::parse(url)?;
-    match parsed.scheme {
-        "socketcan" => Ok(Box::new(super::kernel::SocketCanBus::open(&parsed)?)),
-        "slcan" => Ok(Box::new(super::serial::SlcanBus::open(&parsed)?)),
-        "cannelloni" => Ok(Box::new(super::udp::CannelloniBus::open(&parsed)?)),
-        "candump" => Ok(Box::new(super::replay::CandumpReplay::open(&parsed)?)),
-        other => Err(BusError::BadUrl { url: url.to_owned(), problem: format!("unknown transport {other:?}") }),
-    }
-}
-
 /// The hint for an OS error opening a device.
 pub(crate) fn open_hint(error: &std::io::Error, device: &str) -> String {
     match error.kind() {
@@ -170,7 +158,7 @@ mod tests {
             ("cannelloni://127.0.0.1:0", "peer"),
             ("candump:///x.log?speed=0", "speed"),
         ] {
-            let err = open(url).err().unwrap_or_else(|| panic!("{url} opened"));
+            let err = crate::can::open(url).err().unwrap_or_else(|| panic!("{url} opened"));
             assert!(err.to_string().contains(problem), "{url}: {err}");
             assert!(matches!(err, BusError::BadUrl { .. }), "{url}: {err}");
         }
@@ -178,7 +166,7 @@ mod tests {
 
     #[test]
     fn a_missing_device_is_named_with_the_fix() {
-        let err = open("slcan:///dev/ttyNOPE0").err().unwrap();
+        let err = crate::can::open("slcan:///dev/ttyNOPE0").err().unwrap();
         let message = err.to_string();
         assert!(message.contains("/dev/ttyNOPE0") && message.contains("plugged in"), "{message}");
     }

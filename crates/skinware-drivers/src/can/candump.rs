@@ -123,19 +123,7 @@ pub fn parse_frame(text: &str) -> Result<CanFrame, &'static str> {
 
 /// The `cansend` notation of a frame: `405#0A0B`, `12345678#`, `200#R2`.
 pub fn frame_text(frame: &CanFrame) -> String {
-    let mut text =
-        if frame.is_extended() { format!("{:08X}#", frame.raw_id()) } else { format!("{:03X}#", frame.raw_id()) };
-    if frame.is_remote() {
-        text.push('R');
-        if frame.dlc() > 0 {
-            text.push(char::from(b'0' + frame.dlc() as u8));
-        }
-    } else {
-        for byte in frame.bytes() {
-            text.push_str(&format!("{byte:02X}"));
-        }
-    }
-    text
+    frame.cansend_text()
 }
 
 /// One log line for `record`, without the line end.

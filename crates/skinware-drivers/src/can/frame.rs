@@ -71,12 +71,30 @@ impl CanFrame {
     pub fn bytes(&self) -> &[u8] {
         if self.remote { &[] } else { &self.data[..self.dlc()] }
     }
+
+    /// The `cansend` (and `candump` log) notation of the frame: `405#0A0B`,
+    /// `12345678#`, `200#R2`.
+    pub fn cansend_text(&self) -> String {
+        let mut text =
+            if self.is_extended() { format!("{:08X}#", self.raw_id()) } else { format!("{:03X}#", self.raw_id()) };
+        if self.is_remote() {
+            text.push('R');
+            if self.dlc() > 0 {
+                text.push(char::from(b'0' + self.dlc() as u8));
+            }
+        } else {
+            for byte in self.bytes() {
+                text.push_str(&format!("{byte:02X}"));
+            }
+        }
+        text
+    }
 }
 
 impl std::fmt::Debug for CanFrame {
     /// The `candump` notation: `123#DEADBEEF`, `12345678#01`, `123#R2`.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&crate::can::candump::frame_text(self))
+        f.write_str(&self.cansend_text())
     }
 }
 

@@ -78,7 +78,7 @@ mod tests {
     /// Needs a kernel with CAN and a `vcan0`; says why it skips otherwise.
     #[test]
     fn opens_vcan0_where_the_kernel_has_can() {
-        match super::super::bus::open("socketcan://vcan0") {
+        match crate::can::open("socketcan://vcan0") {
             Ok(bus) => assert_eq!(bus.url(), "socketcan://vcan0"),
             Err(BusError::Open { source, hint, .. }) => {
                 println!("SKIPPED: socketcan://vcan0 cannot be opened here ({source}): {hint}");

@@ -30,9 +30,23 @@ pub mod slcan;
 mod udp;
 pub mod xela;
 
-pub use bus::{BusError, CanBus, open};
+pub use bus::{BusError, CanBus};
 pub use frame::CanFrame;
 pub use kernel::SocketCanBus;
 pub use replay::CandumpReplay;
 pub use serial::SlcanBus;
 pub use udp::CannelloniBus;
+
+// Here, above the bus trait and the transports: `open` chooses a transport,
+// and each transport implements the trait.
+/// Opens the bus a URL names.
+pub fn open(url: &str) -> Result<Box<dyn CanBus>, BusError> {
+    let parsed = bus::BusUrl::parse(url)?;
+    match parsed.scheme {
+        "socketcan" => Ok(Box::new(kernel::SocketCanBus::open(&parsed)?)),
+        "slcan" => Ok(Box::new(serial::SlcanBus::open(&parsed)?)),
+        "cannelloni" => Ok(Box::new(udp::CannelloniBus::open(&parsed)?)),
+        "candump" => Ok(Box::new(replay::CandumpReplay::open(&parsed)?)),
+        other => Err(BusError::BadUrl { url: url.to_owned(), problem: format!("unknown transport {other:?}") }),
+    }
+}

@@ -135,7 +135,7 @@ mod tests {
         std::fs::write(&path, "(100.000000) can0 405#01\n\n(100.050000) can0 407#02\n(100.100000) can0 409#03\n")
             .unwrap();
         let url = format!("candump://{}?speed=2&loop=true", path.display());
-        let mut bus = super::super::bus::open(&url).unwrap();
+        let mut bus = crate::can::open(&url).unwrap();
         let started = Instant::now();
         let mut ids = Vec::new();
         while ids.len() < 6 {
@@ -148,7 +148,7 @@ mod tests {
         let elapsed = started.elapsed();
         assert!(elapsed >= Duration::from_millis(95), "replayed too fast: {elapsed:?}");
         let once = format!("candump://{}?speed=100", path.display());
-        let mut bus = super::super::bus::open(&once).unwrap();
+        let mut bus = crate::can::open(&once).unwrap();
         let mut count = 0;
         loop {
             match bus.receive(Duration::from_millis(100)) {
