@@ -16,13 +16,16 @@
 //! socket; `CAP_NET_RAW`) or, for tests and in-process emulators, anything
 //! that implements [`FrameExchange`].
 
+mod bus;
 mod config;
 mod driver;
 mod link;
+mod shared;
 
 pub use config::{EthercatConfigError, EthercatDriverConfig, SegmentConfig, expected_working_counter};
-pub use driver::{EthercatDriver, EthercatStatus, SegmentStatus};
+pub use driver::{EthercatDriver, EthercatStatus};
 pub use link::{FrameExchange, FrameLink};
+pub use shared::SegmentStatus;
 
 /// `command` bit: the segment acquires.
 pub const COMMAND_ACQUIRE: u16 = 0x0001;
