@@ -12,9 +12,11 @@
 #![forbid(unsafe_code)]
 
 mod errors;
+mod frame;
 mod geometry;
 mod listing;
 mod reader;
+mod stats;
 mod ticks;
 mod topology;
 mod writer;
@@ -26,7 +28,7 @@ use pyo3::prelude::*;
 fn _skinware(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("ABI_VERSION", skinware::ABI_VERSION)?;
-    m.add_class::<reader::Frame>()?;
+    m.add_class::<frame::Frame>()?;
     m.add_class::<reader::Reader>()?;
     m.add_class::<reader::ServiceReader>()?;
     m.add_class::<reader::Periodic>()?;

@@ -12,7 +12,7 @@ use skinware::{Access, FrameStatus, Stop, WriterOptions, WriterState};
 use skinware_services::{ServiceMode, ServiceSpec};
 
 use crate::errors;
-use crate::reader::writer_stats_dict;
+use crate::stats::writer_stats_dict;
 use crate::ticks::{self, Schedule};
 use crate::topology::Topology;
 
