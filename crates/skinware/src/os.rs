@@ -183,6 +183,15 @@ pub fn lock_memory() -> io::Result<()> {
     mlockall(MlockAllFlags::CURRENT | MlockAllFlags::FUTURE).map_err(Into::into)
 }
 
+/// Locks the pages the process has mapped now in RAM (not those it maps
+/// later). A supervisor that starts processes from its own executable keeps
+/// that file's pages in memory this way, so that a process started later
+/// does not wait for the disk to load them again.
+pub fn lock_current_memory() -> io::Result<()> {
+    use rustix::mm::{MlockAllFlags, mlockall};
+    mlockall(MlockAllFlags::CURRENT).map_err(Into::into)
+}
+
 /// The CPUs the calling thread may run on.
 pub(crate) fn allowed_cpus() -> io::Result<Vec<usize>> {
     let set = rustix::thread::sched_getaffinity(None)?;
