@@ -77,6 +77,14 @@ pub enum ChannelKind {
 }
 
 impl ChannelKind {
+    /// The lower-case name used by the CLI, its JSON and recordings: `layer|service`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ChannelKind::Layer => "layer",
+            ChannelKind::Service => "service",
+        }
+    }
+
     pub(crate) fn from_code(code: u32) -> Option<ChannelKind> {
         match code {
             1 => Some(ChannelKind::Layer),
