@@ -5,7 +5,7 @@
 
 use libfuzzer_sys::fuzz_target;
 use skinware_bridge::protocol::{ChannelList, ChannelState, decode_frame};
-use skinware_bridge::ros2::Attachment;
+use skinware_bridge::rmw_zenoh::Attachment;
 
 fuzz_target!(|bytes: &[u8]| {
     if let Ok(list) = ChannelList::decode(bytes) {

@@ -15,6 +15,6 @@ fuzz_target!(|bytes: &[u8]| {
     if let Ok(stream) = RecordStream::from_reader(Path::new("fuzz.mcap"), std::io::Cursor::new(file.clone())) {
         let _ = scan_stream(stream, file.len() as u64);
     }
-    let _ = skinware_record::msgs::decode::<skinware_record::msgs::SkinFrame>(bytes, "SkinFrame");
-    let _ = skinware_record::msgs::decode::<skinware_record::msgs::Image>(bytes, "Image");
+    let _ = skinware_ros2::decode::<skinware_ros2::SkinFrame>(bytes, "SkinFrame");
+    let _ = skinware_ros2::decode::<skinware_ros2::Image>(bytes, "Image");
 });

@@ -15,8 +15,8 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use skinware_record::file::{RecordStream, read_header};
-use skinware_record::msgs::{self, SkinFrame};
 use skinware_record::{AtEnd, Compression, RecordOptions, Recorder, Replay, ReplayOptions, ServiceChoice};
+use skinware_ros2::SkinFrame;
 
 use crate::measure::{Percentiles, RunningSkin};
 
@@ -271,7 +271,7 @@ fn frames(path: &Path) -> Result<BTreeMap<String, Vec<Recorded>>> {
     let mut out: BTreeMap<String, Vec<Recorded>> = BTreeMap::new();
     let mut add = |message: skinware_record::mcap::records::MessageHeader, data: &[u8]| -> Result<()> {
         if let Some(channel) = header.channels.get(&message.channel_id) {
-            let frame: SkinFrame = msgs::decode(data, msgs::SKIN_FRAME)?;
+            let frame: SkinFrame = skinware_ros2::decode(data, skinware_ros2::SKIN_FRAME)?;
             out.entry(channel.channel.clone()).or_default().push(Recorded {
                 bytes: frame.channel_bytes(),
                 status: frame.status,

@@ -4,11 +4,11 @@
 //! bridge (`skin bridge`) reads every layer and service as an ordinary reader
 //! (so it cannot slow acquisition) and publishes them on zenoh twice:
 //!
-//! * for ROS 2 nodes on rmw_zenoh ([`ros2`], [`messages`]): each layer as
+//! * for ROS 2 nodes on rmw_zenoh ([`rmw_zenoh`]): each layer as
 //!   `tactile_msgs/TactileState`, the 2-D map as `sensor_msgs/Image`, the
-//!   contact service as `tactile_msgs/TactileContacts`, with the key
-//!   expressions, type hashes, attachment and liveliness tokens rmw_zenoh
-//!   expects;
+//!   contact service as `tactile_msgs/TactileContacts` (messages, type
+//!   hashes and topic names from `skinware-ros2`), with the key expressions,
+//!   attachment and liveliness tokens rmw_zenoh expects;
 //! * for remote skinware readers ([`protocol`]): the raw frames, each
 //!   channel's description, state and the skin's geometry, enough to read a
 //!   remote skin like a local one (`remote`, with feature `zenoh`).
@@ -22,18 +22,17 @@
 pub mod bridge;
 #[cfg(feature = "zenoh")]
 pub mod link;
-pub mod messages;
 pub mod protocol;
 #[cfg(feature = "zenoh")]
 pub mod remote;
-pub mod ros2;
+pub mod rmw_zenoh;
 
 /// What went wrong in the bridge or a remote reader.
 #[derive(Debug, thiserror::Error)]
 pub enum BridgeError {
     /// A message could not be encoded.
-    #[error("cannot encode a message: {0}")]
-    Encode(String),
+    #[error(transparent)]
+    Encode(#[from] skinware_ros2::EncodeError),
     /// Bytes from the network that are not what they claim.
     #[error("malformed {what} from the network: {reason}")]
     Malformed {
@@ -41,6 +40,30 @@ pub enum BridgeError {
         what: String,
         /// Why it was refused.
         reason: String,
+    },
+    /// One of the bridge's or the mirror's threads could not be started.
+    #[error("cannot start {thread}: {source}")]
+    Thread {
+        /// Which thread.
+        thread: String,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// A layer's description that is not a layer topology.
+    #[error("{channel}: its description is not a layer topology: {source}")]
+    NotATopology {
+        /// The layer.
+        channel: String,
+        /// Why (boxed, as [`BridgeError::Geometry`]'s).
+        source: Box<skinware::TopologyError>,
+    },
+    /// The skin's geometry could not be read or published.
+    #[error("{context}: {source}")]
+    Geometry {
+        /// What was being done.
+        context: String,
+        /// Why (boxed: it is large, and every result of the crate carries this enum).
+        source: Box<skinware_geometry::GeometryError>,
     },
     /// A bad argument or name.
     #[error("{0}")]

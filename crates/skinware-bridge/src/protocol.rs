@@ -18,7 +18,7 @@ use std::time::Duration;
 
 use skinware::wire::{Decoder, Encoder};
 use skinware::{ChannelKind, WriterState};
-use skinware_record::msgs::{SkinFrame, SkinFrameRef, Time};
+use skinware_ros2::{SkinFrame, SkinFrameRef, ros_time};
 
 use crate::BridgeError;
 
@@ -322,26 +322,25 @@ pub fn encode_frame(
     frame: &skinware::Frame<'_>,
     wall_offset_ns: i64,
 ) -> Result<Vec<u8>, BridgeError> {
-    let wall = |ns: u64| Time::from_ns((ns as i64).saturating_add(wall_offset_ns).max(0) as u64);
     let (responses, payload): (&[u16], &[u8]) = match kind {
         ChannelKind::Layer => (frame.responses(), &[]),
         ChannelKind::Service => (&[], frame.bytes()),
     };
     let message = SkinFrameRef {
-        stamp: wall(frame.acquired_ns()),
-        published: wall(frame.published_ns()),
+        stamp: ros_time(frame.acquired_ns(), wall_offset_ns),
+        published: ros_time(frame.published_ns(), wall_offset_ns),
         seq: frame.seq(),
         status: frame.status().0,
         skipped: frame.skipped(),
         responses,
         payload,
     };
-    skinware_record::msgs::encode(&message, 64 + frame.bytes().len()).map_err(|e| BridgeError::Encode(e.to_string()))
+    Ok(skinware_ros2::encode(&message, 64 + frame.bytes().len())?)
 }
 
 /// Decodes a frame of `channel`, checking it against the channel's frame size.
 pub fn decode_frame(channel: &RemoteChannel, bytes: &[u8]) -> Result<SkinFrame, BridgeError> {
-    let frame: SkinFrame = skinware_record::msgs::decode(bytes, "SkinFrame")
+    let frame: SkinFrame = skinware_ros2::decode(bytes, "SkinFrame")
         .map_err(|e| BridgeError::Malformed { what: format!("frame of {}", channel.name), reason: e.to_string() })?;
     let size = match channel.kind {
         ChannelKind::Layer if frame.payload.is_empty() => frame.responses.len() * 2,
@@ -400,10 +399,10 @@ mod tests {
     #[test]
     fn a_frame_of_the_wrong_size_or_kind_is_refused() {
         let frame = |responses: Vec<u16>, payload: Vec<u8>| {
-            skinware_record::msgs::encode(
+            skinware_ros2::encode(
                 &SkinFrameRef {
-                    stamp: Time::default(),
-                    published: Time::default(),
+                    stamp: skinware_ros2::Time::default(),
+                    published: skinware_ros2::Time::default(),
                     seq: 1,
                     status: 0,
                     skipped: 0,

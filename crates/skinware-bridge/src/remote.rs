@@ -317,7 +317,7 @@ impl Reader {
             reported_at: Instant::now(),
             latency_sum_ns: 0,
             latency_count: 0,
-            clock_offset_ns: skinware_record::recorder::clock_offset_ns(),
+            clock_offset_ns: skinware_ros2::clock_offset_ns(),
             session: session.clone(),
             skin: skin.to_owned(),
             channel,
@@ -415,7 +415,7 @@ impl Reader {
         self.stats.received += 1;
         self.stats.skipped += skipped;
         self.stats.lost += lost;
-        let now_unix = (skinware::os::monotonic_ns() as i64).saturating_add(self.clock_offset_ns).max(0) as u64;
+        let now_unix = skinware_ros2::now_unix_ns(self.clock_offset_ns);
         self.latency_sum_ns += now_unix.saturating_sub(frame.stamp.to_ns());
         self.latency_count += 1;
         let bytes = frame.channel_bytes();
@@ -624,8 +624,9 @@ impl Mirror {
         match remote.geometry(Duration::from_secs(5)) {
             Ok(mut geometry) => {
                 geometry.skin = local_skin.to_owned();
-                geometry.publish(dir).map_err(|e| {
-                    BridgeError::Invalid(format!("cannot publish the remote skin's geometry in {}: {e}", dir.display()))
+                geometry.publish(dir).map_err(|source| BridgeError::Geometry {
+                    context: format!("cannot publish the remote skin's geometry in {}", dir.display()),
+                    source: Box::new(source),
                 })?;
             }
             Err(e) => tracing::warn!("the mirror has no geometry: {e}"),
@@ -650,8 +651,9 @@ impl Mirror {
                 std::thread::Builder::new()
                     .name(format!("mirror-{}", channel.name).chars().take(15).collect())
                     .spawn(move || mirror_channel(reader, writer, &stop))
-                    .map_err(|e| {
-                        BridgeError::Invalid(format!("cannot start the mirror thread of {}: {e}", channel.name))
+                    .map_err(|source| BridgeError::Thread {
+                        thread: format!("the mirror thread of {}", channel.name),
+                        source,
                     })?,
             );
         }
@@ -675,7 +677,7 @@ impl Drop for Mirror {
 
 fn mirror_channel(mut reader: Reader, mut writer: Writer, stop: &Stop) {
     let mut shown = WriterState::Running;
-    let offset_ns = skinware_record::recorder::clock_offset_ns();
+    let offset_ns = skinware_ros2::clock_offset_ns();
     while !stop.is_stopped() {
         let state = match reader.state() {
             RemoteState::Writer(WriterState::Gone) | RemoteState::Unreachable => WriterState::Faulted,
@@ -693,7 +695,7 @@ fn mirror_channel(mut reader: Reader, mut writer: Writer, stop: &Stop) {
         if out.write_bytes(0, &frame.bytes).is_err() {
             continue;
         }
-        out.set_acquired_ns((frame.acquired_unix_ns as i64 - offset_ns).max(0) as u64);
+        out.set_acquired_ns(skinware_ros2::monotonic_ns(frame.acquired_unix_ns, offset_ns));
         out.set_status(frame.status);
         out.publish();
         if shown != WriterState::Running && matches!(reader.state(), RemoteState::Writer(WriterState::Running)) {

@@ -13,8 +13,8 @@ use skinware_bridge::BridgeError;
 use skinware_bridge::link::LinkOptions;
 use skinware_bridge::protocol::{self, ChannelList, ChannelState, RemoteChannel};
 use skinware_bridge::remote::{RemoteSkin, RemoteState};
-use skinware_bridge::ros2::Attachment;
-use skinware_record::msgs::{SkinFrameRef, Time};
+use skinware_bridge::rmw_zenoh::Attachment;
+use skinware_ros2::{SkinFrameRef, Time};
 use zenoh::Wait;
 
 fn port() -> u16 {
@@ -22,7 +22,7 @@ fn port() -> u16 {
 }
 
 fn frame(seq: u64, responses: &[u16]) -> Vec<u8> {
-    skinware_record::msgs::encode(
+    skinware_ros2::encode(
         &SkinFrameRef {
             stamp: Time { sec: 1, nanosec: 0 },
             published: Time { sec: 1, nanosec: 5 },
@@ -37,10 +37,19 @@ fn frame(seq: u64, responses: &[u16]) -> Vec<u8> {
     .unwrap()
 }
 
-#[test]
-fn a_fake_bridge_is_read_and_its_garbage_refused() {
-    let endpoint = format!("tcp/127.0.0.1:{}", port());
-    let bridge_link = LinkOptions { listen: vec![endpoint.clone()], ..LinkOptions::default() };
+/// A fake bridge of skin `fake` with one layer, `palm`: it lists the
+/// channel, answers requests with frame 77, and publishes what the test puts.
+struct FakeBridge {
+    _session: zenoh::Session,
+    _channels: zenoh::query::Queryable<()>,
+    _request: zenoh::query::Queryable<()>,
+    token: zenoh::liveliness::LivelinessToken,
+    frames: zenoh::pubsub::Publisher<'static>,
+    states: zenoh::pubsub::Publisher<'static>,
+}
+
+fn fake_bridge(endpoint: &str) -> FakeBridge {
+    let bridge_link = LinkOptions { listen: vec![endpoint.to_owned()], ..LinkOptions::default() };
     let bridge = bridge_link.open().expect("the fake bridge's session");
     let channel = RemoteChannel {
         name: "palm".into(),
@@ -52,14 +61,14 @@ fn a_fake_bridge_is_read_and_its_garbage_refused() {
         description: Vec::new(),
     };
     let list = ChannelList { skin: "fake".into(), channels: vec![channel] }.encode();
-    let _channels = bridge
+    let channels = bridge
         .declare_queryable(protocol::channels_key("fake"))
         .callback(move |query| {
             let _ = query.reply(query.key_expr().clone(), list.clone()).wait();
         })
         .wait()
         .unwrap();
-    let _request = bridge
+    let request = bridge
         .declare_queryable(protocol::request_key("fake", "palm"))
         .callback(|query| {
             let _ = query.reply(query.key_expr().clone(), frame(77, &[7, 7, 7])).wait();
@@ -73,32 +82,21 @@ fn a_fake_bridge_is_read_and_its_garbage_refused() {
         bridge.declare_publisher(protocol::frame_key("fake", "palm")).congestion_control(block).wait().unwrap();
     let states =
         bridge.declare_publisher(protocol::state_key("fake", "palm")).congestion_control(block).wait().unwrap();
+    FakeBridge { _session: bridge, _channels: channels, _request: request, token, frames, states }
+}
 
-    let link = LinkOptions { connect: vec![endpoint], ..LinkOptions::default() };
-    let remote = RemoteSkin::connect(&link, "fake", Duration::from_secs(10)).expect("connect");
-    assert!(remote.reader("elbow").unwrap_err().to_string().contains("has no channel \"elbow\""));
-    let mut reader = remote.reader("palm").unwrap();
-    // Until the reader's subscription has reached the fake bridge.
+/// Waits until a subscriber of `publisher` (the reader's) has reached the fake bridge.
+fn wait_for_subscriber(publisher: &zenoh::pubsub::Publisher<'_>, what: &str) {
     let deadline = Instant::now() + Duration::from_secs(10);
-    while !frames.matching_status().wait().unwrap().matching() {
-        assert!(Instant::now() < deadline, "the reader's subscription never reached the bridge");
+    while !publisher.matching_status().wait().unwrap().matching() {
+        assert!(Instant::now() < deadline, "the reader's {what} subscription never reached the bridge");
         std::thread::sleep(Duration::from_millis(10));
     }
-    while !states.matching_status().wait().unwrap().matching() {
-        assert!(Instant::now() < deadline, "the reader's state subscription never reached the bridge");
-        std::thread::sleep(Duration::from_millis(10));
-    }
+}
 
-    // As soon as available; then a gap of two frames is counted.
-    frames.put(frame(1, &[1, 2, 3])).wait().unwrap();
-    let got = reader.wait_newer(Duration::from_secs(5)).unwrap();
-    assert_eq!((got.seq, got.responses()), (1, vec![1, 2, 3]));
-    frames.put(frame(4, &[4, 5, 6])).wait().unwrap();
-    assert_eq!(reader.wait_newer(Duration::from_secs(5)).unwrap().skipped, 2);
-    assert_eq!(reader.stats().skipped, 2);
-
-    // Hostile frames: garbage, a wrong size, a service payload on a layer,
-    // a length field claiming gigabytes. Each is an error, counted.
+/// Hostile frames: garbage, a wrong size, a service payload on a layer, a
+/// length field claiming gigabytes. Each is an error, counted.
+fn hostile_frames_are_refused(frames: &zenoh::pubsub::Publisher<'_>, reader: &mut skinware_bridge::remote::Reader) {
     let mut huge = frame(5, &[1, 2, 3]);
     // The responses' length: after the 4-byte header, two stamps and three u64s.
     huge[44..48].copy_from_slice(&u32::MAX.to_le_bytes());
@@ -112,6 +110,29 @@ fn a_fake_bridge_is_read_and_its_garbage_refused() {
         }
     }
     assert_eq!(reader.stats().malformed, 5);
+}
+
+#[test]
+fn a_fake_bridge_is_read_and_its_garbage_refused() {
+    let endpoint = format!("tcp/127.0.0.1:{}", port());
+    let bridge = fake_bridge(&endpoint);
+    let (frames, states) = (&bridge.frames, &bridge.states);
+    let link = LinkOptions { connect: vec![endpoint], ..LinkOptions::default() };
+    let remote = RemoteSkin::connect(&link, "fake", Duration::from_secs(10)).expect("connect");
+    assert!(remote.reader("elbow").unwrap_err().to_string().contains("has no channel \"elbow\""));
+    let mut reader = remote.reader("palm").unwrap();
+    wait_for_subscriber(frames, "frame");
+    wait_for_subscriber(states, "state");
+
+    // As soon as available; then a gap of two frames is counted.
+    frames.put(frame(1, &[1, 2, 3])).wait().unwrap();
+    let got = reader.wait_newer(Duration::from_secs(5)).unwrap();
+    assert_eq!((got.seq, got.responses()), (1, vec![1, 2, 3]));
+    frames.put(frame(4, &[4, 5, 6])).wait().unwrap();
+    assert_eq!(reader.wait_newer(Duration::from_secs(5)).unwrap().skipped, 2);
+    assert_eq!(reader.stats().skipped, 2);
+
+    hostile_frames_are_refused(frames, &mut reader);
     // And the reader goes on.
     frames.put(frame(9, &[9, 9, 9])).wait().unwrap();
     assert_eq!(reader.wait_newer(Duration::from_secs(5)).unwrap().seq, 9);
@@ -143,7 +164,7 @@ fn a_fake_bridge_is_read_and_its_garbage_refused() {
     assert_eq!(reader.next_periodic(&mut ticker, &stop).unwrap().seq, 77);
 
     // The bridge goes away: its token goes with it.
-    drop(token);
+    drop(bridge.token);
     let deadline = Instant::now() + Duration::from_secs(5);
     while reader.state() != RemoteState::Unreachable && Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(20));

@@ -73,13 +73,23 @@ pub enum RecordError {
         /// What skinware writes.
         expected: String,
     },
-    /// A message that does not decode.
-    #[error("a {what} message does not decode: {reason}")]
-    BadMessage {
-        /// Its type.
-        what: String,
+    /// The recording's geometry attachment does not decode.
+    #[error("the recording's geometry attachment does not decode: {0}")]
+    BadGeometry(#[source] skinware::wire::DecodeError),
+    /// The recording's geometry could not be published for the replay.
+    #[error("cannot publish the geometry: {0}")]
+    PublishGeometry(#[source] skinware_geometry::GeometryError),
+    /// A recorded frame that does not decode.
+    #[error(
+        "{path}: a frame of channel {channel} does not decode ({source}); `skin record --recover {path}` keeps what came before it"
+    )]
+    BadFrame {
+        /// The file.
+        path: PathBuf,
+        /// The frame's channel.
+        channel: String,
         /// Why.
-        reason: String,
+        source: skinware_ros2::DecodeError,
     },
     /// A message that does not fit its channel.
     #[error("{context}")]
@@ -88,17 +98,31 @@ pub enum RecordError {
         context: String,
     },
     /// A message could not be encoded.
-    #[error("cannot encode a message: {0}")]
-    Encode(String),
+    #[error(transparent)]
+    Encode(#[from] skinware_ros2::EncodeError),
     /// The MCAP writer failed.
-    #[error("writing {path} failed: {reason}{hint}")]
+    #[error("writing {path} failed: {source}{hint}")]
     Write {
         /// The file.
         path: PathBuf,
         /// The writer's error.
-        reason: String,
+        source: mcap::McapError,
         /// What to do about it.
         hint: String,
+    },
+    /// One of the recorder's or the replay's threads could not be started.
+    #[error("cannot start {thread}: {source}")]
+    Thread {
+        /// Which thread.
+        thread: String,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// One of the recorder's threads panicked.
+    #[error("{thread} panicked")]
+    Panicked {
+        /// Which thread.
+        thread: &'static str,
     },
     /// A channel of the skin could not be read or created.
     #[error(transparent)]
@@ -146,6 +170,6 @@ pub(crate) fn mcap_write_error(path: &std::path::Path, e: mcap::McapError) -> Re
             mcap::McapError::Io(io) => write_hint(io),
             _ => String::new(),
         },
-        reason: e.to_string(),
+        source: e,
     }
 }

@@ -10,12 +10,12 @@ use mcap::records::{Metadata, Record};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use serde::{Deserialize, Serialize};
 use skinware::ChannelKind;
+use skinware_ros2::Time;
 
 use crate::error::write_hint;
-use crate::msgs::{self, Time};
 use crate::{
-    DESCRIPTION_ATTACHMENT_PREFIX, FORMAT_VERSION, GEOMETRY_ATTACHMENT, RECORDING_METADATA, RecordError,
-    SUMMARY_METADATA, channel_keys,
+    DESCRIPTION_ATTACHMENT_PREFIX, FORMAT_VERSION, GEOMETRY_ATTACHMENT, MESSAGE_ENCODING, RECORDING_METADATA,
+    RecordError, SCHEMA_ENCODING, SUMMARY_METADATA, channel_keys,
 };
 
 /// The most a single read asks for, so that a damaged length field cannot
@@ -268,40 +268,6 @@ fn open_chunk(data: &[u8]) -> Result<std::collections::VecDeque<Record<'static>>
 /// in a 100-byte record), and a damaged or hostile file must not make us
 /// allocate gigabytes. Field layouts from the MCAP specification.
 fn lengths_fit(opcode: u8, data: &[u8]) -> Result<(), String> {
-    struct Fields<'a>(&'a [u8]);
-    impl Fields<'_> {
-        fn skip(&mut self, n: u64) -> Result<(), String> {
-            let n = usize::try_from(n)
-                .ok()
-                .filter(|&n| n <= self.0.len())
-                .ok_or_else(|| format!("a field of {n} bytes in a record with {} bytes left", self.0.len()))?;
-            self.0 = &self.0[n..];
-            Ok(())
-        }
-        fn length(&mut self, bytes: usize) -> Result<u64, String> {
-            let field = self.0.get(..bytes).ok_or("a record too short for its fields")?;
-            let value = field.iter().rev().fold(0u64, |v, &b| v << 8 | u64::from(b));
-            self.0 = &self.0[bytes..];
-            Ok(value)
-        }
-        /// A string, or bytes with a 4-byte length.
-        fn string(&mut self) -> Result<(), String> {
-            let n = self.length(4)?;
-            self.skip(n)
-        }
-        /// A map or array with a 4-byte length in bytes; `strings` if its entries are strings.
-        fn map(&mut self, strings: bool) -> Result<(), String> {
-            let n = self.length(4)?;
-            let inner = self.0.get(..usize::try_from(n).unwrap_or(usize::MAX)).ok_or("a map longer than its record")?;
-            self.skip(n)?;
-            let mut inner = Fields(inner);
-            while strings && !inner.0.is_empty() {
-                inner.string()?;
-                inner.string()?;
-            }
-            Ok(())
-        }
-    }
     let mut f = Fields(data);
     match opcode {
         // Header: profile, library.
@@ -376,6 +342,46 @@ fn lengths_fit(opcode: u8, data: &[u8]) -> Result<(), String> {
     }
 }
 
+/// The fields of a record not yet checked, for [`lengths_fit`].
+struct Fields<'a>(&'a [u8]);
+
+impl Fields<'_> {
+    fn skip(&mut self, n: u64) -> Result<(), String> {
+        let n = usize::try_from(n)
+            .ok()
+            .filter(|&n| n <= self.0.len())
+            .ok_or_else(|| format!("a field of {n} bytes in a record with {} bytes left", self.0.len()))?;
+        self.0 = &self.0[n..];
+        Ok(())
+    }
+
+    fn length(&mut self, bytes: usize) -> Result<u64, String> {
+        let field = self.0.get(..bytes).ok_or("a record too short for its fields")?;
+        let value = field.iter().rev().fold(0u64, |v, &b| v << 8 | u64::from(b));
+        self.0 = &self.0[bytes..];
+        Ok(value)
+    }
+
+    /// A string, or bytes with a 4-byte length.
+    fn string(&mut self) -> Result<(), String> {
+        let n = self.length(4)?;
+        self.skip(n)
+    }
+
+    /// A map or array with a 4-byte length in bytes; `strings` if its entries are strings.
+    fn map(&mut self, strings: bool) -> Result<(), String> {
+        let n = self.length(4)?;
+        let inner = self.0.get(..usize::try_from(n).unwrap_or(usize::MAX)).ok_or("a map longer than its record")?;
+        self.skip(n)?;
+        let mut inner = Fields(inner);
+        while strings && !inner.0.is_empty() {
+            inner.string()?;
+            inner.string()?;
+        }
+        Ok(())
+    }
+}
+
 /// One recorded skinware channel.
 #[derive(Clone, Debug, Serialize)]
 pub struct RecordedChannel {
@@ -402,15 +408,7 @@ pub struct RecordedChannel {
 }
 
 fn kind_name<S: serde::Serializer>(kind: &ChannelKind, s: S) -> Result<S::Ok, S::Error> {
-    s.serialize_str(kind_str(*kind))
-}
-
-/// `layer` or `service`.
-pub fn kind_str(kind: ChannelKind) -> &'static str {
-    match kind {
-        ChannelKind::Service => "service",
-        _ => "layer",
-    }
+    s.serialize_str(kind.as_str())
 }
 
 /// What the start of a recording says: everything the recorder writes before
@@ -511,15 +509,15 @@ impl HeaderCollector {
                 continue;
             };
             let (schema, encoding) = self.schemas.get(&channel.schema_id).cloned().unwrap_or_default();
-            if schema != msgs::SKIN_FRAME
-                || encoding != msgs::SCHEMA_ENCODING
-                || channel.message_encoding != msgs::MESSAGE_ENCODING
+            if schema != skinware_ros2::SKIN_FRAME
+                || encoding != SCHEMA_ENCODING
+                || channel.message_encoding != MESSAGE_ENCODING
             {
                 return Err(RecordError::UnknownSchema {
                     topic: channel.topic.clone(),
                     schema,
                     encoding: format!("{encoding}/{}", channel.message_encoding),
-                    expected: format!("{} ({}/{})", msgs::SKIN_FRAME, msgs::SCHEMA_ENCODING, msgs::MESSAGE_ENCODING),
+                    expected: format!("{} ({}/{})", skinware_ros2::SKIN_FRAME, SCHEMA_ENCODING, MESSAGE_ENCODING),
                 });
             }
             let number = |key: &str| -> Result<u64, RecordError> {
@@ -613,6 +611,21 @@ pub struct RecordingInfo {
     pub recorder_summary: Option<BTreeMap<String, String>>,
 }
 
+impl ChannelSummary {
+    /// Counts one frame of the channel.
+    fn count(&mut self, head: &FrameHead) {
+        let stamp = head.stamp.to_ns();
+        if self.frames == 0 {
+            self.first_ns = stamp;
+        }
+        self.last_ns = self.last_ns.max(stamp);
+        self.frames += 1;
+        self.lost = self.lost.saturating_add(head.skipped);
+        self.gaps += u64::from(head.skipped > 0);
+        self.faulted += u64::from(head.status & skinware::FrameStatus::FAULT.0 != 0);
+    }
+}
+
 /// The first fields of a `SkinFrame`, decoded without its arrays.
 #[derive(Deserialize)]
 struct FrameHead {
@@ -642,7 +655,7 @@ pub fn scan_stream<R: Read>(mut stream: RecordStream<R>, file_bytes: u64) -> Res
         .values()
         .map(|c| {
             let summary = ChannelSummary {
-                kind: kind_str(c.kind).to_owned(),
+                kind: c.kind.as_str().to_owned(),
                 payload_bytes: c.payload_bytes,
                 ..Default::default()
             };
@@ -678,7 +691,7 @@ pub fn scan_stream<R: Read>(mut stream: RecordStream<R>, file_bytes: u64) -> Res
             },
         };
         if let Some(channel) = header.channels.get(&message.channel_id) {
-            let head: FrameHead = match msgs::decode(&data, msgs::SKIN_FRAME) {
+            let head: FrameHead = match skinware_ros2::decode(&data, skinware_ros2::SKIN_FRAME) {
                 Ok(head) => head,
                 // A frame that does not decode is damage: what came before is read.
                 Err(e) => {
@@ -687,16 +700,7 @@ pub fn scan_stream<R: Read>(mut stream: RecordStream<R>, file_bytes: u64) -> Res
                     break;
                 }
             };
-            let summary = channels.entry(channel.channel.clone()).or_default();
-            let stamp = head.stamp.to_ns();
-            if summary.frames == 0 {
-                summary.first_ns = stamp;
-            }
-            summary.last_ns = summary.last_ns.max(stamp);
-            summary.frames += 1;
-            summary.lost = summary.lost.saturating_add(head.skipped);
-            summary.gaps += u64::from(head.skipped > 0);
-            summary.faulted += u64::from(head.status & skinware::FrameStatus::FAULT.0 != 0);
+            channels.entry(channel.channel.clone()).or_default().count(&head);
         }
         let topic = topics_by_id.get(&message.channel_id).cloned();
         *topics.entry(topic.unwrap_or_else(|| format!("channel {}", message.channel_id))).or_default() += 1;
@@ -774,49 +778,7 @@ pub fn recover(input: &Path, out: &Path, compression: Option<mcap::Compression>)
                 break;
             }
         };
-        match record {
-            Record::Schema { header, data } => {
-                writer.add_schema_with_id(header.id, &header.name, &header.encoding, &data).map_err(write_error)?;
-            }
-            Record::Channel(channel) => {
-                if let Some(name) = channel.metadata.get(channel_keys::CHANNEL) {
-                    skin_channels.insert(channel.id, name.clone());
-                }
-                writer
-                    .add_channel_with_id(
-                        channel.id,
-                        channel.schema_id,
-                        &channel.topic,
-                        &channel.message_encoding,
-                        &channel.metadata,
-                    )
-                    .map_err(write_error)?;
-            }
-            Record::Message { header, data } => {
-                writer.write_to_known_channel(&header, &data).map_err(write_error)?;
-                report.messages += 1;
-                report.last_log_time_ns = report.last_log_time_ns.max(header.log_time);
-                if let Some(name) = skin_channels.get(&header.channel_id) {
-                    *report.frames.entry(name.clone()).or_default() += 1;
-                }
-            }
-            Record::Attachment { header, data, .. } => {
-                let attachment = mcap::Attachment {
-                    log_time: header.log_time,
-                    create_time: header.create_time,
-                    name: header.name,
-                    media_type: header.media_type,
-                    data,
-                };
-                writer.attach(&attachment).map_err(write_error)?;
-                report.attachments += 1;
-            }
-            Record::Metadata(metadata) => {
-                writer.write_metadata(&metadata).map_err(write_error)?;
-                report.metadata += 1;
-            }
-            _ => {}
-        }
+        copy_record(&mut writer, record, &mut skin_channels, &mut report).map_err(write_error)?;
     }
     if let Some(ending) = stream.ending() {
         report.input_ending = ending;
@@ -829,6 +791,58 @@ pub fn recover(input: &Path, out: &Path, compression: Option<mcap::Compression>)
     writer.finish().map_err(write_error)?;
     close(writer.into_inner(), out)?;
     Ok(report)
+}
+
+/// Copies one record of [`recover`]'s input into its output, counting it in
+/// `report`; `skin_channels` names the skinware channel of each MCAP channel seen.
+fn copy_record<W: std::io::Write + std::io::Seek>(
+    writer: &mut mcap::Writer<W>,
+    record: Record<'_>,
+    skin_channels: &mut BTreeMap<u16, String>,
+    report: &mut Recovered,
+) -> Result<(), mcap::McapError> {
+    match record {
+        Record::Schema { header, data } => {
+            writer.add_schema_with_id(header.id, &header.name, &header.encoding, &data)?;
+        }
+        Record::Channel(channel) => {
+            if let Some(name) = channel.metadata.get(channel_keys::CHANNEL) {
+                skin_channels.insert(channel.id, name.clone());
+            }
+            writer.add_channel_with_id(
+                channel.id,
+                channel.schema_id,
+                &channel.topic,
+                &channel.message_encoding,
+                &channel.metadata,
+            )?;
+        }
+        Record::Message { header, data } => {
+            writer.write_to_known_channel(&header, &data)?;
+            report.messages += 1;
+            report.last_log_time_ns = report.last_log_time_ns.max(header.log_time);
+            if let Some(name) = skin_channels.get(&header.channel_id) {
+                *report.frames.entry(name.clone()).or_default() += 1;
+            }
+        }
+        Record::Attachment { header, data, .. } => {
+            let attachment = mcap::Attachment {
+                log_time: header.log_time,
+                create_time: header.create_time,
+                name: header.name,
+                media_type: header.media_type,
+                data,
+            };
+            writer.attach(&attachment)?;
+            report.attachments += 1;
+        }
+        Record::Metadata(metadata) => {
+            writer.write_metadata(&metadata)?;
+            report.metadata += 1;
+        }
+        _ => {}
+    }
+    Ok(())
 }
 
 /// Flushes and syncs a finished file, so that its end is on disk when we say it is.

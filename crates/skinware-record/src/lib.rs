@@ -3,7 +3,8 @@
 //! A recording uses MCAP's `ros2` profile: every schema is a `ros2msg` text
 //! embedded in the file and every message is CDR, so Foxglove, the ROS 2 tools
 //! and Python's `mcap-ros2-support` read it without any package of ours.
-//! `docs/recording.md` lists the topics and schemas.
+//! `docs/recording.md` lists the topics and schemas; the messages, their
+//! `.msg` texts and topic names are `skinware-ros2`'s, shared with the bridge.
 //!
 //! * [`Recorder`] reads every chosen layer and service as soon as each frame is
 //!   published (an ordinary reader, so it cannot slow acquisition), writes one
@@ -20,8 +21,6 @@
 
 mod error;
 pub mod file;
-pub mod heatmap;
-pub mod msgs;
 pub mod recorder;
 pub mod replay;
 
@@ -36,6 +35,11 @@ pub use replay::{AtEnd, Replay, ReplayOptions, ReplayReport};
 /// key `format_version`). A file with a higher number was written by a newer
 /// skinware and is refused, not misread.
 pub const FORMAT_VERSION: u32 = 1;
+
+/// Schema encoding of every schema in a recording (MCAP's `ros2` profile).
+pub const SCHEMA_ENCODING: &str = "ros2msg";
+/// Message encoding of every channel in a recording.
+pub const MESSAGE_ENCODING: &str = "cdr";
 
 /// MCAP metadata record describing the recording.
 pub const RECORDING_METADATA: &str = "skinware.recording";
@@ -66,45 +70,4 @@ pub mod channel_keys {
     pub const SCHEMA_NAME: &str = "skinware.schema_name";
     /// Payload schema version.
     pub const SCHEMA_VERSION: &str = "skinware.schema_version";
-}
-
-/// The topic of channel `channel` of skin `skin`: `/skin/<skin>/<channel>`,
-/// with every character ROS 2 forbids in a name (such as `-`) made `_`.
-pub fn frame_topic(skin: &str, channel: &str) -> String {
-    format!("/skin/{}/{}", ros_name(skin), ros_name(channel))
-}
-
-/// The topic of the skin's map image.
-pub fn map_topic(skin: &str) -> String {
-    format!("/skin/{}/map", ros_name(skin))
-}
-
-/// The topic of a channel's statistics.
-pub fn stats_topic(skin: &str, channel: &str) -> String {
-    format!("{}/stats", frame_topic(skin, channel))
-}
-
-/// The topic of the frames the recorder missed.
-pub fn gaps_topic(skin: &str) -> String {
-    format!("/skin/{}/gaps", ros_name(skin))
-}
-
-/// A ROS 2 name token made from a skinware name: every character ROS forbids
-/// becomes `_`, and a token may not be empty or start with a digit.
-pub fn ros_name(name: &str) -> String {
-    let mut out: String = name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '_' { c } else { '_' }).collect();
-    // A ROS name token cannot start with a digit.
-    if out.is_empty() || out.starts_with(|c: char| c.is_ascii_digit()) {
-        out.insert(0, '_');
-    }
-    out
-}
-
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn topics_are_valid_ros_names() {
-        assert_eq!(super::frame_topic("default", "virtual-0"), "/skin/default/virtual_0");
-        assert_eq!(super::stats_topic("2arms", "contact"), "/skin/_2arms/contact/stats");
-    }
 }

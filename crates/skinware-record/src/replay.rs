@@ -18,10 +18,10 @@ use serde::Serialize;
 use skinware::rt::{RtOptions, Stop};
 use skinware::{Access, ChannelKind, FrameStatus, LayerTopology, Writer, WriterOptions, WriterState};
 use skinware_geometry::SkinGeometry;
+use skinware_ros2::SkinFrame;
 
 use crate::RecordError;
 use crate::file::{RecordStream, RecordedChannel, RecordingHeader, read_header};
-use crate::msgs::{self, SkinFrame};
 
 /// How far ahead of publication the file is read, to put frames from different
 /// channels (queued by different recorder threads) back in time order.
@@ -252,12 +252,9 @@ impl Replay {
         if options.publish_geometry
             && let Some(bytes) = &header.geometry
         {
-            let mut geometry = SkinGeometry::decode(bytes)
-                .map_err(|e| RecordError::BadMessage { what: "geometry attachment".into(), reason: e.to_string() })?;
+            let mut geometry = SkinGeometry::decode(bytes).map_err(RecordError::BadGeometry)?;
             geometry.skin = skin.clone();
-            let at = geometry
-                .publish(&dir)
-                .map_err(|e| RecordError::Mismatch { context: format!("cannot publish the geometry: {e}") })?;
+            let at = geometry.publish(&dir).map_err(RecordError::PublishGeometry)?;
             published = Some(at);
         }
         Ok(Replay { path: path.to_owned(), options, header, skin, targets, geometry: published, stop: Stop::new() })
@@ -330,6 +327,49 @@ impl Replay {
         result.map(|()| report)
     }
 
+    /// Starts the thread that loads the file ahead of [`pass`](Self::pass).
+    fn start_loader(
+        &self,
+        sender: std::sync::mpsc::SyncSender<Result<Due, RecordError>>,
+        recycled: std::sync::mpsc::Receiver<Vec<u8>>,
+    ) -> Result<std::thread::JoinHandle<()>, RecordError> {
+        let loader = Loader {
+            path: self.path.clone(),
+            sizes: self
+                .targets
+                .iter()
+                .map(|(id, t)| (*id, (t.recorded.channel.clone(), t.recorded.payload_bytes)))
+                .collect(),
+            from_ns: self.options.from_s.map(|s| (s * 1e9) as u64),
+            to_ns: self.options.to_s.map(|s| (s * 1e9) as u64),
+            stop: self.stop.clone(),
+            recycled,
+        };
+        std::thread::Builder::new()
+            .name("replay-load".into())
+            .spawn(move || loader.run(sender))
+            .map_err(|source| RecordError::Thread { thread: "the replay's loader thread".into(), source })
+    }
+
+    /// Publishes `due` into its channel, acquired `at` minus its recorded
+    /// latency; `false` for a frame of a channel not replayed.
+    fn publish_due(&mut self, due: &Due, at: u64) -> Result<bool, RecordError> {
+        let Some(target) = self.targets.get_mut(&due.channel_id) else { return Ok(false) };
+        let status = FrameStatus(due.status);
+        let state = if status.contains(FrameStatus::FAULT) { WriterState::Faulted } else { WriterState::Running };
+        if state != target.state {
+            target.writer.set_state(state);
+            target.state = state;
+        }
+        let mut out = target.writer.begin();
+        out.write_bytes(0, &due.bytes)?;
+        out.set_acquired_ns(at.saturating_sub(due.latency_ns));
+        out.set_status(status);
+        out.publish();
+        target.published += 1;
+        Ok(true)
+    }
+
     fn typical_period_ns(&self) -> u64 {
         self.targets.values().map(|t| t.recorded.period_ns).filter(|&p| p > 0).min().unwrap_or(20_000_000)
     }
@@ -353,22 +393,7 @@ impl Replay {
         let (sender, receiver) = std::sync::mpsc::sync_channel::<Result<Due, RecordError>>(LOAD_AHEAD);
         // Bounded, so its slots exist before the first frame: a send never allocates.
         let (recycle, recycled) = std::sync::mpsc::sync_channel::<Vec<u8>>(LOAD_AHEAD + 2);
-        let loader = Loader {
-            path: self.path.clone(),
-            sizes: self
-                .targets
-                .iter()
-                .map(|(id, t)| (*id, (t.recorded.channel.clone(), t.recorded.payload_bytes)))
-                .collect(),
-            from_ns: self.options.from_s.map(|s| (s * 1e9) as u64),
-            to_ns: self.options.to_s.map(|s| (s * 1e9) as u64),
-            stop: self.stop.clone(),
-            recycled,
-        };
-        let loading = std::thread::Builder::new()
-            .name("replay-load".into())
-            .spawn(move || loader.run(sender))
-            .map_err(|e| RecordError::Nothing(format!("cannot start the replay's loader thread: {e}")))?;
+        let loading = self.start_loader(sender, recycled)?;
         let speed = self.options.speed;
         let mut outcome = Ok(Some(start_ns));
         // The schedule starts when the first frame is ready (opening the file
@@ -398,25 +423,11 @@ impl Replay {
                 outcome = Ok(None);
                 break;
             }
-            let Some(target) = self.targets.get_mut(&due.channel_id) else {
-                let _ = recycle.try_send(due.bytes);
-                continue;
-            };
-            let status = FrameStatus(due.status);
-            let state = if status.contains(FrameStatus::FAULT) { WriterState::Faulted } else { WriterState::Running };
-            if state != target.state {
-                target.writer.set_state(state);
-                target.state = state;
+            if self.publish_due(&due, at)? {
+                lateness.add(skinware::os::monotonic_ns().saturating_sub(at));
+                report.frames += 1;
+                outcome = Ok(Some(at));
             }
-            let mut out = target.writer.begin();
-            out.write_bytes(0, &due.bytes)?;
-            out.set_acquired_ns(at.saturating_sub(due.latency_ns));
-            out.set_status(status);
-            out.publish();
-            lateness.add(skinware::os::monotonic_ns().saturating_sub(at));
-            report.frames += 1;
-            target.published += 1;
-            outcome = Ok(Some(at));
             // The loader takes the buffer back until the pass ends, and always
             // has room for it: it sent at most LOAD_AHEAD + 1 not yet returned.
             let _ = recycle.try_send(due.bytes);
@@ -526,12 +537,8 @@ impl Loader {
                 return Ok(());
             }
             let (channel, size) = &self.sizes[&channel_id];
-            let frame: SkinFrame = msgs::decode(&data, msgs::SKIN_FRAME).map_err(|e| RecordError::Mismatch {
-                context: format!(
-                    "{}: a frame of channel {channel} {e}; `skin record --recover {}` keeps what came before it",
-                    self.path.display(),
-                    self.path.display()
-                ),
+            let frame: SkinFrame = skinware_ros2::decode(&data, skinware_ros2::SKIN_FRAME).map_err(|source| {
+                RecordError::BadFrame { path: self.path.clone(), channel: channel.clone(), source }
             })?;
             let mut bytes = self.recycled.try_recv().unwrap_or_default();
             frame.channel_bytes_into(&mut bytes);

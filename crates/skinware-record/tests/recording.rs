@@ -9,10 +9,10 @@ use std::time::Duration;
 
 use skinware::{ChannelKind, FrameStatus, Reader, ReaderOptions, TopologyBuilder, Writer, WriterOptions};
 use skinware_record::file::{Ending, RecordStream, read_header};
-use skinware_record::msgs::{self, SkinFrame};
 use skinware_record::{
     AtEnd, Compression, RecordError, RecordOptions, Recorder, Replay, ReplayOptions, ServiceChoice, scan,
 };
+use skinware_ros2::SkinFrame;
 
 struct TempDir(PathBuf);
 
@@ -85,7 +85,7 @@ fn frames(path: &Path) -> BTreeMap<String, Vec<Frame>> {
     let mut out: BTreeMap<String, Vec<_>> = BTreeMap::new();
     let mut add = |message: mcap::records::MessageHeader, data: &[u8]| {
         if let Some(channel) = header.channels.get(&message.channel_id) {
-            let frame: SkinFrame = msgs::decode(data, msgs::SKIN_FRAME).unwrap();
+            let frame: SkinFrame = skinware_ros2::decode(data, skinware_ros2::SKIN_FRAME).unwrap();
             out.entry(channel.channel.clone()).or_default().push((
                 frame.channel_bytes(),
                 frame.status,

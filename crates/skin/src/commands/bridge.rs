@@ -351,7 +351,7 @@ mod with_zenoh {
                 layers.push(serde_json::json!({
                     "skin": list.skin,
                     "name": channel.name,
-                    "kind": skinware_record::file::kind_str(channel.kind),
+                    "kind": channel.kind.as_str(),
                     "state": state,
                     "sensors": topology.as_ref().map(|t| t.sensors.len()),
                     "modules": topology.as_ref().map(|t| t.modules.len()),
@@ -416,7 +416,7 @@ mod with_zenoh {
         let stop = skinware::Stop::new();
         let mut out = std::io::stdout().lock();
         let mut printed = 0;
-        let offset = skinware_record::recorder::clock_offset_ns();
+        let offset = skinware_ros2::clock_offset_ns();
         while count.is_none_or(|count| printed < count) {
             let result = match mode {
                 EchoMode::Periodic => reader.next_periodic(&mut ticker, &stop),

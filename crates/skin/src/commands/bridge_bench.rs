@@ -99,7 +99,7 @@ mod with_zenoh {
     /// one JSON object: per layer frames, gaps, bytes and latency; and the
     /// state changes, with their times (Unix ns).
     pub fn probe(args: &ProbeArgs) -> Result<()> {
-        let offset = skinware_record::recorder::clock_offset_ns();
+        let offset = skinware_ros2::clock_offset_ns();
         let stop = Stop::new();
         let events = Arc::new(Mutex::new(Vec::<serde_json::Value>::new()));
         let until = Instant::now() + Duration::from_secs_f64(args.seconds.max(0.1));
@@ -450,7 +450,7 @@ mod with_zenoh {
         // slow, loaded machine to reconnect and say so.
         let cut_probe = probe(&hosts.b, true, false, seconds.max(3.0) + 3.0 + 8.0).stdout(Stdio::piped()).spawn()?;
         std::thread::sleep(Duration::from_secs_f64(seconds.max(3.0)));
-        let offset = skinware_record::recorder::clock_offset_ns();
+        let offset = skinware_ros2::clock_offset_ns();
         let cut_at = unix_now_ns(offset);
         hosts.link(false)?;
         std::thread::sleep(Duration::from_secs(3));

@@ -296,10 +296,6 @@ fn a_ros2_subscriber_decodes_what_the_bridge_publishes() {
     assert_eq!(report["state"]["values"], sensors);
     // The hashes rosbags computed are the ones the bridge put in its keys.
     for type_name in ["tactile_msgs/msg/TactileState", "sensor_msgs/msg/Image", "tactile_msgs/msg/TactileContacts"] {
-        assert_eq!(
-            report["hashes"][type_name].as_str(),
-            skinware_bridge::ros2::type_hash(type_name).as_deref(),
-            "{type_name}"
-        );
+        assert_eq!(report["hashes"][type_name].as_str(), skinware_ros2::type_hash(type_name).as_deref(), "{type_name}");
     }
 }

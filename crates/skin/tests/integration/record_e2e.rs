@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 use sha2::Digest;
 use skinware_record::file::{RecordStream, RecordingHeader, read_header};
 use skinware_record::mcap::records::{MessageHeader, Record};
-use skinware_record::msgs::{self, Gap, Image, LayerStats, SkinFrame};
+use skinware_ros2::{self as msgs, Gap, Image, LayerStats, SkinFrame};
 
 use crate::util::{interrupt_and_wait, one_skin_at_a_time};
 

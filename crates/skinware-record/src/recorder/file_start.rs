@@ -1,0 +1,249 @@
+//! Everything a recording holds before its first frame, written and flushed
+//! before any frame is read: the schemas, the recording's metadata, one MCAP
+//! channel per topic, the layout outline, and the geometry and every
+//! channel's description as attachments. A recorder killed at its first
+//! frame leaves a file that still says what it was recording.
+//!
+//! The order of the records is the order of their ids (schemas and channels
+//! are numbered as they are added), which is what readers of older files
+//! saw: keep it.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::Path;
+
+use mcap::records::Metadata;
+use skinware::{ChannelKind, Reader};
+use skinware_geometry::SkinGeometry;
+use skinware_ros2::{GAP, HeatMap, IMAGE, LAYER_STATS, SKIN_FRAME, clock_offset_ns, unix_ns};
+
+use super::discovery::Sources;
+use super::summary::channel_name;
+use super::{CHUNK_BYTES, RecordOptions};
+use crate::error::mcap_write_error;
+use crate::{
+    DESCRIPTION_ATTACHMENT_PREFIX, FORMAT_VERSION, GEOMETRY_ATTACHMENT, LAYOUT_METADATA, MESSAGE_ENCODING,
+    RECORDING_METADATA, RecordError, SCHEMA_ENCODING, channel_keys,
+};
+
+/// The file's writer.
+pub(super) type McapWriter = mcap::Writer<BufWriter<File>>;
+
+/// A recording's file, its start written: where each kind of message goes.
+pub(super) struct Started {
+    pub(super) writer: McapWriter,
+    /// The MCAP channel of each reader's frames, in the readers' order.
+    pub(super) frame_channels: Vec<u16>,
+    /// The MCAP channel of each reader's statistics, in the readers' order.
+    pub(super) stats_channels: Vec<u16>,
+    pub(super) gap_channel: u16,
+    /// The map image's channel and its renderer, if the map is recorded.
+    pub(super) map: Option<(u16, HeatMap)>,
+    /// CLOCK_REALTIME minus CLOCK_MONOTONIC, as written in the metadata.
+    pub(super) clock_offset_ns: i64,
+}
+
+/// Per reader, its topics' MCAP channels and its line in the layout outline.
+struct Topics {
+    frame_channels: Vec<u16>,
+    stats_channels: Vec<u16>,
+    layout: BTreeMap<String, String>,
+}
+
+/// Writes the start of a recording of `sources` into `file` (new and empty).
+pub(super) fn write_start(
+    path: &Path,
+    file: &File,
+    options: &RecordOptions,
+    sources: &Sources,
+) -> Result<Started, RecordError> {
+    let write_error = |e: mcap::McapError| mcap_write_error(path, e);
+    let mut writer = create_writer(path, file, options)?;
+    let frame_schema = add_schema(&mut writer, SKIN_FRAME).map_err(write_error)?;
+    let gap_schema = add_schema(&mut writer, GAP).map_err(write_error)?;
+    let stats_schema = add_schema(&mut writer, LAYER_STATS).map_err(write_error)?;
+
+    let clock_offset_ns = clock_offset_ns();
+    let started_unix_ns = unix_ns(skinware::os::monotonic_ns(), clock_offset_ns);
+    let recording = recording_metadata(options, clock_offset_ns, started_unix_ns);
+    writer.write_metadata(&Metadata { name: RECORDING_METADATA.into(), metadata: recording }).map_err(write_error)?;
+
+    let topics =
+        add_topics(&mut writer, &options.skin, &sources.readers, frame_schema, stats_schema).map_err(write_error)?;
+    let gap_channel = writer
+        .add_channel(gap_schema, &skinware_ros2::gaps_topic(&options.skin), MESSAGE_ENCODING, &BTreeMap::new())
+        .map_err(write_error)?;
+    let map = add_map(&mut writer, options, sources.geometry.as_ref()).map_err(write_error)?;
+    writer.write_metadata(&Metadata { name: LAYOUT_METADATA.into(), metadata: topics.layout }).map_err(write_error)?;
+    attach(&mut writer, started_unix_ns, sources).map_err(write_error)?;
+    writer.flush().map_err(write_error)?;
+    Ok(Started {
+        writer,
+        frame_channels: topics.frame_channels,
+        stats_channels: topics.stats_channels,
+        gap_channel,
+        map,
+        clock_offset_ns,
+    })
+}
+
+/// An MCAP writer in the `ros2` profile on a second handle to `file` (the
+/// first is kept to sync what it flushes).
+fn create_writer(path: &Path, file: &File, options: &RecordOptions) -> Result<McapWriter, RecordError> {
+    let second_handle = file.try_clone().map_err(|source| RecordError::Io {
+        op: "open a second handle to",
+        path: path.to_owned(),
+        hint: String::new(),
+        source,
+    })?;
+    mcap::WriteOptions::new()
+        .profile("ros2")
+        .library(concat!("skinware-record/", env!("CARGO_PKG_VERSION")))
+        .compression(options.compression.mcap())
+        .chunk_size(Some(CHUNK_BYTES))
+        .create(BufWriter::with_capacity(256 << 10, second_handle))
+        .map_err(|e| mcap_write_error(path, e))
+}
+
+fn add_schema(writer: &mut McapWriter, name: &str) -> Result<u16, mcap::McapError> {
+    let text = skinware_ros2::schema_text(name).unwrap_or_default();
+    writer.add_schema(name, SCHEMA_ENCODING, text.as_bytes())
+}
+
+/// The `skinware.recording` metadata: what was recorded, when, where and how.
+fn recording_metadata(options: &RecordOptions, clock_offset_ns: i64, started_unix_ns: u64) -> BTreeMap<String, String> {
+    let mut recording = BTreeMap::new();
+    recording.insert("format_version".to_owned(), FORMAT_VERSION.to_string());
+    recording.insert("skin".to_owned(), options.skin.clone());
+    recording.insert("clock_offset_ns".to_owned(), clock_offset_ns.to_string());
+    recording.insert("started_unix_ns".to_owned(), started_unix_ns.to_string());
+    recording.insert("skinware_version".to_owned(), env!("CARGO_PKG_VERSION").to_owned());
+    recording.insert("host".to_owned(), hostname());
+    recording.insert("command".to_owned(), options.command.clone());
+    recording.insert("compression".to_owned(), format!("{:?}", options.compression).to_lowercase());
+    recording
+}
+
+fn hostname() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname").map(|h| h.trim().to_owned()).unwrap_or_default()
+}
+
+/// Each reader's frame topic (its channel's metadata says what it records)
+/// and statistics topic, added in turn.
+fn add_topics(
+    writer: &mut McapWriter,
+    skin: &str,
+    readers: &[Reader],
+    frame_schema: u16,
+    stats_schema: u16,
+) -> Result<Topics, mcap::McapError> {
+    let mut topics = Topics { frame_channels: Vec::new(), stats_channels: Vec::new(), layout: BTreeMap::new() };
+    for reader in readers {
+        let name = channel_name(reader);
+        let topic = skinware_ros2::frame_topic(skin, &name);
+        topics.frame_channels.push(writer.add_channel(
+            frame_schema,
+            &topic,
+            MESSAGE_ENCODING,
+            &channel_metadata(reader),
+        )?);
+        let stats_topic = skinware_ros2::stats_topic(skin, &name);
+        topics.stats_channels.push(writer.add_channel(
+            stats_schema,
+            &stats_topic,
+            MESSAGE_ENCODING,
+            &BTreeMap::new(),
+        )?);
+        topics.layout.insert(name, describe(reader, &topic));
+    }
+    Ok(topics)
+}
+
+/// A frame topic's channel metadata: enough to recreate the channel on replay.
+fn channel_metadata(reader: &Reader) -> BTreeMap<String, String> {
+    let (schema_name, schema_version) = reader.schema();
+    let mut metadata = BTreeMap::new();
+    metadata.insert(channel_keys::CHANNEL.to_owned(), channel_name(reader));
+    metadata.insert(channel_keys::KIND.to_owned(), reader.kind().as_str().to_owned());
+    metadata.insert(channel_keys::PAYLOAD_BYTES.to_owned(), reader.payload_bytes().to_string());
+    metadata.insert(channel_keys::SLOTS.to_owned(), reader.slots().to_string());
+    let period = reader.writer_period().map_or(0, |p| p.as_nanos() as u64);
+    metadata.insert(channel_keys::PERIOD_NS.to_owned(), period.to_string());
+    metadata.insert(channel_keys::SCHEMA_NAME.to_owned(), schema_name);
+    metadata.insert(channel_keys::SCHEMA_VERSION.to_owned(), schema_version.to_string());
+    metadata
+}
+
+/// The `skin.layout` entry of a channel: a readable outline.
+fn describe(reader: &Reader, topic: &str) -> String {
+    match (reader.kind(), reader.topology()) {
+        (ChannelKind::Layer, Ok(t)) => format!(
+            "layer {}: topic {topic}, {} sensors of type {} in {} modules on {} patches, {} Hz",
+            t.name,
+            t.sensors.len(),
+            t.sensor_type,
+            t.modules.len(),
+            t.patches.len(),
+            t.rate_hz
+        ),
+        (kind, _) => {
+            let (schema, version) = reader.schema();
+            format!(
+                "{} {}: topic {topic}, {} bytes per frame, schema {schema} v{version}",
+                kind.as_str(),
+                reader.label(),
+                reader.payload_bytes()
+            )
+        }
+    }
+}
+
+/// The map image's schema and channel, if images are wanted and the skin
+/// publishes the geometry to draw them from.
+fn add_map(
+    writer: &mut McapWriter,
+    options: &RecordOptions,
+    geometry: Option<&SkinGeometry>,
+) -> Result<Option<(u16, HeatMap)>, mcap::McapError> {
+    match (geometry, options.map_hz > 0.0) {
+        (Some(geometry), true) => {
+            let image_schema = add_schema(writer, IMAGE)?;
+            let topic = skinware_ros2::map_topic(&options.skin);
+            let id = writer.add_channel(image_schema, &topic, MESSAGE_ENCODING, &BTreeMap::new())?;
+            Ok(Some((id, HeatMap::new(geometry, options.map_width))))
+        }
+        (None, true) => {
+            tracing::warn!(skin = %options.skin, "no geometry is published for this skin: recording without the map image");
+            Ok(None)
+        }
+        _ => Ok(None),
+    }
+}
+
+/// The geometry file and every channel's description, byte for byte, so
+/// that a replay recreates the channels as they were.
+fn attach(writer: &mut McapWriter, started_unix_ns: u64, sources: &Sources) -> Result<(), mcap::McapError> {
+    let mut attach_one = |name: String, media_type: &str, data: &[u8]| {
+        writer.attach(&mcap::Attachment {
+            log_time: started_unix_ns,
+            create_time: started_unix_ns,
+            name,
+            media_type: media_type.to_owned(),
+            data: std::borrow::Cow::Borrowed(data),
+        })
+    };
+    if let Some(bytes) = &sources.geometry_bytes {
+        attach_one(GEOMETRY_ATTACHMENT.to_owned(), "application/x-skinware-geometry", bytes)?;
+    }
+    for reader in &sources.readers {
+        let name = channel_name(reader);
+        let description = reader.description();
+        attach_one(
+            format!("{DESCRIPTION_ATTACHMENT_PREFIX}{name}"),
+            "application/x-skinware-description",
+            &description,
+        )?;
+    }
+    Ok(())
+}

@@ -1,0 +1,318 @@
+//! `skin record`: every frame of the chosen channels into an MCAP file.
+//!
+//! One reader thread per channel reads as soon as each frame is published and
+//! encodes it; a writer thread owns the file. The reader threads hand frames
+//! over through a bounded queue: if the disk cannot keep up, a reader thread
+//! waits, its next read reports the frames it missed (`skipped`), and those
+//! are counted and written as a gap. Nothing ever waits on the skin's writers.
+//!
+//! The pieces, in the order a recording runs them: `discovery` opens the
+//! channels, `file_start` writes everything before the first frame,
+//! `reading` runs the reader threads, `watcher` the map image and the
+//! statistics, `file_writer` the file's thread, and `summary` holds what
+//! they count.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::sync_channel;
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use skinware::WriterState;
+use skinware::rt::Stop;
+
+use crate::RecordError;
+
+mod discovery;
+mod file_start;
+mod file_writer;
+mod reading;
+mod summary;
+mod watcher;
+
+use discovery::Sources;
+use file_start::Started;
+use file_writer::FileJob;
+pub use summary::{ChannelReport, Progress, RecordSummary};
+use summary::{Recorded, state_code};
+use watcher::Watcher;
+
+/// Frames queued between the reader threads and the file before a reader waits.
+const QUEUE: usize = 512;
+/// Uncompressed bytes per chunk. Smaller chunks compress a little worse, but
+/// each is written with shorter system calls, which matters to real-time
+/// threads on a kernel without full preemption.
+const CHUNK_BYTES: u64 = 1 << 20;
+/// How often the statistics messages are written.
+const STATS_INTERVAL: Duration = Duration::from_secs(1);
+/// How long a blocking read waits before it looks at the stop signal and the writer's state.
+const READ_SLICE: Duration = Duration::from_millis(200);
+
+/// Chunk compression.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Compression {
+    /// zstd: the smallest files (the default).
+    #[default]
+    Zstd,
+    /// lz4: faster, larger.
+    Lz4,
+    /// None.
+    None,
+}
+
+impl Compression {
+    /// The MCAP compression.
+    pub fn mcap(self) -> Option<mcap::Compression> {
+        match self {
+            Compression::Zstd => Some(mcap::Compression::Zstd),
+            Compression::Lz4 => Some(mcap::Compression::Lz4),
+            Compression::None => None,
+        }
+    }
+}
+
+/// Which services to record.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub enum ServiceChoice {
+    /// None.
+    #[default]
+    None,
+    /// Every service of the skin.
+    All,
+    /// These.
+    Named(Vec<String>),
+}
+
+/// How to record.
+#[derive(Clone, Debug)]
+pub struct RecordOptions {
+    /// The skin.
+    pub skin: String,
+    /// The layers to record; `None` for all.
+    pub layers: Option<Vec<String>>,
+    /// The services to record.
+    pub services: ServiceChoice,
+    /// Map images per second (0: none).
+    pub map_hz: f64,
+    /// Width of the map image, pixels.
+    pub map_width: usize,
+    /// Chunk compression.
+    pub compression: Compression,
+    /// How often the current chunk is finished, written and synced to disk:
+    /// at most this much is lost if the recorder is killed or the power fails.
+    pub flush_interval: Duration,
+    /// Segment directory; `None` for the default.
+    pub dir: Option<PathBuf>,
+    /// The command line, kept in the file's metadata.
+    pub command: String,
+}
+
+impl Default for RecordOptions {
+    fn default() -> Self {
+        RecordOptions {
+            skin: "default".into(),
+            layers: None,
+            services: ServiceChoice::None,
+            map_hz: 4.0,
+            map_width: 480,
+            compression: Compression::Zstd,
+            flush_interval: Duration::from_secs(1),
+            dir: None,
+            command: String::new(),
+        }
+    }
+}
+
+/// What the writer thread writes.
+struct Item {
+    channel_id: u16,
+    sequence: u32,
+    log_time: u64,
+    publish_time: u64,
+    data: Vec<u8>,
+}
+
+/// What every thread of a recording shares.
+struct Shared {
+    stop: Stop,
+    /// The first error that stopped the recording.
+    failure: Mutex<Option<RecordError>>,
+    message_bytes: AtomicU64,
+    images: AtomicU64,
+}
+
+impl Shared {
+    fn fail(&self, error: RecordError) {
+        let mut failure = self.failure.lock().unwrap_or_else(|p| p.into_inner());
+        if failure.is_none() {
+            *failure = Some(error);
+        }
+        self.stop.stop();
+    }
+}
+
+/// A recording under way.
+pub struct Recorder {
+    path: PathBuf,
+    skin: String,
+    compression: Compression,
+    started: Instant,
+    shared: Arc<Shared>,
+    channels: Vec<Recorded>,
+    readers: Vec<JoinHandle<()>>,
+    writer: Option<JoinHandle<Result<(), RecordError>>>,
+}
+
+impl Recorder {
+    /// Starts recording the chosen channels of `options.skin` into a new file `path`.
+    pub fn start(path: &Path, options: RecordOptions) -> Result<Recorder, RecordError> {
+        let dir = options.dir.clone().unwrap_or_else(skinware::shm::segment_dir);
+        let sources = discovery::open_sources(&dir, &options)?;
+        let file = crate::error::create_new(path)?;
+        let started = file_start::write_start(path, &file, &options, &sources)?;
+        Recorder::run(path, options, dir, sources, file, started)
+    }
+
+    /// Starts the threads on a file whose start is written.
+    fn run(
+        path: &Path,
+        options: RecordOptions,
+        dir: PathBuf,
+        sources: Sources,
+        file: std::fs::File,
+        started: Started,
+    ) -> Result<Recorder, RecordError> {
+        let shared = Arc::new(Shared {
+            stop: Stop::new(),
+            failure: Mutex::new(None),
+            message_bytes: AtomicU64::new(0),
+            images: AtomicU64::new(0),
+        });
+        let channels: Vec<Recorded> = sources.readers.iter().map(Recorded::of).collect();
+        let (sender, receiver) = sync_channel::<Item>(QUEUE);
+        let mut threads = reading::start_readers(sources.readers, &channels, &started, &sender, &shared)?;
+        let Started { writer, stats_channels, map, clock_offset_ns, .. } = started;
+        let watcher = Watcher {
+            skin: options.skin.clone(),
+            dir,
+            geometry: sources.geometry,
+            map,
+            map_hz: options.map_hz,
+            channels: channels.clone(),
+            stats_channels,
+            clock_offset_ns,
+            sender,
+            shared: shared.clone(),
+        };
+        threads.push(spawn("rec-map", move || watcher.run())?);
+        let file_job = FileJob {
+            path: path.to_owned(),
+            writer,
+            sync: file,
+            receiver,
+            flush_interval: options.flush_interval,
+            shared: shared.clone(),
+            channels: channels.clone(),
+        };
+        let writer = std::thread::Builder::new()
+            .name("rec-file".into())
+            .spawn(move || file_job.run())
+            .map_err(|source| RecordError::Thread { thread: "the file-writing thread".into(), source })?;
+        Ok(Recorder {
+            path: path.to_owned(),
+            skin: options.skin,
+            compression: options.compression,
+            started: Instant::now(),
+            shared,
+            channels,
+            readers: threads,
+            writer: Some(writer),
+        })
+    }
+
+    /// The names of the channels being recorded.
+    pub fn channels(&self) -> Vec<String> {
+        self.channels.iter().map(|c| c.name.clone()).collect()
+    }
+
+    /// The signal that stops the recording (from a signal handler, say).
+    pub fn stop_signal(&self) -> &Stop {
+        &self.shared.stop
+    }
+
+    /// Whether the recording stopped on its own (an error: see [`finish`](Self::finish)).
+    pub fn has_failed(&self) -> bool {
+        self.shared.failure.lock().map(|f| f.is_some()).unwrap_or(true)
+    }
+
+    /// Whether every recorded channel's writer is gone.
+    pub fn all_gone(&self) -> bool {
+        self.channels.iter().all(|c| c.counters.state.load(Ordering::Relaxed) == state_code(WriterState::Gone))
+    }
+
+    /// How far the recording has got.
+    pub fn progress(&self) -> Progress {
+        Progress {
+            seconds: self.started.elapsed().as_secs_f64(),
+            frames: self.channels.iter().map(|c| c.counters.frames.load(Ordering::Relaxed)).sum(),
+            lost: self.channels.iter().map(|c| c.counters.lost.load(Ordering::Relaxed)).sum(),
+            message_bytes: self.shared.message_bytes.load(Ordering::Relaxed),
+            file_bytes: std::fs::metadata(&self.path).map(|m| m.len()).unwrap_or(0),
+        }
+    }
+
+    /// Stops reading, writes what was read, finishes the file and says what it holds.
+    /// After a failure (disk full), the error, with what the file keeps.
+    pub fn finish(mut self) -> Result<RecordSummary, RecordError> {
+        let written = self.shutdown();
+        let seconds = self.started.elapsed().as_secs_f64();
+        if let Some(error) = self.shared.failure.lock().unwrap_or_else(|p| p.into_inner()).take() {
+            return Err(error);
+        }
+        written?;
+        let progress = self.progress();
+        Ok(RecordSummary {
+            path: self.path.clone(),
+            skin: self.skin.clone(),
+            seconds,
+            frames: progress.frames,
+            lost: progress.lost,
+            message_bytes: progress.message_bytes,
+            file_bytes: progress.file_bytes,
+            frames_per_s: progress.frames as f64 / seconds.max(1e-9),
+            mb_per_s: progress.message_bytes as f64 / 1e6 / seconds.max(1e-9),
+            images: self.shared.images.load(Ordering::Relaxed),
+            channels: self.channels.iter().map(|c| (c.name.clone(), c.report())).collect(),
+            compression: format!("{:?}", self.compression).to_lowercase(),
+        })
+    }
+
+    /// Stops the threads and waits for the file to be finished (once).
+    fn shutdown(&mut self) -> Result<(), RecordError> {
+        self.shared.stop.stop();
+        for thread in self.readers.drain(..) {
+            let _ = thread.join();
+        }
+        match self.writer.take().map(JoinHandle::join) {
+            None => Ok(()),
+            Some(Ok(result)) => result,
+            Some(Err(_)) => Err(RecordError::Panicked { thread: "the file-writing thread" }),
+        }
+    }
+}
+
+impl Drop for Recorder {
+    /// A recorder dropped without [`finish`](Recorder::finish) (an early
+    /// return, a panic) still finishes its file before it goes.
+    fn drop(&mut self) {
+        let _ = self.shutdown();
+    }
+}
+
+fn spawn(name: &str, job: impl FnOnce() + Send + 'static) -> Result<JoinHandle<()>, RecordError> {
+    std::thread::Builder::new()
+        .name(name.chars().take(15).collect())
+        .spawn(job)
+        .map_err(|source| RecordError::Thread { thread: format!("thread {name}"), source })
+}

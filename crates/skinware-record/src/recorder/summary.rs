@@ -1,0 +1,131 @@
+//! What a recording counts while it runs, and what it reports: its progress,
+//! and the summary of a finished file.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+
+use serde::Serialize;
+use skinware::{ChannelKind, Reader, WriterState};
+
+/// Counters of one recorded channel, shared by its reader thread and the rest.
+#[derive(Default)]
+pub(super) struct Counters {
+    pub(super) frames: AtomicU64,
+    pub(super) lost: AtomicU64,
+    pub(super) gaps: AtomicU64,
+    pub(super) faulted: AtomicU64,
+    pub(super) latency_ns: AtomicU64,
+    /// The writer's state, as [`state_code`] numbers it.
+    pub(super) state: AtomicU32,
+}
+
+/// One recorded channel and its counters.
+#[derive(Clone)]
+pub(super) struct Recorded {
+    pub(super) name: String,
+    pub(super) kind: ChannelKind,
+    pub(super) counters: Arc<Counters>,
+}
+
+impl Recorded {
+    pub(super) fn of(reader: &Reader) -> Recorded {
+        Recorded { name: channel_name(reader), kind: reader.kind(), counters: Arc::new(Counters::default()) }
+    }
+
+    pub(super) fn report(&self) -> ChannelReport {
+        let counters = &self.counters;
+        ChannelReport {
+            kind: self.kind.as_str(),
+            frames: counters.frames.load(Ordering::Relaxed),
+            lost: counters.lost.load(Ordering::Relaxed),
+            gaps: counters.gaps.load(Ordering::Relaxed),
+            faulted: counters.faulted.load(Ordering::Relaxed),
+        }
+    }
+}
+
+/// The channel a reader reads (its label is `skin/channel`).
+pub(super) fn channel_name(reader: &Reader) -> String {
+    reader.label().rsplit('/').next().unwrap_or_default().to_owned()
+}
+
+/// A writer state as a number, so that the reader threads can share it in an atomic.
+pub(super) fn state_code(state: WriterState) -> u32 {
+    match state {
+        WriterState::Running => 1,
+        WriterState::Paused => 2,
+        WriterState::Faulted => 3,
+        WriterState::Gone => 4,
+    }
+}
+
+/// The writer state numbered `code` by [`state_code`].
+pub(super) fn state_of(code: u32) -> WriterState {
+    match code {
+        2 => WriterState::Paused,
+        3 => WriterState::Faulted,
+        4 => WriterState::Gone,
+        _ => WriterState::Running,
+    }
+}
+
+/// Progress of a recording.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Progress {
+    /// Since the start.
+    pub seconds: f64,
+    /// Frames written.
+    pub frames: u64,
+    /// Frames missed.
+    pub lost: u64,
+    /// Message bytes handed to the file (before compression).
+    pub message_bytes: u64,
+    /// The file's size now.
+    pub file_bytes: u64,
+}
+
+/// One channel in the summary.
+#[derive(Clone, Debug, Serialize)]
+pub struct ChannelReport {
+    /// Layer or service.
+    pub kind: &'static str,
+    /// Frames written.
+    pub frames: u64,
+    /// Frames missed.
+    pub lost: u64,
+    /// Runs of missed frames.
+    pub gaps: u64,
+    /// Frames with a fault status.
+    pub faulted: u64,
+}
+
+/// What a finished recording holds.
+#[derive(Clone, Debug, Serialize)]
+pub struct RecordSummary {
+    /// The file.
+    pub path: PathBuf,
+    /// The skin.
+    pub skin: String,
+    /// Recording time.
+    pub seconds: f64,
+    /// Frames written.
+    pub frames: u64,
+    /// Frames missed.
+    pub lost: u64,
+    /// Message bytes (before compression).
+    pub message_bytes: u64,
+    /// The finished file's size.
+    pub file_bytes: u64,
+    /// Frames per second.
+    pub frames_per_s: f64,
+    /// Message MB per second (before compression).
+    pub mb_per_s: f64,
+    /// Map images written.
+    pub images: u64,
+    /// Per channel.
+    pub channels: BTreeMap<String, ChannelReport>,
+    /// The compression.
+    pub compression: String,
+}
