@@ -12,7 +12,7 @@
 //! * [`cdr`]: [`encode`] and [`decode`], with typed errors ([`EncodeError`],
 //!   [`DecodeError`]);
 //! * [`schema`]: the `.msg` texts a recording embeds ([`schema_text`]);
-//! * [`type_hash`]: REP-2016 type descriptions, their `RIHS01_` hashes
+//! * [`type_hash`](mod@type_hash): REP-2016 type descriptions, their `RIHS01_` hashes
 //!   ([`type_hash()`]) and DDS type names ([`dds_type_name`]);
 //! * [`topics`]: where each message goes ([`frame_topic`], [`map_topic`],
 //!   [`ros_name`], ...);
