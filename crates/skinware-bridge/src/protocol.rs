@@ -212,28 +212,11 @@ pub struct ChannelState {
     pub period_ns: u64,
 }
 
-/// A writer state's number on the wire (and in the bridge's counters).
-pub(crate) fn state_code(state: WriterState) -> u32 {
-    match state {
-        WriterState::Running => 1,
-        WriterState::Paused => 2,
-        WriterState::Faulted => 3,
-        WriterState::Gone => 4,
-    }
-}
-
-/// The writer state numbered `code` by [`state_code`].
-pub(crate) fn state_of_code(code: u32) -> Option<WriterState> {
-    [WriterState::Running, WriterState::Paused, WriterState::Faulted, WriterState::Gone]
-        .into_iter()
-        .find(|state| state_code(*state) == code)
-}
-
 impl ChannelState {
     /// Its bytes.
     pub fn encode(&self) -> Vec<u8> {
         let mut out = Encoder::with_capacity(CHANNEL_STATE_MAGIC, 60);
-        out.u32(state_code(self.state));
+        out.u32(self.state.code());
         out.u64(self.published_seq);
         out.u64(self.sent);
         out.u64(self.dropped);
@@ -250,7 +233,7 @@ impl ChannelState {
         };
         let mut input = Decoder::new(bytes, "channel state", CHANNEL_STATE_MAGIC).map_err(malformed)?;
         let code = input.u32("state").map_err(malformed)?;
-        let Some(state) = state_of_code(code) else {
+        let Some(state) = WriterState::from_number(code) else {
             return Err(malformed(input.invalid("state", format!("{code} is not a writer state (1 to 4)"))));
         };
         let state = ChannelState {

@@ -19,11 +19,11 @@
 
 use std::collections::{BTreeMap, VecDeque};
 use std::path::Path;
-use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use skinware::{FrameStatus, LayerTopology, Stop, Ticker, Writer, WriterOptions, WriterState};
+use skinware::{FrameStatus, LayerTopology, Stop, Ticker, Writer, WriterOptions, WriterState, lock};
 use skinware_geometry::SkinGeometry;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::{Publisher, Subscriber};
@@ -584,10 +584,6 @@ impl NewestSample {
             slot = self.arrived.wait_timeout(slot, left).map(|(guard, _)| guard).unwrap_or_else(|p| p.into_inner().0);
         }
     }
-}
-
-fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
-    mutex.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
 /// Keeps the newest 64 items: a reader that looks at its state rarely loses

@@ -6,10 +6,10 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::time::Duration;
 
-use skinware::WriterState;
+use skinware::{WriterState, lock};
 
-use super::{ReaderReports, lock};
-use crate::protocol::{self, RemoteChannel};
+use super::ReaderReports;
+use crate::protocol::RemoteChannel;
 
 /// One channel's figures since the bridge started.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -55,7 +55,7 @@ pub(super) struct Counters {
     pub(super) dropped: AtomicU64,
     pub(super) ros_sent: AtomicU64,
     pub(super) errors: AtomicU64,
-    /// The writer's state, as [`protocol::state_code`] numbers it.
+    /// The writer's state, by its number ([`WriterState::code`]; 0 until the heartbeat reads it).
     pub(super) state: AtomicU32,
     pub(super) published_seq: AtomicU64,
     /// Acquisition to hand-over to zenoh, ns, of the last [`LATENCY_WINDOW`] frames.
@@ -162,7 +162,7 @@ impl Channel {
         ChannelReport {
             channel: self.info.name.clone(),
             kind: self.info.kind.as_str().to_owned(),
-            state: protocol::state_of_code(c.state.load(Ordering::Relaxed)).unwrap_or(WriterState::Gone).to_string(),
+            state: WriterState::from_number(c.state.load(Ordering::Relaxed)).unwrap_or(WriterState::Gone).to_string(),
             sent,
             dropped: c.dropped.load(Ordering::Relaxed),
             ros_sent: c.ros_sent.load(Ordering::Relaxed),

@@ -6,13 +6,13 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
-use skinware::Reader;
+use skinware::{Reader, lock};
 use zenoh::Wait;
 use zenoh::pubsub::Publisher;
 use zenoh::qos::{CongestionControl, Priority};
 
+use super::Shared;
 use super::channel::Channel;
-use super::{Shared, lock};
 use crate::protocol::{self, ChannelState};
 
 /// Every channel's state, 10 times a second; new channels every second.
@@ -43,7 +43,7 @@ pub(super) fn heartbeat(shared: &Arc<Shared>) {
             let Some((publisher, reader)) = publishers.get_mut(name) else { continue };
             reader.follow_recreated();
             let state = reader.writer_state();
-            channel.counters.state.store(protocol::state_code(state), Ordering::Relaxed);
+            channel.counters.state.store(state.code(), Ordering::Relaxed);
             channel.counters.published_seq.store(reader.published_seq(), Ordering::Relaxed);
             let message = ChannelState {
                 state,

@@ -23,11 +23,11 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicU32;
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use skinware::{ChannelKind, Reader, ReaderOptions, Stop, WriterState};
+use skinware::{ChannelKind, Reader, ReaderOptions, Stop, WriterState, lock};
 use zenoh::liveliness::LivelinessToken;
 use zenoh::{Session, Wait};
 
@@ -92,10 +92,6 @@ impl BridgeOptions {
             link: LinkOptions::default(),
         }
     }
-}
-
-fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
-    mutex.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
 /// The newest report of each remote reader: (channel, reader) -> (report, when it came).

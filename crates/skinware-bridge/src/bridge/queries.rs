@@ -6,12 +6,12 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use skinware::{Error, Reader};
+use skinware::{Error, Reader, lock};
 use skinware_geometry::SkinGeometry;
 use zenoh::Wait;
 
+use super::Shared;
 use super::channel::Channel;
-use super::{Shared, lock};
 use crate::BridgeError;
 use crate::protocol::{self, ChannelList};
 

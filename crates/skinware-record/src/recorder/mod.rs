@@ -34,8 +34,8 @@ mod watcher;
 use discovery::Sources;
 use file_start::Started;
 use file_writer::FileJob;
+use summary::Recorded;
 pub use summary::{ChannelReport, Progress, RecordSummary};
-use summary::{Recorded, state_code};
 use watcher::Watcher;
 
 /// Frames queued between the reader threads and the file before a reader waits.
@@ -144,7 +144,7 @@ struct Shared {
 
 impl Shared {
     fn fail(&self, error: RecordError) {
-        let mut failure = self.failure.lock().unwrap_or_else(|p| p.into_inner());
+        let mut failure = skinware::lock(&self.failure);
         if failure.is_none() {
             *failure = Some(error);
         }
@@ -248,7 +248,7 @@ impl Recorder {
 
     /// Whether every recorded channel's writer is gone.
     pub fn all_gone(&self) -> bool {
-        self.channels.iter().all(|c| c.counters.state.load(Ordering::Relaxed) == state_code(WriterState::Gone))
+        self.channels.iter().all(|c| c.counters.state.load(Ordering::Relaxed) == WriterState::Gone.code())
     }
 
     /// How far the recording has got.
@@ -267,7 +267,7 @@ impl Recorder {
     pub fn finish(mut self) -> Result<RecordSummary, RecordError> {
         let written = self.shutdown();
         let seconds = self.started.elapsed().as_secs_f64();
-        if let Some(error) = self.shared.failure.lock().unwrap_or_else(|p| p.into_inner()).take() {
+        if let Some(error) = skinware::lock(&self.shared.failure).take() {
             return Err(error);
         }
         written?;

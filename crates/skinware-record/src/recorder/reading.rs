@@ -12,7 +12,7 @@ use skinware::{ChannelKind, Error, FrameStatus, Reader};
 use skinware_ros2::{Gap, SkinFrameRef, Time, unix_ns};
 
 use super::file_start::Started;
-use super::summary::{Counters, Recorded, state_code};
+use super::summary::{Counters, Recorded};
 use super::{Item, READ_SLICE, Shared, spawn};
 use crate::RecordError;
 
@@ -89,7 +89,7 @@ impl ChannelJob {
         let mut responses: Vec<u16> = Vec::new();
         let mut size_hint = 64;
         while !self.shared.stop.is_stopped() {
-            self.counters.state.store(state_code(self.reader.writer_state()), Ordering::Relaxed);
+            self.counters.state.store(self.reader.writer_state().code(), Ordering::Relaxed);
             let (newest, skipped) = match self.reader.wait_newer(READ_SLICE) {
                 // Counted from the last frame written, so that frames published
                 // between the start and this thread's first read count too;

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 
 use serde::Serialize;
-use skinware::{ChannelKind, Reader, WriterState};
+use skinware::{ChannelKind, Reader};
 
 /// Counters of one recorded channel, shared by its reader thread and the rest.
 #[derive(Default)]
@@ -17,7 +17,7 @@ pub(super) struct Counters {
     pub(super) gaps: AtomicU64,
     pub(super) faulted: AtomicU64,
     pub(super) latency_ns: AtomicU64,
-    /// The writer's state, as [`state_code`] numbers it.
+    /// The writer's state, by its number ([`WriterState::code`]; 0 until read).
     pub(super) state: AtomicU32,
 }
 
@@ -49,26 +49,6 @@ impl Recorded {
 /// The channel a reader reads (its label is `skin/channel`).
 pub(super) fn channel_name(reader: &Reader) -> String {
     reader.label().rsplit('/').next().unwrap_or_default().to_owned()
-}
-
-/// A writer state as a number, so that the reader threads can share it in an atomic.
-pub(super) fn state_code(state: WriterState) -> u32 {
-    match state {
-        WriterState::Running => 1,
-        WriterState::Paused => 2,
-        WriterState::Faulted => 3,
-        WriterState::Gone => 4,
-    }
-}
-
-/// The writer state numbered `code` by [`state_code`].
-pub(super) fn state_of(code: u32) -> WriterState {
-    match code {
-        2 => WriterState::Paused,
-        3 => WriterState::Faulted,
-        4 => WriterState::Gone,
-        _ => WriterState::Running,
-    }
 }
 
 /// Progress of a recording.

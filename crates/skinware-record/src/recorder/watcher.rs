@@ -14,7 +14,7 @@ use skinware::{ChannelKind, FrameStatus, Reader, ReaderOptions, WriterState};
 use skinware_geometry::SkinGeometry;
 use skinware_ros2::{Header, HeatMap, LayerLook, LayerStats, Time, now_unix_ns};
 
-use super::summary::{Recorded, state_of};
+use super::summary::Recorded;
 use super::{Item, STATS_INTERVAL, Shared};
 
 /// The map image and the statistics, from readers of its own.
@@ -173,7 +173,10 @@ impl Watcher {
             let stats = LayerStats {
                 stamp: Time::from_ns(now_ns),
                 channel: channel.name.clone(),
-                state: state_of(counters.state.load(Ordering::Relaxed)).as_str().to_owned(),
+                state: WriterState::from_number(counters.state.load(Ordering::Relaxed))
+                    .unwrap_or(WriterState::Running)
+                    .as_str()
+                    .to_owned(),
                 frames,
                 lost: counters.lost.load(Ordering::Relaxed),
                 faulted: counters.faulted.load(Ordering::Relaxed),
