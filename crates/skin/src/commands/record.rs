@@ -8,7 +8,7 @@ use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use skinware_record::{Compression, RecordOptions, Recorder, ServiceChoice};
+use skinware_record::{Compression, RecordOptions, RecordSummary, Recorder, ServiceChoice};
 
 /// Arguments of `skin record`.
 #[derive(clap::Args)]
@@ -79,29 +79,7 @@ pub fn run(args: &Args) -> Result<()> {
             "name the file to write: `skin record OUT.mcap` (or `skin record --recover FILE` to finish a broken one)"
         );
     };
-    if let Some(seconds) = args.seconds
-        && !(seconds.is_finite() && seconds > 0.0 && seconds < 1e9)
-    {
-        bail!("--seconds {seconds} must be a positive number");
-    }
-    if !(args.map_hz.is_finite() && args.map_hz >= 0.0) {
-        bail!("--map-hz {} must be 0 (no map) or more", args.map_hz);
-    }
-    let services = match &args.services {
-        None => ServiceChoice::None,
-        Some(names) if names.iter().any(|n| n == "*") => ServiceChoice::All,
-        Some(names) => ServiceChoice::Named(names.clone()),
-    };
-    let options = RecordOptions {
-        skin: args.skin.clone(),
-        layers: args.layers.clone(),
-        services,
-        map_hz: args.map_hz,
-        map_width: args.map_width,
-        compression: args.compression.library(),
-        command: std::env::args().collect::<Vec<_>>().join(" "),
-        ..RecordOptions::default()
-    };
+    let options = record_options(args)?;
     let shutdown = super::run::shutdown_on_signals()?;
     if let Some(wait) = args.wait {
         if !(wait.is_finite() && wait >= 0.0) {
@@ -118,6 +96,41 @@ pub fn run(args: &Args) -> Result<()> {
         out.display(),
         channels.join(", ")
     );
+    record_until_done(&recorder, args, &shutdown);
+    let summary = recorder.finish().with_context(|| format!("recording {} stopped", out.display()))?;
+    print_summary(&summary, args.json)
+}
+
+/// The recorder's options from the command line, checked.
+fn record_options(args: &Args) -> Result<RecordOptions> {
+    if let Some(seconds) = args.seconds
+        && !(seconds.is_finite() && seconds > 0.0 && seconds < 1e9)
+    {
+        bail!("--seconds {seconds} must be a positive number");
+    }
+    if !(args.map_hz.is_finite() && args.map_hz >= 0.0) {
+        bail!("--map-hz {} must be 0 (no map) or more", args.map_hz);
+    }
+    let services = match &args.services {
+        None => ServiceChoice::None,
+        Some(names) if names.iter().any(|n| n == "*") => ServiceChoice::All,
+        Some(names) => ServiceChoice::Named(names.clone()),
+    };
+    Ok(RecordOptions {
+        skin: args.skin.clone(),
+        layers: args.layers.clone(),
+        services,
+        map_hz: args.map_hz,
+        map_width: args.map_width,
+        compression: args.compression.library(),
+        command: std::env::args().collect::<Vec<_>>().join(" "),
+        ..RecordOptions::default()
+    })
+}
+
+/// Records until Ctrl-C, `--seconds`, `--until-gone` or a failure, showing
+/// progress (one line rewritten on a terminal, a line every 10 s in a log).
+fn record_until_done(recorder: &Recorder, args: &Args, shutdown: &std::sync::atomic::AtomicBool) {
     let started = Instant::now();
     let live = std::io::stderr().is_terminal();
     let mut next_line = Instant::now() + Duration::from_secs(10);
@@ -152,10 +165,13 @@ pub fn run(args: &Args) -> Result<()> {
     if live {
         eprintln!();
     }
-    let summary = recorder.finish().with_context(|| format!("recording {} stopped", out.display()))?;
+}
+
+/// The recording's summary, as a table or JSON, on stdout.
+fn print_summary(summary: &RecordSummary, json: bool) -> Result<()> {
     let mut stdout = std::io::stdout().lock();
-    if args.json {
-        serde_json::to_writer_pretty(&mut stdout, &summary)?;
+    if json {
+        serde_json::to_writer_pretty(&mut stdout, summary)?;
         writeln!(stdout)?;
         return Ok(());
     }
