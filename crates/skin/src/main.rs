@@ -66,36 +66,9 @@ enum Command {
         #[command(subcommand)]
         which: commands::bench::Which,
     },
-    /// The far side of `skin bench bridge`: reads every layer, remote or local, and prints figures as JSON.
-    #[command(hide = true)]
-    BridgeProbe(commands::bridge_bench::ProbeArgs),
-    /// One reader process of `skin bench peers`.
-    #[command(hide = true)]
-    BenchPeerReader(commands::bench::PeerReaderArgs),
-    /// The reader process of `skin bench ethercat`.
-    #[command(hide = true)]
-    BenchEcatReader(commands::bench::EcatReaderArgs),
-    /// One application process of a benchmark (what `skin bench` starts).
-    #[command(hide = true)]
-    BenchApp(commands::bench::AppArgs),
-    /// The writer process of `skin bench follow`.
-    #[command(hide = true)]
-    BenchFollowWriter(commands::bench::FollowWriterArgs),
-    /// The floor server of `skin bench kilohertz`: one message of `--bytes` per acknowledgement.
-    #[command(hide = true)]
-    BenchFloor(commands::kilohertz::floor::FloorArgs),
-    /// One verifying reader process of `skin bench soak`.
-    #[command(hide = true)]
-    BenchSoakReader(commands::soak::ReaderArgs),
-    /// The stopped foreign writers of `skin bench soak`.
-    #[command(hide = true)]
-    BenchSoakForeign(commands::soak::ForeignArgs),
-    /// The CPU hog of `skin bench soak`.
-    #[command(hide = true)]
-    BenchSoakHog(commands::soak::HogArgs),
-    /// The viewer's browser-like client of `skin bench soak`.
-    #[command(hide = true)]
-    BenchSoakBrowser(commands::soak::BrowserArgs),
+    /// The benches' helper processes (hidden): what `skin bench` starts by running `skin` again.
+    #[command(flatten)]
+    BenchRole(skinware_bench::roles::Role),
     /// Run one service of CONFIG in this process (what `skin run` starts).
     #[command(hide = true)]
     Service {
@@ -170,16 +143,7 @@ fn main() -> std::process::ExitCode {
         Command::Info(args) => commands::info::run(&args),
         Command::Region { which } => commands::region::run(&which),
         Command::Bridge(args) => commands::bridge::run(&args),
-        Command::BridgeProbe(args) => commands::bridge_bench::probe(&args),
-        Command::BenchApp(args) => commands::bench::app(&args),
-        Command::BenchFollowWriter(args) => commands::bench::follow_writer(&args),
-        Command::BenchFloor(args) => commands::kilohertz::floor::run(&args),
-        Command::BenchSoakReader(args) => commands::soak::reader(&args),
-        Command::BenchSoakForeign(args) => commands::soak::foreign(&args),
-        Command::BenchSoakHog(args) => commands::soak::hog(&args),
-        Command::BenchSoakBrowser(args) => commands::soak::browser(&args),
-        Command::BenchEcatReader(args) => commands::bench::ecat_reader(&args),
-        Command::BenchPeerReader(args) => commands::bench::peer_reader(&args),
+        Command::BenchRole(role) => role.run(),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -8,20 +8,28 @@ use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
 use skinware::{Reader, Ticker};
 
+use crate::run_options::parse_helper_seconds;
+
 /// Arguments of the `bench-app` role.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, clap::Args)]
 pub struct AppArgs {
     /// Skin name.
+    #[arg(long)]
     pub skin: String,
     /// Layers to read.
+    #[arg(long, value_delimiter = ',')]
     pub layers: Vec<String>,
     /// `periodic` (random 10-100 Hz per layer, seeded) or `asap`.
+    #[arg(long, default_value = "periodic")]
     pub mode: String,
     /// How long to read.
+    #[arg(long, value_parser = parse_helper_seconds)]
     pub seconds: f64,
     /// Seed of the random rates.
+    #[arg(long)]
     pub seed: u64,
     /// Where to write the samples (JSON).
+    #[arg(long)]
     pub out: PathBuf,
 }
 

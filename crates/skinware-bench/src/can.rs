@@ -8,7 +8,6 @@
 //! which is periodic and not synchronised with the boards (0 to 1 period):
 //! that is what a reader of a real CAN skin sees.
 
-use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
@@ -22,17 +21,7 @@ use skinware_drivers::virtual_skin::BASELINE;
 use skinware_emulate::{MtbBoards, MtbFaults, SlcanDevice, run_mtb};
 
 use crate::measure::Percentiles;
-
-/// Options of `skin bench can`.
-#[derive(Clone, Debug)]
-pub struct CanOptions {
-    /// CI-sized: 2 s instead of 20 s.
-    pub quick: bool,
-    /// Where `can.json` goes.
-    pub out: PathBuf,
-    /// Seconds of measurement.
-    pub seconds: Option<f64>,
-}
+use crate::run_options::RunOptions;
 
 /// What `skin bench can` measured.
 #[derive(Debug, Serialize)]
@@ -137,8 +126,8 @@ fn start_driver(url: String, dir: &std::path::Path) -> Result<DriverHandler> {
 }
 
 /// Runs the measurement, prints it and writes `can.json`.
-pub fn run(options: &CanOptions) -> Result<CanReport> {
-    let seconds = options.seconds.unwrap_or(if options.quick { 2.0 } else { 20.0 });
+pub fn run(options: &RunOptions) -> Result<CanReport> {
+    let seconds = options.seconds_or(2.0, 20.0);
     if !(seconds.is_finite() && seconds > 0.0) {
         bail!("--seconds must be a positive number of seconds");
     }

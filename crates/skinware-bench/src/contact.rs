@@ -15,7 +15,6 @@
 //!   other work, and on a VM the hypervisor, in between); at 1 kHz less of
 //!   it is.
 
-use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -28,17 +27,7 @@ use skinware_services::framework::{ServiceMode, ServiceReader};
 use skinware_services::{ContactDetector, ContactParams, ContactServiceConfig, RegionContacts, run_contact_service};
 
 use crate::measure::Percentiles;
-
-/// Options of `skin bench contact`.
-#[derive(Clone, Debug)]
-pub struct ContactBenchOptions {
-    /// CI-sized: 4 s of frames and 3 s of service instead of 20 s each.
-    pub quick: bool,
-    /// Where `contact.json` goes.
-    pub out: PathBuf,
-    /// Seconds of frames (detector) and of running (service).
-    pub seconds: Option<f64>,
-}
+use crate::run_options::RunOptions;
 
 /// What `skin bench contact` measured, per frame, ns.
 #[derive(Clone, Debug, Serialize)]
@@ -119,8 +108,8 @@ fn geometry_of(skin: &str, driver: &VirtualSkin) -> Result<SkinGeometry> {
 }
 
 /// Runs both measurements, prints them and writes `contact.json`.
-pub fn run(options: &ContactBenchOptions) -> Result<ContactReport> {
-    let seconds = options.seconds.unwrap_or(if options.quick { 4.0 } else { 20.0 });
+pub fn run(options: &RunOptions) -> Result<ContactReport> {
+    let seconds = options.seconds_or(4.0, 20.0);
     if !(seconds.is_finite() && seconds > 0.0) {
         bail!("--seconds must be a positive number of seconds");
     }

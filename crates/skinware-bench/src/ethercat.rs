@@ -34,6 +34,7 @@ use skinware_emulate::ethercat::{AlState, LeaveOp, Segment, TactileConfig, Tacti
 
 use crate::measure::Percentiles;
 use crate::netns::{self, EmulatedBus};
+use crate::run_options::{RunOptions, parse_helper_seconds};
 
 /// Taxels of the segment: the paper's EtherCAT sensors.
 const TAXELS: usize = 708;
@@ -54,27 +55,17 @@ const BUS_SETTLE: Duration = Duration::from_millis(8500);
 /// A recovery counts once the layer has been running this long.
 pub const STABLE: Duration = Duration::from_millis(50);
 
-/// Options of `skin bench ethercat`.
-#[derive(Clone, Debug)]
-pub struct EthercatOptions {
-    /// CI-sized: 2 s of cycles, one repetition of each fault.
-    pub quick: bool,
-    /// Where `ethercat.json` goes.
-    pub out: PathBuf,
-    /// Seconds of cycles (overrides 2 s quick, 30 s full).
-    pub seconds: Option<f64>,
-    /// This executable, re-run for the reader process.
-    pub exe: PathBuf,
-}
-
 /// Arguments of the reader process (`bench-ecat-reader`).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, clap::Args)]
 pub struct LatencyReaderArgs {
     /// The channels' directory.
+    #[arg(long)]
     pub dir: PathBuf,
     /// How long to read.
+    #[arg(long, value_parser = parse_helper_seconds)]
     pub seconds: f64,
     /// Where to write its samples (JSON).
+    #[arg(long)]
     pub out: PathBuf,
 }
 
@@ -264,8 +255,8 @@ fn refused_rt(rt: &RtOptions) -> Result<Vec<String>> {
 
 /// Runs the measurement (inside the bench's own network namespace), prints
 /// it and writes `ethercat.json`.
-pub fn run(options: &EthercatOptions) -> Result<EthercatReport> {
-    let seconds = options.seconds.unwrap_or(if options.quick { 2.0 } else { 30.0 });
+pub fn run(options: &RunOptions) -> Result<EthercatReport> {
+    let seconds = options.seconds_or(2.0, 30.0);
     if !(seconds.is_finite() && seconds > 0.0) {
         bail!("--seconds must be a positive number of seconds");
     }
@@ -314,7 +305,7 @@ pub fn run(options: &EthercatOptions) -> Result<EthercatReport> {
 /// The running bench: the emulated segment, the driver's status and the
 /// channel directory.
 struct Bench<'a> {
-    options: &'a EthercatOptions,
+    options: &'a RunOptions,
     seconds: f64,
     dir: &'a PathBuf,
     bus: &'a EmulatedBus,

@@ -23,6 +23,8 @@ use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use skinware::{Reader, ReaderOptions, Stop, Ticker, Writer, WriterOptions};
 
+use crate::run_options::RunOptions;
+
 const SKIN: &str = "follow";
 const CHANNEL: &str = "layer";
 /// The paper's skin in one frame: 30,848 responses.
@@ -35,20 +37,18 @@ const RECHECK: Duration = Duration::from_millis(100);
 /// Options of `skin bench follow`.
 #[derive(Clone, Debug)]
 pub struct FollowOptions {
-    /// A short, CI-sized run.
-    pub quick: bool,
-    /// Directory for the JSON.
-    pub out: PathBuf,
+    /// Quick: 15 writer restarts instead of 100 (`seconds` is not used);
+    /// `follow.json` goes to `out`; `exe` starts the writer processes.
+    pub run: RunOptions,
     /// Writer restarts to measure (default 100, or 15 with `quick`).
     pub rounds: Option<usize>,
-    /// This executable, to start the writer processes.
-    pub exe: PathBuf,
 }
 
 /// Arguments of the hidden `bench-follow-writer` role.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, clap::Args)]
 pub struct FollowWriterArgs {
     /// The segment directory.
+    #[arg(long)]
     pub dir: PathBuf,
 }
 
@@ -138,7 +138,7 @@ pub struct FollowReport {
 
 /// Runs `skin bench follow`.
 pub fn run(options: &FollowOptions) -> Result<FollowReport> {
-    let rounds = options.rounds.unwrap_or(if options.quick { 15 } else { 100 });
+    let rounds = options.rounds.unwrap_or(if options.run.quick { 15 } else { 100 });
     if rounds == 0 {
         bail!("--rounds must be at least 1");
     }
@@ -153,8 +153,8 @@ pub fn run(options: &FollowOptions) -> Result<FollowReport> {
     let _ = std::fs::remove_dir_all(&shm);
     let report = result?;
     print_table(&report);
-    std::fs::create_dir_all(&options.out)?;
-    let path = options.out.join("follow.json");
+    std::fs::create_dir_all(&options.run.out)?;
+    let path = options.run.out.join("follow.json");
     std::fs::write(&path, serde_json::to_vec_pretty(&report)?)?;
     println!("JSON: {}", path.display());
     Ok(report)
@@ -172,7 +172,7 @@ impl Drop for Killed {
 }
 
 fn start_writer(options: &FollowOptions, dir: &std::path::Path) -> Result<(Killed, u64)> {
-    let mut child = Command::new(&options.exe)
+    let mut child = Command::new(&options.run.exe)
         .arg("bench-follow-writer")
         .arg("--dir")
         .arg(dir)

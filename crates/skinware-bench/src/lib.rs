@@ -27,20 +27,35 @@
 //!   lost frames, stuck readers, leaks, and how long every layer takes to
 //!   run again after each kind of fault.
 //!
-//! Application processes are this same executable re-run with the
-//! `bench-app` role ([`app`]).
+//! * [`kilohertz`]: the paper's skin at 1 kHz alone and with everything
+//!   that reads it (applications, services, the viewer and its browsers, the
+//!   recorder); then the viewer with 1 and 10 browsers beside a floor server.
+//!
+//! * [`bridge`]: the paper's skin across a veth link between two network
+//!   namespaces, through `skin bridge` (feature `zenoh`).
+//!
+//! Every bench takes a [`RunOptions`] (quick or full, where its files go,
+//! seconds per configuration, the `skin` executable), alone or inside its
+//! own options. Helper processes (application processes, readers, the floor
+//! server, the soak's helpers) are the `skin` executable run again with a
+//! hidden role ([`roles`]).
+//!
+//! Cargo features: `iceoryx2` adds iceoryx2 to [`peers`]; `zenoh` builds
+//! [`bridge`] (without it, the bridge bench says how to get it).
 
 // `unsafe` is denied everywhere but in the lock-based peer (pthread objects
 // in shared memory), which says so itself.
 #![deny(unsafe_code)]
 
 pub mod app;
+pub mod bridge;
 pub mod can;
 pub mod contact;
 pub mod ethercat;
 pub mod follow;
 #[cfg(feature = "iceoryx2")]
 mod iceoryx2_peer;
+pub mod kilohertz;
 pub mod measure;
 pub mod netns;
 pub mod paper;
@@ -50,7 +65,11 @@ mod plot;
 pub mod procs;
 pub mod python;
 pub mod record;
+pub mod roles;
+pub mod run_options;
 mod rwlock_peer;
 pub mod soak;
 pub mod table1;
 pub mod wake;
+
+pub use run_options::RunOptions;

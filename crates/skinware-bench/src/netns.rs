@@ -60,6 +60,26 @@ pub fn reexec_in_own_namespace() -> Result<std::convert::Infallible> {
     Err(anyhow::anyhow!("cannot run the bench again under `unshare {flags}`: {error}"))
 }
 
+/// Runs this command again in a network namespace of its own (for the
+/// EtherCAT bus's veth pair), unless this is already that copy. Inside,
+/// Ctrl-C or SIGTERM removes this process's channels before it exits (the
+/// namespace and its veth pair go with the last process in it).
+pub fn enter_own_namespace() -> Result<()> {
+    if !inside() {
+        match reexec_in_own_namespace()? {}
+    }
+    let mut signals = signal_hook::iterator::Signals::new([signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM])
+        .context("cannot install signal handlers")?;
+    std::thread::spawn(move || {
+        if let Some(signal) = signals.forever().next() {
+            remove_channels_of_this_process();
+            eprintln!("skin bench: interrupted; channels removed");
+            std::process::exit(128 + signal);
+        }
+    });
+    Ok(())
+}
+
 /// Whether the effective user is root (from `/proc/self/status`; no libc).
 fn skinware_is_root() -> bool {
     std::fs::read_to_string("/proc/self/status")

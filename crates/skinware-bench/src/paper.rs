@@ -1,6 +1,6 @@
 //! `skin bench paper`: the paper's performance test (Section IV.B, Fig. 6).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
@@ -9,41 +9,39 @@ use skinware_drivers::{Rate, VirtualSkin, VirtualSkinConfig};
 
 use crate::app::AppSamples;
 use crate::measure::{self, Percentiles};
+use crate::run_options::RunOptions;
 
 pub use crate::paper_record::PaperRecord;
 
 /// Options of `skin bench paper`.
 #[derive(Clone, Debug)]
 pub struct PaperOptions {
-    /// CI-sized: layers {1, 3, 5} x apps {1, 5, 15}, 1 s each.
-    pub quick: bool,
-    /// Where `paper.json` and `paper.png` go.
-    pub out: PathBuf,
-    /// Seconds per configuration and round (default 1 quick, 4 full).
-    pub seconds: Option<f64>,
+    /// Quick: layers {1, 3, 5} x apps {1, 5, 15}, 1 s each (else 4 s per
+    /// configuration and round); `paper.json` and `paper.png` go to `out`;
+    /// `exe` is run again for the application processes.
+    pub run: RunOptions,
     /// Times the whole grid of configurations is run (default 1 quick, 3
     /// full). Rounds are interleaved and each configuration's samples pooled
     /// over them, so that a slow drift of a shared machine's load does not
     /// fall on one configuration.
     pub rounds: Option<u32>,
-    /// This executable, re-run for the application processes.
-    pub exe: PathBuf,
 }
 
 /// Runs the experiment, prints a table, writes `paper.json` and `paper.png`.
 pub fn run(options: &PaperOptions) -> Result<Vec<PaperRecord>> {
-    let layer_counts: Vec<usize> = if options.quick { vec![1, 3, 5] } else { (1..=5).collect() };
-    let app_counts: Vec<usize> = if options.quick { vec![1, 5, 15] } else { (1..=15).collect() };
-    let seconds = options.seconds.unwrap_or(if options.quick { 1.0 } else { 4.0 });
+    let layer_counts: Vec<usize> = if options.run.quick { vec![1, 3, 5] } else { (1..=5).collect() };
+    let app_counts: Vec<usize> = if options.run.quick { vec![1, 5, 15] } else { (1..=15).collect() };
+    let seconds = options.run.seconds_or(1.0, 4.0);
     if !(seconds.is_finite() && seconds > 0.0) {
         bail!("--seconds must be a positive number of seconds");
     }
-    let rounds = options.rounds.unwrap_or(if options.quick { 1 } else { 3 });
+    let rounds = options.rounds.unwrap_or(if options.run.quick { 1 } else { 3 });
     if rounds == 0 {
         bail!("--rounds must be at least 1");
     }
-    std::fs::create_dir_all(&options.out).with_context(|| format!("cannot create {}", options.out.display()))?;
-    let work = options.out.join("paper-work");
+    std::fs::create_dir_all(&options.run.out)
+        .with_context(|| format!("cannot create {}", options.run.out.display()))?;
+    let work = options.run.out.join("paper-work");
     std::fs::create_dir_all(&work)?;
     let total = (layer_counts.len() * app_counts.len()) as u64 * u64::from(rounds);
     let progress = indicatif::ProgressBar::new(total).with_style(
@@ -103,9 +101,9 @@ pub fn run(options: &PaperOptions) -> Result<Vec<PaperRecord>> {
             us(r.reader_ns.max)
         );
     }
-    let json = options.out.join("paper.json");
+    let json = options.run.out.join("paper.json");
     std::fs::write(&json, serde_json::to_vec_pretty(&records)?)?;
-    let png = options.out.join("paper.png");
+    let png = options.run.out.join("paper.png");
     crate::plot::fig6(&records, &png)?;
     println!("\nwrote {} and {}", json.display(), png.display());
     Ok(records)
@@ -135,7 +133,7 @@ fn run_one(options: &PaperOptions, work: &Path, layers: usize, apps: usize, seco
     let mut children = Vec::new();
     for app in 0..apps {
         let out = work.join(format!("{skin}-app{app}.json"));
-        let child = measure::spawn_app(&options.exe, &skin, &names, "periodic", seconds, app as u64 + 1, &out)?;
+        let child = measure::spawn_app(&options.run.exe, &skin, &names, "periodic", seconds, app as u64 + 1, &out)?;
         children.push((child, out));
     }
     let mut reader_samples = Vec::new();

@@ -10,7 +10,7 @@
 //! both readers are a process apart from the writer, as an application is.
 
 use std::io::{BufRead, BufReader, Read, Write};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -19,6 +19,7 @@ use serde::{Deserialize, Serialize};
 use skinware::{Reader, ReaderOptions, WriterState};
 
 use crate::measure::{Percentiles, RunningSkin};
+use crate::run_options::RunOptions;
 
 const SCRIPT: &str = include_str!("python_bench.py");
 /// The paper's whole skin, as one layer.
@@ -40,16 +41,11 @@ rate_hz = 100
 /// Options of `skin bench python`.
 #[derive(Clone, Debug)]
 pub struct PythonBenchOptions {
-    /// CI-sized: fewer reads and frames.
-    pub quick: bool,
-    /// Where `python.json` goes.
-    pub out: PathBuf,
-    /// Seconds of as-soon-as-available frames (each side).
-    pub seconds: Option<f64>,
+    /// Quick: fewer reads and frames; `seconds` of as-soon-as-available
+    /// frames (each side); `python.json` goes to `out`; `exe` runs the writer.
+    pub run: RunOptions,
     /// The Python with the `skinware` package.
     pub python: String,
-    /// The `skin` executable (runs the writer).
-    pub exe: PathBuf,
 }
 
 /// What `skin bench python` measured, ns.
@@ -115,8 +111,8 @@ pub fn run(options: &PythonBenchOptions) -> Result<PythonReport> {
             bail!("cannot run {}: {e}; set SKINWARE_PYTHON to a Python with the skinware package", options.python)
         }
     }
-    let reads = if options.quick { 3_000 } else { 20_000 };
-    let seconds = options.seconds.unwrap_or(if options.quick { 3.0 } else { 20.0 });
+    let reads = if options.run.quick { 3_000 } else { 20_000 };
+    let seconds = options.run.seconds_or(3.0, 20.0);
     if !(seconds.is_finite() && seconds > 0.0) {
         bail!("--seconds must be a positive number of seconds");
     }
@@ -128,8 +124,9 @@ pub fn run(options: &PythonBenchOptions) -> Result<PythonReport> {
     let _ = std::fs::remove_dir_all(&dir);
     let report = result?;
     print(&report);
-    std::fs::create_dir_all(&options.out).with_context(|| format!("cannot create {}", options.out.display()))?;
-    let path = options.out.join("python.json");
+    std::fs::create_dir_all(&options.run.out)
+        .with_context(|| format!("cannot create {}", options.run.out.display()))?;
+    let path = options.run.out.join("python.json");
     std::fs::write(&path, serde_json::to_vec_pretty(&report)?)?;
     println!("  written: {}", path.display());
     Ok(report)
@@ -138,7 +135,7 @@ pub fn run(options: &PythonBenchOptions) -> Result<PythonReport> {
 fn start_skin(options: &PythonBenchOptions, dir: &Path) -> Result<RunningSkin> {
     let config = dir.join("skin.toml");
     std::fs::write(&config, CONFIG)?;
-    let skin = RunningSkin::start(&options.exe, &config, dir)?;
+    let skin = RunningSkin::start(&options.run.exe, &config, dir)?;
     let started = Instant::now();
     loop {
         let channels = skinware::list_channels(dir).unwrap_or_default();

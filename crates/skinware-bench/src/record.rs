@@ -9,7 +9,7 @@
 //! from the first frame of each, give the replay's timing error.
 
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
@@ -19,21 +19,9 @@ use skinware_record::{AtEnd, Compression, RecordOptions, Recorder, Replay, Repla
 use skinware_ros2::SkinFrame;
 
 use crate::measure::{Percentiles, RunningSkin};
+use crate::run_options::RunOptions;
 
 const PAPER_SKIN: &str = include_str!("../../../examples/paper-virtual-skin.toml");
-
-/// Options of `skin bench record`.
-#[derive(Clone, Debug)]
-pub struct RecordBenchOptions {
-    /// CI-sized: 3 s per recording instead of 20 s.
-    pub quick: bool,
-    /// Where `record.json` goes.
-    pub out: PathBuf,
-    /// Seconds per recording.
-    pub seconds: Option<f64>,
-    /// The `skin` executable (runs the skin).
-    pub exe: PathBuf,
-}
 
 /// One recording.
 #[derive(Clone, Debug, Serialize)]
@@ -96,8 +84,8 @@ fn cpu_seconds() -> f64 {
 }
 
 /// Runs the measurement, prints it and writes `record.json`.
-pub fn run(options: &RecordBenchOptions) -> Result<RecordReport> {
-    let seconds = options.seconds.unwrap_or(if options.quick { 3.0 } else { 20.0 });
+pub fn run(options: &RunOptions) -> Result<RecordReport> {
+    let seconds = options.seconds_or(3.0, 20.0);
     if !(seconds.is_finite() && seconds > 0.0) {
         bail!("--seconds must be a positive number of seconds");
     }
@@ -115,7 +103,7 @@ pub fn run(options: &RecordBenchOptions) -> Result<RecordReport> {
     Ok(report)
 }
 
-fn measure(options: &RecordBenchOptions, seconds: f64, dir: &Path) -> Result<RecordReport> {
+fn measure(options: &RunOptions, seconds: f64, dir: &Path) -> Result<RecordReport> {
     let config = dir.join("paper.toml");
     std::fs::write(&config, PAPER_SKIN)?;
     let files = dir.join("files");

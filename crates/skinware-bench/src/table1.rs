@@ -1,6 +1,5 @@
 //! `skin bench table1`: the paper's Table I with our figures beside it.
 
-use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -10,18 +9,14 @@ use skinware::{LayerTopology, Stop, TopologyBuilder};
 
 use crate::app::AppSamples;
 use crate::measure::{self, Percentiles, WriterSample};
+use crate::run_options::RunOptions;
 
 /// Options of `skin bench table1`.
 #[derive(Clone, Debug)]
 pub struct Table1Options {
-    /// CI-sized: 2 s instead of 60 s.
-    pub quick: bool,
-    /// Where `table1.json` goes.
-    pub out: PathBuf,
-    /// Seconds of measurement.
-    pub seconds: Option<f64>,
-    /// This executable, re-run for the application process.
-    pub exe: PathBuf,
+    /// Quick: 2 s of measurement instead of 60 s; `table1.json` goes to
+    /// `out`; `exe` is run again for the application process.
+    pub run: RunOptions,
     /// How one writer gets its data.
     pub transport: Transport,
 }
@@ -175,19 +170,20 @@ impl Writers {
 
 /// Runs the test, prints the table beside the paper's and writes `table1.json`.
 pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
-    let seconds = options.seconds.unwrap_or(if options.quick { 2.0 } else { 60.0 });
+    let seconds = options.run.seconds_or(2.0, 60.0);
     if !(seconds.is_finite() && seconds > 0.0) {
         bail!("--seconds must be a positive number of seconds");
     }
-    std::fs::create_dir_all(&options.out).with_context(|| format!("cannot create {}", options.out.display()))?;
+    std::fs::create_dir_all(&options.run.out)
+        .with_context(|| format!("cannot create {}", options.run.out.display()))?;
     let skin = format!("table1-{}", std::process::id());
     let topologies = saddle()?;
     let stop = Stop::new();
     let writers = Writers::start(options.transport, &skin, &topologies, &stop)?;
     let after_bus_data = writers.after_bus_data.clone();
-    let out = options.out.join("table1-app.json");
+    let out = options.run.out.join("table1-app.json");
     let names: Vec<String> = topologies.iter().map(|t| t.name.clone()).collect();
-    let mut app = measure::spawn_app(&options.exe, &skin, &names, "asap", seconds, 1, &out)?;
+    let mut app = measure::spawn_app(&options.run.exe, &skin, &names, "asap", seconds, 1, &out)?;
     let status = app.wait()?;
     std::thread::sleep(Duration::from_millis(50));
     stop.stop();
@@ -210,7 +206,7 @@ pub fn run(options: &Table1Options) -> Result<Vec<Table1Row>> {
         rows[0].after_bus_data_ns = Some(Percentiles::of(&mut measure::steady_state(&samples, &window)?));
     }
     print_table(options.transport, seconds, &rows);
-    let json = options.out.join("table1.json");
+    let json = options.run.out.join("table1.json");
     std::fs::write(&json, serde_json::to_vec_pretty(&rows)?)?;
     println!("\nwrote {}", json.display());
     Ok(rows)

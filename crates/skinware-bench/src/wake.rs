@@ -14,7 +14,6 @@
 //! the writer thread's and the whole writer process's CPU time per frame (the
 //! difference is the ringer's).
 
-use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
@@ -23,24 +22,12 @@ use skinware::{ReaderWake, RtOptions, Stop, Ticker, Writer, WriterOptions};
 
 use crate::measure::Percentiles;
 use crate::peers::{SENSORS, Summary, collect_readers, spawn_readers};
+use crate::run_options::RunOptions;
 
 /// Frames per second.
 pub const RATE_HZ: f64 = 1_000.0;
 /// Reader processes in the loaded configurations.
 pub const READERS: usize = 15;
-
-/// Options of `skin bench wake`.
-#[derive(Clone, Debug)]
-pub struct WakeOptions {
-    /// CI-sized: 1 round of 1 s per configuration (else 10 rounds of 1.5 s).
-    pub quick: bool,
-    /// Where `wake.json` goes.
-    pub out: PathBuf,
-    /// Seconds per configuration and round.
-    pub seconds: Option<f64>,
-    /// This executable, re-run for the reader processes.
-    pub exe: PathBuf,
-}
 
 /// One configuration's figures, pooled over its rounds.
 #[derive(Debug, Serialize)]
@@ -116,8 +103,8 @@ const CONFIGURATIONS: [(ReaderWake, usize); 6] = [
 ];
 
 /// Runs the comparison, prints it and writes `wake.json`.
-pub fn run(options: &WakeOptions) -> Result<WakeReport> {
-    let seconds = options.seconds.unwrap_or(if options.quick { 1.0 } else { 1.5 });
+pub fn run(options: &RunOptions) -> Result<WakeReport> {
+    let seconds = options.seconds_or(1.0, 1.5);
     if !(seconds.is_finite() && seconds > 0.0) {
         bail!("--seconds must be a positive number of seconds");
     }
@@ -175,7 +162,7 @@ fn wake_name(wake: ReaderWake) -> &'static str {
 
 /// One configuration for `seconds`, its samples added to `pool`.
 fn run_configuration(
-    options: &WakeOptions,
+    options: &RunOptions,
     wake: ReaderWake,
     readers: usize,
     seconds: f64,

@@ -1,8 +1,17 @@
-//! `skin bench`: the benchmarks (they print tables and write JSON and plots).
+//! `skin bench`: the benchmarks (they print tables and write JSON and
+//! plots). They are `skinware-bench`'s; this file is their command line and
+//! hands each to its bench.
+
+mod soak_config;
 
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
+use skinware_bench::kilohertz::{self, KilohertzOptions, Part, Wake};
+use skinware_bench::run_options::{RunOptions, parse_bench_seconds};
+use skinware_bench::soak::{self, SoakBenchOptions};
+use skinware_bench::table1::{self, Table1Options, Transport};
+use skinware_bench::{bridge, can, contact, ethercat, follow, netns, paper, peers, python, record, wake};
 
 /// Which benchmark.
 #[derive(clap::Subcommand)]
@@ -32,7 +41,7 @@ pub enum Which {
     /// The paper's skin across a veth link between two network namespaces: `skin bridge` (feature `zenoh`) beside the local exchange, at 100/10/1 Mbit/s, and a cut link (needs root).
     Bridge(Common),
     /// Faults for N minutes on a skin of virtual drivers under `skin run`, with verifying readers in every mode, both services, the viewer and a browser, and a recorder: torn, backwards and lost frames, stuck readers, leaks, and how long every layer takes to run again after each kind of fault.
-    Soak(super::soak::SoakArgs),
+    Soak(SoakArgs),
 }
 
 /// Options every benchmark takes.
@@ -49,32 +58,16 @@ pub struct Common {
     pub seconds: Option<f64>,
 }
 
-/// The longest `--seconds` a bench accepts: a day per configuration.
-const MAX_BENCH_SECONDS: f64 = 86_400.0;
-
-/// The longest `--seconds` of the benches' own helper processes, which their
-/// bench starts with its `--seconds` plus a margin (at most a minute now).
-const MAX_HELPER_SECONDS: f64 = 2.0 * MAX_BENCH_SECONDS;
-
-/// `--seconds`: a positive, finite number of seconds up to a day, refused
-/// here rather than as a panic deep in a bench (`1e20` seconds is no
-/// `Duration` at all).
-fn parse_bench_seconds(text: &str) -> Result<f64, String> {
-    parse_seconds_up_to(text, MAX_BENCH_SECONDS, "a day")
-}
-
-/// `--seconds` of a bench's helper process (hidden roles).
-pub(crate) fn parse_helper_seconds(text: &str) -> Result<f64, String> {
-    parse_seconds_up_to(text, MAX_HELPER_SECONDS, "two days")
-}
-
-fn parse_seconds_up_to(text: &str, most: f64, said: &str) -> Result<f64, String> {
-    let seconds: f64 = text.trim().parse().map_err(|_| format!("{text:?} is not a number of seconds"))?;
-    if seconds.is_finite() && seconds > 0.0 && seconds <= most {
-        Ok(seconds)
-    } else {
-        Err(format!("{text} seconds: give more than 0 and at most {most} ({said})"))
+impl Common {
+    /// The bench's run options: these, and this executable to run again.
+    fn run_options(&self) -> Result<RunOptions> {
+        Ok(RunOptions { quick: self.quick, out: self.out.clone(), seconds: self.seconds, exe: this_executable()? })
     }
+}
+
+/// The `skin` executable, which the benches run again for their helpers.
+fn this_executable() -> Result<PathBuf> {
+    std::env::current_exe().context("cannot find the skin executable")
 }
 
 /// Options of `skin bench paper`.
@@ -99,15 +92,15 @@ pub struct KilohertzArgs {
     /// Run only this part (`viewer`: the viewer alone with 1, 10 and 9 + 1
     /// slow browsers, written to `kilohertz-viewer.json`).
     #[arg(long)]
-    only: Option<super::kilohertz::Part>,
+    only: Option<Part>,
     /// Who wakes the layers' sleeping readers (`reader_wake` under
     /// `[driver.rt]`); the library's default if absent.
     #[arg(long)]
-    reader_wake: Option<super::kilohertz::Wake>,
+    reader_wake: Option<Wake>,
     /// Bytes of the floor server's message, 1 to 16 MiB, to see what an
     /// update's size costs a browser (default: the viewer's update, 61,832
     /// bytes; the viewer part only).
-    #[arg(long, value_parser = super::kilohertz::floor::parse_update_bytes)]
+    #[arg(long, value_parser = kilohertz::floor::parse_update_bytes)]
     floor_bytes: Option<usize>,
     /// The floor server reads every layer with the viewer's own readers and
     /// sends their board, instead of a stand-in message: the viewer without
@@ -142,246 +135,89 @@ pub struct FollowArgs {
     rounds: Option<u32>,
 }
 
-/// Arguments of the hidden `bench-follow-writer` role.
+/// Options of `skin bench soak`.
 #[derive(clap::Args)]
-pub struct FollowWriterArgs {
+pub struct SoakArgs {
+    /// The skin to soak: a config of virtual drivers (e.g.
+    /// examples/paper-virtual-skin.toml). Its drivers publish their
+    /// verification pattern during the soak; the contact and motion
+    /// services are added if it has no service.
+    config: PathBuf,
+    /// Minutes of faults (the start and the end take some seconds more; at
+    /// least one round of every kind of fault, about 80 s, however short).
+    #[arg(long, value_parser = soak::parse_minutes)]
+    minutes: Option<f64>,
+    /// Two minutes, as CI runs it (unless --minutes says otherwise).
     #[arg(long)]
-    dir: PathBuf,
-}
-
-/// Runs the writer process of `skin bench follow`.
-pub fn follow_writer(args: &FollowWriterArgs) -> Result<()> {
-    skinware_bench::follow::run_writer(&skinware_bench::follow::FollowWriterArgs { dir: args.dir.clone() })
-}
-
-/// Arguments of the hidden `bench-app` role.
-#[derive(clap::Args)]
-pub struct AppArgs {
+    quick: bool,
+    /// The faults' seed, to run the same faults again (printed at the start).
     #[arg(long)]
-    skin: String,
-    #[arg(long, value_delimiter = ',')]
-    layers: Vec<String>,
-    #[arg(long, default_value = "periodic")]
-    mode: String,
-    #[arg(long, value_parser = parse_helper_seconds)]
-    seconds: f64,
-    #[arg(long)]
-    seed: u64,
-    #[arg(long)]
+    seed: Option<u64>,
+    /// Directory for soak.json and the logs (soak-work/).
+    #[arg(long, default_value = "target/bench")]
     out: PathBuf,
 }
 
-/// Runs `skin bench ...`.
+/// Runs `skin bench ...`: hands the options to the bench.
 pub fn run(which: &Which) -> Result<()> {
-    let exe = std::env::current_exe().context("cannot find the skin executable")?;
     match which {
         Which::Paper(PaperArgs { common, rounds }) => {
-            let options = skinware_bench::paper::PaperOptions {
-                quick: common.quick,
-                out: common.out.clone(),
-                seconds: common.seconds,
-                rounds: *rounds,
-                exe,
-            };
-            skinware_bench::paper::run(&options).map(|_| ())
+            paper::run(&paper::PaperOptions { run: common.run_options()?, rounds: *rounds }).map(drop)
         }
-        Which::Table1(Table1Args { common, transport }) => {
-            let transport = match transport.as_str() {
-                "slcan" => skinware_bench::table1::Transport::Slcan,
-                "ethercat" => {
-                    enter_own_network_namespace()?;
-                    skinware_bench::table1::Transport::Ethercat
-                }
-                _ => skinware_bench::table1::Transport::Memory,
-            };
-            let options = skinware_bench::table1::Table1Options {
-                quick: common.quick,
-                out: common.out.clone(),
-                seconds: common.seconds,
-                exe,
-                transport,
-            };
-            skinware_bench::table1::run(&options).map(|_| ())
-        }
+        Which::Table1(args) => run_table1(args),
         Which::Ethercat(common) => {
-            enter_own_network_namespace()?;
-            let options = skinware_bench::ethercat::EthercatOptions {
-                quick: common.quick,
-                out: common.out.clone(),
-                seconds: common.seconds,
-                exe,
-            };
-            skinware_bench::ethercat::run(&options).map(|_| ())
+            netns::enter_own_namespace()?;
+            ethercat::run(&common.run_options()?).map(drop)
         }
-        Which::Can(common) => {
-            let options = skinware_bench::can::CanOptions {
-                quick: common.quick,
-                out: common.out.clone(),
-                seconds: common.seconds,
-            };
-            skinware_bench::can::run(&options).map(|_| ())
-        }
-        Which::Peers(common) => {
-            let options = skinware_bench::peers::PeersOptions {
-                quick: common.quick,
-                out: common.out.clone(),
-                seconds: common.seconds,
-                exe,
-            };
-            skinware_bench::peers::run(&options).map(|_| ())
-        }
-        Which::Wake(common) => {
-            let options = skinware_bench::wake::WakeOptions {
-                quick: common.quick,
-                out: common.out.clone(),
-                seconds: common.seconds,
-                exe,
-            };
-            skinware_bench::wake::run(&options).map(|_| ())
-        }
-        Which::Record(common) => {
-            let options = skinware_bench::record::RecordBenchOptions {
-                quick: common.quick,
-                out: common.out.clone(),
-                seconds: common.seconds,
-                exe,
-            };
-            skinware_bench::record::run(&options).map(|_| ())
-        }
-        Which::Kilohertz(KilohertzArgs { common, viewer_exe, only, reader_wake, floor_bytes, floor_reads_skin }) => {
-            let options = super::kilohertz::Options {
-                viewer_exe: viewer_exe.as_deref(),
-                only: *only,
-                wake: *reader_wake,
-                floor_bytes: *floor_bytes,
-                floor_reads_skin: *floor_reads_skin,
-            };
-            super::kilohertz::bench(common, &options)
-        }
-        Which::Bridge(common) => super::bridge_bench::bench(common),
-        Which::Follow(FollowArgs { common, rounds }) => {
-            let options = skinware_bench::follow::FollowOptions {
-                quick: common.quick,
-                out: common.out.clone(),
-                rounds: rounds.map(|r| r as usize),
-                exe,
-            };
-            skinware_bench::follow::run(&options).map(|_| ())
-        }
-        Which::Soak(args) => super::soak::bench(args),
-        Which::Contact(common) => {
-            let options = skinware_bench::contact::ContactBenchOptions {
-                quick: common.quick,
-                out: common.out.clone(),
-                seconds: common.seconds,
-            };
-            skinware_bench::contact::run(&options).map(|_| ())
-        }
+        Which::Can(common) => can::run(&common.run_options()?).map(drop),
+        Which::Peers(common) => peers::run(&common.run_options()?).map(drop),
+        Which::Record(common) => record::run(&common.run_options()?).map(drop),
+        Which::Contact(common) => contact::run(&common.run_options()?).map(drop),
         Which::Python(common) => {
-            let options = skinware_bench::python::PythonBenchOptions {
-                quick: common.quick,
-                out: common.out.clone(),
-                seconds: common.seconds,
-                python: std::env::var("SKINWARE_PYTHON").unwrap_or_else(|_| "python3".into()),
-                exe,
-            };
-            skinware_bench::python::run(&options).map(|_| ())
+            let python = std::env::var("SKINWARE_PYTHON").unwrap_or_else(|_| "python3".into());
+            python::run(&python::PythonBenchOptions { run: common.run_options()?, python }).map(drop)
         }
+        Which::Wake(common) => wake::run(&common.run_options()?).map(drop),
+        Which::Kilohertz(args) => kilohertz::bench(&args.options()?),
+        Which::Follow(FollowArgs { common, rounds }) => {
+            let rounds = rounds.map(|r| r as usize);
+            follow::run(&follow::FollowOptions { run: common.run_options()?, rounds }).map(drop)
+        }
+        Which::Bridge(common) => bridge::bench(&common.run_options()?),
+        Which::Soak(args) => soak::bench(&args.options()?, &soak_config::SkinConfigs),
     }
 }
 
-/// Runs this command again in a network namespace of its own (for the
-/// EtherCAT bus's veth pair), unless this is already that copy.
-/// Inside, Ctrl-C or SIGTERM removes this process's channels before it
-/// exits (the namespace and its veth pair go with the last process in it).
-fn enter_own_network_namespace() -> Result<()> {
-    if !skinware_bench::netns::inside() {
-        match skinware_bench::netns::reexec_in_own_namespace()? {}
+/// `skin bench table1`, in a network namespace of its own for `--transport ethercat`.
+fn run_table1(Table1Args { common, transport }: &Table1Args) -> Result<()> {
+    let transport = match transport.as_str() {
+        "slcan" => Transport::Slcan,
+        "ethercat" => {
+            netns::enter_own_namespace()?;
+            Transport::Ethercat
+        }
+        _ => Transport::Memory,
+    };
+    table1::run(&Table1Options { run: common.run_options()?, transport }).map(drop)
+}
+
+impl KilohertzArgs {
+    fn options(&self) -> Result<KilohertzOptions> {
+        Ok(KilohertzOptions {
+            run: self.common.run_options()?,
+            viewer_exe: self.viewer_exe.clone(),
+            only: self.only,
+            wake: self.reader_wake,
+            floor_bytes: self.floor_bytes,
+            floor_reads_skin: self.floor_reads_skin,
+        })
     }
-    let mut signals = signal_hook::iterator::Signals::new([signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM])
-        .context("cannot install signal handlers")?;
-    std::thread::spawn(move || {
-        if let Some(signal) = signals.forever().next() {
-            skinware_bench::netns::remove_channels_of_this_process();
-            eprintln!("skin bench: interrupted; channels removed");
-            std::process::exit(128 + signal);
-        }
-    });
-    Ok(())
 }
 
-/// Arguments of the hidden `bench-ecat-reader` role.
-#[derive(clap::Args)]
-pub struct EcatReaderArgs {
-    #[arg(long)]
-    dir: PathBuf,
-    #[arg(long, value_parser = parse_helper_seconds)]
-    seconds: f64,
-    #[arg(long)]
-    out: PathBuf,
-}
-
-/// Runs the reader process of `skin bench ethercat`.
-pub fn ecat_reader(args: &EcatReaderArgs) -> Result<()> {
-    skinware_bench::ethercat::run_latency_reader(&skinware_bench::ethercat::LatencyReaderArgs {
-        dir: args.dir.clone(),
-        seconds: args.seconds,
-        out: args.out.clone(),
-    })
-}
-
-/// Arguments of the hidden `bench-peer-reader` role.
-#[derive(clap::Args)]
-pub struct PeerReaderArgs {
-    #[arg(long)]
-    system: String,
-    #[arg(long)]
-    name: String,
-    #[arg(long, value_parser = parse_helper_seconds)]
-    seconds: f64,
-    #[arg(long, default_value = "wait")]
-    mode: String,
-    #[arg(long)]
-    out: PathBuf,
-}
-
-/// Runs one reader process of `skin bench peers`.
-pub fn peer_reader(args: &PeerReaderArgs) -> Result<()> {
-    skinware_bench::peers::run_reader(&skinware_bench::peers::PeerReaderArgs {
-        system: args.system.clone(),
-        name: args.name.clone(),
-        seconds: args.seconds,
-        mode: args.mode.clone(),
-        out: args.out.clone(),
-    })
-}
-
-/// Runs one application process of a benchmark.
-pub fn app(args: &AppArgs) -> Result<()> {
-    skinware_bench::app::run(&skinware_bench::app::AppArgs {
-        skin: args.skin.clone(),
-        layers: args.layers.clone(),
-        mode: args.mode.clone(),
-        seconds: args.seconds,
-        seed: args.seed,
-        out: args.out.clone(),
-    })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn bench_seconds_are_a_positive_number_up_to_a_day() {
-        assert_eq!(parse_bench_seconds("2.5"), Ok(2.5));
-        assert_eq!(parse_bench_seconds("86400"), Ok(86_400.0));
-        for bad in ["0", "-1", "1e20", "inf", "NaN", "ten"] {
-            let error = parse_bench_seconds(bad).unwrap_err();
-            assert!(error.contains(bad) || error.contains("not a number"), "{bad}: {error}");
-        }
-        // A bench's helper gets the bench's seconds plus a margin.
-        assert_eq!(parse_helper_seconds("86430"), Ok(86_430.0));
-        assert!(parse_helper_seconds("1e20").is_err());
+impl SoakArgs {
+    fn options(&self) -> Result<SoakBenchOptions> {
+        // The soak counts minutes, not seconds per configuration.
+        let run = RunOptions { quick: self.quick, out: self.out.clone(), seconds: None, exe: this_executable()? };
+        Ok(SoakBenchOptions { run, config: self.config.clone(), minutes: self.minutes, seed: self.seed })
     }
 }

@@ -15,7 +15,7 @@ use skinware_viewer::{self as view, Site};
 use skin::config::Config;
 
 /// The demo's skin: drivers (and, later, services) in one place.
-pub(crate) const DEMO_CONFIG: &str = include_str!("../../../../examples/demo.toml");
+const DEMO_CONFIG: &str = include_str!("../../../../examples/demo.toml");
 
 /// How long the skin may take to come up (the first run computes its geometry).
 const STARTUP_LIMIT: Duration = Duration::from_secs(120);

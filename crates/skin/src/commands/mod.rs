@@ -2,7 +2,6 @@
 
 pub mod bench;
 pub mod bridge;
-pub mod bridge_bench;
 pub mod clean;
 pub mod demo;
 pub mod driver;
@@ -10,7 +9,6 @@ pub mod echo;
 pub mod emulate;
 pub mod geometry;
 pub mod info;
-pub mod kilohertz;
 pub mod ls;
 pub mod pull;
 pub mod record;
@@ -19,6 +17,5 @@ pub mod replay;
 pub mod run;
 pub mod service;
 pub mod services;
-pub mod soak;
 pub mod top;
 pub mod view;

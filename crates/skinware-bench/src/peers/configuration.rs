@@ -9,12 +9,13 @@ use std::time::Duration;
 use anyhow::{Context, Result, bail};
 use skinware::{RtOptions, Stop, Ticker, Writer, WriterOptions};
 
-use super::setup::{FRAME_BYTES, PeerReaderSamples, PeersOptions, RATE_HZ, SENSORS};
+use super::setup::{FRAME_BYTES, PeerReaderSamples, RATE_HZ, SENSORS};
 use crate::measure::Percentiles;
+use crate::run_options::RunOptions;
 use crate::rwlock_peer::RwLockChannel;
 
 pub(super) fn run_one(
-    options: &PeersOptions,
+    options: &RunOptions,
     system: &str,
     readers: usize,
     seconds: f64,
@@ -25,7 +26,7 @@ pub(super) fn run_one(
 /// Runs one configuration; readers `wait` for each frame or read `busy`
 /// back to back. Returns (publish, latency, copy, frames or reads received).
 pub(super) fn run_mode(
-    options: &PeersOptions,
+    options: &RunOptions,
     system: &str,
     readers: usize,
     seconds: f64,

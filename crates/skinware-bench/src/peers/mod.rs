@@ -25,16 +25,17 @@ use self::cyclictest::run_cyclictest;
 use self::futex_wake::measure_futex_wake;
 use self::memcpy::{measure_memcpy, measure_memcpy_cross_core, measure_memcpy_woken};
 use self::setup::{FRAME_BYTES, woken_rounds};
+use crate::run_options::RunOptions;
 
 pub use self::cyclictest::Cyclictest;
 pub use self::futex_wake::WakeLatency;
 pub use self::reader::run_reader;
 pub use self::report::{BusyRecord, PeerRecord, PeersReport, Summary};
-pub use self::setup::{ANTICIPATE, PeerReaderArgs, PeerReaderSamples, PeersOptions, RATE_HZ, SENSORS, SYSTEMS};
+pub use self::setup::{ANTICIPATE, PeerReaderArgs, PeerReaderSamples, RATE_HZ, SENSORS, SYSTEMS};
 
 /// Runs the comparison, prints it and writes `peers.json`.
-pub fn run(options: &PeersOptions) -> Result<PeersReport> {
-    let seconds = options.seconds.unwrap_or(if options.quick { 1.0 } else { 10.0 });
+pub fn run(options: &RunOptions) -> Result<PeersReport> {
+    let seconds = options.seconds_or(1.0, 10.0);
     if !(seconds.is_finite() && seconds > 0.0) {
         bail!("--seconds must be a positive number of seconds");
     }

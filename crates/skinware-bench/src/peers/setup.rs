@@ -23,19 +23,6 @@ pub const ANTICIPATE: Duration = Duration::from_micros(250);
 /// Frames per second delivered.
 pub const RATE_HZ: f64 = 200.0;
 
-/// Options of `skin bench peers`.
-#[derive(Clone, Debug)]
-pub struct PeersOptions {
-    /// CI-sized: 1 s per configuration.
-    pub quick: bool,
-    /// Where `peers.json` goes.
-    pub out: PathBuf,
-    /// Seconds per configuration.
-    pub seconds: Option<f64>,
-    /// This executable, re-run for the reader processes.
-    pub exe: PathBuf,
-}
-
 /// Frames of the same-run baselines that mimic a waiting reader: one every
 /// 5 ms, as in the comparison itself, so the reader's CPU idles in between.
 pub(super) fn woken_rounds(quick: bool) -> u32 {
@@ -53,17 +40,22 @@ pub struct PeerReaderSamples {
     pub reads: usize,
 }
 
-/// Arguments of the peer reader role.
-#[derive(Clone, Debug)]
+/// Arguments of the peer reader role (`bench-peer-reader`).
+#[derive(Clone, Debug, clap::Args)]
 pub struct PeerReaderArgs {
     /// `skinware` or `rwlock`.
+    #[arg(long)]
     pub system: String,
     /// Channel name.
+    #[arg(long)]
     pub name: String,
     /// How long to read.
+    #[arg(long, value_parser = crate::run_options::parse_helper_seconds)]
     pub seconds: f64,
     /// `wait` (for every frame) or `busy` (back to back, on request).
+    #[arg(long, default_value = "wait")]
     pub mode: String,
     /// Where to write the samples.
+    #[arg(long)]
     pub out: PathBuf,
 }

@@ -11,6 +11,25 @@ use skinware::{Writer, WriterOptions};
 /// The skin of the foreign writers: no skin the soak runs may be named so.
 pub const FOREIGN_SKIN: &str = "soak-foreign";
 
+/// Arguments of the hidden `bench-soak-foreign` role.
+#[derive(Clone, Debug, clap::Args)]
+pub struct ForeignArgs {
+    /// Writers to run (1 to 100).
+    #[arg(long, default_value_t = 10)]
+    pub channels: usize,
+}
+
+/// Arguments of the hidden `bench-soak-hog` role.
+#[derive(Clone, Debug, clap::Args)]
+pub struct HogArgs {
+    /// Busy threads (1 to 1024).
+    #[arg(long)]
+    pub threads: usize,
+    /// How long they are busy.
+    #[arg(long, value_parser = crate::run_options::parse_helper_seconds)]
+    pub seconds: f64,
+}
+
 /// Runs `channels` writers of [`FOREIGN_SKIN`] (in the segment directory
 /// of `SKINWARE_SHM_DIR`), each publishing 64 bytes at 10 Hz, until standard
 /// input closes; says `ready` on standard output once all exist. Each writer

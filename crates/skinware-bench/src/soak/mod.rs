@@ -17,8 +17,11 @@
 
 #![forbid(unsafe_code)]
 
+pub mod browser;
+pub mod config;
 mod faults;
 pub mod helpers;
+mod injection;
 mod monitor;
 mod observer;
 pub mod reader;
@@ -35,7 +38,9 @@ use anyhow::{Context, Result, bail};
 
 use crate::measure::RunningSkin;
 use crate::procs::{self, Guarded};
-pub use faults::FaultKind;
+use crate::run_options::{DurationError, RunOptions, parse_up_to};
+use config::ConfigParser;
+pub use injection::FaultKind;
 use observer::Observer;
 use reader::Mode;
 use report::SoakReport;
@@ -58,10 +63,80 @@ pub struct LayerPlan {
     pub pull_file: PathBuf,
 }
 
-/// What `skin bench soak` runs.
+/// What `skin bench soak` is given.
+#[derive(Clone, Debug)]
+pub struct SoakBenchOptions {
+    /// `out` takes `soak.json`, the soak's config and `soak-work/`; `quick`
+    /// is two minutes of faults unless `minutes` says otherwise; `exe` runs
+    /// the skin, its commands and the soak's helpers (`seconds` is not used).
+    pub run: RunOptions,
+    /// The skin to soak: a config of virtual drivers (its drivers publish
+    /// their verification pattern during the soak; the contact and motion
+    /// services are added if it has no service).
+    pub config: PathBuf,
+    /// Minutes of faults (default 60; 2 with `quick`).
+    pub minutes: Option<f64>,
+    /// The faults' seed, to run the same faults again (a new one if `None`).
+    pub seed: Option<u64>,
+}
+
+/// The most minutes of faults: a day.
+const MAX_MINUTES: f64 = 24.0 * 60.0;
+
+/// `--minutes` of the soak: more than 0, at most a day.
+pub fn parse_minutes(text: &str) -> Result<f64, DurationError> {
+    parse_up_to(text, "minutes", MAX_MINUTES, "a day")
+}
+
+/// Runs `skin bench soak`: writes the soak's version of the config (read
+/// with `parser`, `skin run`'s) and soaks it, in a segment directory of its
+/// own, until done or interrupted (Ctrl-C, SIGTERM); fails if the soak
+/// found a correctness failure, or was interrupted.
+pub fn bench(options: &SoakBenchOptions, parser: &dyn ConfigParser) -> Result<()> {
+    let interrupted = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, interrupted.clone()).context("cannot install signal handlers")?;
+    }
+    let out = &options.run.out;
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let dir = skinware::shm::segment_dir().join(format!("skin-soak-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir)
+        .with_context(|| format!("cannot create the soak's segment directory {}", dir.display()))?;
+    let prepared = match config::prepare(&options.config, &dir, out, parser) {
+        Ok(prepared) => prepared,
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&dir);
+            return Err(e);
+        }
+    };
+    let soak = SoakOptions {
+        run: options.run.clone(),
+        source_config: options.config.display().to_string(),
+        config: prepared.path,
+        skin: prepared.plan.skin,
+        layers: prepared.plan.layers,
+        services: prepared.plan.services,
+        dir,
+        minutes: options.minutes.unwrap_or(if options.run.quick { 2.0 } else { 60.0 }),
+        seed: options.seed,
+        interrupted: interrupted.clone(),
+    };
+    let report = run(&soak)?;
+    if interrupted.load(Ordering::Relaxed) {
+        bail!("interrupted: the report above covers the faults until then");
+    }
+    if !report.passed {
+        bail!("the soak found {} correctness failure(s): {}", report.failures.len(), report.failures.join("; "));
+    }
+    Ok(())
+}
+
+/// What the soak runs, its config prepared.
 pub struct SoakOptions {
-    /// The `skin` executable (the soak starts its commands and hidden roles).
-    pub exe: PathBuf,
+    /// `exe`, the `skin` executable, starts the skin, its commands and the
+    /// soak's hidden roles; `out` takes `soak.json` and the work files.
+    pub run: RunOptions,
     /// The config the user gave, for the report.
     pub source_config: String,
     /// The config to run: the user's, with `verify_pattern` on its virtual
@@ -79,8 +154,6 @@ pub struct SoakOptions {
     pub minutes: f64,
     /// The faults' seed (a new one if `None`).
     pub seed: Option<u64>,
-    /// Where `soak.json` and the work files go.
-    pub out: PathBuf,
     /// Set by Ctrl-C or SIGTERM: the soak stops, cleans up and reports.
     pub interrupted: Arc<AtomicBool>,
 }
@@ -152,11 +225,11 @@ fn keep_reports(reports: &Path, work: &Path) {
 
 /// Runs the soak, prints its tables and writes `soak.json` into `out`.
 pub fn run(options: &SoakOptions) -> Result<SoakReport> {
-    if !(options.minutes.is_finite() && options.minutes > 0.0 && options.minutes <= 24.0 * 60.0) {
+    if !(options.minutes.is_finite() && options.minutes > 0.0 && options.minutes <= MAX_MINUTES) {
         bail!("--minutes must be more than 0 and at most a day ({})", options.minutes);
     }
     let seed = options.seed.unwrap_or_else(|| skinware::os::monotonic_ns() | 1);
-    let work = options.out.join("soak-work");
+    let work = options.run.out.join("soak-work");
     let _ = std::fs::remove_dir_all(&work);
     std::fs::create_dir_all(&work).with_context(|| format!("cannot create {}", work.display()))?;
     let reports = reports_dir()?;
@@ -209,7 +282,7 @@ pub fn run(options: &SoakOptions) -> Result<SoakReport> {
     let _ = std::fs::remove_dir_all(&options.dir);
     keep_reports(&reports, &work);
     report.print();
-    let path = options.out.join("soak.json");
+    let path = options.run.out.join("soak.json");
     std::fs::write(&path, serde_json::to_vec_pretty(&report)?)
         .with_context(|| format!("cannot write {}", path.display()))?;
     println!("written: {} (faults, recovery, processes over time); logs in {}", path.display(), work.display());
@@ -232,7 +305,7 @@ impl Soak<'_> {
     /// only, which stops everything in order), its standard error in a log.
     fn command(&self, log: &str) -> Result<Command> {
         use std::os::unix::process::CommandExt;
-        let mut command = Command::new(&self.options.exe);
+        let mut command = Command::new(&self.options.run.exe);
         let log = self.work.join(log);
         let file = std::fs::OpenOptions::new()
             .create(true)
@@ -255,7 +328,7 @@ impl Soak<'_> {
         }
         self.wait_for_readers()?;
         let (viewer, address) = procs::start_viewer(
-            &self.options.exe,
+            &self.options.run.exe,
             &self.options.dir,
             &["--skin", &self.options.skin],
             Some(&self.work.join("viewer.log")),
@@ -291,7 +364,7 @@ impl Soak<'_> {
 
     fn start_skin(&mut self) -> Result<()> {
         let log = self.work.join("skin-run.log");
-        let skin = RunningSkin::start_logged(&self.options.exe, &self.options.config, &self.options.dir, &log)?;
+        let skin = RunningSkin::start_logged(&self.options.run.exe, &self.options.config, &self.options.dir, &log)?;
         self.monitor.skin_pid = skin.pid();
         self.skin = Some(skin);
         // The geometry of a skin not yet cached takes a while to build.

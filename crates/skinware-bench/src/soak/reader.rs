@@ -250,15 +250,19 @@ impl ReaderReport {
 }
 
 /// What `skin bench-soak-reader` is told.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, clap::Args)]
 pub struct ReaderArgs {
     /// The skin.
+    #[arg(long)]
     pub skin: String,
     /// Its layers to read.
+    #[arg(long, value_delimiter = ',')]
     pub layers: Vec<String>,
-    /// How.
+    /// How: periodic, asap, request or anticipate.
+    #[arg(long, value_parser = Mode::parse)]
     pub mode: Mode,
     /// Where to write the report.
+    #[arg(long)]
     pub report: PathBuf,
 }
 

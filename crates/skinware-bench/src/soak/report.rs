@@ -24,7 +24,7 @@ pub struct ModeTotals {
 pub struct FaultRecord {
     /// Its number in the run, from 1.
     pub index: usize,
-    /// Its kind (see [`super::faults::FaultKind`]).
+    /// Its kind (see [`super::injection::FaultKind`]).
     pub kind: String,
     /// What it hit (a process, a layer, a path).
     pub target: String,

@@ -9,7 +9,7 @@ use anyhow::{Context, Result, bail};
 use rustix::process::Signal;
 
 use super::Soak;
-use super::faults::{FaultKind, Injected};
+use super::injection::{FaultKind, Injected};
 use crate::procs;
 
 /// The skin whose channel names the squats take: no skin runs under it.

@@ -55,16 +55,16 @@ pub const BROWSER_THREAD: &str = "floor-browser";
 const MAX_UPDATE_BYTES: usize = 16 << 20;
 
 /// Arguments of the hidden `bench-floor` role.
-#[derive(clap::Args)]
+#[derive(Clone, Debug, clap::Args)]
 pub struct FloorArgs {
     /// Bytes of each update message.
     #[arg(long, value_parser = parse_update_bytes)]
-    bytes: usize,
+    pub bytes: usize,
     /// Read every layer of this skin (in `SKINWARE_SHM_DIR`) as the viewer
     /// does and send its newest frames instead (`--bytes` is still
     /// required, and unused).
     #[arg(long)]
-    read_skin: Option<String>,
+    pub read_skin: Option<String>,
 }
 
 /// The viewer's readers of a skin, whose board the floor server sends.
@@ -89,12 +89,31 @@ impl SkinReaders {
     }
 }
 
+/// An update's size that is no number, or out of range.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum UpdateBytesError {
+    /// The text is not a number (or too large for one).
+    #[error("{text:?} is not a number of bytes")]
+    NotANumber {
+        /// What was given.
+        text: String,
+    },
+    /// 0, or more than 16 MiB.
+    #[error("{bytes} is not an update's size: give 1 to {most} bytes (16 MiB)")]
+    OutOfRange {
+        /// What was given.
+        bytes: usize,
+        /// The most allowed.
+        most: usize,
+    },
+}
+
 /// An update's size in bytes: 1 to 16 MiB, refused here rather than as an
 /// allocation that aborts.
-pub fn parse_update_bytes(text: &str) -> Result<usize, String> {
-    let bytes: usize = text.trim().parse().map_err(|_| format!("{text:?} is not a number of bytes"))?;
+pub fn parse_update_bytes(text: &str) -> Result<usize, UpdateBytesError> {
+    let bytes: usize = text.trim().parse().map_err(|_| UpdateBytesError::NotANumber { text: text.to_owned() })?;
     if !(1..=MAX_UPDATE_BYTES).contains(&bytes) {
-        return Err(format!("{bytes} is not an update's size: give 1 to {MAX_UPDATE_BYTES} bytes (16 MiB)"));
+        return Err(UpdateBytesError::OutOfRange { bytes, most: MAX_UPDATE_BYTES });
     }
     Ok(bytes)
 }
@@ -357,11 +376,13 @@ mod tests {
         assert_eq!(parse_update_bytes(" 61832 "), Ok(61_832));
         assert_eq!(parse_update_bytes("16777216"), Ok(MAX_UPDATE_BYTES));
         for refused in ["0", "16777217"] {
-            let error = parse_update_bytes(refused).unwrap_err();
+            let error = parse_update_bytes(refused).unwrap_err().to_string();
             assert_eq!(error, format!("{refused} is not an update's size: give 1 to 16777216 bytes (16 MiB)"));
         }
-        assert!(parse_update_bytes("99999999999999999999").unwrap_err().contains("is not a number of bytes"));
-        assert_eq!(parse_update_bytes("abc"), Err("\"abc\" is not a number of bytes".to_owned()));
-        assert_eq!(parse_update_bytes("-5"), Err("\"-5\" is not a number of bytes".to_owned()));
+        let error = parse_update_bytes("99999999999999999999").unwrap_err().to_string();
+        assert!(error.contains("is not a number of bytes"), "{error}");
+        assert_eq!(parse_update_bytes("abc").unwrap_err().to_string(), "\"abc\" is not a number of bytes");
+        assert_eq!(parse_update_bytes("-5").unwrap_err().to_string(), "\"-5\" is not a number of bytes");
+        assert_eq!(parse_update_bytes("0"), Err(UpdateBytesError::OutOfRange { bytes: 0, most: MAX_UPDATE_BYTES }));
     }
 }

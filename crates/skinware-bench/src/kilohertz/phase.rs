@@ -1,0 +1,328 @@
+//! The control and the loaded run: the paper's skin at 1 kHz alone, then
+//! with 15 applications, both services at 1 kHz, the viewer with 3
+//! browsers and the recorder.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use skinware::{Reader, ReaderOptions, WriterStats, histogram_quantile};
+
+use super::browser::{SeqClock, WindowMarks, browse};
+use super::cpu::{clock_ticks_per_s, cpu_ticks};
+use super::report::{BrowserFigures, PhaseReport, WriterFigures};
+use super::{APPS, ASAP_APPS, BROWSERS, DISPLAY_HZ, LAYERS, PAPER_SKIN, Wake};
+use crate::app::AppSamples;
+use crate::measure::{Percentiles, RunningSkin};
+use crate::procs::{Guarded, start_viewer, supervised_pids};
+
+/// The paper's skin at 1 kHz; with its services (also at 1 kHz) or none.
+fn config(with_services: bool, wake: Option<Wake>) -> Result<String> {
+    let layers_at = "rate_hz = { random = [30, 50] }";
+    let rt = "[driver.rt]\n";
+    if !PAPER_SKIN.contains(layers_at) || PAPER_SKIN.matches(rt).count() != 1 {
+        bail!(
+            "examples/paper-virtual-skin.toml no longer sets {layers_at:?} and one {rt:?}; update the kilohertz bench"
+        );
+    }
+    let mut text = PAPER_SKIN.replace(layers_at, "rate_hz = 1000");
+    if let Some(wake) = wake {
+        text = text.replace(rt, &format!("{rt}reader_wake = \"{}\"\n", wake.name()));
+    }
+    Ok(match text.split_once("[[service]]") {
+        Some((skin, services)) if with_services => {
+            format!("{skin}[[service]]{}", services.replace("rate_hz = 50", "rate_hz = 1000"))
+        }
+        Some((skin, _)) => skin.to_owned(),
+        None => bail!("examples/paper-virtual-skin.toml has no services; update the kilohertz bench"),
+    })
+}
+
+/// Starts the paper's skin at 1 kHz in segment directory `dir` (with its
+/// services, or none), and waits for its layers' (and services') channels;
+/// returns it and a reader of each layer.
+pub(super) fn start_skin(
+    exe: &Path,
+    (dir, wake): (&Path, Option<Wake>),
+    with_services: bool,
+) -> Result<(RunningSkin, Vec<Reader>)> {
+    let path = dir.join(if with_services { "loaded.toml" } else { "control.toml" });
+    std::fs::write(&path, config(with_services, wake)?)?;
+    let skin = RunningSkin::start(exe, &path, dir)?;
+    let options = ReaderOptions { dir: Some(dir.to_owned()), ..ReaderOptions::default() };
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let mut readers = Vec::new();
+    for layer in 0..LAYERS {
+        let name = format!("virtual-{layer}");
+        let reader = loop {
+            match Reader::open_with("default", &name, &options) {
+                Ok(reader) => break reader,
+                Err(_) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(100)),
+                Err(e) => return Err(e).context(format!("the skin's layer {name} did not appear within 30 s")),
+            }
+        };
+        readers.push(reader);
+    }
+    if with_services {
+        for service in ["contact", "motion"] {
+            while Reader::open_with("default", service, &options).is_err() {
+                if Instant::now() > deadline {
+                    bail!("the {service} service did not appear within 30 s");
+                }
+                std::thread::sleep(Duration::from_millis(100));
+            }
+        }
+    }
+    Ok((skin, readers))
+}
+
+/// One run of the paper's skin at 1 kHz: the control (`loaded` false, the
+/// skin alone) or the loaded run (with everything that reads it).
+pub(super) fn run_phase(
+    exe: &Path,
+    viewer_exe: &Path,
+    (dir, wake): (&Path, Option<Wake>),
+    seconds: f64,
+    loaded: bool,
+    out: &Path,
+) -> Result<PhaseReport> {
+    let phase = if loaded { "loaded" } else { "control" };
+    eprintln!("kilohertz: {phase} run, {seconds} s");
+    let (skin, readers) = start_skin(exe, (dir, wake), loaded)?;
+    let stop = Arc::new(AtomicBool::new(false));
+    let marks = Arc::new(WindowMarks::default());
+    let clock = SeqClock::start(dir, stop.clone());
+    let work = out.join("kilohertz-work");
+    std::fs::create_dir_all(&work)?;
+    let mut load = if loaded {
+        Load::start((exe, viewer_exe), (dir, &work), seconds, (&stop, &marks, &clock))?
+    } else {
+        Load::default()
+    };
+    // Every consumer attached and running before the window opens.
+    std::thread::sleep(Duration::from_secs(1));
+    let pids = load.pids(skin.pid());
+    let before_stats: Vec<WriterStats> = readers.iter().map(Reader::writer_stats).collect();
+    let before_cpu = cpu_ticks(&pids);
+    let started = Instant::now();
+    let _ = marks.start.set(started);
+    std::thread::sleep(Duration::from_secs_f64(seconds));
+    let _ = marks.end.set(Instant::now());
+    let elapsed = started.elapsed().as_secs_f64();
+    let after_cpu = cpu_ticks(&pids);
+    let after_stats: Vec<WriterStats> = readers.iter().map(Reader::writer_stats).collect();
+    stop.store(true, Ordering::Relaxed);
+    let writers = before_stats
+        .iter()
+        .zip(&after_stats)
+        .enumerate()
+        .map(|(layer, (before, after))| writer_figures(format!("virtual-{layer}"), before, after, elapsed))
+        .collect();
+    let mut cpu_percent = BTreeMap::new();
+    for ((name, _), (before, after)) in pids.iter().zip(before_cpu.iter().zip(&after_cpu)) {
+        let ticks = after.saturating_sub(*before) as f64;
+        *cpu_percent.entry(name.clone()).or_insert(0.0) += 100.0 * ticks / clock_ticks_per_s() / elapsed;
+    }
+    let (latency_us, browsers) = load.latencies()?;
+    let recorder = load.recorder_said()?;
+    drop(load);
+    drop(clock);
+    drop(skin);
+    let _ = std::fs::remove_dir_all(&work);
+    Ok(PhaseReport { phase: phase.into(), seconds: elapsed, writers, cpu_percent, latency_us, recorder, browsers })
+}
+
+/// What reads the skin in the loaded run: started before the measured
+/// window, collected after it (none in the control run).
+#[derive(Default)]
+struct Load {
+    /// The application processes, and where each writes its samples.
+    apps: Vec<(Guarded, PathBuf)>,
+    /// The viewer (`skin view`).
+    viewer: Option<Guarded>,
+    /// The recorder (`skin record`).
+    recorder: Option<Guarded>,
+    /// The viewer's browsers.
+    browsers: Vec<JoinHandle<Result<BrowserFigures>>>,
+    /// The services' probe.
+    services: Option<ServiceProbe>,
+}
+
+impl Load {
+    /// Starts the applications, the viewer (of `viewer_exe`) and its
+    /// browsers, the recorder and the services' probe on the skin in `dir`,
+    /// for `seconds` (and a margin); their files go to `work`.
+    fn start(
+        (exe, viewer_exe): (&Path, &Path),
+        (dir, work): (&Path, &Path),
+        seconds: f64,
+        (stop, marks, clock): (&Arc<AtomicBool>, &Arc<WindowMarks>, &SeqClock),
+    ) -> Result<Load> {
+        let mut load = Load::default();
+        for app in 0..APPS {
+            let mode = if app < ASAP_APPS { "asap" } else { "periodic" };
+            let samples = work.join(format!("app-{app}.json"));
+            let layers: Vec<String> = (0..LAYERS).map(|l| format!("virtual-{l}")).collect();
+            let child = Command::new(exe)
+                .arg("bench-app")
+                .args(["--skin", "default", "--layers", &layers.join(","), "--mode", mode])
+                .args(["--seconds", &(seconds + 2.0).to_string(), "--seed", &(app as u64 + 1).to_string()])
+                .arg("--out")
+                .arg(&samples)
+                .env("SKINWARE_SHM_DIR", dir)
+                .spawn()
+                .context("cannot start an application process")?;
+            load.apps.push((Guarded(child), samples));
+        }
+        let (child, address) = start_viewer(viewer_exe, dir, &[], None)?;
+        load.viewer = Some(child);
+        for _ in 0..BROWSERS {
+            let (stop, marks, clock, address) = (stop.clone(), marks.clone(), clock.clone(), address.clone());
+            load.browsers.push(std::thread::spawn(move || browse(&address, DISPLAY_HZ, (&stop, &marks), &clock)));
+        }
+        let file = work.join("kilohertz.mcap");
+        let _ = std::fs::remove_file(&file);
+        let child = Command::new(exe)
+            .arg("record")
+            .arg(&file)
+            .args(["--services", "--json", "--seconds", &(seconds + 2.0).to_string()])
+            .env("SKINWARE_SHM_DIR", dir)
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::piped())
+            .spawn()
+            .context("cannot start the recorder")?;
+        load.recorder = Some(Guarded(child));
+        load.services = Some(ServiceProbe::start(dir, stop.clone()));
+        Ok(load)
+    }
+
+    /// The processes whose CPU the run measures, by component: the skin
+    /// (`skin run` at `skin_pid` and what it supervises) and this load.
+    fn pids(&self, skin_pid: u32) -> Vec<(String, u32)> {
+        let mut pids: Vec<(String, u32)> = vec![("skin run (supervisor)".into(), skin_pid)];
+        pids.extend(supervised_pids(skin_pid));
+        for (index, (app, _)) in self.apps.iter().enumerate() {
+            let kind = if index < ASAP_APPS { "apps (5 asap)" } else { "apps (10 periodic)" };
+            pids.push((kind.into(), app.0.id()));
+        }
+        if let Some(viewer) = &self.viewer {
+            pids.push(("viewer (3 browsers)".into(), viewer.0.id()));
+        }
+        if let Some(recorder) = &self.recorder {
+            pids.push(("recorder".into(), recorder.0.id()));
+        }
+        pids
+    }
+
+    /// Once the window is over and the stop flag set: the browsers' figures
+    /// and every consumer's latency from acquisition (the browsers', the
+    /// services' and, once they exited, the applications').
+    fn latencies(&mut self) -> Result<(BTreeMap<String, Percentiles>, Vec<BrowserFigures>)> {
+        let mut latency_us = BTreeMap::new();
+        let mut browsers = Vec::new();
+        for thread in self.browsers.drain(..) {
+            let figures = thread.join().map_err(|_| anyhow::anyhow!("a browser thread panicked"))??;
+            browsers.push(figures);
+        }
+        for (index, browser) in browsers.iter().enumerate() {
+            latency_us.insert(format!("viewer → browser {}", index + 1), browser.latency_us);
+        }
+        if let Some(probe) = self.services.take() {
+            for (name, mut samples) in probe.finish()? {
+                latency_us.insert(format!("{name} service (output visible)"), Percentiles::of(&mut samples));
+            }
+        }
+        let mut asap = Vec::new();
+        let mut periodic = Vec::new();
+        for (index, (app, samples)) in self.apps.drain(..).enumerate() {
+            let mut child = app;
+            let status = child.0.wait()?;
+            if !status.success() {
+                bail!("application process {index} failed ({status})");
+            }
+            let samples: AppSamples = serde_json::from_slice(&std::fs::read(&samples)?)?;
+            let into = if index < ASAP_APPS { &mut asap } else { &mut periodic };
+            into.extend(samples.latency_ns.into_iter().flatten().map(|ns| ns / 1_000));
+        }
+        if !asap.is_empty() {
+            latency_us.insert("apps, asap (wait_newer)".into(), Percentiles::of(&mut asap));
+            latency_us.insert("apps, periodic 10–100 Hz (frame age)".into(), Percentiles::of(&mut periodic));
+        }
+        Ok((latency_us, browsers))
+    }
+
+    /// What the recorder said at its end (frames, lost, ...), once it exited.
+    fn recorder_said(&mut self) -> Result<Option<serde_json::Value>> {
+        let Some(mut child) = self.recorder.take() else { return Ok(None) };
+        let mut stdout = child.0.stdout.take().context("the recorder's output")?;
+        child.0.wait()?;
+        let mut text = String::new();
+        std::io::Read::read_to_string(&mut stdout, &mut text)?;
+        Ok(serde_json::from_str(&text).ok())
+    }
+}
+
+/// A writer's figures over a window, from its statistics at its start and end.
+fn writer_figures(layer: String, before: &WriterStats, after: &WriterStats, seconds: f64) -> WriterFigures {
+    let delta = |a: &[u64; 32], b: &[u64; 32]| {
+        let mut out = [0u64; 32];
+        for (slot, (x, y)) in out.iter_mut().zip(a.iter().zip(b)) {
+            *slot = y.saturating_sub(*x);
+        }
+        out
+    };
+    let write = delta(&before.write_histogram, &after.write_histogram);
+    let lateness = delta(&before.lateness_histogram, &after.lateness_histogram);
+    let frames = after.frames - before.frames;
+    WriterFigures {
+        layer,
+        frames,
+        rate_hz: frames as f64 / seconds,
+        missed_periods: after.missed_periods - before.missed_periods,
+        overruns: after.overruns - before.overruns,
+        publish_p50_ns: histogram_quantile(&write, 0.5),
+        publish_p99_ns: histogram_quantile(&write, 0.99),
+        publish_max_ns: histogram_quantile(&write, 1.0),
+        lateness_p99_ns: histogram_quantile(&lateness, 0.99),
+    }
+}
+
+/// Reads the services' channels as soon as they publish: from their inputs'
+/// acquisition to their output being visible.
+struct ServiceProbe(Vec<(String, std::thread::JoinHandle<Vec<u64>>)>);
+
+impl ServiceProbe {
+    fn start(dir: &Path, stop: Arc<AtomicBool>) -> ServiceProbe {
+        let threads = ["contact", "motion"]
+            .into_iter()
+            .map(|service| {
+                let options = ReaderOptions { dir: Some(dir.to_owned()), ..ReaderOptions::default() };
+                let stop = stop.clone();
+                let thread = std::thread::spawn(move || {
+                    let mut samples = Vec::new();
+                    let Ok(mut reader) = Reader::open_with("default", service, &options) else { return samples };
+                    while !stop.load(Ordering::Relaxed) {
+                        if let Ok(frame) = reader.wait_newer(Duration::from_millis(100)) {
+                            samples.push(frame.published_ns().saturating_sub(frame.acquired_ns()) / 1_000);
+                        }
+                    }
+                    samples
+                });
+                (service.to_owned(), thread)
+            })
+            .collect();
+        ServiceProbe(threads)
+    }
+
+    fn finish(self) -> Result<Vec<(String, Vec<u64>)>> {
+        self.0
+            .into_iter()
+            .map(|(name, thread)| Ok((name, thread.join().map_err(|_| anyhow::anyhow!("a probe thread panicked"))?)))
+            .collect()
+    }
+}
