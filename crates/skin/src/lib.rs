@@ -23,7 +23,8 @@
 //! Cargo features: `cli` (default) builds the `skin` binary and its
 //! dependencies (the web viewer, plots, the CLI parser); the library needs
 //! none of them, and the fuzz targets build it without (`default-features =
-//! false`). `iceoryx2` adds iceoryx2 to `skin bench peers`.
+//! false`). `iceoryx2` adds iceoryx2 to `skin bench peers`; `zenoh` adds
+//! `skin bridge`, `--remote` and `skin bench bridge`.
 
 #![forbid(unsafe_code)]
 
