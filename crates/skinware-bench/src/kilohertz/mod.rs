@@ -176,6 +176,7 @@ struct Plan<'a> {
     wake: Option<Wake>,
 }
 
+/// Runs the parts of the bench `plan` asks for, and sums them up.
 fn measure(plan: &Plan) -> Result<KilohertzReport> {
     let Plan { exe, viewer_exe, dir, seconds, out, wake, .. } = *plan;
     let phases = match plan.only {
