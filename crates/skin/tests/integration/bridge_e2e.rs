@@ -164,24 +164,7 @@ fn skin_view_remote_mirrors_the_remote_skin_for_the_viewer() {
         format!("skbva{}", id % 100_000),
         format!("skbvb{}", id % 100_000),
     );
-    let ip = |args: &[&str]| checked(Command::new("ip").args(args).output().unwrap(), &format!("ip {args:?}"));
-    ip(&["netns", "add", &a]);
-    struct Namespaces(Vec<String>);
-    impl Drop for Namespaces {
-        fn drop(&mut self) {
-            for ns in &self.0 {
-                let _ = Command::new("ip").args(["netns", "del", ns]).output();
-            }
-        }
-    }
-    let _namespaces = Namespaces(vec![a.clone(), b.clone()]);
-    ip(&["netns", "add", &b]);
-    ip(&["link", "add", &veth_a, "netns", &a, "type", "veth", "peer", "name", &veth_b, "netns", &b]);
-    for (ns, dev, address) in [(&a, &veth_a, "10.231.9.1/24"), (&b, &veth_b, "10.231.9.2/24")] {
-        ip(&["-n", ns, "addr", "add", address, "dev", dev]);
-        ip(&["-n", ns, "link", "set", dev, "up"]);
-        ip(&["-n", ns, "link", "set", "lo", "up"]);
-    }
+    let _namespaces = Namespaces::linked(&a, &b, &veth_a, &veth_b);
     let robot = Dir(PathBuf::from("/dev/shm").join(format!("sbv-a-{id}")));
     let station = Dir(PathBuf::from("/dev/shm").join(format!("sbv-b-{id}")));
     std::fs::create_dir_all(&robot.0).unwrap();
@@ -213,20 +196,7 @@ fn skin_view_remote_mirrors_the_remote_skin_for_the_viewer() {
     );
     // The viewer's mirror: every remote layer, live, in the far side's own
     // channels, with the geometry the page draws.
-    let deadline = Instant::now() + Duration::from_secs(60);
-    let mirror = loop {
-        let mirrors: Vec<PathBuf> = std::fs::read_dir(&station.0)
-            .map(|d| d.filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.is_dir()).collect())
-            .unwrap_or_default();
-        let ready = mirrors
-            .iter()
-            .find(|d| skinware::list_channels(d).is_ok_and(|c| c.iter().filter(|c| c.stats.frames > 20).count() >= 5));
-        if let Some(ready) = ready {
-            break ready.clone();
-        }
-        assert!(Instant::now() < deadline, "no live mirror of the remote skin in {}", station.0.display());
-        std::thread::sleep(Duration::from_millis(200));
-    };
+    let mirror = live_mirror_in(&station.0, Duration::from_secs(60));
     let channels = skinware::list_channels(&mirror).unwrap();
     assert_eq!(channels.iter().filter(|c| c.kind == Some(skinware::ChannelKind::Layer)).count(), 5, "{channels:?}");
     let geometry = skinware_geometry::SkinGeometry::open_in(&mirror, "default").expect("the mirrored geometry");
@@ -243,6 +213,56 @@ fn skin_view_remote_mirrors_the_remote_skin_for_the_viewer() {
         "fetching the remote view's page",
     );
     assert!(String::from_utf8_lossy(&page.stdout).to_lowercase().contains("<!doctype html"), "{page:?}");
+}
+
+/// Two network namespaces joined by a veth pair (10.231.9.1 and .2),
+/// deleted when dropped.
+struct Namespaces(Vec<String>);
+
+impl Namespaces {
+    fn linked(a: &str, b: &str, veth_a: &str, veth_b: &str) -> Namespaces {
+        let ip = |args: &[&str]| checked(Command::new("ip").args(args).output().unwrap(), &format!("ip {args:?}"));
+        // Each deleted at the end, also if a later step fails.
+        let mut namespaces = Namespaces(Vec::new());
+        for ns in [a, b] {
+            ip(&["netns", "add", ns]);
+            namespaces.0.push(ns.to_owned());
+        }
+        ip(&["link", "add", veth_a, "netns", a, "type", "veth", "peer", "name", veth_b, "netns", b]);
+        for (ns, dev, address) in [(a, veth_a, "10.231.9.1/24"), (b, veth_b, "10.231.9.2/24")] {
+            ip(&["-n", ns, "addr", "add", address, "dev", dev]);
+            ip(&["-n", ns, "link", "set", dev, "up"]);
+            ip(&["-n", ns, "link", "set", "lo", "up"]);
+        }
+        namespaces
+    }
+}
+
+impl Drop for Namespaces {
+    fn drop(&mut self) {
+        for ns in &self.0 {
+            let _ = Command::new("ip").args(["netns", "del", ns]).output();
+        }
+    }
+}
+
+/// The viewer's mirror in `station`: a directory of channels holding every
+/// remote layer, each live (over 20 frames), within `within`.
+fn live_mirror_in(station: &Path, within: Duration) -> PathBuf {
+    let deadline = Instant::now() + within;
+    loop {
+        let mirrors: Vec<PathBuf> = std::fs::read_dir(station)
+            .map(|d| d.filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.is_dir()).collect())
+            .unwrap_or_default();
+        let ready = mirrors
+            .iter()
+            .find(|d| skinware::list_channels(d).is_ok_and(|c| c.iter().filter(|c| c.stats.frames > 20).count() >= 5));
+        if let Some(ready) = ready {
+            return ready.clone();
+        }
+        assert!(Instant::now() < deadline, "no live mirror of the remote skin in {}", station.display());
+        std::thread::sleep(Duration::from_millis(200));
+    }
 }
 
 fn python() -> Option<String> {
