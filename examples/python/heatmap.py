@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""A live heatmap of a running skin on its 2-D map, with matplotlib.
+"""A live heatmap of a running skin on its 2-D map, with matplotlib
+(`pip install matplotlib`, beside the `skinware` package).
 
     python examples/python/heatmap.py --skin default
     python examples/python/heatmap.py --skin default --frames 20 --save skin.png   # headless
