@@ -56,10 +56,7 @@ pub fn channels(py: Python<'_>, skin: Option<&str>) -> PyResult<Vec<ChannelInfo>
         .into_iter()
         .filter(|c| skin.is_none_or(|s| s == c.skin))
         .map(|c| ChannelInfo {
-            kind: c.kind.map(|k| match k {
-                ChannelKind::Layer => "layer",
-                ChannelKind::Service => "service",
-            }),
+            kind: c.kind.map(ChannelKind::as_str),
             sensors: if c.kind == Some(ChannelKind::Layer) { (c.payload_bytes / 2) as usize } else { 0 },
             state: c.state.as_str(),
             payload_bytes: c.payload_bytes,

@@ -8,7 +8,8 @@
 const KIND_GEOMETRY = 1;
 const KIND_UPDATE = 2;
 const PROTOCOL_VERSION = 1;
-const STATES = ['running', 'paused', 'faulted', 'gone'];
+// Indexed by WriterState::code (1 running ... 4 gone), the one numbering.
+const STATES = [undefined, 'running', 'paused', 'faulted', 'gone'];
 const MODES = ['periodic', 'asap', 'request'];
 const FLAG_RESPONSES = 1;
 // Updates the page lets the server send ahead of its draws.

@@ -39,14 +39,12 @@ pub fn mode_code(mode: ReadMode) -> u8 {
     }
 }
 
-/// The code of a writer state in layer records.
+/// The code of a writer state in layer records: the state's one number
+/// ([`WriterState::code`]: 1 running, 2 paused, 3 faulted, 4 gone), as in
+/// shared memory, recordings and the bridge.
 pub fn state_code(state: WriterState) -> u8 {
-    match state {
-        WriterState::Running => 0,
-        WriterState::Paused => 1,
-        WriterState::Faulted => 2,
-        WriterState::Gone => 3,
-    }
+    // The codes are 1 to 4.
+    state.code() as u8
 }
 
 /// One layer in an update: its newest state as sampled, and whether its
@@ -240,9 +238,10 @@ mod tests {
         assert_eq!(u32::from_le_bytes(out[4..8].try_into().unwrap()), 9);
         assert_eq!((u16_at(&out, 8), u16_at(&out, 10)), (1, 2));
         let record = |i: usize| &out[UPDATE_HEADER_BYTES + i * LAYER_RECORD_BYTES..][..LAYER_RECORD_BYTES];
-        assert_eq!(&record(0)[..2], &[0, FLAG_RESPONSES]);
-        assert_eq!(&record(1)[..2], &[2, FLAG_FAULT_FRAME]);
-        assert_eq!(&record(2)[..2], &[3, FLAG_RESPONSES]);
+        // WriterState::code: 1 running, 3 faulted, 4 gone.
+        assert_eq!(&record(0)[..2], &[1, FLAG_RESPONSES]);
+        assert_eq!(&record(1)[..2], &[3, FLAG_FAULT_FRAME]);
+        assert_eq!(&record(2)[..2], &[4, FLAG_RESPONSES]);
         assert_eq!(f32_at(record(0), 4), 41.5);
         assert_eq!(f32_at(record(0), 8), 40.0);
         assert_eq!(f32_at(record(0), 12), 0.25);
