@@ -363,26 +363,9 @@ fn the_veth_run_is_captured_and_replays_through_the_model() {
     };
     let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-capture-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let config = EthercatDriverConfig {
-        name: "ecat".into(),
-        segments: vec![SegmentConfig {
-            layer: "seg0".into(),
-            vendor_id: EMULATED_VENDOR_ID,
-            product_code: EMULATED_PRODUCT_CODE,
-            taxels: 12,
-            modules: vec![12],
-            patch: 1,
-            baseline: false,
-        }],
-        rate_hz: 200.0,
-        frame_timeout: Some(Duration::from_millis(20)),
-        rt: Default::default(),
-    };
-    let driver = EthercatDriver::new(config, FrameLink::Interface(DRIVER_END.into())).unwrap();
-    let options = HandlerOptions { dir: Some(dir.clone()), ..HandlerOptions::default() };
-    let handler = DriverHandler::start("ecat", Box::new(driver), &options).unwrap();
-    let mut reader =
-        Reader::open_with("ecat", "seg0", &ReaderOptions { dir: Some(dir.clone()), ..Default::default() }).unwrap();
+    // One 12-taxel segment: the same driver as `start_driver` builds.
+    let (handler, _status, readers) = start_driver(&dir, &[12], Duration::from_millis(20));
+    let mut reader = readers.into_iter().next().unwrap();
     wait_for(&mut reader, WriterState::Running, Duration::from_secs(10));
     for _ in 0..60 {
         reader.wait_newer(Duration::from_secs(1)).unwrap();
@@ -669,27 +652,9 @@ fn the_drivers_interface_going_down_ends_the_link_naming_it() {
     };
     let dir = std::path::PathBuf::from("/dev/shm").join(format!("skinware-ecat-ifdown-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let config = EthercatDriverConfig {
-        name: "ecat".into(),
-        segments: vec![SegmentConfig {
-            layer: "seg0".into(),
-            vendor_id: EMULATED_VENDOR_ID,
-            product_code: EMULATED_PRODUCT_CODE,
-            taxels: 12,
-            modules: vec![12],
-            patch: 1,
-            baseline: false,
-        }],
-        rate_hz: 200.0,
-        frame_timeout: Some(Duration::from_millis(20)),
-        rt: Default::default(),
-    };
-    let driver = EthercatDriver::new(config, FrameLink::Interface(DRIVER_END.into())).unwrap();
-    let status = driver.status_handle();
-    let options = HandlerOptions { dir: Some(dir.clone()), ..HandlerOptions::default() };
-    let handler = DriverHandler::start("ecat", Box::new(driver), &options).unwrap();
-    let mut reader =
-        Reader::open_with("ecat", "seg0", &ReaderOptions { dir: Some(dir.clone()), ..Default::default() }).unwrap();
+    // One 12-taxel segment: the same driver as `start_driver` builds.
+    let (handler, status, readers) = start_driver(&dir, &[12], Duration::from_millis(20));
+    let mut reader = readers.into_iter().next().unwrap();
     let started = Instant::now();
     while status.bus_fault().is_some() || status.segments()[0].cycles == 0 {
         assert!(started.elapsed() < Duration::from_secs(10), "never up: {:?}", status.bus_fault());
