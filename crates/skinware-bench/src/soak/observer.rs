@@ -49,7 +49,7 @@ pub fn longest_run_within(published: &[u64], from_ns: u64, to_ns: u64, pause_ns:
             since = ns;
         }
         last = ns;
-        longest = longest.max(last - since);
+        longest = longest.max(last.saturating_sub(since));
     }
     longest
 }
