@@ -6,7 +6,8 @@
 //!   parsed and checked from text by [`config::Config::parse`];
 //! - [`driver_status`]: what a driver process publishes of its devices (an
 //!   EtherCAT SubDevice's identity and state) for `skin ls`, read back by
-//!   [`driver_status::DriverStatus::decode`].
+//!   [`driver_status::DriverStatus::decode`];
+//! - [`report`]: an error's chain of causes for people, each cause once.
 //!
 //! The decoder of the web viewer's messages is in `skinware-viewer`, with
 //! the viewer.
@@ -30,3 +31,4 @@
 
 pub mod config;
 pub mod driver_status;
+pub mod report;

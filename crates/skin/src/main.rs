@@ -103,12 +103,16 @@ fn main() -> std::process::ExitCode {
     // The soak's own readers follow every restarted driver: at `info` its
     // console would hold a line per layer per restart among the faults' lines.
     let soak = matches!(cli.command, Command::Bench { which: commands::bench::Which::Soak(_) });
-    let default_filter = if soak { "warn" } else { "info,zenoh=warn" };
+    // zenoh's own warnings (a scouting delay elapsed at every remote command)
+    // are about its discovery, not the skin: its errors still show.
+    let default_filter = if soak { "warn" } else { "info,zenoh=error" };
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default_filter.into()),
         )
         .with_writer(std::io::stderr)
+        // Colours for a person at a terminal; none in a log file or a pipe.
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     // A reader of our stdout that goes away (`skin ls | head`) is not an
     // error of these commands; for the others a broken pipe is a real failure
@@ -149,7 +153,7 @@ fn main() -> std::process::ExitCode {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) if prints_to_stdout && is_broken_pipe(&e) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("skin: error: {e:#}");
+            eprintln!("skin: error: {}", skin::report::causes_once(e.as_ref()));
             std::process::ExitCode::FAILURE
         }
     }

@@ -148,7 +148,14 @@ struct LayerWatch {
 }
 
 impl DriverHandler {
-    /// Creates every layer's channel (taking over dead writers' names) under `skin` and starts acquiring.
+    /// Starts the driver (connects to its hardware), then creates every
+    /// layer's channel (taking over dead writers' names) under `skin` and
+    /// starts acquiring.
+    ///
+    /// The hardware comes first: a driver whose device is missing creates
+    /// no channel, so its layers never show as running, and a caller that
+    /// waits for the device and tries again does not re-create them each
+    /// time.
     pub fn start(
         skin: &str,
         mut driver: Box<dyn Driver>,
@@ -156,12 +163,23 @@ impl DriverHandler {
     ) -> Result<DriverHandler, HandlerError> {
         let name = driver.name().to_owned();
         let specs = driver.layers();
-        let writers =
-            specs.iter().map(|spec| create_layer_writer(skin, &name, spec, options)).collect::<Result<Vec<_>, _>>()?;
         let sources = driver.start().map_err(|source| HandlerError::Start { driver: name.clone(), source })?;
         if sources.len() != specs.len() {
+            driver.stop();
             return Err(HandlerError::SourceCount { driver: name, layers: specs.len(), sources: sources.len() });
         }
+        let writers = match specs
+            .iter()
+            .map(|spec| create_layer_writer(skin, &name, spec, options))
+            .collect::<Result<Vec<_>, _>>()
+        {
+            Ok(writers) => writers,
+            Err(e) => {
+                drop(sources);
+                driver.stop();
+                return Err(e);
+            }
+        };
         let stop = Stop::new();
         let mut threads = Vec::new();
         let mut watches = Vec::new();

@@ -207,7 +207,10 @@ fn append_to_config(path: &Path, block: &str) -> Result<()> {
     drop(file);
     if let Err(e) = Config::load(path) {
         std::fs::write(path, original)?;
-        bail!("the recorded region made the config invalid, so it was not kept: {e:#}");
+        bail!(
+            "the recorded region made the config invalid, so it was not kept: {}",
+            skin::report::causes_once(e.as_ref())
+        );
     }
     Ok(())
 }

@@ -31,14 +31,24 @@ impl Skin {
     fn start_with(dir: PathBuf, config: &str) -> Skin {
         let config_path = dir.join("config.toml");
         std::fs::write(&config_path, config).unwrap();
+        // Its log goes to a file, shown only if the test fails: a passing
+        // run prints nothing of its children.
+        let log = std::fs::File::create(dir.join("skin.log")).unwrap();
         let supervisor = Command::new(env!("CARGO_BIN_EXE_skin"))
             .env("SKINWARE_SHM_DIR", &dir)
-            .env("RUST_LOG", "warn")
+            .env("RUST_LOG", "info")
             .arg("run")
             .arg(&config_path)
+            .stdout(log.try_clone().unwrap())
+            .stderr(log)
             .spawn()
             .expect("start skin run");
         Skin { dir, supervisor: Some(supervisor) }
+    }
+
+    /// What `skin run` and its children logged so far.
+    fn log(&self) -> String {
+        std::fs::read_to_string(self.dir.join("skin.log")).unwrap_or_default()
     }
 }
 
@@ -138,6 +148,9 @@ impl Drop for Skin {
         if let Some(mut supervisor) = self.supervisor.take() {
             let _ = supervisor.kill();
             let _ = supervisor.wait();
+        }
+        if std::thread::panicking() {
+            eprintln!("--- skin run's log ---\n{}", self.log());
         }
         let _ = std::fs::remove_dir_all(&self.dir);
     }
@@ -273,8 +286,9 @@ fn each_fault_switch_faults_the_layer() {
                 killed.elapsed().as_secs_f64() * 1e3
             );
         } else {
-            std::thread::sleep(Duration::from_millis(800));
-            assert_eq!(reader.writer_state(), WriterState::Faulted, "{name}");
+            // Boards that never send a whole frame are partial for the
+            // first-frame grace (1 s), then a fault.
+            wait_for(&mut reader, WriterState::Faulted, Duration::from_secs(10));
             println!("can e2e: {name}: the layer is faulted ({} failed acquisitions)", reader.writer_stats().faults);
         }
     }
@@ -336,4 +350,61 @@ fn a_pulled_bus_leaves_the_other_bus_alone() {
     );
     assert_eq!(right_states, [WriterState::Running].into_iter().collect());
     assert_eq!(after.faults, before.faults, "the other bus's layer failed an acquisition");
+}
+
+/// Issue #38: a driver whose adapter is not there was restarted forever,
+/// each time logging its error chain (every cause twice) and a layer that
+/// went `gone → running`. Now the driver process waits for its device: one
+/// line that says so, no restart, no layer until the device appears, and then
+/// the layer runs without anyone touching the skin.
+#[test]
+fn a_missing_device_is_waited_for_then_acquired() {
+    let _alone = one_skin_at_a_time();
+    let dir = PathBuf::from("/dev/shm").join(format!("skin-can-e2e-{}-waiting", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let link = dir.join("adapter");
+    let config = format!(
+        r#"skin = "can"
+[[driver]]
+name = "skin"
+kind = "can"
+interface = "slcan://{link}?bitrate=1000000"
+protocol = "icub-mtb"
+[[driver.board]]
+address = 1
+triangles = 8
+"#,
+        link = link.display()
+    );
+    let mut skin = Skin::start_with(dir, &config);
+    let options = ReaderOptions { dir: Some(skin.dir.clone()), ..ReaderOptions::default() };
+    let started = Instant::now();
+    while !skin.log().contains("waiting for device") {
+        assert!(started.elapsed() < Duration::from_secs(20), "never said it waits:\n{}", skin.log());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // Two more seconds without the device: several tries, said once.
+    std::thread::sleep(Duration::from_secs(2));
+    assert!(Reader::open_with("can", "skin", &options).is_err(), "a layer exists for a device that does not");
+    let log = skin.log();
+    assert_eq!(log.matches("waiting for device").count(), 1, "{log}");
+    assert_eq!(log.matches("No such file or directory").count(), 1, "each cause once:\n{log}");
+    assert!(!log.contains("restarting") && !log.contains("layer state"), "{log}");
+
+    // The adapter appears (emulated boards on a pseudo-terminal, at the link).
+    let mut boards = Command::new(env!("CARGO_BIN_EXE_skin"))
+        .args(["emulate", "icub-mtb", "--boards", "1", "--triangles", "8", "--link"])
+        .arg(&link)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut reader = skin.reader();
+    let frame = reader.wait_newer(Duration::from_secs(15)).expect("frames once the device appeared");
+    assert_eq!(frame.responses().len(), 8 * 12);
+    wait_for(&mut reader, WriterState::Running, Duration::from_secs(10));
+    assert!(skin.log().contains("the device appeared"), "{}", skin.log());
+    skin.stop();
+    let _ = boards.kill();
+    let _ = boards.wait();
 }

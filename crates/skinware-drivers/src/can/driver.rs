@@ -12,7 +12,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use skinware::driver::{Driver, DriverError, LayerSource, LayerSpec};
-use skinware::{FrameWriter, LayerTopology, RtOptions, TopologyBuilder, TopologyError};
+use skinware::{FrameStatus, FrameWriter, LayerTopology, RtOptions, TopologyBuilder, TopologyError};
 
 use super::icub_mtb::{self, Board, BoardSettings, Message};
 use super::{BusError, CanBus, CanFrame, cyskin, xela};
@@ -107,6 +107,12 @@ pub enum CanConfigError {
 
 /// A module is stale once it has not been complete for this many periods.
 const STALE_PERIODS: f64 = 1.5;
+
+/// After the start, how long boards may take to send their first complete
+/// frame before their silence is a fault. Until then the layer's frames are
+/// marked partial: boards being configured are not a fault, and a fault
+/// counted (and logged) at every start would teach people to ignore them.
+const FIRST_FRAME_GRACE_NS: u64 = 1_000_000_000;
 const RECEIVE_SLICE: Duration = Duration::from_millis(5);
 const MAX_BACKOFF: Duration = Duration::from_secs(2);
 /// A bus without a frame this long has its devices configured again.
@@ -229,6 +235,7 @@ impl Driver for CanDriver {
             image,
             topology: self.topology.clone(),
             stale_after: period.mul_f64(STALE_PERIODS),
+            first_acquired_ns: None,
         })])
     }
 
@@ -430,6 +437,8 @@ struct CanLayer {
     image: Arc<Mutex<Image>>,
     topology: LayerTopology,
     stale_after: Duration,
+    /// When the first acquisition ran: the start of the first-frame grace.
+    first_acquired_ns: Option<u64>,
 }
 
 impl LayerSource for CanLayer {
@@ -439,12 +448,22 @@ impl LayerSource for CanLayer {
             return Err(why.clone().into());
         }
         let now = skinware::os::monotonic_ns();
+        let since_start = now.saturating_sub(*self.first_acquired_ns.get_or_insert(now));
         let stale_after = self.stale_after.as_nanos() as u64;
         let mut oldest = now;
+        let mut partial = false;
         for (index, module) in self.topology.modules.iter().enumerate() {
             let patch = self.topology.patches[module.patch].id;
             match image.complete_at[index] {
-                None => return Err(format!("patch {patch}, module {:#x}: no complete frame yet", module.id).into()),
+                None if since_start < FIRST_FRAME_GRACE_NS => partial = true,
+                None => {
+                    return Err(format!(
+                        "patch {patch}, module {:#x}: no complete frame in the {} ms since the start (is the board powered, and is its address in the config right?)",
+                        module.id,
+                        since_start / 1_000_000
+                    )
+                    .into());
+                }
                 Some(at) if now.saturating_sub(at) > stale_after => {
                     return Err(format!(
                         "patch {patch}, module {:#x}: no complete frame for {} ms (silent, or a frame of it lost)",
@@ -466,6 +485,9 @@ impl LayerSource for CanLayer {
         frame.write_responses(0, &image.values)?;
         // The frame's acquisition time is when its oldest data arrived.
         frame.set_acquired_ns(oldest);
+        if partial {
+            frame.set_status(FrameStatus::PARTIAL);
+        }
         Ok(())
     }
 }
@@ -515,6 +537,52 @@ mod tests {
         let bad_url =
             CanDriverConfig { interface: "ttyACM0".into(), ..mtb(vec![Board { address: 1, triangles: vec![0] }]) };
         assert!(CanDriver::new(bad_url).err().unwrap().to_string().contains("scheme"));
+    }
+
+    /// Boards being configured at a start are not a fault: until the first
+    /// complete frame of every module, or the grace's end, frames are partial.
+    #[test]
+    fn modules_not_yet_heard_from_are_partial_within_the_grace_then_a_fault() {
+        let config = mtb(vec![Board { address: 1, triangles: vec![0, 1] }]);
+        let topology = config.topology().unwrap();
+        let dir = std::env::temp_dir().join(format!("skinware-can-grace-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let options = skinware::WriterOptions { dir: Some(dir.clone()), ..skinware::WriterOptions::default() };
+        let mut writer = skinware::Writer::create("can", "skin", topology.frame_bytes(), b"", &options).unwrap();
+        let now = skinware::os::monotonic_ns();
+        let image = Image {
+            values: vec![7; topology.sensors.len()],
+            complete_at: vec![Some(now), None],
+            module_error: vec![0; 2],
+            link_down: None,
+        };
+        let mut layer = CanLayer {
+            image: Arc::new(Mutex::new(image)),
+            topology,
+            stale_after: Duration::from_secs(3600),
+            // Started "in the future": inside the grace however slow this run is.
+            first_acquired_ns: Some(u64::MAX),
+        };
+        let mut frame = writer.begin();
+        layer.acquire(&mut frame).expect("a module not yet heard from within the grace is no fault");
+        frame.publish();
+        let mut reader = skinware::Reader::open_with(
+            "can",
+            "skin",
+            &skinware::ReaderOptions { dir: Some(dir.clone()), ..skinware::ReaderOptions::default() },
+        )
+        .unwrap();
+        assert_eq!(reader.latest().unwrap().status(), FrameStatus::PARTIAL);
+
+        layer.first_acquired_ns = Some(now.saturating_sub(2 * FIRST_FRAME_GRACE_NS));
+        let mut frame = writer.begin();
+        let error = layer.acquire(&mut frame).unwrap_err().to_string();
+        assert!(
+            error.contains("module 0x11: no complete frame in the") && error.contains("since the start"),
+            "{error}"
+        );
+        drop((reader, writer));
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

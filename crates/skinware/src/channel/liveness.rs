@@ -90,6 +90,28 @@ impl NameRecord {
     }
 }
 
+/// The name locks held by live writers of this process, by path.
+fn held_here() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
+    static HELD: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+    crate::lock(&HELD)
+}
+
+/// The longest a new writer waits for a name lock that only a fork of this
+/// process still holds (see [`held_by_a_fork_of_ours`]).
+const FORK_COPY_WAIT_NS: u64 = 2_000_000_000;
+
+/// Whether a name lock that is held, last recorded as taken by `pid`, can
+/// only be held by a child of this process between its fork and its exec: a
+/// child gets a copy of every descriptor, the lock's open file description
+/// with them, and keeps it until its exec closes it. If this process wrote
+/// the record and no live writer of this process holds the name, that is
+/// the case, and the lock is free in a moment (a writer restarted in the
+/// process that another thread spawns programs from would otherwise be told
+/// that its own dead predecessor is busy).
+fn held_by_a_fork_of_ours(pid: u32, path: &Path) -> bool {
+    pid == std::process::id() && !held_here().iter().any(|held| held == path)
+}
+
 /// Whether a writer still owns its channel's name ([`NameLock::keep_in_place`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum Kept {
@@ -123,17 +145,29 @@ impl NameLock {
     fn acquire_checked(dir: &Path, skin: &str, channel: &str, label: &str, own_only: bool) -> Result<NameLock> {
         let path = name_lock_path(dir, skin, channel);
         let os_error = |op, source| Error::Os { op, path: path.clone(), source };
-        // Each pass either takes the lock or loses a race with a cleaner that
-        // unlinked the file between our open and our lock.
-        for _ in 0..16 {
-            let Some(file) = open_lock_file(&path, label, own_only)? else { continue };
+        let started = os::monotonic_ns();
+        // Each pass either takes the lock, loses a race with a cleaner that
+        // unlinked the file between our open and our lock, or finds the lock
+        // held by a copy of a descriptor this process has closed.
+        let mut races = 0;
+        while races < 16 {
+            let Some(file) = open_lock_file(&path, label, own_only)? else {
+                races += 1;
+                continue;
+            };
             if !os::try_lock_writer(&file).map_err(|e| os_error("lock", e))? {
                 let pid = NameRecord::read(&file).writer_pid;
+                if held_by_a_fork_of_ours(pid, &path) && os::monotonic_ns() - started < FORK_COPY_WAIT_NS {
+                    std::thread::sleep(std::time::Duration::from_millis(1));
+                    continue;
+                }
                 return Err(Error::Busy { channel: label.to_owned(), pid });
             }
             if path_identity(&path) == Some(file_identity(&file, &path)?) {
+                held_here().push(path.clone());
                 return Ok(NameLock { file, path, written: NameRecord::default() });
             }
+            races += 1;
         }
         Err(os_error("lock", io::ErrorKind::ResourceBusy.into()))
     }
@@ -202,6 +236,15 @@ impl NameLock {
         }
         if self.is_in_place() {
             let _ = std::fs::remove_file(&self.path);
+        }
+    }
+}
+
+impl Drop for NameLock {
+    fn drop(&mut self) {
+        let mut held = held_here();
+        if let Some(index) = held.iter().position(|held| *held == self.path) {
+            held.swap_remove(index);
         }
     }
 }

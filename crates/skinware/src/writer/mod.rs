@@ -3,6 +3,7 @@
 
 #![forbid(unsafe_code)]
 
+mod fault_log;
 mod wakers;
 
 use std::path::{Path, PathBuf};
@@ -133,6 +134,8 @@ pub struct Writer {
     shared: Arc<Shared>,
     publishing: Publishing,
     served_requests: u32,
+    /// What of the source's faults has been said in the log.
+    fault_log: fault_log::FaultLog,
     stop: Stop,
     unlink_on_drop: bool,
     revived: bool,
@@ -223,6 +226,7 @@ impl Writer {
                 period_deadline_ns: None,
             },
             served_requests,
+            fault_log: fault_log::FaultLog::default(),
             stop,
             unlink_on_drop: options.unlink_on_drop,
             revived,
@@ -490,17 +494,25 @@ impl Writer {
         match fill(&mut frame) {
             Ok(()) => {
                 frame.publish();
-                if self.state() == WriterState::Faulted {
-                    tracing::info!(channel = %self.shared.label, "acquisition recovered");
+                let recovered = self.state() == WriterState::Faulted;
+                if recovered {
                     self.set_state(WriterState::Running);
+                }
+                // The publish time just taken: no clock read of our own.
+                let now_ns = self.publishing.last_published_ns;
+                for line in self.fault_log.succeeded(now_ns, recovered) {
+                    fault_log::log(&self.shared.label, &line);
                 }
             }
             Err(e) => {
                 frame.discard();
                 self.record_fault();
-                if self.state() != WriterState::Faulted {
-                    tracing::warn!(channel = %self.shared.label, error = %e, "acquisition failed; channel faulted");
+                let became_faulted = self.state() != WriterState::Faulted;
+                if became_faulted {
                     self.set_state(WriterState::Faulted);
+                }
+                for line in self.fault_log.failed(os::monotonic_ns(), became_faulted, &e) {
+                    fault_log::log(&self.shared.label, &line);
                 }
             }
         }

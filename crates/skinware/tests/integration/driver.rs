@@ -100,26 +100,44 @@ fn failing_panicking_and_hanging_layers_do_not_disturb_the_good_one() {
     good.wait_newer(Duration::from_secs(5)).unwrap();
     let before = good.writer_stats();
 
+    // No timing here (a loaded machine may run the good layer late too):
+    // each state is waited for, and the good layer must publish, unfaulted,
+    // while the hanging layer is stuck inside its acquisition.
     misbehave.store(true, Ordering::Relaxed);
-    std::thread::sleep(Duration::from_millis(300));
-    assert_eq!(fails.writer_state(), WriterState::Faulted);
-    assert_eq!(panics.writer_state(), WriterState::Faulted);
-    assert_eq!(hangs.writer_state(), WriterState::Faulted, "the watchdog should flag a hung acquisition");
+    for (reader, what) in [(&fails, "a failing acquisition"), (&panics, "a panic"), (&hangs, "a hung acquisition")] {
+        wait_for_state(reader, WriterState::Faulted, what);
+    }
+    let mut fresh_while_others_faulted = 0;
+    while fresh_while_others_faulted < 30 {
+        let frame = good.wait_newer(Duration::from_secs(10)).expect("the good layer stopped publishing");
+        assert!(!frame.status().is_fault(), "the good layer's frame is faulted");
+        fresh_while_others_faulted += 1;
+    }
     assert_eq!(good.writer_state(), WriterState::Running);
-    std::thread::sleep(Duration::from_millis(700));
-    let after = good.writer_stats();
-    assert_eq!(after.missed_periods, before.missed_periods, "the good layer missed periods");
-    assert!(after.frames - before.frames >= 90, "the good layer slowed down: {}", after.frames - before.frames);
-    assert!(fails.writer_stats().faults > 10 && panics.writer_stats().faults > 10);
+    assert_eq!(good.writer_stats().faults, before.faults, "the good layer counted faults of the others");
+    wait_until(|| fails.writer_stats().faults > 10 && panics.writer_stats().faults > 10, "faults counted each period");
 
     misbehave.store(false, Ordering::Relaxed);
-    std::thread::sleep(Duration::from_millis(600));
     for reader in [&fails, &panics, &hangs] {
-        assert_eq!(reader.writer_state(), WriterState::Running, "{} did not recover", reader.label());
+        wait_for_state(reader, WriterState::Running, "recovery");
     }
     handler.stop();
     assert_eq!(good.writer_state(), WriterState::Gone);
     assert!(dir.files().is_empty(), "channels left: {:?}", dir.files());
+}
+
+/// Waits (at most 20 s, for a loaded machine) until `done`.
+fn wait_until(done: impl Fn() -> bool, what: &str) {
+    let started = std::time::Instant::now();
+    while !done() {
+        assert!(started.elapsed() < Duration::from_secs(20), "never happened: {what}");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// Waits until `reader`'s writer is in `state`, after `why`.
+fn wait_for_state(reader: &Reader, state: WriterState, why: &str) {
+    wait_until(|| reader.writer_state() == state, &format!("{} {state:?} after {why}", reader.label()));
 }
 
 #[test]
@@ -131,6 +149,9 @@ fn a_restarted_driver_may_bring_another_topology() {
         misbehave: Arc::new(AtomicBool::new(false)),
         sensors,
     };
+    // Each start follows a stop in this process, while other tests of this
+    // binary spawn children (who hold copies of the stopped writer's name
+    // lock until their exec): the new writer waits for those, it is not Busy.
     DriverHandler::start("skin", Box::new(make(12)), &keep).unwrap().stop();
     // Same topology, then a changed one: each is a new channel under the name.
     DriverHandler::start("skin", Box::new(make(12)), &keep).unwrap().stop();

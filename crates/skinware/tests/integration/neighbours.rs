@@ -212,6 +212,25 @@ fn a_name_lock_of_another_user_is_refused() {
     assert!(!lock.exists());
 }
 
+/// Removes the socket and name lock of the live writer of skin/layer in
+/// `dir` and starts a second writer under the name, as someone cleaning by
+/// hand would. The live writer's hand-over thread puts its lock file back
+/// when it finds it gone (and it looks at once after handing a reader
+/// over): if it won the race to the name, the removal is simply done again.
+/// The outcome does not depend on timing, only how many tries it takes.
+fn take_the_name_of_a_live_writer(dir: &SegmentDir, description: &[u8]) -> Writer {
+    for _ in 0..100 {
+        let _ = std::fs::remove_file(dir.segment("skin", "layer"));
+        let _ = std::fs::remove_file(dir.path.join(".skinware-lock.skin.layer"));
+        match Writer::create("skin", "layer", 8, description, &dir.writer()) {
+            Ok(writer) => return writer,
+            Err(Error::Busy { .. }) => std::thread::sleep(Duration::from_millis(1)),
+            Err(other) => panic!("the second writer could not start: {other}"),
+        }
+    }
+    panic!("the live writer took its name back 100 times in a row");
+}
+
 /// Defect 4: with writer A running, someone removes its socket and name lock
 /// and writer B starts: the two hand-over threads then took turns binding the
 /// socket, and new readers split between them. Now B has the name, A knows it
@@ -221,9 +240,7 @@ fn two_writers_cannot_hold_one_name() {
     let dir = SegmentDir::new("two-writers");
     let mut a = Writer::create("skin", "layer", 8, b"A", &dir.writer()).unwrap();
     a.publish_bytes(&[1; 8], FrameStatus::OK).unwrap();
-    std::fs::remove_file(dir.segment("skin", "layer")).unwrap();
-    std::fs::remove_file(dir.path.join(".skinware-lock.skin.layer")).unwrap();
-    let mut b = Writer::create("skin", "layer", 8, b"B", &dir.writer()).unwrap();
+    let mut b = take_the_name_of_a_live_writer(&dir, b"B");
     b.publish_bytes(&[2; 8], FrameStatus::OK).unwrap();
     // A's hand-over thread looks every 250 ms: give it six looks.
     let started = Instant::now();
@@ -399,9 +416,7 @@ fn a_successor_seen_before_its_predecessor_died_is_handed_over_later() {
     a.publish_bytes(&[1; 8], FrameStatus::OK).unwrap();
     let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
     assert_eq!(reader.latest().unwrap().seq(), 1);
-    std::fs::remove_file(dir.segment("skin", "layer")).unwrap();
-    std::fs::remove_file(dir.path.join(".skinware-lock.skin.layer")).unwrap();
-    let mut b = Writer::create("skin", "layer", 8, b"topology", &dir.writer()).unwrap();
+    let mut b = take_the_name_of_a_live_writer(&dir, b"topology");
     b.publish_bytes(&[2; 8], FrameStatus::OK).unwrap();
     // The watcher sees B while A lives: nothing to hand over yet.
     std::thread::sleep(Duration::from_millis(300));

@@ -6,6 +6,8 @@
 //! acquisition on any of its periodic channels for 20 periods, and at least
 //! 1 s) is killed and restarted the same way.
 
+mod state_log;
+
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
@@ -156,7 +158,7 @@ pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
         config.drivers.len(),
         config.services.len()
     );
-    let mut layer_states: HashMap<String, &'static str> = HashMap::new();
+    let mut layer_states = state_log::StateLog::default();
     // Every child process ever started: the writers whose channels it looks at.
     let mut spawned: HashSet<u32> = HashSet::new();
     // Only records its children wrote, as this user, are trusted.
@@ -181,7 +183,7 @@ pub fn supervise(config_path: &Path, shutdown: &AtomicBool) -> Result<()> {
             for supervised in &mut children {
                 supervised.kill_if_hung(now, &channels);
             }
-            log_layer_changes(&channels, &mut layer_states);
+            log_layer_changes(&channels, &mut layer_states, now);
             republish_if_removed(&geometry, &published);
         }
         std::thread::sleep(Duration::from_millis(20));
@@ -412,7 +414,7 @@ impl Supervised {
                     self.restart_at = None;
                 }
                 Err(e) => {
-                    tracing::error!(role, name = %name, "{e:#}");
+                    tracing::error!(role, name = %name, "{}", skin::report::causes_once(e.as_ref()));
                     self.restart_at = Some(now + Duration::from_secs_f64(self.backoff_s));
                 }
             }
@@ -461,13 +463,10 @@ fn stop_children(children: &mut [Supervised]) -> Result<()> {
     Ok(())
 }
 
-fn log_layer_changes(channels: &[ChannelInfo], states: &mut HashMap<String, &'static str>) {
-    for channel in channels {
-        let state = channel.state.as_str();
-        let previous = states.insert(channel.channel.clone(), state);
-        if previous != Some(state) {
-            tracing::info!(layer = %channel.channel, from = previous.unwrap_or("absent"), to = state, "layer state");
-        }
+fn log_layer_changes(channels: &[ChannelInfo], states: &mut state_log::StateLog, now: Instant) {
+    let seen = channels.iter().map(|channel| (channel.channel.as_str(), channel.state.as_str()));
+    for line in states.observe(now, seen) {
+        state_log::log(&line);
     }
 }
 
