@@ -22,10 +22,12 @@
 //! ```
 //!
 //! Cargo features: `cli` (default) builds the `skin` binary and its
-//! dependencies (the web viewer, plots, the CLI parser); the library needs
-//! none of them, and the fuzz targets build it without (`default-features =
-//! false`). `iceoryx2` adds iceoryx2 to `skin bench peers`; `zenoh` adds
-//! `skin bridge`, `--remote` and `skin bench bridge`.
+//! dependencies (the web viewer, the CLI parser); the library needs none of
+//! them, and the fuzz targets build it without (`default-features =
+//! false`). `bench` adds `skin bench` (the benchmarks, their peers and
+//! plots, which `skin run` and `skin demo` never use); `iceoryx2` adds
+//! iceoryx2 to `skin bench peers`; `zenoh` adds `skin bridge`, `--remote`
+//! and, with `bench`, `skin bench bridge`.
 
 #![forbid(unsafe_code)]
 

@@ -62,11 +62,20 @@ enum Command {
         which: commands::emulate::Which,
     },
     /// Benchmarks: the paper's experiment, its Table I, and peers side by side.
+    #[cfg(feature = "bench")]
     Bench {
         #[command(subcommand)]
         which: commands::bench::Which,
     },
+    /// Benchmarks (not in this build: build `skin` with `--features bench`).
+    #[cfg(not(feature = "bench"))]
+    Bench {
+        /// The benchmark and its options.
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<String>,
+    },
     /// The benches' helper processes (hidden): what `skin bench` starts by running `skin` again.
+    #[cfg(feature = "bench")]
     #[command(flatten)]
     BenchRole(skinware_bench::roles::Role),
     /// Run one service of CONFIG in this process (what `skin run` starts).
@@ -102,7 +111,10 @@ fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     // The soak's own readers follow every restarted driver: at `info` its
     // console would hold a line per layer per restart among the faults' lines.
+    #[cfg(feature = "bench")]
     let soak = matches!(cli.command, Command::Bench { which: commands::bench::Which::Soak(_) });
+    #[cfg(not(feature = "bench"))]
+    let soak = false;
     // zenoh's own warnings (a scouting delay elapsed at every remote command)
     // are about its discovery, not the skin: its errors still show.
     let default_filter = if soak { "warn" } else { "info,zenoh=error" };
@@ -134,7 +146,15 @@ fn main() -> std::process::ExitCode {
         Command::Clean(args) => commands::clean::run(&args),
         Command::Pull(args) => commands::pull::run(&args),
         Command::Driver { config, name } => commands::driver::run(&config, &name),
+        #[cfg(feature = "bench")]
         Command::Bench { which } => commands::bench::run(&which),
+        #[cfg(not(feature = "bench"))]
+        Command::Bench { args } => Err(anyhow::anyhow!(
+            "this `skin` was built without its benchmarks, so `skin bench {}` cannot run; build it with them: \
+             `cargo build --release -p skin --features bench` (then ./target/release/skin bench ...), or \
+             `cargo install --path crates/skin --features bench`",
+            args.join(" ")
+        )),
         Command::Emulate { which } => commands::emulate::run(&which),
         Command::Emulator { config, name } => commands::emulate::run_configured(&config, &name),
         Command::Services(args) => commands::services::run(&args),
@@ -147,6 +167,7 @@ fn main() -> std::process::ExitCode {
         Command::Info(args) => commands::info::run(&args),
         Command::Region { which } => commands::region::run(&which),
         Command::Bridge(args) => commands::bridge::run(&args),
+        #[cfg(feature = "bench")]
         Command::BenchRole(role) => role.run(),
     };
     match result {

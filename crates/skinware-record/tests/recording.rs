@@ -509,6 +509,7 @@ fn write_mcap(path: &Path, version: Option<&str>, schema: Option<&str>) {
 }
 
 #[test]
+#[cfg_attr(skip_not_root, ignore = "needs root: mounts a 1 MiB tmpfs to fill")]
 fn a_full_disk_stops_the_recorder_with_a_clear_error_and_keeps_what_was_written() {
     let dir = TempDir::new("full");
     let small = dir.0.join("full");

@@ -1,5 +1,6 @@
 //! One file per verb.
 
+#[cfg(feature = "bench")]
 pub mod bench;
 pub mod bridge;
 pub mod clean;

@@ -80,6 +80,8 @@ fn checked(output: Output, what: &str) -> Output {
 }
 
 #[test]
+#[cfg_attr(not(feature = "bench"), ignore = "runs `skin bench bridge`: needs skin built with --features bench,zenoh")]
+#[cfg_attr(skip_not_root, ignore = "needs root: makes network namespaces and a veth pair")]
 fn two_hosts_read_the_skin_through_the_bridge_across_shaping_and_a_cut_link() {
     if !namespaces_work() {
         return skip("cannot create network namespaces here (needs root and iproute2)");

@@ -338,6 +338,10 @@ fn choose_mode(browser: &Browser, mode: &str, rate_hz: f64) {
 }
 
 #[test]
+#[cfg_attr(
+    skip_no_chromium,
+    ignore = "needs chromium and chromedriver (Debian: apt-get install chromium chromium-driver)"
+)]
 fn demo_in_headless_chromium() {
     let chromedriver = find_program(&["chromedriver"]);
     let chromium = find_program(&["chromium", "chromium-browser", "google-chrome"]);

@@ -15,6 +15,10 @@ use std::process::Command;
 use crate::util::one_skin_at_a_time;
 
 #[test]
+#[cfg_attr(
+    skip_no_python_bindings,
+    ignore = "needs skinware, pytest and numpy in $SKINWARE_PYTHON or python3: pip install ./crates/skinware-py pytest"
+)]
 fn the_python_bindings_pass_their_pytest_suite() {
     let python = std::env::var("SKINWARE_PYTHON").unwrap_or_else(|_| "python3".into());
     let probe = Command::new(&python).args(["-c", "import skinware, pytest, numpy"]).output();

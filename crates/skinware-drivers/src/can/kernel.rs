@@ -77,6 +77,10 @@ mod tests {
 
     /// Needs a kernel with CAN and a `vcan0`; says why it skips otherwise.
     #[test]
+    #[cfg_attr(
+        skip_no_vcan0,
+        ignore = "needs a vcan0 interface: a kernel with AF_CAN (modprobe vcan; ip link add vcan0 type vcan; ip link set up vcan0)"
+    )]
     fn opens_vcan0_where_the_kernel_has_can() {
         match crate::can::open("socketcan://vcan0") {
             Ok(bus) => assert_eq!(bus.url(), "socketcan://vcan0"),

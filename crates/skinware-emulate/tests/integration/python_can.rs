@@ -55,6 +55,10 @@ fn null_modem(stop: Arc<AtomicBool>) -> (String, String) {
 }
 
 #[test]
+#[cfg_attr(
+    skip_no_python_can,
+    ignore = "needs python-can and pyserial in $SKINWARE_PYTHON or python3: pip install python-can pyserial"
+)]
 fn python_can_frames_arrive_value_by_value() {
     let Some(python) = python() else {
         let reason = "no Python with python-can and pyserial (set SKINWARE_PYTHON, or pip install python-can pyserial)";
@@ -106,6 +110,10 @@ fn python_can_frames_arrive_value_by_value() {
 /// The other direction: python-can is the host of emulated boards (our
 /// SLCAN device end and MTB model) and checks what they stream.
 #[test]
+#[cfg_attr(
+    skip_no_python_can,
+    ignore = "needs python-can and pyserial in $SKINWARE_PYTHON or python3: pip install python-can pyserial"
+)]
 fn python_can_reads_the_emulated_boards() {
     let Some(python) = python() else {
         let reason = "no Python with python-can and pyserial (set SKINWARE_PYTHON, or pip install python-can pyserial)";

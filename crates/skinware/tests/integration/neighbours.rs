@@ -193,6 +193,7 @@ fn a_fifo_at_a_channels_paths_hangs_nobody() {
 /// locked, or rewrite the record readers trust. Needs root (to plant it as
 /// `nobody`); skipped, saying so, without.
 #[test]
+#[cfg_attr(skip_not_root, ignore = "needs root: plants a name lock as the user nobody")]
 fn a_name_lock_of_another_user_is_refused() {
     if !rustix::process::geteuid().is_root() {
         println!("SKIPPED: a_name_lock_of_another_user_is_refused: needs root to create a file as another user");

@@ -115,6 +115,7 @@ fn assert_reads_read_only(report: &str) {
 }
 
 #[test]
+#[cfg_attr(skip_not_root, ignore = "needs root: starts a reader as the user nobody")]
 fn owner_only_channels_refuse_other_users() {
     if skipped() {
         return;
@@ -125,6 +126,7 @@ fn owner_only_channels_refuse_other_users() {
 }
 
 #[test]
+#[cfg_attr(skip_not_root, ignore = "needs root: starts a reader as the user nobody")]
 fn group_channels_refuse_users_outside_the_group() {
     if skipped() {
         return;
@@ -134,6 +136,7 @@ fn group_channels_refuse_users_outside_the_group() {
 }
 
 #[test]
+#[cfg_attr(skip_not_root, ignore = "needs root: starts a reader as the user nobody")]
 fn group_channels_are_read_only_for_the_group() {
     if skipped() {
         return;
@@ -142,6 +145,7 @@ fn group_channels_are_read_only_for_the_group() {
 }
 
 #[test]
+#[cfg_attr(skip_not_root, ignore = "needs root: starts a reader as the user nobody")]
 fn everyone_channels_are_read_only_for_everyone() {
     if skipped() {
         return;
