@@ -118,14 +118,17 @@ fn main() -> std::process::ExitCode {
     // zenoh's own warnings (a scouting delay elapsed at every remote command)
     // are about its discovery, not the skin: its errors still show.
     let default_filter = if soak { "warn" } else { "info,zenoh=error" };
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default_filter.into()),
-        )
-        .with_writer(std::io::stderr)
-        // Colours for a person at a terminal; none in a log file or a pipe.
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .init();
+    {
+        use tracing_subscriber::layer::SubscriberExt as _;
+        use tracing_subscriber::util::SubscriberInitExt as _;
+        tracing_subscriber::fmt()
+            .with_writer(std::io::stderr)
+            // Colours for a person at a terminal; none in a log file or a pipe.
+            .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+            .finish()
+            .with(log_filter(default_filter))
+            .init();
+    }
     // A reader of our stdout that goes away (`skin ls | head`) is not an
     // error of these commands; for the others a broken pipe is a real failure
     // (an SLCAN adapter unplugged gives one too).
@@ -177,6 +180,22 @@ fn main() -> std::process::ExitCode {
             eprintln!("skin: error: {}", skin::report::causes_once(e.as_ref()));
             std::process::ExitCode::FAILURE
         }
+    }
+}
+
+/// What to log: `RUST_LOG` (levels and targets, `warn,skinware=debug`) or
+/// `default`. A filter that does not parse is said, not ignored in silence.
+fn log_filter(default: &str) -> tracing_subscriber::filter::Targets {
+    let fallback = || default.parse().unwrap_or_default();
+    match std::env::var("RUST_LOG") {
+        Ok(text) if !text.trim().is_empty() => text.parse().unwrap_or_else(|error| {
+            eprintln!(
+                "skin: RUST_LOG={text:?} is not a filter skin understands ({error}): give levels and targets, \
+                 like `info` or `warn,skinware=debug`; logging `{default}` instead"
+            );
+            fallback()
+        }),
+        _ => fallback(),
     }
 }
 

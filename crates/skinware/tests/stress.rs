@@ -376,7 +376,13 @@ fn run_chaos(
     let mut counts = ChaosCounts::default();
     let mut next_id = readers.len();
     let started = Instant::now();
-    while started.elapsed() < Duration::from_secs(seconds) {
+    // The phase lasts its seconds and, however slowly a loaded machine runs
+    // this loop, until some readers were killed and some stopped (within a
+    // bound that a hung loop cannot pass).
+    let enough = |counts: &ChaosCounts| counts.kills >= 3 && counts.stops >= 3;
+    while started.elapsed() < Duration::from_secs(seconds)
+        || (!enough(&counts) && started.elapsed() < Duration::from_secs(seconds * 10))
+    {
         std::thread::sleep(Duration::from_millis(20 + chaos.next(80)));
         let now = Instant::now();
         for process in readers.iter_mut() {

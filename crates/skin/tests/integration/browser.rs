@@ -90,8 +90,9 @@ impl Demo {
         let mut child = Command::new(env!("CARGO_BIN_EXE_skin"))
             .args(["demo", "--no-browser-hint", "--listen", &format!("127.0.0.1:{port}")])
             .env("SKINWARE_SHM_DIR", &dir)
-            .env("RUST_LOG", "warn")
+            .env("RUST_LOG", "info")
             .stdout(Stdio::piped())
+            .stderr(crate::util::log_file(&dir, "skin-demo"))
             .spawn()
             .expect("start skin demo");
         let stdout = child.stdout.take().unwrap();
@@ -162,6 +163,7 @@ impl Drop for Demo {
                 let _ = self.child.wait();
             }
         }
+        crate::util::show_logs_if_failing(&self.dir);
         let _ = std::fs::remove_dir_all(&self.dir);
     }
 }

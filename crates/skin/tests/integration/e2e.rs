@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use skinware::{Reader, ReaderOptions, WriterState};
 
-use crate::util::{interrupt_and_wait, one_skin_at_a_time};
+use crate::util::{interrupt_and_wait, log_file, one_skin_at_a_time, show_logs_if_failing};
 
 const RATE_HZ: f64 = 100.0;
 
@@ -21,6 +21,7 @@ impl Drop for Skin {
     fn drop(&mut self) {
         let _ = self.supervisor.kill();
         let _ = self.supervisor.wait();
+        show_logs_if_failing(&self.dir);
         let _ = std::fs::remove_dir_all(&self.dir);
     }
 }
@@ -36,7 +37,13 @@ fn start(test: &str, config: &str) -> Skin {
     std::fs::create_dir_all(&dir).unwrap();
     let config_path = dir.join("config.toml");
     std::fs::write(&config_path, config).unwrap();
-    let supervisor = skin_command(&dir).arg("run").arg(&config_path).spawn().expect("start skin run");
+    let supervisor = skin_command(&dir)
+        .arg("run")
+        .arg(&config_path)
+        .stdout(log_file(&dir, "skin-run"))
+        .stderr(log_file(&dir, "skin-run"))
+        .spawn()
+        .expect("start skin run");
     Skin { dir, supervisor }
 }
 

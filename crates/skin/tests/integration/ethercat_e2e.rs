@@ -95,7 +95,9 @@ impl Skin {
             .args(["-rn", "sh", "-c", &script, "sh", env!("CARGO_BIN_EXE_skin")])
             .arg(&config_path)
             .env("SKINWARE_SHM_DIR", &dir)
-            .env("RUST_LOG", "warn")
+            .env("RUST_LOG", "info")
+            .stdout(crate::util::log_file(&dir, "skin-run"))
+            .stderr(crate::util::log_file(&dir, "skin-run"))
             .spawn()
             .expect("start skin run under unshare");
         Skin { dir, supervisor: Some(supervisor) }
@@ -155,6 +157,7 @@ impl Drop for Skin {
             let _ = supervisor.kill();
             let _ = supervisor.wait();
         }
+        crate::util::show_logs_if_failing(&self.dir);
         let _ = std::fs::remove_dir_all(&self.dir);
     }
 }

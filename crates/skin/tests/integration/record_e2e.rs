@@ -25,6 +25,7 @@ struct Dir(PathBuf);
 
 impl Drop for Dir {
     fn drop(&mut self) {
+        crate::util::show_logs_if_failing(&self.0);
         let _ = std::fs::remove_dir_all(&self.0);
     }
 }
@@ -73,7 +74,15 @@ fn the_paper_skin_is_recorded_replayed_and_read_by_an_independent_reader() {
     let d = dir.0.as_path();
     std::fs::create_dir_all(d.join("shm")).unwrap();
     let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/paper-virtual-skin.toml");
-    let mut supervisor = Running(skin_command(d).arg("run").arg(&config).stdout(Stdio::null()).spawn().unwrap());
+    let mut supervisor = Running(
+        skin_command(d)
+            .arg("run")
+            .arg(&config)
+            .stdout(Stdio::null())
+            .stderr(crate::util::log_file(d, "skin-run"))
+            .spawn()
+            .unwrap(),
+    );
 
     // 10 s of every layer and service.
     let a = d.join("a.mcap");

@@ -72,6 +72,7 @@ impl Drop for Skin {
             let _ = supervisor.kill();
             let _ = supervisor.wait();
         }
+        crate::util::show_logs_if_failing(&self.dir);
         let _ = std::fs::remove_dir_all(&self.dir);
     }
 }
@@ -110,7 +111,13 @@ fn services_run_supervised_and_report_through_the_cli() {
     std::fs::create_dir_all(&dir).unwrap();
     let config = dir.join("config.toml");
     std::fs::write(&config, CONFIG).unwrap();
-    let supervisor = skin_command(&dir).arg("run").arg(&config).spawn().expect("start skin run");
+    let supervisor = skin_command(&dir)
+        .arg("run")
+        .arg(&config)
+        .stdout(crate::util::log_file(&dir, "skin-run"))
+        .stderr(crate::util::log_file(&dir, "skin-run"))
+        .spawn()
+        .expect("start skin run");
     let mut running = Skin { dir: dir.clone(), config, supervisor: Some(supervisor) };
 
     let services = services_are_listed(&dir);

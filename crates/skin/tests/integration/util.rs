@@ -53,3 +53,28 @@ pub fn interrupt_and_wait(child: &mut Child, what: &str, within: Duration) -> Ex
         std::thread::sleep(Duration::from_millis(20));
     }
 }
+
+/// A file in `dir` for a child's output (`NAME.log`), so that a passing
+/// test prints nothing of its children's logs;
+/// [`show_logs_if_failing`] prints them when the test fails.
+pub fn log_file(dir: &std::path::Path, name: &str) -> std::process::Stdio {
+    std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(dir.join(format!("{name}.log")))
+        .map_or_else(|_| std::process::Stdio::inherit(), std::process::Stdio::from)
+}
+
+/// While a test panics (called from a `Drop`), prints every log that
+/// [`log_file`] put in `dir`.
+pub fn show_logs_if_failing(dir: &std::path::Path) {
+    if !std::thread::panicking() {
+        return;
+    }
+    for entry in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+        let path = entry.path();
+        if path.extension().is_some_and(|e| e == "log") {
+            eprintln!("--- {} ---\n{}", path.display(), std::fs::read_to_string(&path).unwrap_or_default());
+        }
+    }
+}

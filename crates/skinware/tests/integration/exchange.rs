@@ -149,16 +149,19 @@ fn as_soon_as_available_reader_wakes_on_publish() {
     let dir = SegmentDir::new("asap");
     let mut writer = Writer::create("skin", "layer", 8, b"", &dir.writer()).unwrap();
     let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+    let (tid_tx, tid) = std::sync::mpsc::channel();
     let waiter = std::thread::spawn(move || {
+        tid_tx.send(rustix::thread::gettid().as_raw_nonzero().get()).unwrap();
         let started = Instant::now();
         let seq = reader.wait_newer(Duration::from_secs(20)).unwrap().seq();
         (seq, started.elapsed())
     });
-    std::thread::sleep(Duration::from_millis(100));
+    // Published only once the reader sleeps (in its wait: it does nothing
+    // else), so that the frame can only reach it by the wake.
+    wait_until_asleep(&[tid.recv().unwrap()], || true);
     publish(&mut writer, 3);
     let (seq, waited) = waiter.join().unwrap();
     assert_eq!(seq, 1);
-    assert!(waited >= Duration::from_millis(90), "returned before the publish: {waited:?}");
     assert!(waited < Duration::from_secs(10), "missed the wake-up: {waited:?}");
 }
 
