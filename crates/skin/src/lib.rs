@@ -6,7 +6,9 @@
 //!   parsed and checked from text by [`config::Config::parse`];
 //! - [`driver_status`]: what a driver process publishes of its devices (an
 //!   EtherCAT SubDevice's identity and state) for `skin ls`, read back by
-//!   [`driver_status::DriverStatus::decode`].
+//!   [`driver_status::DriverStatus::decode`];
+//! - [`suggest`]: "did you mean ...?" for a mistyped key, kind, skin or
+//!   layer ([`suggest::closest`]).
 //!
 //! The decoder of the web viewer's messages is in `skinware-viewer`, with
 //! the viewer.
@@ -30,3 +32,4 @@
 
 pub mod config;
 pub mod driver_status;
+pub mod suggest;
