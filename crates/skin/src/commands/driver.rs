@@ -15,7 +15,7 @@ pub fn run(config_path: &Path, name: &str) -> Result<()> {
     let built = driver_config.build(&config.skin)?;
     let status = built.status_source(&config.skin, name);
     let driver = match built {
-        BuiltDriver::Replay(replay) => return run_replay(&config, name, *replay),
+        BuiltDriver::Replay(replay) => return run_replay(&config, name, *replay, status),
         driver => driver.into_driver().context("this driver runs under a driver handler")?,
     };
     let options = HandlerOptions { slots: driver_config.slots, access: config.access(), ..HandlerOptions::default() };
@@ -23,14 +23,12 @@ pub fn run(config_path: &Path, name: &str) -> Result<()> {
         .with_context(|| format!("driver {name} could not start"))?;
     tracing::info!(driver = name, layers = ?handler.layers(), pid = std::process::id(), "driver acquiring");
     let stop = handler.stop_signal().clone();
-    let publisher = status.map(|status| publish_status(status, stop.clone()));
+    let publisher = publish_status(status, stop.clone());
     let stop_on_signal = stop.clone();
     stop_on_signals(move || stop_on_signal.stop())?;
     handler.run_until_stopped();
     stop.stop();
-    if let Some(publisher) = publisher {
-        let _ = publisher.join();
-    }
+    let _ = publisher.join();
     tracing::info!(driver = name, "driver stopped");
     Ok(())
 }
@@ -61,7 +59,12 @@ fn publish_status(status: StatusSource, stop: skinware::Stop) -> std::thread::Jo
 /// A `kind = "replay"` driver: the recording's layers (and, if asked, its
 /// services) under this config's skin name; the supervisor publishes the
 /// geometry, built from the recording's calibration and this config's regions.
-fn run_replay(config: &skin::config::Config, name: &str, replay: skin::config::drivers::ReplayDriver) -> Result<()> {
+fn run_replay(
+    config: &skin::config::Config,
+    name: &str,
+    replay: skin::config::drivers::ReplayDriver,
+    status: StatusSource,
+) -> Result<()> {
     let options = skinware_record::ReplayOptions {
         skin: Some(config.skin.clone()),
         publish_geometry: false,
@@ -72,8 +75,13 @@ fn run_replay(config: &skin::config::Config, name: &str, replay: skin::config::d
         .with_context(|| format!("driver {name} could not replay {}", replay.file.display()))?;
     tracing::info!(driver = name, channels = ?player.channels(), file = %replay.file.display(), "replaying");
     let stop = player.stop_signal().clone();
-    stop_on_signals(move || stop.stop())?;
-    let report = player.run().with_context(|| format!("driver {name}: replaying {} stopped", replay.file.display()))?;
+    let publisher = publish_status(status, stop.clone());
+    let stop_on_signal = stop.clone();
+    stop_on_signals(move || stop_on_signal.stop())?;
+    let report = player.run();
+    stop.stop();
+    let _ = publisher.join();
+    let report = report.with_context(|| format!("driver {name}: replaying {} stopped", replay.file.display()))?;
     tracing::info!(driver = name, frames = report.frames, passes = report.passes, "replay stopped");
     Ok(())
 }

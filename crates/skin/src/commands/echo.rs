@@ -4,7 +4,7 @@ use std::io::Write;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use skinware::{Error, Reader, ReaderOptions, Ticker};
+use skinware::{ChannelKind, Error, Reader, ReaderOptions, Ticker};
 use skinware_services::{MotionRecord, RegionContacts, TaxelState, contact_flags, motion_flags};
 
 /// How `echo` reads.
@@ -74,8 +74,16 @@ pub fn run(args: &Args) -> Result<()> {
         };
         return super::bridge::echo(&args.remote, &echo);
     }
-    let mut reader = Reader::open_with(&args.skin, channel, &options)
-        .with_context(|| format!("cannot attach to {what} {}/{channel}", args.skin))?;
+    let mut reader = match Reader::open_with(&args.skin, channel, &options) {
+        Ok(reader) => reader,
+        // Which skins and channels there are, instead of the path that is not.
+        Err(Error::Missing { .. }) => {
+            let kind = if args.service.is_some() { ChannelKind::Service } else { ChannelKind::Layer };
+            return Err(crate::skins::missing_channel(&args.skin, channel, kind))
+                .with_context(|| format!("cannot attach to {what} {}/{channel}", args.skin));
+        }
+        Err(e) => return Err(e).with_context(|| format!("cannot attach to {what} {}/{channel}", args.skin)),
+    };
     let decoder = if args.service.is_some() { Some(ServiceDecoder::new(&reader)?) } else { None };
     let timeout = Duration::from_secs_f64(args.timeout.clamp(0.001, 86_400.0));
     let mut ticker = Ticker::from_hz(args.rate.clamp(0.001, 100_000.0));
