@@ -73,16 +73,20 @@ pub fn missing_skin(skin: &str) -> anyhow::Error {
         Ok(skins) => skins,
         Err(e) => return anyhow!("skin {skin} is not running here (cannot list {}: {e})", dir.display()),
     };
-    missing_skin_among(skin, &skins, &dir)
+    missing_skin_among(skin, &skins, &dir, None)
 }
 
-fn missing_skin_among(skin: &str, skins: &[Skin], dir: &std::path::Path) -> anyhow::Error {
+/// [`missing_skin`] among `skins`; `hint` (ending in "; ") replaces the
+/// guess of a close skin name.
+fn missing_skin_among(skin: &str, skins: &[Skin], dir: &std::path::Path, hint: Option<String>) -> anyhow::Error {
     if skins.is_empty() {
         return anyhow!("skin {skin} is not running here, and no other is (no channel in {}); {HOW_TO_START}", dir.display());
     }
-    let guess = skin::suggest::closest(skin, skins.iter().map(|s| s.name.as_str()))
-        .map(|close| format!("did you mean --skin {close}? "))
-        .unwrap_or_default();
+    let guess = hint.unwrap_or_else(|| {
+        skin::suggest::closest(skin, skins.iter().map(|s| s.name.as_str()))
+            .map(|close| format!("did you mean --skin {close}? "))
+            .unwrap_or_default()
+    });
     let listed: Vec<String> = skins.iter().map(Skin::describe).collect();
     anyhow!(
         "skin {skin} is not running here (no channel of it in {}); {guess}the skins here: {}",
@@ -128,12 +132,8 @@ pub fn missing_channel(skin: &str, channel: &str, kind: ChannelKind) -> anyhow::
         .map(|s| s.name.as_str())
         .collect();
     let Some(found) = skins.iter().find(|s| s.name == skin) else {
-        if let Some(other) = elsewhere.first() {
-            return anyhow!(
-                "skin {skin} is not running here; skin {other} has a channel {channel}: add --skin {other}"
-            );
-        }
-        return missing_skin_among(skin, &skins, &dir);
+        let hint = elsewhere.first().map(|other| format!("skin {other} has a {channel}: add --skin {other}; "));
+        return missing_skin_among(skin, &skins, &dir, hint);
     };
     let (same, other) = match kind {
         ChannelKind::Layer => (&found.layers, &found.services),
@@ -170,15 +170,15 @@ mod tests {
     #[test]
     fn a_missing_skin_lists_the_others_and_guesses_a_close_one() {
         let skins = [skin("default", &["virtual-0", "virtual-1"], true), skin("icub", &["torso"], false)];
-        let err = missing_skin_among("defualt", &skins, Path::new("/dev/shm")).to_string();
+        let err = missing_skin_among("defualt", &skins, Path::new("/dev/shm"), None).to_string();
         assert_eq!(
             err,
             "skin defualt is not running here (no channel of it in /dev/shm); did you mean --skin default? the skins here: \
              default (2 layers, 1 service), icub (1 layer, 1 service, stopped: its writers are gone, `skin clean` removes what they left)"
         );
-        let err = missing_skin_among("nosuch", &skins, Path::new("/dev/shm")).to_string();
+        let err = missing_skin_among("nosuch", &skins, Path::new("/dev/shm"), None).to_string();
         assert!(err.contains("(no channel of it in /dev/shm); the skins here: default"), "{err}");
-        let err = missing_skin_among("nosuch", &[], Path::new("/dev/shm")).to_string();
+        let err = missing_skin_among("nosuch", &[], Path::new("/dev/shm"), None).to_string();
         assert!(err.contains("no other is (no channel in /dev/shm); start one with `skin run CONFIG`"), "{err}");
         assert!(err.contains("`skin demo`"), "{err}");
     }
