@@ -80,7 +80,10 @@ pub fn missing_skin(skin: &str) -> anyhow::Error {
 /// guess of a close skin name.
 fn missing_skin_among(skin: &str, skins: &[Skin], dir: &std::path::Path, hint: Option<String>) -> anyhow::Error {
     if skins.is_empty() {
-        return anyhow!("skin {skin} is not running here, and no other is (no channel in {}); {HOW_TO_START}", dir.display());
+        return anyhow!(
+            "skin {skin} is not running here, and no other is (no channel in {}); {HOW_TO_START}",
+            dir.display()
+        );
     }
     let guess = hint.unwrap_or_else(|| {
         skin::suggest::closest(skin, skins.iter().map(|s| s.name.as_str()))

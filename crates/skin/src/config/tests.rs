@@ -346,14 +346,19 @@ fn unknown_layer_and_service_names_suggest_the_one_meant() {
     assert!(with(&region.replace("LAYER", "v-1")).is_ok());
     let err = format!("{:#}", with(&region.replace("LAYER", "v1")).unwrap_err());
     assert!(
-        err.contains("region \"r\": layer \"v1\" is not a layer of this config; did you mean \"v-1\"? its layers: v-0, v-1"),
+        err.contains(
+            "region \"r\": layer \"v1\" is not a layer of this config; did you mean \"v-1\"? its layers: v-0, v-1"
+        ),
         "{err}"
     );
     let err = format!("{:#}", with(&region.replace("LAYER", "torso")).unwrap_err());
     assert!(err.contains("layer \"torso\" is not a layer of this config; its layers: v-0, v-1"), "{err}");
     let services = "[[service]]\nname = \"contact\"\nkind = \"contact\"\nrate_hz = 50\n[[service]]\nname = \"motion\"\nkind = \"motion\"\ninput = \"INPUT\"\nrate_hz = 50\n";
     let err = format!("{:#}", with(&services.replace("INPUT", "contcat")).unwrap_err());
-    assert!(err.contains("its input \"contcat\" is not a contact service of this config; did you mean \"contact\"?"), "{err}");
+    assert!(
+        err.contains("its input \"contcat\" is not a contact service of this config; did you mean \"contact\"?"),
+        "{err}"
+    );
     let err = format!("{:#}", with(&services.replace("INPUT", "touch")).unwrap_err());
     assert!(err.contains("the contact services: contact"), "{err}");
 }

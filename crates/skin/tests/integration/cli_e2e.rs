@@ -189,7 +189,10 @@ fn pull_refuses_what_it_cannot_pull_and_leaves_no_file() {
     let other_skin = place.run(&["pull", "v-1"]);
     assert!(!other_skin.status.success());
     let err = stderr(&other_skin);
-    assert!(err.contains("skin default is not running here") && err.contains("skin cli has a v-1: add --skin cli"), "{err}");
+    assert!(
+        err.contains("skin default is not running here") && err.contains("skin cli has a v-1: add --skin cli"),
+        "{err}"
+    );
     assert!(place.pull_files().is_empty(), "a refused pull left {:?}", place.pull_files());
 
     // What can be pulled still is, and comes back.
@@ -239,7 +242,11 @@ fn skin_that_is_not_there(place: &Place) {
 #[test]
 fn no_skin_at_all_says_how_to_start_one() {
     let place = Place::new("none");
-    for args in [&["top", "--once", "--skin", "nosuch"][..], &["pull", "v-0"], &["view", "--wait", "0", "--listen", "127.0.0.1:0"]] {
+    for args in [
+        &["top", "--once", "--skin", "nosuch"][..],
+        &["pull", "v-0"],
+        &["view", "--wait", "0", "--listen", "127.0.0.1:0"],
+    ] {
         let output = place.run(args);
         let err = stderr(&output);
         assert!(!output.status.success(), "skin {args:?}: {err}");
@@ -259,9 +266,11 @@ fn no_skin_at_all_says_how_to_start_one() {
 fn ls_is_a_line_per_layer_and_service_of_the_demo() {
     let _alone = one_skin_at_a_time();
     let mut place = Place::new("ls");
-    let config = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/demo.toml")).unwrap();
+    let config =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/demo.toml")).unwrap();
     place.start_skin(&config);
-    let channels = ["virtual-0", "virtual-1", "virtual-2", "virtual-3", "virtual-4", "contact", "contact-taxels", "motion"];
+    let channels =
+        ["virtual-0", "virtual-1", "virtual-2", "virtual-3", "virtual-4", "contact", "contact-taxels", "motion"];
     for channel in channels {
         place.reader("default", channel);
     }
@@ -275,9 +284,13 @@ fn ls_is_a_line_per_layer_and_service_of_the_demo() {
         assert!(line.starts_with(&format!("default/{channel}  [running]")), "{line}");
     }
     for line in &lines[..5] {
-        assert!(line.contains(" sensors (pressure), ") && line.contains(" modules, ") && line.contains(" patches, "), "{line}");
+        assert!(
+            line.contains(" sensors (pressure), ") && line.contains(" modules, ") && line.contains(" patches, "),
+            "{line}"
+        );
     }
-    let json: serde_json::Value = serde_json::from_slice(&place.run(&["ls", "--skin", "default", "--json"]).stdout).unwrap();
+    let json: serde_json::Value =
+        serde_json::from_slice(&place.run(&["ls", "--skin", "default", "--json"]).stdout).unwrap();
     let patches: u64 = json["layers"].as_array().unwrap().iter().map(|l| l["patches"].as_u64().unwrap()).sum();
     assert_eq!(json["services"].as_array().unwrap().len(), 3);
     let detailed = place.run(&["ls", "--skin", "default", "--patches"]);
@@ -343,7 +356,8 @@ fn view_started_before_the_skin_gets_its_geometry() {
     let waiting = line_with(&stderr, "has no geometry yet", Duration::from_secs(30));
     assert!(waiting.contains("`skin run`, `skin replay` or `skin demo`"), "{waiting}");
 
-    let config = "skin = \"late\"\n[[driver]]\nname = \"v\"\nkind = \"virtual\"\nsensors = 240\nlayers = 2\nrate_hz = 50\n";
+    let config =
+        "skin = \"late\"\n[[driver]]\nname = \"v\"\nkind = \"virtual\"\nsensors = 240\nlayers = 2\nrate_hz = 50\n";
     let run = place.start_skin(config);
     line_with(&stdout, &format!("skin late on http://127.0.0.1:{port}/"), Duration::from_secs(120));
     let mut browser = connect(port);
