@@ -1,5 +1,7 @@
-//! What a driver process knows of its devices, for `skin ls`: each EtherCAT
-//! SubDevice's identity, AL state and fault.
+//! What a driver process tells the other commands about itself: its kind
+//! and its layers (so that `skin pull` knows whether a layer has a cable it
+//! can pull), and for `skin ls` its devices: each EtherCAT SubDevice's
+//! identity, AL state and fault.
 //!
 //! The driver process writes it every [`PUBLISH_EVERY`] as a small JSON file
 //! beside the channels (`skinware-driver.SKIN.DRIVER.json` in the segment
@@ -36,8 +38,12 @@ pub struct DriverStatus {
     pub skin: String,
     /// The driver's name in the config.
     pub driver: String,
-    /// Its `kind` (`ethercat`).
+    /// Its `kind` in the config (`virtual`, `can`, `ethercat`, `replay`).
     pub kind: String,
+    /// The layers it writes (absent in the files of older versions, which
+    /// only EtherCAT drivers wrote).
+    #[serde(default)]
+    pub layers: Vec<String>,
     /// The driver process.
     pub pid: u32,
     /// When this was written, CLOCK_MONOTONIC ns (the file never leaves the
@@ -45,7 +51,8 @@ pub struct DriverStatus {
     pub updated_ns: u64,
     /// Why the whole bus is down, while it is.
     pub bus_fault: Option<String>,
-    /// Its devices, in bus order.
+    /// Its devices, in bus order (none for a driver without devices of its
+    /// own to report: the virtual skin, a replay, a CAN bus).
     pub devices: Vec<DeviceStatus>,
 }
 
@@ -179,6 +186,7 @@ mod tests {
             skin: "arm".into(),
             driver: "bus".into(),
             kind: "ethercat".into(),
+            layers: vec!["forearm".into()],
             pid: std::process::id(),
             updated_ns: now_ns(),
             bus_fault: None,
@@ -225,6 +233,15 @@ mod tests {
         assert!(!status.is_live(status.updated_ns + STALE_AFTER.as_nanos() as u64 + 1));
         status.pid = u32::MAX;
         assert!(!status.is_live(status.updated_ns));
+    }
+
+    #[test]
+    fn a_status_of_an_older_version_has_no_layers() {
+        let mut json = serde_json::to_value(example()).unwrap();
+        json.as_object_mut().unwrap().remove("layers");
+        let decoded = DriverStatus::decode(json.to_string().as_bytes()).unwrap();
+        assert!(decoded.layers.is_empty());
+        assert_eq!(decoded.devices, example().devices);
     }
 
     #[test]

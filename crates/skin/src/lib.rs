@@ -7,7 +7,9 @@
 //! - [`driver_status`]: what a driver process publishes of its devices (an
 //!   EtherCAT SubDevice's identity and state) for `skin ls`, read back by
 //!   [`driver_status::DriverStatus::decode`];
-//! - [`report`]: an error's chain of causes for people, each cause once.
+//! - [`report`]: an error's chain of causes for people, each cause once;
+//! - [`suggest`]: "did you mean ...?" for a mistyped key, kind, skin or
+//!   layer ([`suggest::closest`]).
 //!
 //! The decoder of the web viewer's messages is in `skinware-viewer`, with
 //! the viewer.
@@ -34,3 +36,4 @@
 pub mod config;
 pub mod driver_status;
 pub mod report;
+pub mod suggest;

@@ -5,6 +5,7 @@
 mod commands;
 mod geometry;
 mod layers;
+mod skins;
 
 use std::path::PathBuf;
 

@@ -79,7 +79,7 @@ pub enum GeometryError {
     },
     /// No published geometry for this skin.
     #[error(
-        "no geometry is published for skin {skin} ({path}); start the skin with `skin run CONFIG`, which publishes it"
+        "no geometry is published for skin {skin} ({path}); `skin run CONFIG`, `skin replay FILE.mcap` and `skin demo` publish it when they start the skin"
     )]
     Missing {
         /// Skin name.

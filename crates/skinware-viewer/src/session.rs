@@ -147,6 +147,11 @@ impl std::io::Write for BrowserStream {
     }
 }
 
+/// How long a browser's connection waits for a geometry that is not
+/// published yet (a skin just started with `skin run`, `skin replay` or
+/// `skin demo`, which publish it a moment later) before it shows the error.
+pub const GEOMETRY_WAIT: Duration = Duration::from_secs(10);
+
 /// The mode a new browser starts in.
 pub const INITIAL_MODE: ReadMode = ReadMode::Asap;
 
@@ -241,6 +246,37 @@ impl GeometryCache {
     }
 }
 
+impl GeometryCache {
+    /// [`get`](Self::get), waiting up to `within` (or until `shutdown`)
+    /// for a geometry that is missing to be published; `waiting` is called
+    /// once, when it is found missing and the wait begins. Other errors (a
+    /// corrupt file) are returned at once.
+    pub fn get_waiting(
+        &self,
+        dir: &std::path::Path,
+        skin: &str,
+        within: Duration,
+        shutdown: &AtomicBool,
+        waiting: impl FnOnce(),
+    ) -> Result<Arc<EncodedGeometry>, skinware_geometry::GeometryError> {
+        let deadline = Instant::now() + within;
+        let mut waiting = Some(waiting);
+        loop {
+            match self.get(dir, skin) {
+                Err(skinware_geometry::GeometryError::Missing { .. })
+                    if Instant::now() < deadline && !shutdown.load(Ordering::Relaxed) =>
+                {
+                    if let Some(waiting) = waiting.take() {
+                        waiting();
+                    }
+                    std::thread::sleep(Duration::from_millis(50));
+                }
+                result => return result,
+            }
+        }
+    }
+}
+
 impl Site {
     /// The site of `skin` (segments in `dir`, or the default directory).
     pub fn new(skin: &str, dir: Option<PathBuf>, shutdown: Arc<AtomicBool>) -> Site {
@@ -290,7 +326,12 @@ fn close(socket: &mut WebSocket<BrowserStream>) {
 /// map; returns the layers to read.
 fn send_geometry(socket: &mut WebSocket<BrowserStream>, site: &Site) -> Result<Vec<LayerToRead>> {
     let dir = site.dir.clone().unwrap_or_else(skinware::shm::segment_dir);
-    let geometry = match site.geometry.get(&dir, &site.skin) {
+    // The page shows the wait where it shows errors, until the geometry comes.
+    let waiting = format!("waiting up to {} s for skin {}'s geometry", GEOMETRY_WAIT.as_secs(), site.skin);
+    let found = site.geometry.get_waiting(&dir, &site.skin, GEOMETRY_WAIT, &site.shutdown, || {
+        let _ = socket.send(Message::text(serde_json::json!({ "error": waiting }).to_string()));
+    });
+    let geometry = match found {
         Ok(geometry) => geometry,
         Err(e) => {
             // The page shows this text instead of a map.
@@ -648,6 +689,43 @@ mod tests {
         std::fs::write(SkinGeometry::published_path(&dir, "cached"), b"not a geometry").unwrap();
         let corrupt = cache.get(&dir, "cached").unwrap_err();
         assert!(matches!(corrupt, skinware_geometry::GeometryError::Corrupt { .. }), "{corrupt}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A geometry published while a connection waits is the one it gets; a
+    /// wait says so once, ends at its bound or at shutdown with the
+    /// library's error, and does not hold up a corrupt file's.
+    #[test]
+    fn a_missing_geometry_is_waited_for_a_bounded_time() {
+        let dir = std::env::temp_dir().join(format!("skin-geometry-wait-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let (cache, running) = (GeometryCache::default(), AtomicBool::new(false));
+        let mut said = 0;
+        let publisher = {
+            let dir = dir.clone();
+            std::thread::spawn(move || {
+                std::thread::sleep(Duration::from_millis(200));
+                crate::virtual_geometry("late", 240).publish(&dir).unwrap();
+            })
+        };
+        let found = cache.get_waiting(&dir, "late", Duration::from_secs(60), &running, || said += 1).unwrap();
+        publisher.join().unwrap();
+        assert_eq!(found.layers.len(), 2);
+        assert_eq!(said, 1, "the wait is said once");
+
+        let mut said = 0;
+        let never = cache.get_waiting(&dir, "never", Duration::from_millis(100), &running, || said += 1);
+        assert!(matches!(never, Err(skinware_geometry::GeometryError::Missing { .. })));
+        assert_eq!(said, 1);
+        let stopping = AtomicBool::new(true);
+        let stopped = cache.get_waiting(&dir, "never", Duration::from_secs(3600), &stopping, || {});
+        assert!(matches!(stopped, Err(skinware_geometry::GeometryError::Missing { .. })), "shutdown ends the wait");
+
+        std::fs::write(SkinGeometry::published_path(&dir, "bad"), b"not a geometry").unwrap();
+        let mut said = 0;
+        let corrupt = cache.get_waiting(&dir, "bad", Duration::from_secs(3600), &running, || said += 1);
+        assert!(matches!(corrupt, Err(skinware_geometry::GeometryError::Corrupt { .. })));
+        assert_eq!(said, 0, "only a missing geometry is waited for");
         let _ = std::fs::remove_dir_all(&dir);
     }
 

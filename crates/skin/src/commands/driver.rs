@@ -21,7 +21,7 @@ pub fn run(config_path: &Path, name: &str) -> Result<()> {
         let built = driver_config.build(&config.skin)?;
         let status = built.status_source(&config.skin, name);
         let driver = match built {
-            BuiltDriver::Replay(replay) => return run_replay(&config, name, *replay, stop),
+            BuiltDriver::Replay(replay) => return run_replay(&config, name, *replay, status, stop),
             driver => driver.into_driver().context("this driver runs under a driver handler")?,
         };
         match DriverHandler::start(&config.skin, driver, &options) {
@@ -43,12 +43,10 @@ pub fn run(config_path: &Path, name: &str) -> Result<()> {
         handler_stop.stop();
     });
     let stop = handler.stop_signal().clone();
-    let publisher = status.map(|status| publish_status(status, stop.clone()));
+    let publisher = publish_status(status, stop.clone());
     handler.run_until_stopped();
     stop.stop();
-    if let Some(publisher) = publisher {
-        let _ = publisher.join();
-    }
+    let _ = publisher.join();
     tracing::info!(driver = name, "driver stopped");
     Ok(())
 }
@@ -139,6 +137,7 @@ fn run_replay(
     config: &skin::config::Config,
     name: &str,
     replay: skin::config::drivers::ReplayDriver,
+    status: StatusSource,
     stopped: skinware::Stop,
 ) -> Result<()> {
     let options = skinware_record::ReplayOptions {
@@ -151,11 +150,18 @@ fn run_replay(
         .with_context(|| format!("driver {name} could not replay {}", replay.file.display()))?;
     tracing::info!(driver = name, channels = ?player.channels(), file = %replay.file.display(), "replaying");
     let stop = player.stop_signal().clone();
-    std::thread::spawn(move || {
-        while stopped.sleep_until(u64::MAX) {}
-        stop.stop();
+    std::thread::spawn({
+        let stop = stop.clone();
+        move || {
+            while stopped.sleep_until(u64::MAX) {}
+            stop.stop();
+        }
     });
-    let report = player.run().with_context(|| format!("driver {name}: replaying {} stopped", replay.file.display()))?;
+    let publisher = publish_status(status, stop.clone());
+    let report = player.run();
+    stop.stop();
+    let _ = publisher.join();
+    let report = report.with_context(|| format!("driver {name}: replaying {} stopped", replay.file.display()))?;
     tracing::info!(driver = name, frames = report.frames, passes = report.passes, "replay stopped");
     Ok(())
 }

@@ -4,7 +4,7 @@ use std::io::Write;
 use std::time::Duration;
 
 use anyhow::{Context, Result};
-use skinware::{Error, Reader, ReaderOptions, Ticker};
+use skinware::{ChannelKind, Error, Reader, ReaderOptions, Ticker};
 use skinware_services::{MotionRecord, RegionContacts, TaxelState, contact_flags, motion_flags};
 
 /// How `echo` reads.
@@ -51,7 +51,6 @@ pub struct Args {
 
 /// Runs `skin echo`.
 pub fn run(args: &Args) -> Result<()> {
-    let options = ReaderOptions { allow_gone: true, ..ReaderOptions::default() };
     let (what, channel) = match (&args.layer, &args.service) {
         (_, Some(service)) => ("service", service.as_str()),
         (Some(layer), None) => ("layer", layer.as_str()),
@@ -74,8 +73,7 @@ pub fn run(args: &Args) -> Result<()> {
         };
         return super::bridge::echo(&args.remote, &echo);
     }
-    let mut reader = Reader::open_with(&args.skin, channel, &options)
-        .with_context(|| format!("cannot attach to {what} {}/{channel}", args.skin))?;
+    let mut reader = open(args, what, channel)?;
     let decoder = if args.service.is_some() { Some(ServiceDecoder::new(&reader)?) } else { None };
     let timeout = Duration::from_secs_f64(args.timeout.clamp(0.001, 86_400.0));
     let mut ticker = Ticker::from_hz(args.rate.clamp(0.001, 100_000.0));
@@ -129,6 +127,21 @@ pub fn run(args: &Args) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// A reader of the `what` (layer or service) `channel`; one that is not
+/// there is said with the skins and channels that are, not its path.
+fn open(args: &Args, what: &str, channel: &str) -> Result<Reader> {
+    let options = ReaderOptions { allow_gone: true, ..ReaderOptions::default() };
+    let context = || format!("cannot attach to {what} {}/{channel}", args.skin);
+    match Reader::open_with(&args.skin, channel, &options) {
+        Ok(reader) => Ok(reader),
+        Err(Error::Missing { .. }) => {
+            let kind = if args.service.is_some() { ChannelKind::Service } else { ChannelKind::Layer };
+            Err(crate::skins::missing_channel(&args.skin, channel, kind)).with_context(context)
+        }
+        Err(e) => Err(e).with_context(context),
+    }
 }
 
 /// Decodes the records of the services this crate knows.

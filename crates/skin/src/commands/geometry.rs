@@ -28,7 +28,9 @@ pub fn run(args: &Args) -> Result<()> {
             let (geometry, cached) = crate::geometry::load_or_build(&config)?;
             (geometry, if cached { "cache" } else { "computed now" })
         }
-        None => (SkinGeometry::open(&args.skin)?, "published"),
+        None => {
+            (SkinGeometry::open(&args.skin).map_err(|e| crate::skins::missing_geometry(&args.skin, e))?, "published")
+        }
     };
     let mut out = std::io::stdout().lock();
     if args.json {

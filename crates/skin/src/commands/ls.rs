@@ -4,6 +4,7 @@ use std::io::Write;
 use std::time::Duration;
 
 use anyhow::Result;
+use skinware::ChannelKind;
 
 /// Arguments of `skin ls`.
 #[derive(clap::Args)]
@@ -14,7 +15,10 @@ pub struct Args {
     /// Print JSON for scripts.
     #[arg(long)]
     json: bool,
-    /// Also list every module with its sensor count.
+    /// Also list every patch of each layer with its module and sensor counts.
+    #[arg(long, short = 'p')]
+    patches: bool,
+    /// Also list every patch, and every module with its sensor count.
     #[arg(long)]
     modules: bool,
     /// List the regions and sub-regions instead (from the published geometry).
@@ -24,6 +28,11 @@ pub struct Args {
     remote: super::bridge::RemoteArgs,
 }
 
+/// How long `skin ls` watches the writers to time their rates: a dozen
+/// frames of a 40 Hz layer, timed by the writer's own clock (see
+/// `layers::rate_between`), and still an answer at once.
+const RATE_WINDOW: Duration = Duration::from_millis(300);
+
 /// Runs `skin ls`.
 pub fn run(args: &Args) -> Result<()> {
     if args.remote.remote.is_some() {
@@ -32,47 +41,87 @@ pub fn run(args: &Args) -> Result<()> {
     if args.regions {
         return regions(args);
     }
-    let mut layers = crate::layers::gather(args.skin.as_deref(), Duration::from_millis(300))?;
+    let sampled =
+        crate::layers::sample_channels(args.skin.as_deref(), &[ChannelKind::Layer, ChannelKind::Service], RATE_WINDOW)?;
+    if let Some(skin) = args.skin.as_deref()
+        && sampled.is_empty()
+        && skinware::list_skin_channels(&skinware::shm::segment_dir(), skin)?.is_empty()
+    {
+        return Err(crate::skins::missing_skin(skin));
+    }
+    let (layers, services): (Vec<_>, Vec<_>) =
+        sampled.into_iter().partition(|s| s.info.kind == Some(ChannelKind::Layer));
+    let mut layers = crate::layers::reports(layers);
+    let services = super::services::reports(services);
     let drivers = crate::layers::driver_statuses(args.skin.as_deref())?;
     crate::layers::attach_devices(&mut layers, &drivers);
     let mut out = std::io::stdout().lock();
     if args.json {
-        serde_json::to_writer_pretty(&mut out, &serde_json::json!({ "layers": layers, "drivers": drivers }))?;
+        let listing = serde_json::json!({ "layers": layers, "services": services, "drivers": drivers });
+        serde_json::to_writer_pretty(&mut out, &listing)?;
         writeln!(out)?;
         return Ok(());
     }
-    if layers.is_empty() {
-        writeln!(out, "no layers (is `skin run` running? channels are in {})", skinware::shm::segment_dir().display())?;
-    }
-    for layer in &layers {
+    if layers.is_empty() && services.is_empty() {
         writeln!(
             out,
-            "{}/{}  [{}]  {} sensors ({}), {} modules, {} patches, {:.1} Hz measured ({:.1} nominal), {} overruns",
-            layer.skin,
-            layer.name,
-            layer.state,
-            layer.sensors,
-            layer.sensor_type,
-            layer.modules,
-            layer.patches,
-            layer.rate_hz,
-            layer.nominal_rate_hz,
-            layer.overruns
+            "no skin runs here (channels are in {}); {}",
+            skinware::shm::segment_dir().display(),
+            crate::skins::HOW_TO_START
         )?;
-        if let Some(device) = &layer.device {
-            writeln!(out, "  {}", describe_device(device))?;
-        }
-        for (patch, modules) in &layer.tree {
-            let sensors: usize = modules.iter().map(|(_, n)| n).sum();
-            writeln!(out, "  patch {patch}: {} modules, {sensors} sensors", modules.len())?;
-            if args.modules {
-                for (module, count) in modules {
-                    writeln!(out, "    module {module}: {count} sensors")?;
-                }
+    }
+    for layer in &layers {
+        write_layer(&mut out, layer, args)?;
+    }
+    for service in &services {
+        writeln!(out, "{}", super::services::describe(service))?;
+    }
+    write_drivers(&mut out, &drivers, &layers)
+}
+
+/// A layer's line, its device's, and its patches' and modules' if asked.
+fn write_layer(out: &mut impl Write, layer: &crate::layers::LayerReport, args: &Args) -> Result<()> {
+    writeln!(
+        out,
+        "{}/{}  [{}]  {} sensors ({}), {} modules, {} patches, {:.1} Hz measured ({:.1} nominal), {} overruns",
+        layer.skin,
+        layer.name,
+        layer.state,
+        layer.sensors,
+        layer.sensor_type,
+        layer.modules,
+        layer.patches,
+        layer.rate_hz,
+        layer.nominal_rate_hz,
+        layer.overruns
+    )?;
+    if let Some(device) = &layer.device {
+        writeln!(out, "  {}", describe_device(device))?;
+    }
+    if !(args.patches || args.modules) {
+        return Ok(());
+    }
+    for (patch, modules) in &layer.tree {
+        let sensors: usize = modules.iter().map(|(_, n)| n).sum();
+        writeln!(out, "  patch {patch}: {} modules, {sensors} sensors", modules.len())?;
+        if args.modules {
+            for (module, count) in modules {
+                writeln!(out, "    module {module}: {count} sensors")?;
             }
         }
     }
-    for driver in &drivers {
+    Ok(())
+}
+
+/// A line per driver with devices of its own (an EtherCAT bus), and its
+/// devices whose layers have no channel. Drivers without devices (virtual,
+/// CAN, replay) are said by their layers' lines; they show in --json.
+fn write_drivers(
+    out: &mut impl Write,
+    drivers: &[skin::driver_status::DriverStatus],
+    layers: &[crate::layers::LayerReport],
+) -> Result<()> {
+    for driver in drivers.iter().filter(|d| !d.devices.is_empty() || d.bus_fault.is_some()) {
         let bus = driver.bus_fault.as_deref().map_or_else(|| "bus up".to_owned(), |why| format!("bus not up: {why}"));
         let in_op = driver.devices.iter().filter(|d| d.state == "OP").count();
         writeln!(
@@ -119,7 +168,7 @@ fn describe_device(device: &skin::driver_status::DeviceStatus) -> String {
 
 fn regions(args: &Args) -> Result<()> {
     let skin = args.skin.as_deref().unwrap_or("default");
-    let geometry = skinware_geometry::SkinGeometry::open(skin)?;
+    let geometry = skinware_geometry::SkinGeometry::open(skin).map_err(|e| crate::skins::missing_geometry(skin, e))?;
     let r = &geometry.regions;
     let mut out = std::io::stdout().lock();
     if args.json {

@@ -87,7 +87,16 @@ pub fn run(args: &Args) -> Result<()> {
         }
         wait_for_skin(&args.skin, Duration::from_secs_f64(wait.min(86_400.0)), &shutdown)?;
     }
-    let recorder = Recorder::start(out, options).with_context(|| format!("cannot record skin {}", args.skin))?;
+    let recorder = match Recorder::start(out, options) {
+        Ok(recorder) => recorder,
+        // Which skins there are, for a skin name that is not one of them.
+        Err(_) if skinware::list_skin_channels(&skinware::shm::segment_dir(), &args.skin)?.is_empty() => {
+            return Err(crate::skins::missing_skin(&args.skin)).with_context(|| {
+                format!("cannot record skin {} (`skin record --wait 60` waits for it to start)", args.skin)
+            });
+        }
+        Err(e) => return Err(e).with_context(|| format!("cannot record skin {}", args.skin)),
+    };
     let channels = recorder.channels();
     eprintln!(
         "recording {} channel(s) of skin {} into {}: {}",

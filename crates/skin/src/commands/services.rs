@@ -22,9 +22,9 @@ pub struct Args {
     json: bool,
 }
 
-/// One service as `skin services` reports it.
+/// One service as `skin services` (and `skin ls`) reports it.
 #[derive(Debug, Serialize)]
-struct ServiceReport {
+pub struct ServiceReport {
     skin: String,
     name: String,
     state: &'static str,
@@ -49,7 +49,32 @@ struct ServiceReport {
 /// Runs `skin services`.
 pub fn run(args: &Args) -> Result<()> {
     let sampled =
-        crate::layers::sample_channels(args.skin.as_deref(), ChannelKind::Service, Duration::from_millis(500))?;
+        crate::layers::sample_channels(args.skin.as_deref(), &[ChannelKind::Service], Duration::from_millis(500))?;
+    let reports = reports(sampled);
+    let mut out = std::io::stdout().lock();
+    if args.json {
+        serde_json::to_writer_pretty(&mut out, &serde_json::json!({ "services": reports }))?;
+        writeln!(out)?;
+        return Ok(());
+    }
+    if reports.is_empty() {
+        let Some(skin) = args.skin.as_deref() else {
+            writeln!(out, "no services (add [[service]] tables to the config of `skin run`; see examples/README.md)")?;
+            return Ok(());
+        };
+        if skinware::list_skin_channels(&skinware::shm::segment_dir(), skin)?.is_empty() {
+            return Err(crate::skins::missing_skin(skin));
+        }
+        writeln!(out, "skin {skin} has no services (add [[service]] tables to its config; see examples/README.md)")?;
+    }
+    for report in &reports {
+        writeln!(out, "{}", describe(report))?;
+    }
+    Ok(())
+}
+
+/// What the CLI reports of the sampled services.
+pub fn reports(sampled: Vec<Sampled>) -> Vec<ServiceReport> {
     let mut reports = Vec::new();
     for Sampled { info, mut reader, rate_hz } in sampled {
         let stats = reader.writer_stats();
@@ -77,33 +102,27 @@ pub fn run(args: &Args) -> Result<()> {
             writer_pid: reader.writer_pid(),
         });
     }
-    let mut out = std::io::stdout().lock();
-    if args.json {
-        serde_json::to_writer_pretty(&mut out, &serde_json::json!({ "services": reports }))?;
-        writeln!(out)?;
-        return Ok(());
-    }
-    if reports.is_empty() {
-        writeln!(out, "no services (add [[service]] tables to the config of `skin run`; see examples/README.md)")?;
-    }
-    for r in &reports {
-        let nominal = r.nominal_rate_hz.map_or("sporadic".to_owned(), |hz| format!("{hz:.1} Hz nominal"));
-        writeln!(
-            out,
-            "{}/{}  [{}{}]  {} v{}, {} records of {} B; {:.1} Hz measured ({nominal}); cost mean {:.0} µs, max {:.0} µs; inputs: {}",
-            r.skin,
-            r.name,
-            r.state,
-            if r.inputs_faulted { ", inputs faulted" } else { "" },
-            r.schema,
-            r.schema_version,
-            r.records,
-            r.record_bytes,
-            r.rate_hz,
-            r.cost_ns_mean as f64 / 1e3,
-            r.cost_ns_max as f64 / 1e3,
-            if r.inputs.len() > 6 { format!("{} layers", r.inputs.len()) } else { r.inputs.join(", ") }
-        )?;
-    }
-    Ok(())
+    reports
+}
+
+/// One line on a service: `default/contact  [running]  skinware.contacts
+/// v1, 7 records of 432 B; 50.0 Hz measured (50.0 Hz nominal); cost mean
+/// 329 µs, max 1873 µs; inputs: virtual-0, ...`.
+pub fn describe(r: &ServiceReport) -> String {
+    let nominal = r.nominal_rate_hz.map_or("sporadic".to_owned(), |hz| format!("{hz:.1} Hz nominal"));
+    format!(
+        "{}/{}  [{}{}]  {} v{}, {} records of {} B; {:.1} Hz measured ({nominal}); cost mean {:.0} µs, max {:.0} µs; inputs: {}",
+        r.skin,
+        r.name,
+        r.state,
+        if r.inputs_faulted { ", inputs faulted" } else { "" },
+        r.schema,
+        r.schema_version,
+        r.records,
+        r.record_bytes,
+        r.rate_hz,
+        r.cost_ns_mean as f64 / 1e3,
+        r.cost_ns_max as f64 / 1e3,
+        if r.inputs.len() > 6 { format!("{} layers", r.inputs.len()) } else { r.inputs.join(", ") }
+    )
 }

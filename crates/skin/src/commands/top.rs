@@ -25,8 +25,19 @@ pub struct Args {
 /// Runs `skin top`.
 pub fn run(args: &Args) -> Result<()> {
     let window = Duration::from_secs_f64(args.interval.clamp(0.05, 3600.0));
+    let mut first = true;
     loop {
         let layers = crate::layers::gather(args.skin.as_deref(), window)?;
+        // A skin that is not there (a typo) is an error, not an empty table;
+        // one that goes away later leaves the table empty until it is back.
+        if let Some(skin) = args.skin.as_deref()
+            && first
+            && layers.is_empty()
+            && skinware::list_skin_channels(&skinware::shm::segment_dir(), skin)?.is_empty()
+        {
+            return Err(crate::skins::missing_skin(skin));
+        }
+        first = false;
         let mut out = std::io::stdout().lock();
         if args.json {
             serde_json::to_writer(&mut out, &serde_json::json!({ "layers": layers }))?;
@@ -63,6 +74,15 @@ pub fn run(args: &Args) -> Result<()> {
                     l.overruns,
                     l.faults,
                     l.restarts
+                )?;
+            }
+            if layers.is_empty() {
+                writeln!(
+                    out,
+                    "(no layer{}; channels are in {}; {})",
+                    args.skin.as_deref().map(|s| format!(" of skin {s}")).unwrap_or_default(),
+                    skinware::shm::segment_dir().display(),
+                    crate::skins::HOW_TO_START
                 )?;
             }
         }

@@ -29,6 +29,33 @@ pub enum DriverKind {
     Ethercat,
 }
 
+impl DriverKind {
+    /// Every kind, in the order the docs list them.
+    pub const ALL: [DriverKind; 4] = [DriverKind::Virtual, DriverKind::Can, DriverKind::Ethercat, DriverKind::Replay];
+
+    /// Its name in a config (`kind = "virtual"`) and in a driver's status.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            DriverKind::Virtual => "virtual",
+            DriverKind::Can => "can",
+            DriverKind::Replay => "replay",
+            DriverKind::Ethercat => "ethercat",
+        }
+    }
+
+    /// The kind called `name` ([`as_str`](Self::as_str)), if there is one.
+    pub fn from_name(name: &str) -> Option<DriverKind> {
+        DriverKind::ALL.into_iter().find(|kind| kind.as_str() == name)
+    }
+
+    /// Whether its layers have a simulated cable that `skin pull` can pull
+    /// ([`pull_file`]): only the virtual skin's. A real bus's cable is pulled
+    /// by hand, and a replay plays back whatever faults it recorded.
+    pub fn has_simulated_cables(self) -> bool {
+        self == DriverKind::Virtual
+    }
+}
+
 /// The protocols of `kind = "can"`.
 #[derive(Debug, Deserialize, Clone, Copy, PartialEq, Eq)]
 #[serde(rename_all = "kebab-case")]
@@ -259,22 +286,39 @@ impl BuiltDriver {
         }
     }
 
-    /// What the driver process publishes of its devices for `skin ls`, as a
-    /// function that reads it now: an EtherCAT bus's SubDevices; `None` for
-    /// drivers without devices of their own to report.
-    pub fn status_source(&self, skin: &str, driver: &str) -> Option<StatusSource> {
+    /// Its kind.
+    pub fn kind(&self) -> DriverKind {
+        match self {
+            BuiltDriver::Virtual(_) => DriverKind::Virtual,
+            BuiltDriver::Can(_) => DriverKind::Can,
+            BuiltDriver::Replay(_) => DriverKind::Replay,
+            BuiltDriver::Ethercat(_) => DriverKind::Ethercat,
+        }
+    }
+
+    /// What the driver process publishes of itself for the other commands,
+    /// as a function that reads it now: its kind and layers (what `skin
+    /// pull` checks), and an EtherCAT bus's SubDevices (what `skin ls`
+    /// shows).
+    pub fn status_source(&self, skin: &str, driver: &str) -> StatusSource {
+        let layers: Vec<String> = self.layers().into_iter().map(|spec| spec.topology.name).collect();
+        let (skin, driver, kind) = (skin.to_owned(), driver.to_owned(), self.kind());
+        let status = move || crate::driver_status::DriverStatus {
+            skin: skin.clone(),
+            driver: driver.clone(),
+            kind: kind.as_str().into(),
+            layers: layers.clone(),
+            pid: std::process::id(),
+            updated_ns: crate::driver_status::now_ns(),
+            bus_fault: None,
+            devices: Vec::new(),
+        };
         let BuiltDriver::Ethercat(ethercat) = self else {
-            return None;
+            return Box::new(status);
         };
         let handle = ethercat.status_handle();
         let layers: Vec<String> = ethercat.layers().into_iter().map(|spec| spec.topology.name).collect();
-        let (skin, driver) = (skin.to_owned(), driver.to_owned());
-        Some(Box::new(move || crate::driver_status::DriverStatus {
-            skin: skin.clone(),
-            driver: driver.clone(),
-            kind: "ethercat".into(),
-            pid: std::process::id(),
-            updated_ns: crate::driver_status::now_ns(),
+        Box::new(move || crate::driver_status::DriverStatus {
             bus_fault: handle.bus_fault(),
             devices: handle
                 .segments()
@@ -298,7 +342,8 @@ impl BuiltDriver {
                     counter: segment.counter,
                 })
                 .collect(),
-        }))
+            ..status()
+        })
     }
 
     /// The driver, to run under a driver handler; a replay runs on its own

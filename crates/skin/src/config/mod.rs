@@ -81,7 +81,8 @@ impl Config {
     pub fn parse(text: &str, path: &Path) -> Result<Config> {
         let mut config: Config = toml::from_str(text).map_err(|e| {
             let (line, column) = e.span().map(|span| line_column(text, span.start)).unwrap_or((1, 1));
-            anyhow::anyhow!("{}:{line}:{column}: {}", path.display(), e.message())
+            let message = crate::suggest::annotate_unknown_name(e.message()).unwrap_or_else(|| e.message().to_owned());
+            anyhow::anyhow!("{}:{line}:{column}: {message}", path.display())
         })?;
         skinware::shm::validate_name("skin", &config.skin).with_context(|| format!("{}: `skin`", path.display()))?;
         if config.group_access && config.access == AccessConfig::Everyone {
@@ -93,6 +94,7 @@ impl Config {
         let mut names = std::collections::HashSet::new();
         let mut channels: std::collections::HashSet<String> = std::collections::HashSet::new();
         let mut sensors = 0;
+        let mut layers = Vec::new();
         for driver in &config.drivers {
             if !names.insert(&driver.name) {
                 bail!("{}: driver name {:?} is used twice; driver names must be unique", path.display(), driver.name);
@@ -107,6 +109,7 @@ impl Config {
                 driver.build(&config.skin).with_context(|| format!("{}: driver {:?}", path.display(), driver.name))?;
             for spec in built.layers() {
                 sensors += spec.topology.sensors.len();
+                layers.push(spec.topology.name.clone());
                 channels.insert(spec.topology.name);
             }
         }
@@ -134,13 +137,7 @@ impl Config {
                 }
             }
         }
-        if config.drivers.iter().any(|d| d.kind == drivers::DriverKind::Replay) {
-            // A replayed skin's size is known only once its recording is read.
-            sensors = usize::MAX;
-        }
-        for region in &config.regions {
-            region.check(sensors).with_context(|| format!("{}", path.display()))?;
-        }
+        config.check_regions(path, sensors, &layers)?;
         config.base_dir = path.parent().map(Path::to_owned).unwrap_or_default();
         for driver in &mut config.drivers {
             if let Some(file) = &driver.file {
@@ -148,6 +145,19 @@ impl Config {
             }
         }
         Ok(config)
+    }
+
+    /// Checks the regions against the skin's `sensors` and `layers`, which
+    /// a replay driver's recording tells only when the skin starts.
+    fn check_regions(&self, path: &Path, sensors: usize, layers: &[String]) -> Result<()> {
+        let replayed = self.drivers.iter().any(|d| d.kind == drivers::DriverKind::Replay);
+        for region in &self.regions {
+            region.check(if replayed { usize::MAX } else { sensors }).with_context(|| format!("{}", path.display()))?;
+            if !replayed {
+                region.check_layers(layers).with_context(|| format!("{}", path.display()))?;
+            }
+        }
+        Ok(())
     }
 
     /// Who may read the channels, as the library takes it.

@@ -102,6 +102,27 @@ impl RegionConfig {
     /// Checks that no `uid_range` spans more uids than the skin's `sensors`
     /// (every uid of a range must exist, and the range is expanded into a
     /// list of them), then that the region has a spec.
+    /// Checks that every `[[region.in_layer]]` names one of `layers`, the
+    /// config's (whose names are known before the skin runs).
+    pub(super) fn check_layers(&self, layers: &[String]) -> Result<()> {
+        for in_layer in &self.in_layers {
+            if layers.contains(&in_layer.layer) {
+                continue;
+            }
+            let hint = match crate::suggest::closest(&in_layer.layer, layers.iter().map(String::as_str)) {
+                Some(name) => format!("did you mean {name:?}? "),
+                None => String::new(),
+            };
+            bail!(
+                "region {:?}: layer {:?} is not a layer of this config; {hint}its layers: {}",
+                self.name,
+                in_layer.layer,
+                crate::suggest::list(layers, 20)
+            );
+        }
+        Ok(())
+    }
+
     pub(super) fn check(&self, sensors: usize) -> Result<()> {
         let ranges = std::iter::once(self.uid_range).chain(self.in_layers.iter().map(|l| l.uid_range));
         for [first, last] in ranges.flatten() {

@@ -132,7 +132,16 @@ impl ServiceConfig {
         if self.kind == ServiceKind::Motion {
             let input = self.input.as_deref().unwrap_or("contact");
             match services.iter().find(|s| s.name == input && s.kind == ServiceKind::Contact) {
-                None => bail!("its input {input:?} is not a contact service of this config; add one or set `input`"),
+                None => {
+                    let contacts: Vec<&str> =
+                        services.iter().filter(|s| s.kind == ServiceKind::Contact).map(|s| s.name.as_str()).collect();
+                    let hint = match crate::suggest::closest(input, contacts.iter().copied()) {
+                        Some(name) => format!("did you mean {name:?}?"),
+                        None if contacts.is_empty() => "add one, or set `input`".to_owned(),
+                        None => format!("the contact services: {}", contacts.join(", ")),
+                    };
+                    bail!("its input {input:?} is not a contact service of this config; {hint}")
+                }
                 Some(contact) if contact.rate_hz.is_none() => {
                     bail!("its input {input:?} is sporadic; give the contact service a rate_hz to track motion on it")
                 }

@@ -320,3 +320,108 @@ fn replay_drivers_are_checked_without_reading_their_file() {
     let error = format!("{:#}", config.drivers[0].build("s").err().unwrap());
     assert!(error.contains("missing.mcap") && error.contains("is not a file"), "{error}");
 }
+
+/// Issue #38: a typo got the list of every key but not the one meant.
+#[test]
+fn unknown_keys_and_kinds_suggest_the_one_meant() {
+    let err = format!("{:#}", with_driver("sensor_per_module = 12\n").unwrap_err());
+    assert!(
+        err.contains("test.toml:4:1: unknown field `sensor_per_module`; did you mean `sensors_per_module`? (expected one of `name`"),
+        "{err}"
+    );
+    let err = format!("{:#}", load("[[driver]]\nname = \"v\"\nkind = \"virtul\"\n").unwrap_err());
+    assert!(err.contains(":3:8:") && err.contains("unknown variant `virtul`; did you mean `virtual`?"), "{err}");
+    let err = format!("{:#}", with("[driver.rt]\nfifo_priorty = 80\n").unwrap_err());
+    assert!(err.contains("did you mean `fifo_priority`?"), "{err}");
+    let err = format!("{:#}", with("[[region]]\nname = \"r\"\nlink = [\"torso\"]\n").unwrap_err());
+    assert!(err.contains("did you mean `links`?"), "{err}");
+    // Nothing close: the list alone, as before.
+    let err = format!("{:#}", with_driver("colour = 1\n").unwrap_err());
+    assert!(err.contains("unknown field `colour`, expected one of") && !err.contains("did you mean"), "{err}");
+}
+
+#[test]
+fn unknown_layer_and_service_names_suggest_the_one_meant() {
+    let region = "[[region]]\nname = \"r\"\n[[region.in_layer]]\nlayer = \"LAYER\"\npatches = [1]\n";
+    assert!(with(&region.replace("LAYER", "v-1")).is_ok());
+    let err = format!("{:#}", with(&region.replace("LAYER", "v1")).unwrap_err());
+    assert!(
+        err.contains(
+            "region \"r\": layer \"v1\" is not a layer of this config; did you mean \"v-1\"? its layers: v-0, v-1"
+        ),
+        "{err}"
+    );
+    let err = format!("{:#}", with(&region.replace("LAYER", "torso")).unwrap_err());
+    assert!(err.contains("layer \"torso\" is not a layer of this config; its layers: v-0, v-1"), "{err}");
+    let services = "[[service]]\nname = \"contact\"\nkind = \"contact\"\nrate_hz = 50\n[[service]]\nname = \"motion\"\nkind = \"motion\"\ninput = \"INPUT\"\nrate_hz = 50\n";
+    let err = format!("{:#}", with(&services.replace("INPUT", "contcat")).unwrap_err());
+    assert!(
+        err.contains("its input \"contcat\" is not a contact service of this config; did you mean \"contact\"?"),
+        "{err}"
+    );
+    let err = format!("{:#}", with(&services.replace("INPUT", "touch")).unwrap_err());
+    assert!(err.contains("the contact services: contact"), "{err}");
+}
+
+/// TOML's basic-string quoting of `text`, for keys made of any characters.
+fn toml_quoted(text: &str) -> String {
+    let mut quoted = String::from("\"");
+    for c in text.chars() {
+        match c {
+            '"' => quoted.push_str("\\\""),
+            '\\' => quoted.push_str("\\\\"),
+            c if c.is_control() => quoted.push_str(&format!("\\U{:08X}", u32::from(c))),
+            c => quoted.push(c),
+        }
+    }
+    quoted.push('"');
+    quoted
+}
+
+/// The keys of a `[[driver]]` table, as the parser's own report lists them.
+fn driver_keys() -> Vec<String> {
+    let err = format!("{:#}", with_driver("zzzzzzzzzzzzzzzz = 1\n").unwrap_err());
+    let list = &err[err.find("expected one of").expect("the list of keys")..];
+    list.split('`').skip(1).step_by(2).map(str::to_owned).collect()
+}
+
+mod properties {
+    use proptest::prelude::*;
+
+    use super::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(if cfg!(miri) { 4 } else { 256 }))]
+
+        /// Any key, of any characters (backticks, quotes, controls, other
+        /// scripts), is refused with its name, or suggested for, never a panic.
+        #[test]
+        fn arbitrary_keys_never_panic(key in "\\PC{0,24}|[a-z_`]{0,24}|sensors?_?per_?modu?le?s?") {
+            let keys = driver_keys();
+            let result = with_driver(&format!("{} = 1\n", toml_quoted(&key)));
+            if keys.contains(&key) {
+                return Ok(());
+            }
+            let err = format!("{:#}", result.expect_err("an unknown key is refused"));
+            prop_assert!(err.contains(&format!("unknown field `{key}`")), "{}", err);
+            if let Some(at) = err.find("did you mean `") {
+                let suggested = &err[at + "did you mean `".len()..];
+                let suggested = &suggested[..suggested.find('`').unwrap()];
+                prop_assert!(keys.iter().any(|k| k == suggested), "{}", err);
+            }
+        }
+
+        /// Text shaped like a config, with any keys and values: a config or
+        /// an error, never a panic (the fuzz target `config` does the same
+        /// with arbitrary bytes).
+        #[test]
+        fn arbitrary_toml_never_panics(
+            lines in proptest::collection::vec(
+                "\\[\\[(driver|region|service)\\]\\]|\\[driver\\.(rt|restart)\\]|[a-z_]{1,18} = (\"[a-z0-9-]{0,10}\"|[0-9]{1,4}|true|\\[[0-9, ]{0,8}\\])|\\PC{0,20}",
+                0..14,
+            )
+        ) {
+            let _ = load(&lines.join("\n"));
+        }
+    }
+}

@@ -2,6 +2,9 @@
 //! one link instead of one per file, and one place for what they share.
 //!
 //! - [`e2e`]: `skin run` with a SIGKILLed driver and a pulled cable;
+//! - [`cli_e2e`]: what the commands refuse (`skin pull` of what has no
+//!   simulated cable, `--skin` of a skin that is not there), `skin ls`'s
+//!   listing and rates, `skin view` started before its skin;
 //! - [`ethercat_e2e`]: `skin run` of an EtherCAT skin on a veth pair in a
 //!   network namespace, a reader outside it, `skin ls` showing SubDevices;
 //! - [`services_e2e`]: services, regions and geometry through the CLI;
@@ -22,6 +25,7 @@
 mod bridge_e2e;
 mod browser;
 mod can_e2e;
+mod cli_e2e;
 mod e2e;
 mod ethercat_e2e;
 mod python;
