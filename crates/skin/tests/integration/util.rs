@@ -54,27 +54,35 @@ pub fn interrupt_and_wait(child: &mut Child, what: &str, within: Duration) -> Ex
     }
 }
 
-/// A file in `dir` for a child's output (`NAME.log`), so that a passing
-/// test prints nothing of its children's logs;
-/// [`show_logs_if_failing`] prints them when the test fails.
+/// A file for a child's output (`NAME.log`, beside `dir` in `DIR-logs/`: a
+/// test may check that `dir` is left empty), so that a passing test prints
+/// nothing of its children's logs; [`show_logs_if_failing`] prints them when
+/// the test fails, and removes them.
 pub fn log_file(dir: &std::path::Path, name: &str) -> std::process::Stdio {
+    let logs = logs_dir(dir);
+    let _ = std::fs::create_dir_all(&logs);
     std::fs::OpenOptions::new()
         .create(true)
         .append(true)
-        .open(dir.join(format!("{name}.log")))
+        .open(logs.join(format!("{name}.log")))
         .map_or_else(|_| std::process::Stdio::inherit(), std::process::Stdio::from)
 }
 
+fn logs_dir(dir: &std::path::Path) -> std::path::PathBuf {
+    let mut name = dir.as_os_str().to_owned();
+    name.push("-logs");
+    name.into()
+}
+
 /// While a test panics (called from a `Drop`), prints every log that
-/// [`log_file`] put in `dir`.
+/// [`log_file`] kept for `dir`; then removes them.
 pub fn show_logs_if_failing(dir: &std::path::Path) {
-    if !std::thread::panicking() {
-        return;
-    }
-    for entry in std::fs::read_dir(dir).into_iter().flatten().flatten() {
-        let path = entry.path();
-        if path.extension().is_some_and(|e| e == "log") {
+    let logs = logs_dir(dir);
+    if std::thread::panicking() {
+        for entry in std::fs::read_dir(&logs).into_iter().flatten().flatten() {
+            let path = entry.path();
             eprintln!("--- {} ---\n{}", path.display(), std::fs::read_to_string(&path).unwrap_or_default());
         }
     }
+    let _ = std::fs::remove_dir_all(&logs);
 }
