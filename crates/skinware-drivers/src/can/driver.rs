@@ -12,7 +12,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use skinware::driver::{Driver, DriverError, LayerSource, LayerSpec};
-use skinware::{FrameStatus, FrameWriter, LayerTopology, RtOptions, TopologyBuilder, TopologyError};
+use skinware::{FrameWriter, LayerTopology, RtOptions, TopologyBuilder, TopologyError};
 
 use super::icub_mtb::{self, Board, BoardSettings, Message};
 use super::{BusError, CanBus, CanFrame, cyskin, xela};
@@ -109,9 +109,11 @@ pub enum CanConfigError {
 const STALE_PERIODS: f64 = 1.5;
 
 /// After the start, how long boards may take to send their first complete
-/// frame before their silence is a fault. Until then the layer's frames are
-/// marked partial: boards being configured are not a fault, and a fault
-/// counted (and logged) at every start would teach people to ignore them.
+/// frame before their silence is a fault. Until then the layer publishes
+/// nothing and counts no fault: boards being configured are not a fault, and
+/// a fault counted (and logged) at every start would teach people to ignore
+/// them. (Nor are their frames partial: a module never heard from has no
+/// previous response to repeat.)
 const FIRST_FRAME_GRACE_NS: u64 = 1_000_000_000;
 const RECEIVE_SLICE: Duration = Duration::from_millis(5);
 const MAX_BACKOFF: Duration = Duration::from_secs(2);
@@ -451,11 +453,11 @@ impl LayerSource for CanLayer {
         let since_start = now.saturating_sub(*self.first_acquired_ns.get_or_insert(now));
         let stale_after = self.stale_after.as_nanos() as u64;
         let mut oldest = now;
-        let mut partial = false;
+        let mut not_yet_heard = false;
         for (index, module) in self.topology.modules.iter().enumerate() {
             let patch = self.topology.patches[module.patch].id;
             match image.complete_at[index] {
-                None if since_start < FIRST_FRAME_GRACE_NS => partial = true,
+                None if since_start < FIRST_FRAME_GRACE_NS => not_yet_heard = true,
                 None => {
                     return Err(format!(
                         "patch {patch}, module {:#x}: no complete frame in the {} ms since the start (is the board powered, and is its address in the config right?)",
@@ -482,12 +484,13 @@ impl LayerSource for CanLayer {
                 .into());
             }
         }
+        if not_yet_heard {
+            frame.withhold();
+            return Ok(());
+        }
         frame.write_responses(0, &image.values)?;
         // The frame's acquisition time is when its oldest data arrived.
         frame.set_acquired_ns(oldest);
-        if partial {
-            frame.set_status(FrameStatus::PARTIAL);
-        }
         Ok(())
     }
 }
@@ -540,9 +543,10 @@ mod tests {
     }
 
     /// Boards being configured at a start are not a fault: until the first
-    /// complete frame of every module, or the grace's end, frames are partial.
+    /// complete frame of every module, or the grace's end, nothing is
+    /// published (a module never heard from has no response to give).
     #[test]
-    fn modules_not_yet_heard_from_are_partial_within_the_grace_then_a_fault() {
+    fn modules_not_yet_heard_from_are_withheld_within_the_grace_then_a_fault() {
         let config = mtb(vec![Board { address: 1, triangles: vec![0, 1] }]);
         let topology = config.topology().unwrap();
         let dir = std::env::temp_dir().join(format!("skinware-can-grace-{}", std::process::id()));
@@ -565,14 +569,7 @@ mod tests {
         };
         let mut frame = writer.begin();
         layer.acquire(&mut frame).expect("a module not yet heard from within the grace is no fault");
-        frame.publish();
-        let mut reader = skinware::Reader::open_with(
-            "can",
-            "skin",
-            &skinware::ReaderOptions { dir: Some(dir.clone()), ..skinware::ReaderOptions::default() },
-        )
-        .unwrap();
-        assert_eq!(reader.latest().unwrap().status(), FrameStatus::PARTIAL);
+        assert!(frame.is_withheld(), "a frame with a module never heard from was to be published");
 
         layer.first_acquired_ns = Some(now.saturating_sub(2 * FIRST_FRAME_GRACE_NS));
         let mut frame = writer.begin();
@@ -581,7 +578,13 @@ mod tests {
             error.contains("module 0x11: no complete frame in the") && error.contains("since the start"),
             "{error}"
         );
-        drop((reader, writer));
+
+        // Once every module was heard from, frames are published.
+        skinware::lock(&layer.image).complete_at[1] = Some(skinware::os::monotonic_ns());
+        let mut frame = writer.begin();
+        layer.acquire(&mut frame).unwrap();
+        assert!(!frame.is_withheld());
+        drop(writer);
         let _ = std::fs::remove_dir_all(&dir);
     }
 

@@ -138,11 +138,16 @@ fn missing_tails_and_error_reports_fault_the_layer() {
         ("error-nibble", MtbFaults { error_nibble: Some(2), ..MtbFaults::default() }),
     ] {
         let emulator = Emulator::start(1, 4, faults);
-        let (handler, reader, dir) = handler_and_reader(name, &emulator.url, 1, 4);
-        // Frames flow, yet the layer never runs: no triangle is ever whole or healthy.
-        std::thread::sleep(Duration::from_millis(500));
-        assert_eq!(reader.writer_state(), WriterState::Faulted, "{name}");
-        assert!(reader.writer_stats().faults > 10, "{name}: acquisitions should keep failing");
+        let (handler, mut reader, dir) = handler_and_reader(name, &emulator.url, 1, 4);
+        // Frames flow, yet the layer never publishes one: no triangle is ever
+        // whole (faulted after the first-frame grace of 1 s) or healthy.
+        wait_for(&mut reader, WriterState::Faulted, Duration::from_secs(10));
+        let started = std::time::Instant::now();
+        while reader.writer_stats().faults <= 10 {
+            assert!(started.elapsed() < Duration::from_secs(10), "{name}: acquisitions should keep failing");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        assert_eq!(reader.writer_stats().frames, 0, "{name}: a frame was published");
         handler.stop();
         let _ = std::fs::remove_dir_all(&dir);
     }

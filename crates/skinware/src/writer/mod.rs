@@ -311,6 +311,7 @@ impl Writer {
             started_ns,
             acquired_ns: None,
             status: FrameStatus::OK,
+            withheld: false,
         }
     }
 
@@ -492,6 +493,7 @@ impl Writer {
     {
         let mut frame = self.begin();
         match fill(&mut frame) {
+            Ok(()) if frame.withheld => frame.discard(),
             Ok(()) => {
                 frame.publish();
                 let recovered = self.state() == WriterState::Faulted;
@@ -585,6 +587,9 @@ pub struct FrameWriter<'w> {
     started_ns: u64,
     acquired_ns: Option<u64>,
     status: FrameStatus,
+    /// Set by [`withhold`](Self::withhold): the periodic loops discard the
+    /// frame instead of publishing it, and count no fault.
+    withheld: bool,
 }
 
 impl FrameWriter<'_> {
@@ -679,6 +684,20 @@ impl FrameWriter<'_> {
     /// Abandons the frame: readers keep seeing the previous one. (Dropping the
     /// guard does the same.)
     pub fn discard(self) {}
+
+    /// For a fill of [`Writer::run_periodic`] or [`Writer::run_sporadic`]
+    /// that has nothing to publish yet and nothing wrong to report (boards
+    /// still starting, not all of them heard from): the loop discards the
+    /// frame when the fill returns `Ok`, publishes nothing and counts no
+    /// fault. The writer's state does not change.
+    pub fn withhold(&mut self) {
+        self.withheld = true;
+    }
+
+    /// Whether [`withhold`](Self::withhold) was called.
+    pub fn is_withheld(&self) -> bool {
+        self.withheld
+    }
 
     fn finish(&mut self) -> u64 {
         let publishing = &mut *self.publishing;
