@@ -19,7 +19,7 @@ use skinware_geometry::SkinGeometry;
 use tungstenite::{Message, WebSocket};
 
 use crate::message::{self, ClientMessage, ReadMode};
-use crate::overlays::{NO_OVERLAYS, SharedOverlays};
+use crate::overlays::{HeldOverlays, SharedOverlays};
 use crate::protocol::{self, LayerUpdate};
 use crate::sampler::{LayerToRead, Sampler, Samplers};
 
@@ -332,6 +332,8 @@ struct Session<'a> {
     scratch: Vec<Vec<u8>>,
     /// The read timeout the socket has now, to set it only when it changes.
     poll: Option<Duration>,
+    /// The overlays its updates carry, polled with new frames only.
+    overlays: HeldOverlays,
     /// When its next update is due.
     pacing: Pacing,
     /// A wait for the browser just ended with a message: the update it
@@ -356,6 +358,7 @@ impl<'a> Session<'a> {
             head: Vec::new(),
             scratch: vec![Vec::new(); layers.len()],
             poll: None,
+            overlays: HeldOverlays::default(),
             pacing: Pacing::default(),
             just_spoke: false,
             layers,
@@ -434,8 +437,6 @@ impl<'a> Session<'a> {
     /// Sends the newest frames, if anything changed since the last update
     /// (waiting up to [`IDLE_POLL`] for a change). Breaks when the browser left.
     fn send_update(&mut self) -> Result<ControlFlow<()>> {
-        // Outside the board's lock: it may search the segment directory.
-        let newest_overlays = self.site.overlays.poll();
         let (update, sent_seq) = (&mut self.update, &mut self.sent_seq);
         // Under the board's lock only long enough to share each layer's
         // responses: the encoding and the write happen after.
@@ -453,7 +454,11 @@ impl<'a> Session<'a> {
         };
         self.pacing.sent(Instant::now());
         self.seen_version = version;
-        let overlays = newest_overlays.as_deref().unwrap_or(&NO_OVERLAYS);
+        // After the board's lock: a poll may search the segment directory.
+        let fresh_frames = self.update.iter().any(|layer| layer.with_responses);
+        let any_running = self.update.iter().any(|layer| layer.slot.state == Some(skinware::WriterState::Running));
+        let shared = &self.site.overlays;
+        let overlays = self.overlays.for_update(fresh_frames, any_running, || shared.poll());
         protocol::encode_update_head(&mut self.head, self.updates_sent, self.mode, &self.update, overlays);
         self.updates_sent = self.updates_sent.wrapping_add(1);
         self.credit -= 1;
