@@ -236,25 +236,36 @@ mod tests {
 
     #[test]
     fn a_links_many_pieces_get_one_label_unless_another_link_lies_among_them() {
-        let geometry = modules_apart(12, |m| if m < 6 { "torso" } else { "arm" }, &[]);
-        assert_eq!(geometry.map.piece_bounds.len(), 12, "each module a piece");
-        let labels = piece_labels(&geometry);
-        let count = |text: &str| labels.iter().filter(|l| l.text == text).count();
-        assert!(count("torso") >= 1 && count("arm") >= 1, "{labels:?}");
-        assert!(labels.len() < 12, "pieces of one link are grouped: {labels:?}");
-        for label in &labels {
-            for (piece, &bounds) in geometry.map.piece_bounds.iter().enumerate() {
-                let sensor = geometry.map.piece_of.iter().position(|&p| p as usize == piece).unwrap();
-                let link = &geometry.links[usize::from(geometry.link_of[sensor])];
-                assert!(
-                    link == &label.text || !overlap(label.bounds, bounds),
-                    "label {label:?} covers a piece of {link}"
-                );
-            }
+        // Each module a piece; the map packs each link's pieces together, so one label each.
+        for (modules, link) in [
+            (12, (|m| if m < 6 { "torso" } else { "arm" }) as fn(u32) -> &'static str),
+            (8, |m| if m % 2 == 0 { "torso" } else { "arm" }),
+        ] {
+            let geometry = modules_apart(modules, link, &[]);
+            assert_eq!(geometry.map.piece_bounds.len(), modules as usize, "each module a piece");
+            let labels = piece_labels(&geometry);
+            let mut texts: Vec<&str> = labels.iter().map(|l| l.text.as_str()).collect();
+            texts.sort_unstable();
+            assert_eq!(texts, ["arm", "torso"], "{labels:?}");
         }
-        // Interleaved links: no two pieces of one link can share a box without covering the other's.
-        let alternating = modules_apart(4, |m| if m % 2 == 0 { "a" } else { "b" }, &[]);
-        assert!(piece_labels(&alternating).len() >= 3);
+        // Pieces of one link with another link's piece between them keep a label each.
+        let [a, b, c] = [[0.0, 0.0, 1.0, 1.0], [2.0, 0.0, 3.0, 1.0], [4.0, 0.0, 5.0, 1.0]];
+        let mut groups = vec![
+            Group { link: 0, bounds: a, pieces: vec![0] },
+            Group { link: 1, bounds: b, pieces: vec![1] },
+            Group { link: 0, bounds: c, pieces: vec![2] },
+        ];
+        merge_groups(&mut groups, &[a, b, c], &[Some(0), Some(1), Some(0)]);
+        assert_eq!(groups.len(), 3, "a box around both 0s would cover the 1");
+        let mut groups = vec![
+            Group { link: 0, bounds: a, pieces: vec![0] },
+            Group { link: 0, bounds: b, pieces: vec![1] },
+            Group { link: 1, bounds: c, pieces: vec![2] },
+        ];
+        merge_groups(&mut groups, &[a, b, c], &[Some(0), Some(0), Some(1)]);
+        assert_eq!(groups.len(), 2);
+        assert_eq!(groups[0].bounds, [0.0, 0.0, 3.0, 1.0]);
+        assert_eq!(groups[0].pieces, [0, 1]);
     }
 
     #[test]

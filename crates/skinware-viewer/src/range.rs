@@ -56,6 +56,34 @@ impl ResponseRange {
     }
 }
 
+/// Every layer's range shared with the other layers of its sensor type
+/// (`type_of`: each layer's type, as an index), so that one pressure looks
+/// the same on each of them (the paper's virtual skin spreads five layers
+/// of one type over the same body): the lowest resting level and the
+/// highest response of them all. `scratch` holds the types' ranges, kept
+/// between calls.
+pub fn share_by_type(
+    ranges: &mut [Option<ResponseRange>],
+    type_of: &[usize],
+    scratch: &mut Vec<Option<ResponseRange>>,
+) {
+    scratch.clear();
+    for (range, &kind) in ranges.iter().zip(type_of) {
+        if scratch.len() <= kind {
+            scratch.resize(kind + 1, None);
+        }
+        scratch[kind] = match (scratch[kind], *range) {
+            (Some(a), Some(b)) => {
+                Some(ResponseRange { resting: a.resting.min(b.resting), highest: a.highest.max(b.highest) })
+            }
+            (a, b) => a.or(b),
+        };
+    }
+    for (range, &kind) in ranges.iter_mut().zip(type_of) {
+        *range = scratch[kind];
+    }
+}
+
 /// Follows one layer's frames and keeps their [`ResponseRange`]. Looking at
 /// a frame costs one pass for its highest response; its median (a selection
 /// over a copy) only when asked for, which the sampler does twice a second.
@@ -168,5 +196,16 @@ mod tests {
         assert_eq!(tracker.range(), Some(learnt), "a new mode's reader keeps the scale");
         assert_eq!(ResponseRange { resting: 65535, highest: 65535 }.full_scale(), 8191);
         assert_eq!(ResponseRange { resting: 0, highest: 0 }.full_scale(), 31);
+    }
+
+    #[test]
+    fn layers_of_one_sensor_type_share_their_range() {
+        let range = |resting, highest| Some(ResponseRange { resting, highest });
+        let mut ranges = [range(1000, 17_000), range(990, 46_000), None, range(15, 255), None];
+        let types = [0, 0, 0, 1, 2];
+        let mut scratch = Vec::new();
+        share_by_type(&mut ranges, &types, &mut scratch);
+        assert_eq!(ranges, [range(990, 46_000), range(990, 46_000), range(990, 46_000), range(15, 255), None]);
+        assert_eq!(ranges[0].unwrap().full_scale(), 45_010, "one pressure, one colour, on every pressure layer");
     }
 }

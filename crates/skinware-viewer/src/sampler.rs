@@ -92,13 +92,15 @@ fn lock(shared: &Shared) -> MutexGuard<'_, Board> {
     shared.board.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
-/// One layer to read: its channel name and its sensor count.
+/// One layer to read: its channel name, its sensor count and type.
 #[derive(Clone, Debug)]
 pub struct LayerToRead {
     /// Channel name.
     pub name: String,
     /// Sensors, the length of its frames.
     pub sensors: usize,
+    /// Its sensor type (its layers share a colour range).
+    pub sensor_type: String,
 }
 
 impl LayerToRead {
@@ -107,7 +109,11 @@ impl LayerToRead {
         geometry
             .layers
             .iter()
-            .map(|layer| LayerToRead { name: layer.name.clone(), sensors: layer.sensors.len() })
+            .map(|layer| LayerToRead {
+                name: layer.name.clone(),
+                sensors: layer.sensors.len(),
+                sensor_type: layer.sensor_type.clone(),
+            })
             .collect()
     }
 }
@@ -469,7 +475,7 @@ mod tests {
     fn browsers_in_one_mode_share_one_sampler() {
         let dir = std::env::temp_dir().join(format!("skin-samplers-{}", std::process::id()));
         let samplers = Samplers::new("nosuchskin", Some(dir));
-        let layers = [LayerToRead { name: "tactile".into(), sensors: 4 }];
+        let layers = [LayerToRead { name: "tactile".into(), sensors: 4, sensor_type: "pressure".into() }];
         let first = samplers.subscribe(&layers, ReadMode::Asap).unwrap();
         let second = samplers.subscribe(&layers, ReadMode::Asap).unwrap();
         assert!(Arc::ptr_eq(&first, &second));
@@ -477,7 +483,7 @@ mod tests {
         assert!(!Arc::ptr_eq(&first, &periodic));
         let other_rate = samplers.subscribe(&layers, ReadMode::Periodic { rate_hz: 20.0 }).unwrap();
         assert!(!Arc::ptr_eq(&periodic, &other_rate));
-        let other_layers = [LayerToRead { name: "tactile".into(), sensors: 8 }];
+        let other_layers = [LayerToRead { name: "tactile".into(), sensors: 8, sensor_type: "pressure".into() }];
         let resized = samplers.subscribe(&other_layers, ReadMode::Asap).unwrap();
         assert!(!Arc::ptr_eq(&first, &resized), "a skin whose layers changed gets new readers");
         assert_eq!(samplers.running(), 4);
@@ -542,7 +548,7 @@ mod tests {
         let mut builder = skinware::TopologyBuilder::new("tactile", "pressure", 100.0);
         builder.patch(1).module(1, 1..=4);
         let topology = builder.build().unwrap();
-        let layers = [LayerToRead { name: "tactile".into(), sensors: 4 }];
+        let layers = [LayerToRead { name: "tactile".into(), sensors: 4, sensor_type: "pressure".into() }];
         let sampler = Sampler::start("connecting", Some(dir.clone()), &layers, ReadMode::Asap, &[]).unwrap();
         assert_eq!(board_now(&sampler, |b| b.layers[0].state), None, "connecting from the start");
         // Its reader looks for the channel every 250 ms: whatever it found
@@ -576,7 +582,10 @@ mod tests {
     fn a_new_mode_keeps_the_ranges_learnt() {
         let dir = std::env::temp_dir().join(format!("skin-sampler-ranges-{}", std::process::id()));
         let samplers = Samplers::new("nosuchskin", Some(dir));
-        let layers = [LayerToRead { name: "a".into(), sensors: 2 }, LayerToRead { name: "b".into(), sensors: 2 }];
+        let layers = [
+            LayerToRead { name: "a".into(), sensors: 2, sensor_type: "pressure".into() },
+            LayerToRead { name: "b".into(), sensors: 2, sensor_type: "pressure".into() },
+        ];
         let asap = samplers.subscribe(&layers, ReadMode::Asap).unwrap();
         let learnt = ResponseRange { resting: 15, highest: 200 };
         lock(&asap.shared).layers[1].range = Some(learnt);

@@ -21,6 +21,7 @@ use tungstenite::{Message, WebSocket};
 use crate::message::{self, ClientMessage, ReadMode};
 use crate::overlays::{HeldOverlays, SharedOverlays};
 use crate::protocol::{self, LayerUpdate};
+use crate::range::{self, ResponseRange};
 use crate::sampler::{LayerToRead, Sampler, Samplers};
 
 /// Updates the server may send ahead of the browser's acknowledgements.
@@ -334,6 +335,11 @@ struct Session<'a> {
     poll: Option<Duration>,
     /// The overlays its updates carry, polled with new frames only.
     overlays: HeldOverlays,
+    /// Each layer's sensor type, as an index: layers of one type share a colour range.
+    type_of: Vec<usize>,
+    /// The layers' colour ranges in the update being sent, shared by type,
+    /// and the types' ranges (kept between updates).
+    ranges: (Vec<Option<ResponseRange>>, Vec<Option<ResponseRange>>),
     /// When its next update is due.
     pacing: Pacing,
     /// A wait for the browser just ended with a message: the update it
@@ -359,6 +365,8 @@ impl<'a> Session<'a> {
             scratch: vec![Vec::new(); layers.len()],
             poll: None,
             overlays: HeldOverlays::default(),
+            type_of: types_of(&layers),
+            ranges: (Vec::with_capacity(layers.len()), Vec::new()),
             pacing: Pacing::default(),
             just_spoke: false,
             layers,
@@ -452,6 +460,7 @@ impl<'a> Session<'a> {
         let Some(version) = taken else {
             return Ok(ControlFlow::Continue(()));
         };
+        self.share_ranges_by_type();
         self.pacing.sent(Instant::now());
         self.seen_version = version;
         // After the board's lock: a poll may search the segment directory.
@@ -479,6 +488,35 @@ impl<'a> Session<'a> {
             Ok(()) => Ok(ControlFlow::Continue(())),
             Err(e) if is_closed(&e) => Ok(ControlFlow::Break(())),
             Err(e) => Err(e.into()),
+        }
+    }
+}
+
+/// Each layer's sensor type as an index (the first layer's type is 0, the
+/// next other type 1, ...).
+fn types_of(layers: &[LayerToRead]) -> Vec<usize> {
+    let mut types: Vec<&str> = Vec::new();
+    layers
+        .iter()
+        .map(|layer| {
+            types.iter().position(|&t| t == layer.sensor_type).unwrap_or_else(|| {
+                types.push(&layer.sensor_type);
+                types.len() - 1
+            })
+        })
+        .collect()
+}
+
+impl Session<'_> {
+    /// Gives each layer of the update being sent the colour range of its
+    /// sensor type ([`range::share_by_type`]).
+    fn share_ranges_by_type(&mut self) {
+        let (ranges, scratch) = &mut self.ranges;
+        ranges.clear();
+        ranges.extend(self.update.iter().map(|layer| layer.slot.range));
+        range::share_by_type(ranges, &self.type_of, scratch);
+        for (layer, range) in self.update.iter_mut().zip(ranges.iter()) {
+            layer.slot.range = *range;
         }
     }
 }
