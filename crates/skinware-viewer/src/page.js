@@ -41,7 +41,7 @@ const stats = window.skinStats = {
   markers: 0, arrows: 0, updatesWithMarkers: 0, updatesWithArrows: 0, overlayChanges: 0,
   // Per layer, where full colour is now (the range typed in for its sensor type, or the auto one), and the auto one.
   fullScales: [], autoScales: [],
-  // What the page says of the skin as a whole: 'running', 'stopped' (every layer gone) or 'server gone'.
+  // What the page says of the skin as a whole: 'running', 'stopped' (its layers gone) or 'server gone'.
   skinState: 'connecting',
 };
 
@@ -199,7 +199,11 @@ function applyUpdate(buffer) {
     }
     at += 2 * count;
   }
-  showSkinState(layerStatus.length && layerStatus.every(status => status.state === 'gone') ? 'stopped' : 'running');
+  // Stopped: some layer's writer is gone and none is there (the others not
+  // found yet by a reader that just started: their channels went with the skin).
+  const stopped = layerStatus.some(status => status.state === 'gone') &&
+    layerStatus.every(status => status.state === 'gone' || status.state === 'connecting');
+  showSkinState(stopped ? 'stopped' : 'running');
 }
 
 function setOverlays(next) {
@@ -221,7 +225,7 @@ function showSkinState(state) {
   banner.dataset.state = state;
   banner.hidden = state === 'running';
   if (state === 'stopped') {
-    banner.textContent = 'The skin has stopped: every layer\u2019s writer is gone. The page shows it again when it restarts.';
+    banner.textContent = 'The skin has stopped: its layers\u2019 writers are gone. The page shows it again when it restarts.';
   } else if (state === 'server gone') {
     banner.textContent = 'The viewer\u2019s server is gone (skin view or skin demo stopped): nothing here is live. Retrying every second\u2026';
   }

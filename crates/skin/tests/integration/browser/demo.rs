@@ -129,6 +129,7 @@ fn demo_in_headless_chromium() {
 
     the_heatmap_is_drawn_and_changes(&browser);
     the_pieces_are_labelled_with_their_body_parts(&browser);
+    a_page_of_the_old_protocol_is_told_to_reload(&browser);
     hovering_names_a_taxel(&browser);
     the_page_keeps_up(&browser, &demo);
     a_pulled_cable_shows_as_faulted_then_recovered(&browser, &demo);
@@ -138,6 +139,20 @@ fn demo_in_headless_chromium() {
     let left = demo.interrupt();
     assert!(left.is_empty(), "left in the segment directory: {left:?}");
     the_page_says_its_server_is_gone(&browser);
+}
+
+/// A page of protocol 1 (open in a tab from before an upgrade) opened
+/// `/ws` without a version: it gets the text message every page shows,
+/// saying to reload, not bytes it cannot read.
+fn a_page_of_the_old_protocol_is_told_to_reload(browser: &Browser) {
+    let answer = browser.run_async(
+        "const ws = new WebSocket(`ws://${location.host}/ws`);
+         ws.binaryType = 'arraybuffer';
+         ws.onmessage = e => { done(typeof e.data === 'string' ? JSON.parse(e.data).error : 'binary'); ws.close(); };
+         ws.onerror = () => done('error');",
+    );
+    let text = answer.as_str().unwrap_or_default();
+    assert!(text.contains("older viewer") && text.contains("reload the page"), "an old page got {answer}");
 }
 
 /// Step 2: Each map piece is labelled with its body part (the virtual
@@ -373,13 +388,8 @@ fn the_colour_range_control_changes_the_scale(browser: &Browser) {
     let stats = browser.run(STATS_PROBE);
     let auto = stats["autoScales"][0].as_u64().unwrap();
     assert!(auto > 1_000, "the virtual skin's learnt full scale is {auto}");
-    let lit_auto = browser.run(CANVAS_PROBE)["lit"].as_u64().unwrap();
     // Full colour at 20 above baseline: the resting skin's noise (±8) lights up.
-    let lit_narrow = lit_after(browser, || set_full_scale(browser, "pressure", Some(20)));
-    assert_eq!(browser.run(STATS_PROBE)["fullScales"][3], 20);
-    let legend = browser.run("return document.getElementById('scale-max').textContent;");
-    assert_eq!(legend, "20");
-    let lit_back = lit_after(browser, || set_full_scale(browser, "pressure", None));
+    let [lit_auto, lit_narrow, lit_back] = lit_at_scales(browser, "pressure", 20);
     println!(
         "browser: lit pixels of the same frames: {lit_auto} at auto ({auto}), {lit_narrow} at 20, {lit_back} back at auto"
     );

@@ -204,21 +204,26 @@ fn its_touches_show_in_colour(browser: &Browser) {
 /// in darkens the touches; "auto" brings them back.
 fn the_colour_range_control_changes_the_scale(browser: &Browser) {
     choose_mode(browser, "request", 10.0);
-    let lit_auto = wait_for("requested frames with a touch on them", Duration::from_secs(30), || {
-        let updates = browser.run(STATS_PROBE)["updates"].as_u64()?;
+    wait_for("requested frames with a touch on them", Duration::from_secs(30), || {
+        let asked = seqs(browser);
         browser.run("document.getElementById('request').click();");
-        std::thread::sleep(Duration::from_millis(300));
-        (browser.run(STATS_PROBE)["updates"].as_u64()? > updates).then_some(())?;
-        Some(browser.run(CANVAS_PROBE)["lit"].as_u64()?).filter(|&lit| lit > 40)
+        wait_for("both layers to answer the request", Duration::from_secs(5), || {
+            seqs(browser).iter().zip(&asked).all(|(new, old)| new > old).then_some(())
+        });
+        (browser.run(CANVAS_PROBE)["lit"].as_u64()? > 40).then_some(())
     });
-    let lit_wide = lit_after(browser, || set_full_scale(browser, "pressure", Some(65535)));
-    let lit_back = lit_after(browser, || set_full_scale(browser, "pressure", None));
+    let [lit_auto, lit_wide, lit_back] = lit_at_scales(browser, "pressure", 65535);
     println!(
         "browser: the iCub skin's still frames: {lit_auto} lit pixels at auto, {lit_wide} at 65,535, {lit_back} back at auto"
     );
     assert!(lit_wide * 4 < lit_auto, "a 16-bit range must darken an 8-bit skin's touches: {lit_wide} vs {lit_auto}");
     assert!(lit_back.abs_diff(lit_auto) * 10 <= lit_auto, "auto again: {lit_back} vs {lit_auto}");
     choose_mode(browser, "asap", 10.0);
+    // The new mode's readers have read both layers (a layer whose channel
+    // goes before its reader opens it stays connecting, not gone).
+    wait_for("both layers running in asap mode", Duration::from_secs(10), || {
+        LAYERS.iter().all(|layer| layer_state(browser, layer).0 == "running").then_some(())
+    });
 }
 
 /// Step 4: `skin run` stopped: the page says the skin has stopped, shows

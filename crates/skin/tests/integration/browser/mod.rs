@@ -174,6 +174,13 @@ impl Browser {
         self.command("POST", "/execute/sync", Some(&json!({ "script": script, "args": [] })))
     }
 
+    /// Runs `script`, which calls `done(value)` (its last argument) when
+    /// it has the answer; returns the value.
+    fn run_async(&self, script: &str) -> Value {
+        let script = format!("const done = arguments[arguments.length - 1];\n{script}");
+        self.command("POST", "/execute/async", Some(&json!({ "script": script, "args": [] })))
+    }
+
     fn screenshot(&self, name: &str) -> PathBuf {
         let encoded = self.command("GET", "/screenshot", None);
         let png = base64_decode(encoded.as_str().expect("base64 screenshot"));
@@ -306,4 +313,37 @@ fn lit_after(browser: &Browser, change: impl FnOnce()) -> u64 {
         (browser.run(STATS_PROBE)["draws"].as_u64()? > draws).then_some(())
     });
     browser.run(CANVAS_PROBE)["lit"].as_u64().unwrap()
+}
+
+/// What nothing but the colour range may change on the canvas of the
+/// on-request mode: every layer's newest frame and every state it was shown in.
+fn still(browser: &Browser) -> Value {
+    browser.run("return [window.skinStats.seqs, window.skinStats.statesSeen];")
+}
+
+/// The lit pixels of the same still frames (on request) at the automatic
+/// range, at `full_scale` typed in for `sensor_type`, and at "auto" again.
+/// Measured while every layer runs, and again if a frame or a layer's
+/// state changed meanwhile (a loaded machine may make a layer late, and the
+/// page hatch it faulted).
+fn lit_at_scales(browser: &Browser, sensor_type: &str, full_scale: u32) -> [u64; 3] {
+    const ALL_RUNNING: &str = "return window.skinStats.statesSeen.every(seen => seen[seen.length - 1] === 'running');";
+    for _ in 0..20 {
+        if browser.run(ALL_RUNNING) != true {
+            println!("browser: a layer is not running (a loaded machine?); the colour range is measured once it is");
+            std::thread::sleep(Duration::from_millis(500));
+            continue;
+        }
+        let before = still(browser);
+        let lit_auto = browser.run(CANVAS_PROBE)["lit"].as_u64().unwrap();
+        let lit_typed = lit_after(browser, || set_full_scale(browser, sensor_type, Some(full_scale)));
+        let legend = browser.run("return document.getElementById('scale-max').textContent;");
+        assert_eq!(legend.as_str().map(|text| text.replace(',', "")), Some(full_scale.to_string()), "the legend's end");
+        let lit_back = lit_after(browser, || set_full_scale(browser, sensor_type, None));
+        if still(browser) == before {
+            return [lit_auto, lit_typed, lit_back];
+        }
+        println!("browser: the frames or states changed while the colour range was measured; again");
+    }
+    panic!("the on-request frames never stayed still long enough to compare colour ranges");
 }
