@@ -30,8 +30,9 @@ pub use regions::{RegionIndex, RegionSpec, Selector};
 use skinware::LayerTopology;
 
 /// Bumped whenever the computation or the encoding changes, so that caches
-/// made by another version are recomputed.
-pub const GEOMETRY_VERSION: u32 = 2;
+/// made by another version are recomputed. 3: the map packs each link's
+/// pieces together.
+pub const GEOMETRY_VERSION: u32 = 3;
 
 /// Errors of calibration, regions and the published geometry.
 #[derive(Debug, thiserror::Error)]
@@ -221,7 +222,7 @@ impl SkinGeometry {
         let neighbours_ms = ms(stage);
 
         let stage = Instant::now();
-        let map = map2d::build(&positions, &normals, &graph);
+        let map = map2d::build(&positions, &normals, &graph, &link_of);
         let map_ms = ms(stage);
 
         Ok(SkinGeometry {

@@ -19,7 +19,10 @@
 //!   *seam* edges, not as distortion.
 //! * Each piece is turned so that the robot's up is up on the map (or, for a
 //!   piece that does not climb, to its principal axes), and the pieces are
-//!   shelf-packed without overlap, a few pitches apart.
+//!   shelf-packed without overlap, a few pitches apart: the pieces of one
+//!   link (most of whose sensors are on it) together in a block of their
+//!   own, so that a body part cut into many pieces (an iCub patch's
+//!   triangles, which touch no other) stays in one place on the map.
 //!
 //! The map measures itself ([`MapQuality`]): neighbour-distance error, seam
 //! edges, triangles of the neighbour graph whose orientation the map flips,
@@ -89,8 +92,10 @@ impl Ord for Visit {
     }
 }
 
-/// Flattens the surface given by `positions`, unit `normals` and the neighbour `graph`.
-pub fn build(positions: &[[f64; 3]], normals: &[[f64; 3]], graph: &NeighbourGraph) -> SkinMap {
+/// Flattens the surface given by `positions`, unit `normals` and the
+/// neighbour `graph`; the pieces of each link (`link_of`, by sensor) are
+/// packed together.
+pub fn build(positions: &[[f64; 3]], normals: &[[f64; 3]], graph: &NeighbourGraph, link_of: &[u16]) -> SkinMap {
     let n = positions.len();
     let pieces = components(graph);
     let mut piece_of = vec![0u32; n];
@@ -107,7 +112,8 @@ pub fn build(positions: &[[f64; 3]], normals: &[[f64; 3]], graph: &NeighbourGrap
     }
     let mut uv = placement.uv;
     let pitch = median_edge(positions, graph).max(1e-6);
-    let piece_bounds = pack(&pieces, &mut uv, 3.0 * pitch);
+    let link_of_piece: Vec<u16> = pieces.iter().map(|members| main_link(members, link_of)).collect();
+    let piece_bounds = pack(&pieces, &link_of_piece, &mut uv, 3.0 * pitch);
     let quality = measure(positions, normals, graph, &uv, &piece_bounds);
     SkinMap {
         positions: uv.iter().map(|p| [p[0] as f32, p[1] as f32]).collect(),
@@ -374,9 +380,21 @@ fn median_edge(positions: &[[f64; 3]], graph: &NeighbourGraph) -> f64 {
     *lengths.select_nth_unstable_by(middle, f64::total_cmp).1
 }
 
-/// Shelf-packs the pieces (tallest first) into rows about as wide as the
-/// whole map is tall, `gap` apart; returns each piece's bounds.
-fn pack(pieces: &[Vec<u32>], uv: &mut [[f64; 2]], gap: f64) -> Vec<[f64; 4]> {
+/// The link most of `members` are on (the lowest of those tied; 0 without links).
+fn main_link(members: &[u32], link_of: &[u16]) -> u16 {
+    let mut counts: std::collections::BTreeMap<u16, usize> = std::collections::BTreeMap::new();
+    for &m in members {
+        *counts.entry(link_of.get(m as usize).copied().unwrap_or(0)).or_default() += 1;
+    }
+    counts.into_iter().max_by(|a, b| a.1.cmp(&b.1).then(b.0.cmp(&a.0))).map_or(0, |(link, _)| link)
+}
+
+/// Packs the pieces without overlap, `gap` apart: the pieces of each link
+/// (`link_of_piece`) shelf-packed into a block, then the blocks
+/// shelf-packed, in the order of their first piece. A link of one piece is
+/// a block of that piece alone. Moves the pieces' sensors in `uv`; returns
+/// each piece's bounds.
+fn pack(pieces: &[Vec<u32>], link_of_piece: &[u16], uv: &mut [[f64; 2]], gap: f64) -> Vec<[f64; 4]> {
     let bounds: Vec<[f64; 4]> = pieces
         .iter()
         .map(|members| {
@@ -386,31 +404,66 @@ fn pack(pieces: &[Vec<u32>], uv: &mut [[f64; 2]], gap: f64) -> Vec<[f64; 4]> {
             })
         })
         .collect();
-    let area: f64 = bounds.iter().map(|b| (b[2] - b[0] + gap) * (b[3] - b[1] + gap)).sum();
-    let widest = bounds.iter().map(|b| b[2] - b[0] + gap).fold(0.0, f64::max);
-    let row_width = (area.sqrt() * 1.3).max(widest);
-    let mut order: Vec<usize> = (0..pieces.len()).collect();
-    order.sort_by(|&a, &b| (bounds[b][3] - bounds[b][1]).total_cmp(&(bounds[a][3] - bounds[a][1])).then(a.cmp(&b)));
-    let (mut x, mut y, mut row_height) = (0.0, 0.0, 0.0f64);
+    let mut blocks: Vec<Vec<usize>> = Vec::new();
+    let mut block_of_link = std::collections::HashMap::new();
+    for (p, link) in link_of_piece.iter().enumerate() {
+        let block = *block_of_link.entry(link).or_insert_with(|| {
+            blocks.push(Vec::new());
+            blocks.len() - 1
+        });
+        blocks[block].push(p);
+    }
+    // Each piece placed in its block, then each block on the map.
     let mut placed = vec![[0.0; 4]; pieces.len()];
-    for p in order {
-        let b = bounds[p];
+    let mut block_bounds = Vec::with_capacity(blocks.len());
+    for members in &blocks {
+        let boxes: Vec<[f64; 4]> = members.iter().map(|&p| bounds[p]).collect();
+        let mut block = [f64::MAX, f64::MAX, f64::MIN, f64::MIN];
+        for (&p, [x, y]) in members.iter().zip(shelve(&boxes, gap)) {
+            let b = bounds[p];
+            placed[p] = [x, y, x + (b[2] - b[0]), y + (b[3] - b[1])];
+            block = [block[0].min(x), block[1].min(y), block[2].max(placed[p][2]), block[3].max(placed[p][3])];
+        }
+        block_bounds.push(block);
+    }
+    for ((members, block), [x, y]) in blocks.iter().zip(&block_bounds).zip(shelve(&block_bounds, gap)) {
+        let shift = [x - block[0], y - block[1]];
+        for &p in members {
+            let spot = &mut placed[p];
+            *spot = [spot[0] + shift[0], spot[1] + shift[1], spot[2] + shift[0], spot[3] + shift[1]];
+            let delta = [spot[0] - bounds[p][0], spot[1] - bounds[p][1]];
+            for &i in &pieces[p] {
+                uv[i as usize][0] += delta[0];
+                uv[i as usize][1] += delta[1];
+            }
+        }
+    }
+    placed
+}
+
+/// Shelf-packs `boxes` (tallest first) into rows about as wide as the whole
+/// is tall, `gap` apart; returns where each box's lower left corner goes.
+fn shelve(boxes: &[[f64; 4]], gap: f64) -> Vec<[f64; 2]> {
+    let area: f64 = boxes.iter().map(|b| (b[2] - b[0] + gap) * (b[3] - b[1] + gap)).sum();
+    let widest = boxes.iter().map(|b| b[2] - b[0] + gap).fold(0.0, f64::max);
+    let row_width = (area.sqrt() * 1.3).max(widest);
+    let mut order: Vec<usize> = (0..boxes.len()).collect();
+    order.sort_by(|&a, &b| (boxes[b][3] - boxes[b][1]).total_cmp(&(boxes[a][3] - boxes[a][1])).then(a.cmp(&b)));
+    let (mut x, mut y, mut row_height) = (0.0, 0.0, 0.0f64);
+    let mut corners = vec![[0.0; 2]; boxes.len()];
+    for k in order {
+        let b = boxes[k];
         let (w, h) = (b[2] - b[0], b[3] - b[1]);
         if x > 0.0 && x + w > row_width {
             x = 0.0;
             y += row_height + gap;
             row_height = 0.0;
         }
-        let shift = [x - b[0], y - b[1]];
-        for &i in &pieces[p] {
-            uv[i as usize][0] += shift[0];
-            uv[i as usize][1] += shift[1];
-        }
-        placed[p] = [x, y, x + w, y + h];
+        corners[k] = [x, y];
         x += w + gap;
         row_height = row_height.max(h);
     }
-    placed
+    corners
 }
 
 fn measure(
@@ -569,7 +622,7 @@ mod tests {
             normals.push(normal);
         }
         let graph = super::super::neighbours::build(&positions, &normals);
-        let map = build(&positions, &normals, &graph);
+        let map = build(&positions, &normals, &graph, &vec![0; positions.len()]);
         let q = &map.quality;
         eprintln!("spherical cap, {} sensors: {q:?}", positions.len());
         assert_eq!(q.pieces, 1, "{q:?}");
@@ -578,5 +631,35 @@ mod tests {
         assert_eq!(q.stacked_fraction, 0.0, "{q:?}");
         // A cap has no seam.
         assert_eq!(q.seam_edge_fraction, 0.0, "{q:?}");
+    }
+
+    /// Two links' pieces, interleaved in sensor order (as an iCub's triangle
+    /// modules of two patches, each a piece of its own, might be): each
+    /// link's pieces end up in a block of their own, overlapping neither
+    /// the other link's block nor each other.
+    #[test]
+    fn the_pieces_of_one_link_are_packed_together() {
+        let (mut positions, mut normals, mut link_of) = (Vec::new(), Vec::new(), Vec::new());
+        for module in 0..16u16 {
+            for k in 0..12 {
+                let x = f64::from(module) * 0.02 + f64::from(k % 4) * 0.004;
+                positions.push([x, f64::from(k / 4) * 0.004 + f64::from(module % 3) * 1e-5, 0.0]);
+                normals.push([0.0, 0.0, 1.0]);
+                link_of.push(module % 2);
+            }
+        }
+        let graph = super::super::neighbours::build(&positions, &normals);
+        let map = build(&positions, &normals, &graph, &link_of);
+        assert_eq!(map.quality.pieces, 16, "each module a piece");
+        assert!(!map.quality.pieces_overlap);
+        let block = |link: u16| {
+            let corners = map.positions.iter().zip(&link_of).filter(|(_, l)| **l == link).map(|(p, _)| *p);
+            corners.fold([f32::MAX, f32::MAX, f32::MIN, f32::MIN], |b, [x, y]| {
+                [b[0].min(x), b[1].min(y), b[2].max(x), b[3].max(y)]
+            })
+        };
+        let (even, odd) = (block(0), block(1));
+        let apart = even[2] < odd[0] || odd[2] < even[0] || even[3] < odd[1] || odd[3] < even[1];
+        assert!(apart, "the links' blocks overlap: {even:?} {odd:?}");
     }
 }

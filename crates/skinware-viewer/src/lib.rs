@@ -7,7 +7,11 @@
 //! - [`server`]: HTTP, the page, the WebSocket upgrade ([`bind`], [`serve`]);
 //! - [`session`]: one browser: geometry, then credit-paced updates ([`Site`]);
 //! - [`sampler`]: the layers read in the browser's reader mode, newest only;
-//! - [`overlays`]: the services' arrows and markers;
+//! - [`overlays`]: the services' arrows and markers, which follow the
+//!   reader mode;
+//! - [`range`]: each layer's colour range, learnt from its responses;
+//! - [`labels`]: what each map piece is (its link, the regions holding it)
+//!   and each taxel's place;
 //! - [`protocol`]: the binary messages from the server to the page;
 //! - [`message`]: the JSON text messages from the page to the server,
 //!   decoded by [`message::decode`] (built without the server too, for the
@@ -47,11 +51,15 @@
 // The overview above links to the server's modules, which exist only with it.
 #![cfg_attr(not(feature = "server"), allow(rustdoc::broken_intra_doc_links))]
 
+#[cfg(feature = "server")]
+pub mod labels;
 pub mod message;
 #[cfg(feature = "server")]
 pub mod overlays;
 #[cfg(feature = "server")]
 pub mod protocol;
+#[cfg(feature = "server")]
+pub mod range;
 #[cfg(feature = "server")]
 pub mod sampler;
 #[cfg(feature = "server")]

@@ -171,6 +171,36 @@ impl OverlaySource {
 /// No overlays: what an update carries while no service runs.
 pub static NO_OVERLAYS: Overlays = Overlays { arrows: Vec::new(), markers: Vec::new() };
 
+/// The overlays of one browser's updates, which follow its reader mode: they
+/// are polled from the services only for an update that brings new frames,
+/// so that they show the contacts of the frames drawn under them (in the
+/// on-request mode, of the frames requested; in the periodic mode, at its
+/// rate), and held for the updates between (which carry only new states or
+/// rates). They are dropped once no layer runs: a stopped skin shows no
+/// contacts.
+#[derive(Debug, Default)]
+pub struct HeldOverlays {
+    held: Option<Arc<Overlays>>,
+}
+
+impl HeldOverlays {
+    /// The overlays for an update: `poll`ed anew if it brings `fresh_frames`,
+    /// else those held; none unless `any_running` (some layer's writer runs).
+    pub fn for_update(
+        &mut self,
+        fresh_frames: bool,
+        any_running: bool,
+        poll: impl FnOnce() -> Option<Arc<Overlays>>,
+    ) -> &Overlays {
+        if !any_running {
+            self.held = None;
+        } else if fresh_frames {
+            self.held = poll();
+        }
+        self.held.as_deref().unwrap_or(&NO_OVERLAYS)
+    }
+}
+
 /// One overlay source for every browser: the services are searched for and
 /// attached once, not once per browser (a search opens every segment of the
 /// directory), and each update still polls them for the newest overlays.
@@ -266,5 +296,50 @@ mod tests {
         assert_eq!(shared.poll().as_deref(), Some(&found), "no longer quiet: the source is asked for");
         drop(polling);
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    fn marker_at(x: f32) -> Option<Arc<Overlays>> {
+        Some(Arc::new(Overlays {
+            arrows: Vec::new(),
+            markers: vec![Marker { at: [x, 0.0], radius: 0.01, pressure: 1.0 }],
+        }))
+    }
+
+    /// What a browser's updates carry in each reader mode, as its session
+    /// gets them: the services move on between updates (each poll finds the
+    /// contact further along), and the overlays move only with the frames.
+    #[test]
+    fn overlays_follow_the_frames_of_the_reader_mode() {
+        let mut services_at = 0.0;
+        let mut poll = || {
+            services_at += 1.0;
+            marker_at(services_at)
+        };
+        let at = |overlays: &Overlays| overlays.markers.first().map(|m| m.at[0]);
+
+        // As soon as available: every update brings frames, and the newest overlays.
+        let mut asap = HeldOverlays::default();
+        assert_eq!(at(asap.for_update(true, true, &mut poll)), Some(1.0));
+        assert_eq!(at(asap.for_update(true, true, &mut poll)), Some(2.0));
+
+        // On request: updates of states and rates between requests keep the
+        // requested frames' contacts, however the services moved meanwhile.
+        let mut request = HeldOverlays::default();
+        assert_eq!(at(request.for_update(true, true, &mut poll)), Some(3.0), "the frames requested");
+        for _ in 0..5 {
+            assert_eq!(at(request.for_update(false, true, || panic!("polled without frames"))), Some(3.0));
+        }
+        assert_eq!(at(request.for_update(true, true, &mut poll)), Some(4.0), "the next request's");
+
+        // Periodic below the writers' rates: a tick's frames bring the
+        // overlays; a rate change between ticks does not.
+        let mut periodic = HeldOverlays::default();
+        assert_eq!(at(periodic.for_update(true, true, &mut poll)), Some(5.0));
+        assert_eq!(at(periodic.for_update(false, true, &mut poll)), Some(5.0));
+        assert_eq!(at(periodic.for_update(true, true, &mut poll)), Some(6.0), "polled once per tick, not between");
+
+        // The skin stopped: every layer gone (or not read yet), nothing drawn.
+        assert_eq!(*request.for_update(false, false, &mut poll), NO_OVERLAYS);
+        assert_eq!(*request.for_update(false, true, &mut poll), NO_OVERLAYS, "not the contacts of before");
     }
 }

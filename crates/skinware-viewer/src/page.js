@@ -7,15 +7,18 @@
 
 const KIND_GEOMETRY = 1;
 const KIND_UPDATE = 2;
-const PROTOCOL_VERSION = 1;
-// Indexed by WriterState::code (1 running ... 4 gone), the one numbering.
-const STATES = [undefined, 'running', 'paused', 'faulted', 'gone'];
+const PROTOCOL_VERSION = 2;
+// Indexed by WriterState::code (1 running ... 4 gone), the one numbering;
+// 0: connecting, the server has not read the layer yet.
+const STATES = ['connecting', 'running', 'paused', 'faulted', 'gone'];
 const MODES = ['periodic', 'asap', 'request'];
 const FLAG_RESPONSES = 1;
+const LAYER_RECORD_BYTES = 32;
 // Updates the page lets the server send ahead of its draws.
 const INITIAL_CREDIT = 2;
-// Full colour at this response above baseline.
-const SCALE_MAX = 20000;
+// Full colour at this response above baseline until the server has learnt
+// a layer's range (an eighth of 16 bits, as the server's floor).
+const DEFAULT_FULL_SCALE = 8191;
 // How fast the baseline follows a rising response (per update); it follows a
 // falling one at once, so a pressed taxel keeps its colour for seconds.
 const BASELINE_RISE = 0.002;
@@ -33,15 +36,22 @@ const stats = window.skinStats = {
   seqs: [],
   // Per layer, the writer states updates reported, each change once, in order.
   statesSeen: [],
-  // Overlays in the newest update, and how many updates carried some.
-  markers: 0, arrows: 0, updatesWithMarkers: 0, updatesWithArrows: 0,
+  // Overlays in the newest update, and how many updates carried some, and
+  // how many times what they showed changed.
+  markers: 0, arrows: 0, updatesWithMarkers: 0, updatesWithArrows: 0, overlayChanges: 0,
+  // Per layer, where full colour is now (the range typed in for its sensor type, or the auto one), and the auto one.
+  fullScales: [], autoScales: [],
+  // What the page says of the skin as a whole: 'running', 'stopped' (its layers gone) or 'server gone'.
+  skinState: 'connecting',
 };
 
 let skin = null;         // decoded geometry
 let responses = null;    // Uint16Array, newest response per global sensor
 let baseline = null;     // Float32Array, each taxel's resting response
-let layerStatus = [];    // per layer: {state, writerRate, readRate, latency, seq}
+let layerStatus = [];    // per layer: {state, writerRate, readRate, latency, seq, fullScale, resting, highest}
+let manualScales = {};   // per sensor type: the full colour typed in, or null (auto)
 let overlays = { arrows: [], markers: [] };
+let overlayKey = '';     // what the overlays drawn are, to count changes
 let layout = null;       // pixel placement of the taxels for the canvas size
 let image = null;        // ImageData of the canvas and its Uint32 view
 let socket = null;
@@ -49,8 +59,8 @@ let dirty = false;
 let unacknowledged = 0;
 let hovered = -1;
 
-// Colour of a response above baseline, for every possible u16 difference.
-const colourOf = (() => {
+// The colour scale: 256 colours from nothing to full.
+const lut = (() => {
   const stops = [[0, 30, 34, 56], [0.15, 40, 30, 110], [0.35, 30, 110, 200], [0.55, 40, 200, 170],
     [0.75, 240, 220, 60], [1, 255, 70, 40]];
   const lut = new Uint32Array(256);
@@ -62,10 +72,8 @@ const colourOf = (() => {
     const f = (t - t0) / (t1 - t0);
     lut[i] = rgba(r0 + f * (r1 - r0), g0 + f * (g1 - g0), b0 + f * (b1 - b0));
   }
-  const table = new Uint32Array(65536);
-  for (let v = 0; v < 65536; v++) table[v] = lut[Math.min(255, Math.round(255 * Math.sqrt(v / SCALE_MAX)))];
   drawLegend(lut);
-  return table;
+  return lut;
 })();
 
 function rgba(r, g, b) {
@@ -74,7 +82,8 @@ function rgba(r, g, b) {
 }
 
 const BACKGROUND = rgba(11, 12, 15);
-const HATCH = { faulted: [rgba(112, 52, 52), rgba(58, 42, 42)], gone: [rgba(85, 85, 85), rgba(42, 42, 42)] };
+const GREY_HATCH = [rgba(85, 85, 85), rgba(42, 42, 42)];
+const HATCH = { faulted: [rgba(112, 52, 52), rgba(58, 42, 42)], gone: GREY_HATCH, unknown: GREY_HATCH };
 
 function drawLegend(lut) {
   const scale = document.getElementById('scale');
@@ -82,29 +91,69 @@ function drawLegend(lut) {
   const strip = legend.createImageData(256, 1);
   new Uint32Array(strip.data.buffer).set(lut);
   for (let y = 0; y < scale.height; y++) legend.putImageData(strip, 0, y);
-  document.getElementById('scale-max').textContent = SCALE_MAX.toLocaleString();
 }
 
+// Where full colour is for layer l: the range typed in for its sensor
+// type, else the one the server learnt from the responses of the layers of
+// that type, else the default.
+function fullScaleOf(l) {
+  const status = layerStatus[l];
+  return manualScales[skin.layers[l].sensorType] || (status && status.fullScale) || DEFAULT_FULL_SCALE;
+}
+
+// The colour of every response above baseline for one full scale, on a
+// square-root scale; a few kept, as the scales change only when a layer's
+// range grows or one is typed in.
+const colourTables = new Map();
+function colourTable(fullScale) {
+  let table = colourTables.get(fullScale);
+  if (!table) {
+    if (colourTables.size >= 8) colourTables.clear();
+    table = new Uint32Array(65536);
+    const k = 255 * 255 / fullScale;
+    for (let v = 0; v < 65536; v++) table[v] = lut[Math.min(255, Math.round(Math.sqrt(v * k)))];
+    colourTables.set(fullScale, table);
+  }
+  return table;
+}
+
+// The geometry message, version 2 (docs/viewer.md). A server of another
+// version gets the page's message instead of a map.
 function decodeGeometry(buffer) {
   const view = new DataView(buffer);
-  if (view.getUint8(1) !== PROTOCOL_VERSION) throw new Error(`protocol version ${view.getUint8(1)}, page speaks ${PROTOCOL_VERSION}`);
+  const version = view.getUint8(1);
+  if (version !== PROTOCOL_VERSION) {
+    throw new Error(`the server speaks the viewer's protocol ${version}, this page ${PROTOCOL_VERSION}: reload the page (Ctrl-R)`);
+  }
   const layerCount = view.getUint16(2, true), sensors = view.getUint32(4, true);
   const bounds = [0, 1, 2, 3].map(i => view.getFloat32(8 + 4 * i, true));
-  let at = 24;
+  const placeCount = view.getUint32(24, true), labelCount = view.getUint32(28, true);
+  let at = 32;
   const layers = [];
   for (let l = 0; l < layerCount; l++, at += 12) {
     layers.push({ first: view.getUint32(at, true), count: view.getUint32(at + 4, true), nominalRate: view.getFloat32(at + 8, true) });
   }
   const textBytes = view.getUint32(at, true);
-  const names = new TextDecoder().decode(new Uint8Array(buffer, at + 4, textBytes)).split('\n');
+  const lines = new TextDecoder().decode(new Uint8Array(buffer, at + 4, textBytes)).split('\n');
   at = (at + 4 + textBytes + 3) & ~3;
+  const places = lines.slice(1 + 2 * layerCount, 1 + 2 * layerCount + placeCount);
+  const labelTexts = lines.slice(1 + 2 * layerCount + placeCount);
+  const labels = [];
+  for (let b = 0; b < labelCount; b++, at += 16) {
+    labels.push({ text: labelTexts[b], bounds: [0, 4, 8, 12].map(d => view.getFloat32(at + d, true)) });
+  }
   const positions = new Float32Array(buffer, at, 2 * sensors); at += 8 * sensors;
   const uid = new Uint32Array(buffer, at, sensors); at += 4 * sensors;
   const module = new Uint32Array(buffer, at, sensors); at += 4 * sensors;
-  const patch = new Uint32Array(buffer, at, sensors);
+  const patch = new Uint32Array(buffer, at, sensors); at += 4 * sensors;
+  const place = new Uint32Array(buffer, at, sensors);
   const layerOf = new Uint16Array(sensors);
-  layers.forEach((layer, l) => { layer.name = names[l + 1]; layerOf.fill(l, layer.first, layer.first + layer.count); });
-  return { name: names[0], sensors, bounds, layers, positions, uid, module, patch, layerOf };
+  layers.forEach((layer, l) => {
+    layer.name = lines[l + 1];
+    layer.sensorType = lines[layerCount + l + 1];
+    layerOf.fill(l, layer.first, layer.first + layer.count);
+  });
+  return { name: lines[0], sensors, bounds, layers, labels, places, positions, uid, module, patch, place, layerOf };
 }
 
 function applyUpdate(buffer) {
@@ -116,11 +165,12 @@ function applyUpdate(buffer) {
   const arrows = view.getUint16(8, true), markers = view.getUint16(10, true);
   let at = 16;
   const included = [];
-  for (let l = 0; l < layerCount; l++, at += 24) {
+  for (let l = 0; l < layerCount; l++, at += LAYER_RECORD_BYTES) {
     layerStatus[l] = {
-      state: STATES[view.getUint8(at)] || 'gone', writerRate: view.getFloat32(at + 4, true),
-      readRate: view.getFloat32(at + 8, true), latency: view.getFloat32(at + 12, true),
-      seq: view.getUint32(at + 16, true) + view.getUint32(at + 20, true) * 2 ** 32,
+      state: STATES[view.getUint8(at)] || 'unknown', fullScale: view.getUint16(at + 2, true),
+      writerRate: view.getFloat32(at + 4, true), readRate: view.getFloat32(at + 8, true),
+      latency: view.getFloat32(at + 12, true), seq: view.getUint32(at + 16, true) + view.getUint32(at + 20, true) * 2 ** 32,
+      resting: view.getUint16(at + 24, true), highest: view.getUint16(at + 26, true),
     };
     if (view.getUint8(at + 1) & FLAG_RESPONSES) included.push(l);
   }
@@ -136,9 +186,7 @@ function applyUpdate(buffer) {
   for (let i = 0; i < markers; i++, at += 16) {
     next.markers.push([0, 4, 8, 12].map(d => view.getFloat32(at + d, true)));
   }
-  overlays = next;
-  stats.markers = next.markers.length;
-  stats.arrows = next.arrows.length;
+  setOverlays(next);
   if (next.markers.length) stats.updatesWithMarkers++;
   if (next.arrows.length) stats.updatesWithArrows++;
   for (const l of included) {
@@ -151,6 +199,39 @@ function applyUpdate(buffer) {
     }
     at += 2 * count;
   }
+  // Stopped: some layer's writer is gone and none is there (the others not
+  // found yet by a reader that just started: their channels went with the skin).
+  const stopped = layerStatus.some(status => status.state === 'gone') &&
+    layerStatus.every(status => status.state === 'gone' || status.state === 'connecting');
+  showSkinState(stopped ? 'stopped' : 'running');
+}
+
+function setOverlays(next) {
+  const key = JSON.stringify(next);
+  if (key !== overlayKey) stats.overlayChanges++;
+  overlayKey = key;
+  overlays = next;
+  stats.markers = next.markers.length;
+  stats.arrows = next.arrows.length;
+}
+
+// What the page says of the skin as a whole. A stopped skin (every layer
+// gone) or a server gone shows no contacts and no rates: they would be
+// those of before.
+function showSkinState(state) {
+  if (state === stats.skinState) return;
+  stats.skinState = state;
+  const banner = document.getElementById('banner');
+  banner.dataset.state = state;
+  banner.hidden = state === 'running';
+  if (state === 'stopped') {
+    banner.textContent = 'The skin has stopped: its layers\u2019 writers are gone. The page shows it again when it restarts.';
+  } else if (state === 'server gone') {
+    banner.textContent = 'The viewer\u2019s server is gone (skin view or skin demo stopped): nothing here is live. Retrying every second\u2026';
+  }
+  if (state !== 'running') setOverlays({ arrows: [], markers: [] });
+  dirty = true;
+  lastTableUpdate = 0;
 }
 
 // Where each taxel goes on the canvas, its square size, and which taxel each
@@ -185,7 +266,33 @@ function computeLayout() {
   }
   image = context.createImageData(width, height);
   layout = { width, height, scale, minX, minY, margin, size, offset, hatch, pick, pixels: new Uint32Array(image.data.buffer) };
+  placeLabels();
   dirty = true;
+}
+
+// The map pieces' names (their link, and the regions holding them whole),
+// centred over the top of each piece's box: elements over the canvas (not
+// drawn in it, so that its pixels stay the heatmap's), placed for the size
+// the page shows it at; a label much wider than its piece is left out.
+function placeLabels() {
+  const box = document.getElementById('labels');
+  const shown = canvas.clientWidth / layout.width;
+  box.replaceChildren(...skin.labels.map(label => {
+    const [x0, , x1, y1] = label.bounds;
+    const [left, top] = toCanvas((x0 + x1) / 2, y1);
+    const element = document.createElement('div');
+    element.className = 'piece-label';
+    element.textContent = label.text;
+    element.style.left = `${left * shown}px`;
+    element.style.top = `${Math.max(0, top - 2) * shown}px`;
+    // No room above the piece (the map's top row): inside its top edge.
+    if (top * shown < 16) element.classList.add('inside');
+    element.dataset.pieceWidth = String((x1 - x0) * layout.scale * shown);
+    return element;
+  }));
+  for (const element of box.children) {
+    element.hidden = element.offsetWidth > 1.6 * Number(element.dataset.pieceWidth) + 24;
+  }
 }
 
 // The usual distance between neighbouring taxels, metres, from a sample.
@@ -209,8 +316,9 @@ function render() {
   const { width, size, offset, hatch, pixels } = layout;
   pixels.fill(BACKGROUND);
   skin.layers.forEach((layer, l) => {
-    const state = (layerStatus[l] || { state: 'gone' }).state;
+    const state = (layerStatus[l] || { state: 'connecting' }).state;
     const stripes = HATCH[state];
+    const colourOf = colourTable(fullScaleOf(l));
     for (let i = layer.first, end = layer.first + layer.count; i < end; i++) {
       let colour;
       if (stripes) {
@@ -234,11 +342,13 @@ function toCanvas(x, y) {
 
 function drawOverlays() {
   context.lineWidth = 2;
+  // The contacts' pressures are in the layers' units: the widest scale fills the circles.
+  const markerScale = Math.max(...skin.layers.map((_, l) => fullScaleOf(l)), 1);
   for (const [x, y, radius, pressure] of overlays.markers) {
     const [cx, cy] = toCanvas(x, y);
     context.beginPath();
     context.arc(cx, cy, Math.max(4, radius * layout.scale), 0, 2 * Math.PI);
-    context.fillStyle = `rgba(255, 255, 255, ${Math.min(0.45, 0.1 + Math.sqrt(Math.max(0, pressure) / SCALE_MAX) * 0.35)})`;
+    context.fillStyle = `rgba(255, 255, 255, ${Math.min(0.45, 0.1 + Math.sqrt(Math.max(0, pressure) / markerScale) * 0.35)})`;
     context.fill();
     context.strokeStyle = '#ffffff';
     context.stroke();
@@ -260,12 +370,20 @@ function buildLayerTable() {
   layerRows.replaceChildren(...skin.layers.map(layer => {
     const row = document.createElement('tr');
     row.dataset.layer = layer.name;
-    row.dataset.state = 'gone';
-    row.innerHTML = '<td></td><td><span class="badge">gone</span></td><td></td><td></td><td></td><td></td>';
+    row.dataset.state = 'connecting';
+    row.innerHTML = '<td></td><td><span class="badge">connecting</span></td><td></td><td></td><td></td><td></td>';
     row.cells[0].textContent = layer.name;
+    row.cells[0].title = `sensor type ${layer.sensorType}`;
     row.cells[2].textContent = layer.count.toLocaleString();
     return row;
   }));
+  buildRangeTable();
+}
+
+// Rates mean something only of a layer being read: a layer connecting,
+// gone, or of a skin stopped or out of reach shows none.
+function ratesShown(state) {
+  return stats.skinState === 'running' && state !== 'connecting' && state !== 'gone' && state !== 'unknown';
 }
 
 let lastTableUpdate = 0;
@@ -281,11 +399,82 @@ function updateLayerTable(now) {
       row.querySelector('.badge').textContent = status.state;
     }
     if (full) {
-      row.cells[3].textContent = status.writerRate.toFixed(1);
-      row.cells[4].textContent = status.readRate.toFixed(1);
-      row.cells[5].textContent = status.latency.toFixed(3);
+      const shown = ratesShown(status.state);
+      row.cells[3].textContent = shown ? status.writerRate.toFixed(1) : '\u2014';
+      row.cells[4].textContent = shown ? status.readRate.toFixed(1) : '\u2014';
+      row.cells[5].textContent = shown ? status.latency.toFixed(3) : '\u2014';
     }
   });
+  if (full) updateRanges();
+}
+
+// The colour range of each sensor type (its layers share it): a number
+// typed in (full colour at that response above baseline), or empty for the
+// range the server learnt from the responses of its layers. Kept per skin
+// and sensor type in the browser's storage.
+function rangeKey(sensorType) {
+  return `skinware-view:${skin.name}:${sensorType}:full-scale`;
+}
+
+function sensorTypes() {
+  return [...new Set(skin.layers.map(layer => layer.sensorType))];
+}
+
+function buildRangeTable() {
+  const rows = document.querySelector('#ranges tbody');
+  manualScales = {};
+  for (const type of sensorTypes()) {
+    const stored = Number(localStorage.getItem(rangeKey(type)));
+    manualScales[type] = stored >= 1 && stored <= 65535 ? stored : null;
+  }
+  rows.replaceChildren(...sensorTypes().map(type => {
+    const row = document.createElement('tr');
+    row.dataset.sensorType = type;
+    row.innerHTML = '<td></td><td><input type="number" min="1" max="65535" step="1" placeholder="auto"></td>' +
+      '<td><button type="button">auto</button></td><td class="learnt"></td>';
+    const layers = skin.layers.filter(layer => layer.sensorType === type).map(layer => layer.name);
+    row.cells[0].textContent = type;
+    row.cells[0].title = `layers ${layers.join(', ')}`;
+    const input = row.querySelector('input');
+    input.value = manualScales[type] ? String(manualScales[type]) : '';
+    input.addEventListener('change', () => setManualScale(type, input.value));
+    row.querySelector('button').addEventListener('click', () => { input.value = ''; setManualScale(type, ''); });
+    return row;
+  }));
+}
+
+function setManualScale(type, text) {
+  const value = Math.round(Number(text));
+  manualScales[type] = text !== '' && value >= 1 && value <= 65535 ? value : null;
+  if (manualScales[type]) localStorage.setItem(rangeKey(type), String(manualScales[type]));
+  else localStorage.removeItem(rangeKey(type));
+  updateRanges();
+  dirty = true;
+}
+
+function updateRanges() {
+  for (const row of document.querySelector('#ranges tbody').rows) {
+    const type = row.dataset.sensorType;
+    const l = skin.layers.findIndex(layer => layer.sensorType === type);
+    const status = layerStatus[l];
+    row.dataset.mode = manualScales[type] ? 'manual' : 'auto';
+    row.querySelector('.learnt').textContent = status && status.fullScale
+      ? `auto ${status.fullScale.toLocaleString()} (resting ${status.resting.toLocaleString()}, highest ${status.highest.toLocaleString()})`
+      : 'auto: no frame yet';
+  }
+  skin.layers.forEach((_, l) => {
+    stats.fullScales[l] = fullScaleOf(l);
+    stats.autoScales[l] = layerStatus[l] ? layerStatus[l].fullScale : 0;
+  });
+  updateLegend();
+}
+
+// The legend's end: the full scale, if every layer has the same one.
+function updateLegend() {
+  const scales = skin.layers.map((_, l) => fullScaleOf(l));
+  const same = scales.every(scale => scale === scales[0]);
+  document.getElementById('scale-max').textContent =
+    !scales.length ? '' : same ? scales[0].toLocaleString() : 'each sensor type\u2019s full scale (below)';
 }
 
 // Draw times of the last second, for the page's own frame-rate display.
@@ -327,9 +516,11 @@ function showTooltip() {
   const i = hovered;
   const l = skin.layerOf[i];
   const above = Math.round(responses[i] - baseline[i]);
+  const place = skin.places[skin.place[i]];
   tooltip.textContent = `uid ${skin.uid[i]}  module ${skin.module[i]}  patch ${skin.patch[i]}\n` +
-    `layer ${skin.layers[l].name} (${(layerStatus[l] || { state: 'gone' }).state})\n` +
-    `response ${responses[i]}  (${above >= 0 ? '+' : ''}${above} above baseline)`;
+    (place ? `${place}\n` : '') +
+    `layer ${skin.layers[l].name}, ${skin.layers[l].sensorType} (${(layerStatus[l] || { state: 'connecting' }).state})\n` +
+    `response ${responses[i]}  (${above >= 0 ? '+' : ''}${above} above baseline; full colour at ${fullScaleOf(l).toLocaleString()})`;
 }
 
 canvas.addEventListener('mousemove', event => {
@@ -367,22 +558,37 @@ function showError(text) {
   error.textContent = text || '';
 }
 
+// Whether the server answered the last connection with an error (which the page shows) instead of a map.
+let refused = false;
+
 function connect() {
   const connection = document.getElementById('connection');
-  socket = new WebSocket(`${location.protocol === 'https:' ? 'wss' : 'ws'}://${location.host}/ws`);
+  refused = false;
+  // The version in the query: a server of another version answers with a message, not bytes this page cannot read.
+  socket = new WebSocket(`${location.protocol === 'https:' ? 'wss' : 'ws'}://${location.host}/ws?protocol=${PROTOCOL_VERSION}`);
   socket.binaryType = 'arraybuffer';
   socket.onopen = () => { connection.dataset.state = 'open'; connection.textContent = 'connected'; };
   socket.onmessage = event => {
     if (typeof event.data === 'string') {
+      // The server refused: no geometry published, or a page of another version.
+      refused = true;
       showError(JSON.parse(event.data).error);
       return;
     }
     const kind = new DataView(event.data).getUint8(0);
     if (kind === KIND_GEOMETRY) {
-      skin = decodeGeometry(event.data);
+      try {
+        skin = decodeGeometry(event.data);
+      } catch (error) {
+        showError(error.message);
+        socket.close();
+        return;
+      }
       responses = new Uint16Array(skin.sensors);
       baseline = new Float32Array(skin.sensors).fill(Infinity);
       layerStatus = [];
+      stats.skinState = null;
+      showSkinState('running');
       stats.geometryBytes = event.data.byteLength;
       document.getElementById('skin-name').textContent = `${skin.name} · ${skin.sensors.toLocaleString()} sensors`;
       showError(null);
@@ -404,7 +610,8 @@ function connect() {
     connection.dataset.state = 'closed';
     connection.textContent = 'disconnected; retrying';
     // Nothing is known about the layers until the server is back.
-    layerStatus = layerStatus.map(status => ({ ...status, state: 'gone' }));
+    layerStatus = layerStatus.map(status => ({ ...status, state: 'unknown' }));
+    if (skin && !refused) showSkinState('server gone');
     dirty = true;
     setTimeout(connect, 1000);
   };

@@ -9,26 +9,39 @@
 use skinware::WriterState;
 use skinware_geometry::{SensorRef, SkinGeometry};
 
+use crate::labels;
 use crate::message::ReadMode;
 use crate::overlays::Overlays;
 use crate::sampler::LayerSlot;
 
-/// Bumped on any change of the layout below; the page refuses other versions.
-pub const PROTOCOL_VERSION: u8 = 1;
+/// Bumped on any change of the layout below; the page refuses other
+/// versions, and the server refuses pages that do not ask for this one
+/// ([`WEBSOCKET_PATH`]). 2: connecting state, colour ranges, piece labels
+/// and places.
+pub const PROTOCOL_VERSION: u8 = 2;
+/// Where a page of this version opens its WebSocket: the version it speaks
+/// is in the query, so that a page of another version (open in a tab from
+/// before an upgrade) gets a message asking for a reload instead of bytes it
+/// cannot read.
+pub const WEBSOCKET_PATH: &str = "/ws?protocol=2";
 /// First byte of the geometry message.
 pub const KIND_GEOMETRY: u8 = 1;
 /// First byte of an update message.
 pub const KIND_UPDATE: u8 = 2;
+/// Bytes of the geometry header, before the layer table.
+pub const GEOMETRY_HEADER_BYTES: usize = 32;
 /// Bytes of the update header.
 pub const UPDATE_HEADER_BYTES: usize = 16;
 /// Bytes of one layer's record in an update.
-pub const LAYER_RECORD_BYTES: usize = 24;
+pub const LAYER_RECORD_BYTES: usize = 32;
 /// Bytes of one arrow or one marker.
 pub const OVERLAY_RECORD_BYTES: usize = 16;
 /// Flag of a layer record: its responses follow in this update.
 pub const FLAG_RESPONSES: u8 = 1;
 /// Flag of a layer record: its newest frame carries the fault status.
 pub const FLAG_FAULT_FRAME: u8 = 2;
+/// The state code of a layer not read yet (connecting).
+pub const STATE_CONNECTING: u8 = 0;
 
 /// The code of a reader mode in update headers.
 pub fn mode_code(mode: ReadMode) -> u8 {
@@ -41,10 +54,11 @@ pub fn mode_code(mode: ReadMode) -> u8 {
 
 /// The code of a writer state in layer records: the state's one number
 /// ([`WriterState::code`]: 1 running, 2 paused, 3 faulted, 4 gone), as in
-/// shared memory, recordings and the bridge.
-pub fn state_code(state: WriterState) -> u8 {
+/// shared memory, recordings and the bridge; [`STATE_CONNECTING`] (0)
+/// before the layer was read.
+pub fn state_code(state: Option<WriterState>) -> u8 {
     // The codes are 1 to 4.
-    state.code() as u8
+    state.map_or(STATE_CONNECTING, |state| state.code() as u8)
 }
 
 /// One layer in an update: its newest state as sampled, and whether its
@@ -71,11 +85,19 @@ fn pad_to_4(out: &mut Vec<u8>) {
     }
 }
 
-/// The message sent once at connect: layers, map positions and, per sensor,
-/// uid, module id and patch id (a sensor's layer follows from the layer ranges).
+/// One line of the geometry's names: a newline in a name would split it.
+fn one_line(name: &str) -> std::borrow::Cow<'_, str> {
+    if name.contains('\n') { name.replace('\n', " ").into() } else { name.into() }
+}
+
+/// The message sent once at connect: layers, the labels of the map's
+/// pieces, map positions and, per sensor, uid, module id, patch id and
+/// place (a sensor's layer follows from the layer ranges).
 pub fn encode_geometry(geometry: &SkinGeometry) -> Vec<u8> {
     let sensors = geometry.sensor_count();
     let layers = geometry.layers.len().min(usize::from(u16::MAX));
+    let labels = labels::piece_labels(geometry);
+    let places = labels::places(geometry);
     let mut bounds = [f32::INFINITY, f32::INFINITY, f32::NEG_INFINITY, f32::NEG_INFINITY];
     for &[x, y] in &geometry.map.positions {
         bounds = [bounds[0].min(x), bounds[1].min(y), bounds[2].max(x), bounds[3].max(y)];
@@ -83,7 +105,7 @@ pub fn encode_geometry(geometry: &SkinGeometry) -> Vec<u8> {
     if sensors == 0 {
         bounds = [0.0, 0.0, 1.0, 1.0];
     }
-    let mut out = Vec::with_capacity(64 + layers * 12 + sensors * 20);
+    let mut out = Vec::with_capacity(64 + layers * 12 + labels.len() * 16 + sensors * 24);
     out.push(KIND_GEOMETRY);
     out.push(PROTOCOL_VERSION);
     out.extend_from_slice(&(layers as u16).to_le_bytes());
@@ -91,17 +113,30 @@ pub fn encode_geometry(geometry: &SkinGeometry) -> Vec<u8> {
     for value in bounds {
         out.extend_from_slice(&value.to_le_bytes());
     }
+    out.extend_from_slice(&(places.texts.len() as u32).to_le_bytes());
+    out.extend_from_slice(&(labels.len() as u32).to_le_bytes());
     for (index, layer) in geometry.layers.iter().take(layers).enumerate() {
         out.extend_from_slice(&(geometry.layer_starts[index] as u32).to_le_bytes());
         out.extend_from_slice(&(layer.sensors.len() as u32).to_le_bytes());
         out.extend_from_slice(&(layer.rate_hz as f32).to_le_bytes());
     }
-    let names: Vec<&str> =
-        std::iter::once(geometry.skin.as_str()).chain(geometry.layers.iter().map(|l| l.name.as_str())).collect();
+    let layer_list = &geometry.layers[..layers];
+    let names: Vec<std::borrow::Cow<'_, str>> = std::iter::once(geometry.skin.as_str())
+        .chain(layer_list.iter().map(|l| l.name.as_str()))
+        .chain(layer_list.iter().map(|l| l.sensor_type.as_str()))
+        .chain(places.texts.iter().map(String::as_str))
+        .chain(labels.iter().map(|label| label.text.as_str()))
+        .map(one_line)
+        .collect();
     let names = names.join("\n");
     out.extend_from_slice(&(names.len() as u32).to_le_bytes());
     out.extend_from_slice(names.as_bytes());
     pad_to_4(&mut out);
+    for label in &labels {
+        for value in label.bounds {
+            out.extend_from_slice(&value.to_le_bytes());
+        }
+    }
     for index in 0..sensors {
         let [x, y] = geometry.map.positions.get(index).copied().unwrap_or([0.0, 0.0]);
         out.extend_from_slice(&x.to_le_bytes());
@@ -113,6 +148,9 @@ pub fn encode_geometry(geometry: &SkinGeometry) -> Vec<u8> {
         for sensor in &located {
             out.extend_from_slice(&sensor.as_ref().map_or(0, field).to_le_bytes());
         }
+    }
+    for &place in &places.place_of {
+        out.extend_from_slice(&place.to_le_bytes());
     }
     out
 }
@@ -149,11 +187,17 @@ pub fn encode_update_head(out: &mut Vec<u8>, number: u32, mode: ReadMode, layers
         if slot.fault_frame {
             flags |= FLAG_FAULT_FRAME;
         }
-        out.extend_from_slice(&[state_code(slot.state), flags, 0, 0]);
+        let full_scale = slot.range.map_or(0, |range| range.full_scale());
+        out.extend_from_slice(&[state_code(slot.state), flags]);
+        out.extend_from_slice(&full_scale.to_le_bytes());
         out.extend_from_slice(&slot.writer_rate_hz.to_le_bytes());
         out.extend_from_slice(&slot.read_rate_hz.to_le_bytes());
         out.extend_from_slice(&slot.latency_ms.to_le_bytes());
         out.extend_from_slice(&slot.seq.to_le_bytes());
+        let range = slot.range.map_or([0, 0], |range| [range.resting, range.highest]);
+        out.extend_from_slice(&range[0].to_le_bytes());
+        out.extend_from_slice(&range[1].to_le_bytes());
+        out.extend_from_slice(&[0; 4]);
     }
     for arrow in &overlays.arrows[..arrows] {
         for value in [arrow.from[0], arrow.from[1], arrow.to[0], arrow.to[1]] {
@@ -184,6 +228,7 @@ pub fn responses_le<'a>(values: &'a [u16], scratch: &'a mut Vec<u8>) -> &'a [u8]
 mod tests {
     use super::*;
     use crate::overlays::{Arrow, Marker};
+    use crate::range::ResponseRange;
 
     fn f32_at(bytes: &[u8], offset: usize) -> f32 {
         f32::from_le_bytes(bytes[offset..offset + 4].try_into().unwrap())
@@ -193,8 +238,25 @@ mod tests {
         u16::from_le_bytes(bytes[offset..offset + 2].try_into().unwrap())
     }
 
+    fn u32_at(bytes: &[u8], offset: usize) -> u32 {
+        u32::from_le_bytes(bytes[offset..offset + 4].try_into().unwrap())
+    }
+
+    fn slot(state: Option<WriterState>, rates: [f32; 3], seq: u64, fault_frame: bool, responses: &[u16]) -> LayerSlot {
+        LayerSlot {
+            state,
+            writer_rate_hz: rates[0],
+            read_rate_hz: rates[1],
+            latency_ms: rates[2],
+            seq,
+            fault_frame,
+            range: None,
+            responses: std::sync::Arc::new(responses.to_vec()),
+        }
+    }
+
     #[test]
-    fn update_carries_states_changed_responses_and_synthetic_overlays_where_documented() {
+    fn update_carries_states_ranges_changed_responses_and_synthetic_overlays_where_documented() {
         let overlays = Overlays {
             arrows: vec![Arrow { from: [0.1, 0.2], to: [0.3, -0.4] }],
             markers: vec![
@@ -202,25 +264,13 @@ mod tests {
                 Marker { at: [-1.0, 2.0], radius: 0.05, pressure: 7.5 },
             ],
         };
-        let slot = |state, writer_rate_hz, read_rate_hz, latency_ms, seq, fault_frame, responses: &[u16]| LayerSlot {
-            state,
-            writer_rate_hz,
-            read_rate_hz,
-            latency_ms,
-            seq,
-            fault_frame,
-            responses: std::sync::Arc::new(responses.to_vec()),
-        };
-        let slots = [
-            slot(WriterState::Running, 41.5, 40.0, 0.25, 77, false, &[10, 20, 30]),
-            slot(WriterState::Faulted, 0.0, 0.0, 0.0, 5, true, &[9, 9]),
-            slot(WriterState::Gone, 0.0, 0.0, 0.0, 0, false, &[65535, 1]),
-        ];
-        let [first, second, third] = slots;
+        let mut running = slot(Some(WriterState::Running), [41.5, 40.0, 0.25], 77, false, &[10, 20, 30]);
+        running.range = Some(ResponseRange { resting: 15, highest: 255 });
         let layers = [
-            LayerUpdate { slot: first, with_responses: true },
-            LayerUpdate { slot: second, with_responses: false },
-            LayerUpdate { slot: third, with_responses: true },
+            LayerUpdate { slot: running, with_responses: true },
+            LayerUpdate { slot: slot(Some(WriterState::Faulted), [0.0; 3], 5, true, &[9, 9]), with_responses: false },
+            LayerUpdate { slot: slot(Some(WriterState::Gone), [0.0; 3], 0, false, &[65535, 1]), with_responses: true },
+            LayerUpdate { slot: slot(None, [0.0; 3], 0, false, &[0]), with_responses: false },
         ];
         // What the session sends: the head, then each layer's responses.
         let mut out = vec![0xAA; 3];
@@ -231,17 +281,21 @@ mod tests {
             out.extend_from_slice(responses_le(responses, &mut scratch));
         }
         assert_eq!(update_bytes(head_bytes, &layers), out.len());
-        let overlays_at = UPDATE_HEADER_BYTES + 3 * LAYER_RECORD_BYTES;
+        let overlays_at = UPDATE_HEADER_BYTES + 4 * LAYER_RECORD_BYTES;
         let responses_at = overlays_at + 3 * OVERLAY_RECORD_BYTES;
         assert_eq!(out.len(), responses_at + 2 * 5, "only the responses of changed layers are sent");
-        assert_eq!(&out[..4], &[KIND_UPDATE, 0, 3, 0]);
-        assert_eq!(u32::from_le_bytes(out[4..8].try_into().unwrap()), 9);
+        assert_eq!(&out[..4], &[KIND_UPDATE, 0, 4, 0]);
+        assert_eq!(u32_at(&out, 4), 9);
         assert_eq!((u16_at(&out, 8), u16_at(&out, 10)), (1, 2));
         let record = |i: usize| &out[UPDATE_HEADER_BYTES + i * LAYER_RECORD_BYTES..][..LAYER_RECORD_BYTES];
-        // WriterState::code: 1 running, 3 faulted, 4 gone.
+        // WriterState::code: 1 running, 3 faulted, 4 gone; 0 connecting.
         assert_eq!(&record(0)[..2], &[1, FLAG_RESPONSES]);
         assert_eq!(&record(1)[..2], &[3, FLAG_FAULT_FRAME]);
         assert_eq!(&record(2)[..2], &[4, FLAG_RESPONSES]);
+        assert_eq!(&record(3)[..2], &[STATE_CONNECTING, 0]);
+        assert_eq!(u16_at(record(0), 2), 240, "full colour at the range learnt: 255 - 15");
+        assert_eq!((u16_at(record(0), 24), u16_at(record(0), 26)), (15, 255));
+        assert_eq!((u16_at(record(1), 2), u16_at(record(1), 24), u16_at(record(1), 26)), (0, 0, 0), "no range yet");
         assert_eq!(f32_at(record(0), 4), 41.5);
         assert_eq!(f32_at(record(0), 8), 40.0);
         assert_eq!(f32_at(record(0), 12), 0.25);
@@ -256,23 +310,35 @@ mod tests {
     }
 
     #[test]
-    fn geometry_message_holds_layers_names_positions_and_ids_where_documented() {
+    fn geometry_message_holds_layers_names_labels_positions_ids_and_places_where_documented() {
         let geometry = crate::virtual_geometry("small", 240);
         let out = encode_geometry(&geometry);
-        let u32_at = |offset: usize| u32::from_le_bytes(out[offset..offset + 4].try_into().unwrap());
+        let u32_at = |offset: usize| u32_at(&out, offset);
         assert_eq!(&out[..4], &[KIND_GEOMETRY, PROTOCOL_VERSION, 2, 0]);
         assert_eq!(u32_at(4), 240);
         let [min_x, min_y, max_x, max_y] = [8, 12, 16, 20].map(|offset| f32_at(&out, offset));
         assert!(
             geometry.map.positions.iter().all(|&[x, y]| (min_x..=max_x).contains(&x) && (min_y..=max_y).contains(&y))
         );
-        assert_eq!((u32_at(24), u32_at(28)), (0, 120));
-        assert_eq!((u32_at(36), u32_at(40)), (120, 120));
-        assert_eq!(f32_at(&out, 44), geometry.layers[1].rate_hz as f32);
-        let text_bytes = u32_at(48) as usize;
-        assert_eq!(std::str::from_utf8(&out[52..52 + text_bytes]).unwrap(), "small\nv-0\nv-1");
-        let positions_at = (52 + text_bytes).next_multiple_of(4);
-        assert_eq!(out.len(), positions_at + 240 * 8 + 3 * 240 * 4);
+        let places = labels::places(&geometry);
+        let labels = labels::piece_labels(&geometry);
+        assert!(!labels.is_empty());
+        assert_eq!((u32_at(24) as usize, u32_at(28) as usize), (places.texts.len(), labels.len()));
+        let table = GEOMETRY_HEADER_BYTES;
+        assert_eq!((u32_at(table), u32_at(table + 4)), (0, 120));
+        assert_eq!((u32_at(table + 12), u32_at(table + 16)), (120, 120));
+        assert_eq!(f32_at(&out, table + 20), geometry.layers[1].rate_hz as f32);
+        let text_bytes = u32_at(table + 24) as usize;
+        let text = std::str::from_utf8(&out[table + 28..table + 28 + text_bytes]).unwrap();
+        let lines: Vec<&str> = text.split('\n').collect();
+        assert_eq!(&lines[..5], ["small", "v-0", "v-1", "pressure", "pressure"]);
+        assert_eq!(lines[5..5 + places.texts.len()], places.texts);
+        let label_texts: Vec<&str> = labels.iter().map(|l| l.text.as_str()).collect();
+        assert_eq!(lines[5 + places.texts.len()..], label_texts);
+        let labels_at = (table + 28 + text_bytes).next_multiple_of(4);
+        assert_eq!([0, 4, 8, 12].map(|d| f32_at(&out, labels_at + d)), labels[0].bounds);
+        let positions_at = labels_at + 16 * labels.len();
+        assert_eq!(out.len(), positions_at + 240 * 8 + 4 * 240 * 4);
         let sensor = 157;
         let at = positions_at + 8 * sensor;
         assert_eq!([f32_at(&out, at), f32_at(&out, at + 4)], geometry.map.positions[sensor]);
@@ -282,5 +348,13 @@ mod tests {
             [u32_at(ids_at + 4 * sensor), u32_at(ids_at + 960 + 4 * sensor), u32_at(ids_at + 1920 + 4 * sensor)],
             [expected.uid, expected.module_id, expected.patch_id]
         );
+        let place = u32_at(ids_at + 2880 + 4 * sensor) as usize;
+        let link = &geometry.links[usize::from(geometry.link_of[sensor])];
+        assert_eq!(places.texts[place], format!("link {link}"));
+    }
+
+    #[test]
+    fn the_websocket_path_asks_for_this_version() {
+        assert_eq!(WEBSOCKET_PATH, format!("/ws?protocol={PROTOCOL_VERSION}"));
     }
 }

@@ -14,6 +14,7 @@ use std::time::{Duration, Instant};
 use skinware::{Error, Reader, ReaderOptions, Stop, Ticker, WriterState};
 
 use crate::message::ReadMode;
+use crate::range::{RangeTracker, ResponseRange};
 
 /// How long a blocking read waits before it looks at the writer's state again,
 /// so that a fault or a vanished writer shows within this time.
@@ -25,8 +26,10 @@ const RATE_WINDOW: Duration = Duration::from_millis(500);
 /// shared, not copied.
 #[derive(Clone, Debug)]
 pub struct LayerSlot {
-    /// The writer's state when last looked at.
-    pub state: WriterState,
+    /// The writer's state when last looked at; `None` while connecting,
+    /// before this reader first looked at the layer (its channel does not
+    /// exist yet, or the reader has just started): not known, so not gone.
+    pub state: Option<WriterState>,
     /// Frames the writer published per second over the last window.
     pub writer_rate_hz: f32,
     /// Fresh frames this reader obtained per second over the last window.
@@ -37,6 +40,9 @@ pub struct LayerSlot {
     pub seq: u64,
     /// Whether that frame carries the fault status.
     pub fault_frame: bool,
+    /// What the layer's responses spanned so far (its colour range);
+    /// `None` before its first frame.
+    pub range: Option<ResponseRange>,
     /// Its responses, shared with the browsers' sessions that are sending
     /// them, so that each sends them straight from here: the layer's reader
     /// writes in place when no session holds them, and into a new buffer
@@ -86,13 +92,15 @@ fn lock(shared: &Shared) -> MutexGuard<'_, Board> {
     shared.board.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
-/// One layer to read: its channel name and its sensor count.
+/// One layer to read: its channel name, its sensor count and type.
 #[derive(Clone, Debug)]
 pub struct LayerToRead {
     /// Channel name.
     pub name: String,
     /// Sensors, the length of its frames.
     pub sensors: usize,
+    /// Its sensor type (its layers share a colour range).
+    pub sensor_type: String,
 }
 
 impl LayerToRead {
@@ -101,7 +109,11 @@ impl LayerToRead {
         geometry
             .layers
             .iter()
-            .map(|layer| LayerToRead { name: layer.name.clone(), sensors: layer.sensors.len() })
+            .map(|layer| LayerToRead {
+                name: layer.name.clone(),
+                sensors: layer.sensors.len(),
+                sensor_type: layer.sensor_type.clone(),
+            })
             .collect()
     }
 }
@@ -142,7 +154,16 @@ impl Samplers {
         if let Some(sampler) = shared {
             return Ok(sampler);
         }
-        let sampler = Arc::new(Sampler::start(&self.skin, self.dir.clone(), layers, mode)?);
+        // The colour ranges another mode's readers learnt of the same
+        // layers (the browser's previous mode, which it still holds), so
+        // that a change of mode keeps the scale.
+        let learnt = running
+            .iter()
+            .filter(|entry| entry.layers == key)
+            .find_map(|entry| entry.sampler.upgrade())
+            .map(|other| other.ranges())
+            .unwrap_or_default();
+        let sampler = Arc::new(Sampler::start(&self.skin, self.dir.clone(), layers, mode, &learnt)?);
         running.push(RunningSampler { mode, layers: key, sampler: Arc::downgrade(&sampler) });
         Ok(sampler)
     }
@@ -165,16 +186,28 @@ pub struct Sampler {
 
 impl Sampler {
     /// Starts one reader thread per layer of `skin`, reading in `mode`.
-    pub fn start(skin: &str, dir: Option<PathBuf>, layers: &[LayerToRead], mode: ReadMode) -> std::io::Result<Sampler> {
+    /// Every layer is connecting (state `None`) until its reader first
+    /// looked at it: a layer not yet read is not known to be gone. Its
+    /// colour range starts from `learnt` (by layer, as another sampler's
+    /// [`Sampler::ranges`]; missing ones from nothing).
+    pub fn start(
+        skin: &str,
+        dir: Option<PathBuf>,
+        layers: &[LayerToRead],
+        mode: ReadMode,
+        learnt: &[Option<ResponseRange>],
+    ) -> std::io::Result<Sampler> {
         let slots = layers
             .iter()
-            .map(|layer| LayerSlot {
-                state: WriterState::Gone,
+            .enumerate()
+            .map(|(index, layer)| LayerSlot {
+                state: None,
                 writer_rate_hz: 0.0,
                 read_rate_hz: 0.0,
                 latency_ms: 0.0,
                 seq: 0,
                 fault_frame: false,
+                range: learnt.get(index).copied().flatten(),
                 responses: Arc::new(vec![0; layer.sensors]),
             })
             .collect();
@@ -195,6 +228,7 @@ impl Sampler {
                 mode,
                 shared: shared.clone(),
                 stop: stop.clone(),
+                range: RangeTracker::starting_from(learnt.get(index).copied().flatten()),
             };
             let thread = std::thread::Builder::new().name(format!("view-{}", layer.name)).spawn(move || job.run())?;
             sampler.threads.push(thread);
@@ -212,6 +246,11 @@ impl Sampler {
             .wait_timeout_while(board, timeout, |board| board.version == seen)
             .unwrap_or_else(|poisoned| poisoned.into_inner());
         (board.version != seen).then(|| take(&board))
+    }
+
+    /// Each layer's colour range as learnt so far, in layer order.
+    pub fn ranges(&self) -> Vec<Option<ResponseRange>> {
+        lock(&self.shared).layers.iter().map(|slot| slot.range).collect()
     }
 
     /// On-request mode: asks every layer's reader for one frame (which every
@@ -247,6 +286,8 @@ struct LayerJob {
     mode: ReadMode,
     shared: Arc<Shared>,
     stop: Stop,
+    /// The layer's colour range, from the frames this thread read.
+    range: RangeTracker,
 }
 
 /// Rate measurement over [`RATE_WINDOW`].
@@ -264,7 +305,7 @@ impl LayerJob {
         Some(reader)
     }
 
-    fn run(self) {
+    fn run(mut self) {
         // The channel may not exist yet (its driver is starting) or any more.
         let mut reader = loop {
             if let Some(reader) = self.open() {
@@ -285,6 +326,10 @@ impl LayerJob {
         let mut asked_kernel = Instant::now();
         // Whether the board shows this layer's writer gone.
         let mut shown_gone = false;
+        // The sequence number of the frame on the board (only this thread writes it).
+        let mut last_seq = 0;
+        // When the resting level is next looked at (a median of the frame).
+        let mut next_median = Instant::now();
         while !self.stop.is_stopped() {
             let result = match (self.mode, &mut ticker) {
                 (ReadMode::Periodic { .. }, Some(ticker)) => reader.next_periodic(ticker),
@@ -304,19 +349,7 @@ impl LayerJob {
                     if fresh_frame {
                         window.reads += 1;
                     }
-                    let mut board = lock(&self.shared);
-                    let slot = &mut board.layers[self.index];
-                    if slot.seq != frame.seq() {
-                        slot.store_responses(frame.responses());
-                        slot.seq = frame.seq();
-                        slot.fault_frame = frame.status().is_fault();
-                        slot.latency_ms = frame.published_ns().saturating_sub(frame.acquired_ns()) as f32 / 1e6;
-                        board.version += 1;
-                        // Outside the lock, so that the woken sessions do
-                        // not wait for it (nor the other layers' readers).
-                        drop(board);
-                        self.shared.changed.notify_all();
-                    }
+                    self.store(&frame, &mut last_seq, &mut next_median);
                 }
                 Err(Error::Stopped { .. }) => return,
                 // A gone writer may have a successor under the same name, which the reader follows: keep waiting.
@@ -337,6 +370,33 @@ impl LayerJob {
             }
             self.refresh_state(&mut reader, &mut window, trust_stored, &mut shown_gone);
         }
+    }
+
+    /// Puts `frame` on the board, if it is not the one there already,
+    /// with the layer's colour range (computed before the board is locked:
+    /// the sessions and the other layers' readers do not wait for it).
+    fn store(&mut self, frame: &skinware::Frame<'_>, last_seq: &mut u64, next_median: &mut Instant) {
+        if frame.seq() == *last_seq {
+            return;
+        }
+        *last_seq = frame.seq();
+        let with_median = Instant::now() >= *next_median;
+        if with_median {
+            *next_median = Instant::now() + RATE_WINDOW;
+        }
+        self.range.observe(frame.responses(), with_median);
+        let mut board = lock(&self.shared);
+        let slot = &mut board.layers[self.index];
+        slot.store_responses(frame.responses());
+        slot.seq = frame.seq();
+        slot.fault_frame = frame.status().is_fault();
+        slot.latency_ms = frame.published_ns().saturating_sub(frame.acquired_ns()) as f32 / 1e6;
+        slot.range = self.range.range();
+        board.version += 1;
+        // Outside the lock, so that the woken sessions do not wait for it
+        // (nor the other layers' readers).
+        drop(board);
+        self.shared.changed.notify_all();
     }
 
     /// Waits (at most [`STATE_POLL`]) until the browser asked for more frames
@@ -390,8 +450,8 @@ impl LayerJob {
         });
         let mut board = lock(&self.shared);
         let slot = &mut board.layers[self.index];
-        let mut changed = slot.state != state;
-        slot.state = state;
+        let mut changed = slot.state != Some(state);
+        slot.state = Some(state);
         if let Some((writer_rate_hz, read_rate_hz)) = rates {
             changed |= slot.writer_rate_hz != writer_rate_hz || slot.read_rate_hz != read_rate_hz;
             slot.writer_rate_hz = writer_rate_hz;
@@ -415,7 +475,7 @@ mod tests {
     fn browsers_in_one_mode_share_one_sampler() {
         let dir = std::env::temp_dir().join(format!("skin-samplers-{}", std::process::id()));
         let samplers = Samplers::new("nosuchskin", Some(dir));
-        let layers = [LayerToRead { name: "tactile".into(), sensors: 4 }];
+        let layers = [LayerToRead { name: "tactile".into(), sensors: 4, sensor_type: "pressure".into() }];
         let first = samplers.subscribe(&layers, ReadMode::Asap).unwrap();
         let second = samplers.subscribe(&layers, ReadMode::Asap).unwrap();
         assert!(Arc::ptr_eq(&first, &second));
@@ -423,7 +483,7 @@ mod tests {
         assert!(!Arc::ptr_eq(&first, &periodic));
         let other_rate = samplers.subscribe(&layers, ReadMode::Periodic { rate_hz: 20.0 }).unwrap();
         assert!(!Arc::ptr_eq(&periodic, &other_rate));
-        let other_layers = [LayerToRead { name: "tactile".into(), sensors: 8 }];
+        let other_layers = [LayerToRead { name: "tactile".into(), sensors: 8, sensor_type: "pressure".into() }];
         let resized = samplers.subscribe(&other_layers, ReadMode::Asap).unwrap();
         assert!(!Arc::ptr_eq(&first, &resized), "a skin whose layers changed gets new readers");
         assert_eq!(samplers.running(), 4);
@@ -440,12 +500,13 @@ mod tests {
     #[test]
     fn sessions_share_responses_and_keep_what_they_took() {
         let mut slot = LayerSlot {
-            state: WriterState::Running,
+            state: Some(WriterState::Running),
             writer_rate_hz: 0.0,
             read_rate_hz: 0.0,
             latency_ms: 0.0,
             seq: 1,
             fault_frame: false,
+            range: None,
             responses: Arc::new(vec![0; 4]),
         };
         slot.store_responses(&[1, 2, 3, 4]);
@@ -461,5 +522,75 @@ mod tests {
         slot.store_responses(&[7, 8, 9, 10, 11]);
         assert_eq!(Arc::as_ptr(&slot.responses), buffer, "written in place when no session holds it");
         assert_eq!(*slot.responses, [7, 8, 9, 10], "a longer frame is cut to the layer's sensors");
+    }
+
+    /// The board as it is now.
+    fn board_now<T>(sampler: &Sampler, look: impl FnOnce(&Board) -> T) -> T {
+        sampler.take_newer(u64::MAX, Duration::ZERO, look).unwrap()
+    }
+
+    /// Waits (up to a minute: a loaded machine) until the board satisfies `done`.
+    fn board_until(sampler: &Sampler, what: &str, done: impl Fn(&Board) -> bool) {
+        let deadline = Instant::now() + Duration::from_secs(60);
+        while !board_now(sampler, &done) {
+            assert!(Instant::now() < deadline, "the board never showed {what}");
+            sampler.take_newer(board_now(sampler, |b| b.version), Duration::from_millis(50), |_| ());
+        }
+    }
+
+    /// A layer the sampler has not read yet is connecting, not gone: while
+    /// its channel does not exist, however long; then running with the
+    /// frame and its colour range; gone once its writer is.
+    #[test]
+    fn a_layer_is_connecting_until_read_then_running_then_gone() {
+        let dir = std::env::temp_dir().join(format!("skin-sampler-connecting-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut builder = skinware::TopologyBuilder::new("tactile", "pressure", 100.0);
+        builder.patch(1).module(1, 1..=4);
+        let topology = builder.build().unwrap();
+        let layers = [LayerToRead { name: "tactile".into(), sensors: 4, sensor_type: "pressure".into() }];
+        let sampler = Sampler::start("connecting", Some(dir.clone()), &layers, ReadMode::Asap, &[]).unwrap();
+        assert_eq!(board_now(&sampler, |b| b.layers[0].state), None, "connecting from the start");
+        // Its reader looks for the channel every 250 ms: whatever it found
+        // meanwhile, the layer is still connecting.
+        std::thread::sleep(Duration::from_millis(600));
+        assert_eq!(board_now(&sampler, |b| (b.layers[0].state, b.layers[0].seq)), (None, 0));
+
+        let options = skinware::WriterOptions { dir: Some(dir.clone()), ..skinware::WriterOptions::default() };
+        let mut writer =
+            skinware::Writer::create("connecting", "tactile", topology.frame_bytes(), &topology.encode(), &options)
+                .unwrap();
+        let responses: Vec<u8> = [15u16, 15, 255, 14].iter().flat_map(|r| r.to_ne_bytes()).collect();
+        writer.publish_bytes(&responses, skinware::FrameStatus::default()).unwrap();
+        board_until(&sampler, "the layer running with its frame", |b| {
+            b.layers[0].state == Some(WriterState::Running) && b.layers[0].seq == 1
+        });
+        let (responses, range) = board_now(&sampler, |b| (b.layers[0].responses.clone(), b.layers[0].range));
+        assert_eq!(*responses, [15, 15, 255, 14]);
+        assert_eq!(range, Some(ResponseRange { resting: 15, highest: 255 }), "resting: the median");
+        assert_eq!(sampler.ranges(), [range]);
+
+        drop(writer);
+        board_until(&sampler, "the layer gone", |b| b.layers[0].state == Some(WriterState::Gone));
+        drop(sampler);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// A browser that changes mode gets new readers, which keep the colour
+    /// ranges the old ones learnt.
+    #[test]
+    fn a_new_mode_keeps_the_ranges_learnt() {
+        let dir = std::env::temp_dir().join(format!("skin-sampler-ranges-{}", std::process::id()));
+        let samplers = Samplers::new("nosuchskin", Some(dir));
+        let layers = [
+            LayerToRead { name: "a".into(), sensors: 2, sensor_type: "pressure".into() },
+            LayerToRead { name: "b".into(), sensors: 2, sensor_type: "pressure".into() },
+        ];
+        let asap = samplers.subscribe(&layers, ReadMode::Asap).unwrap();
+        let learnt = ResponseRange { resting: 15, highest: 200 };
+        lock(&asap.shared).layers[1].range = Some(learnt);
+        let request = samplers.subscribe(&layers, ReadMode::Request).unwrap();
+        assert_eq!(request.ranges(), [None, Some(learnt)]);
+        assert_eq!(board_now(&request, |b| b.layers[1].state), None, "its own state is not known yet");
     }
 }

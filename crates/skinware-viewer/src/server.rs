@@ -205,6 +205,25 @@ fn same_origin(request: &Request) -> bool {
     }
 }
 
+/// Why a WebSocket asked for with `query` cannot be served, if it cannot:
+/// the page speaks another protocol version than this server (a page
+/// loaded before an upgrade, which asks for none or for its own in
+/// `?protocol=N`). The text is what the page shows; every version of the
+/// page shows an `{"error": ...}` text message.
+fn refusal_of_version(query: &str) -> Option<String> {
+    let asked = query.split('&').find_map(|pair| pair.strip_prefix("protocol="));
+    let version = crate::protocol::PROTOCOL_VERSION;
+    match asked {
+        Some(asked) if asked == version.to_string() => None,
+        Some(asked) => Some(format!(
+            "this page speaks the viewer's protocol {asked}, the server speaks {version}: reload the page (Ctrl-R) to get its new version"
+        )),
+        None => Some(format!(
+            "this page is from an older viewer (protocol 1), the server speaks protocol {version}: reload the page (Ctrl-R) to get its new version"
+        )),
+    }
+}
+
 fn handle_connection(mut stream: TcpStream, site: &Site) -> Result<()> {
     stream.set_read_timeout(Some(Duration::from_secs(10)))?;
     stream.set_write_timeout(Some(Duration::from_secs(10)))?;
@@ -213,7 +232,7 @@ fn handle_connection(mut stream: TcpStream, site: &Site) -> Result<()> {
     if request.method != "GET" {
         return respond(&mut stream, "405 Method Not Allowed", "text/plain", b"only GET\n");
     }
-    let path = request.path.split('?').next().unwrap_or("/");
+    let (path, query) = request.path.split_once('?').unwrap_or((request.path.as_str(), ""));
     match path {
         "/" | "/index.html" => respond(&mut stream, "200 OK", "text/html; charset=utf-8", PAGE_HTML.as_bytes()),
         "/view.js" => respond(&mut stream, "200 OK", "text/javascript; charset=utf-8", PAGE_JS.as_bytes()),
@@ -248,14 +267,38 @@ fn handle_connection(mut stream: TcpStream, site: &Site) -> Result<()> {
                 .max_message_size(Some(MAX_INCOMING_BYTES))
                 .max_frame_size(Some(MAX_INCOMING_BYTES))
                 .read_buffer_size(BROWSER_READ_BYTES);
-            let socket = WebSocket::from_partially_read(
+            let mut socket = WebSocket::from_partially_read(
                 session::BrowserStream::new(stream),
                 leftover,
                 Role::Server,
                 Some(config),
             );
-            session::run(socket, site)
+            match refusal_of_version(query) {
+                None => session::run(socket, site),
+                Some(text) => {
+                    // What a page of another version shows in place of the map.
+                    socket.send(tungstenite::Message::text(serde_json::json!({ "error": text }).to_string()))?;
+                    let _ = socket.close(None);
+                    let _ = socket.flush();
+                    Ok(())
+                }
+            }
         }
         _ => respond(&mut stream, "404 Not Found", "text/plain", b"not found\n"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pages_of_another_protocol_version_are_told_to_reload() {
+        assert_eq!(refusal_of_version("protocol=2"), None);
+        assert_eq!(crate::protocol::WEBSOCKET_PATH.split_once('?').map(|(_, q)| refusal_of_version(q)), Some(None));
+        let old_page = refusal_of_version("").unwrap();
+        assert!(old_page.contains("older viewer") && old_page.contains("reload the page"), "{old_page}");
+        let other = refusal_of_version("x=1&protocol=3").unwrap();
+        assert!(other.contains("protocol 3, the server speaks 2") && other.contains("reload"), "{other}");
     }
 }

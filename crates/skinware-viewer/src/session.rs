@@ -19,8 +19,9 @@ use skinware_geometry::SkinGeometry;
 use tungstenite::{Message, WebSocket};
 
 use crate::message::{self, ClientMessage, ReadMode};
-use crate::overlays::{NO_OVERLAYS, SharedOverlays};
+use crate::overlays::{HeldOverlays, SharedOverlays};
 use crate::protocol::{self, LayerUpdate};
+use crate::range::{self, ResponseRange};
 use crate::sampler::{LayerToRead, Sampler, Samplers};
 
 /// Updates the server may send ahead of the browser's acknowledgements.
@@ -373,6 +374,13 @@ struct Session<'a> {
     scratch: Vec<Vec<u8>>,
     /// The read timeout the socket has now, to set it only when it changes.
     poll: Option<Duration>,
+    /// The overlays its updates carry, polled with new frames only.
+    overlays: HeldOverlays,
+    /// Each layer's sensor type, as an index: layers of one type share a colour range.
+    type_of: Vec<usize>,
+    /// The layers' colour ranges in the update being sent, shared by type,
+    /// and the types' ranges (kept between updates).
+    ranges: (Vec<Option<ResponseRange>>, Vec<Option<ResponseRange>>),
     /// When its next update is due.
     pacing: Pacing,
     /// A wait for the browser just ended with a message: the update it
@@ -397,6 +405,9 @@ impl<'a> Session<'a> {
             head: Vec::new(),
             scratch: vec![Vec::new(); layers.len()],
             poll: None,
+            overlays: HeldOverlays::default(),
+            type_of: types_of(&layers),
+            ranges: (Vec::with_capacity(layers.len()), Vec::new()),
             pacing: Pacing::default(),
             just_spoke: false,
             layers,
@@ -475,8 +486,6 @@ impl<'a> Session<'a> {
     /// Sends the newest frames, if anything changed since the last update
     /// (waiting up to [`IDLE_POLL`] for a change). Breaks when the browser left.
     fn send_update(&mut self) -> Result<ControlFlow<()>> {
-        // Outside the board's lock: it may search the segment directory.
-        let newest_overlays = self.site.overlays.poll();
         let (update, sent_seq) = (&mut self.update, &mut self.sent_seq);
         // Under the board's lock only long enough to share each layer's
         // responses: the encoding and the write happen after.
@@ -492,9 +501,14 @@ impl<'a> Session<'a> {
         let Some(version) = taken else {
             return Ok(ControlFlow::Continue(()));
         };
+        self.share_ranges_by_type();
         self.pacing.sent(Instant::now());
         self.seen_version = version;
-        let overlays = newest_overlays.as_deref().unwrap_or(&NO_OVERLAYS);
+        // After the board's lock: a poll may search the segment directory.
+        let fresh_frames = self.update.iter().any(|layer| layer.with_responses);
+        let any_running = self.update.iter().any(|layer| layer.slot.state == Some(skinware::WriterState::Running));
+        let shared = &self.site.overlays;
+        let overlays = self.overlays.for_update(fresh_frames, any_running, || shared.poll());
         protocol::encode_update_head(&mut self.head, self.updates_sent, self.mode, &self.update, overlays);
         self.updates_sent = self.updates_sent.wrapping_add(1);
         self.credit -= 1;
@@ -515,6 +529,35 @@ impl<'a> Session<'a> {
             Ok(()) => Ok(ControlFlow::Continue(())),
             Err(e) if is_closed(&e) => Ok(ControlFlow::Break(())),
             Err(e) => Err(e.into()),
+        }
+    }
+}
+
+/// Each layer's sensor type as an index (the first layer's type is 0, the
+/// next other type 1, ...).
+fn types_of(layers: &[LayerToRead]) -> Vec<usize> {
+    let mut types: Vec<&str> = Vec::new();
+    layers
+        .iter()
+        .map(|layer| {
+            types.iter().position(|&t| t == layer.sensor_type).unwrap_or_else(|| {
+                types.push(&layer.sensor_type);
+                types.len() - 1
+            })
+        })
+        .collect()
+}
+
+impl Session<'_> {
+    /// Gives each layer of the update being sent the colour range of its
+    /// sensor type ([`range::share_by_type`]).
+    fn share_ranges_by_type(&mut self) {
+        let (ranges, scratch) = &mut self.ranges;
+        ranges.clear();
+        ranges.extend(self.update.iter().map(|layer| layer.slot.range));
+        range::share_by_type(ranges, &self.type_of, scratch);
+        for (layer, range) in self.update.iter_mut().zip(ranges.iter()) {
+            layer.slot.range = *range;
         }
     }
 }

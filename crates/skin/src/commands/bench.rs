@@ -98,7 +98,7 @@ pub struct KilohertzArgs {
     #[arg(long)]
     reader_wake: Option<Wake>,
     /// Bytes of the floor server's message, 1 to 16 MiB, to see what an
-    /// update's size costs a browser (default: the viewer's update, 61,832
+    /// update's size costs a browser (default: the viewer's update, 61,872
     /// bytes; the viewer part only).
     #[arg(long, value_parser = kilohertz::floor::parse_update_bytes)]
     floor_bytes: Option<usize>,

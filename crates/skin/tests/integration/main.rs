@@ -10,8 +10,8 @@
 //! - [`services_e2e`]: services, regions and geometry through the CLI;
 //! - [`record_e2e`]: `skin record`, `replay`, `info` and `--recover` on the
 //!   paper's skin, with Python's `mcap` as the independent reader;
-//! - [`browser`]: `skin demo` in headless Chromium (skipped without it,
-//!   except under `CI=true`);
+//! - [`browser`]: `skin demo` and `skin view` of the iCub example in
+//!   headless Chromium (skipped without it, except under `CI=true`);
 //! - [`python`]: the Python bindings' pytest suite, against this build's
 //!   `skin` (skipped without the package, except under `CI=true`).
 //!

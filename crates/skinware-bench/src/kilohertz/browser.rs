@@ -97,8 +97,9 @@ pub(super) fn browse(
     clock: &SeqClock,
 ) -> Result<BrowserFigures> {
     let stream = BrowserStream::new(TcpStream::connect(address)?);
-    let (mut socket, _) = tungstenite::client(format!("ws://{address}/ws"), stream)
-        .map_err(|e| anyhow::anyhow!("WebSocket handshake with the viewer failed: {e}"))?;
+    let (mut socket, _) =
+        tungstenite::client(format!("ws://{address}{}", skinware_viewer::protocol::WEBSOCKET_PATH), stream)
+            .map_err(|e| anyhow::anyhow!("WebSocket handshake with the viewer failed: {e}"))?;
     // Reads that find nothing return at once (writes still block); the
     // waiting is done by `poll`, whose timeout is a high-resolution timer. A
     // socket's read timeout counts in the kernel's ticks, which are in step

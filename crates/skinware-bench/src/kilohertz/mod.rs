@@ -83,7 +83,9 @@ impl Wake {
 }
 
 /// Bytes of the viewer's update of the paper's skin at 1 kHz (every layer's
-/// responses, no overlays): the floor server's message unless told otherwise.
+/// responses, no overlays): the floor server's message unless told
+/// otherwise. 61,872 since the viewer's protocol 2 (61,832 before: its
+/// layer records grew from 24 to 32 bytes).
 const UPDATE_BYTES: usize = skinware_viewer::protocol::UPDATE_HEADER_BYTES
     + LAYERS * skinware_viewer::protocol::LAYER_RECORD_BYTES
     + 2 * TAXELS;

@@ -127,7 +127,7 @@ pub(super) struct KilohertzReport {
     /// The floor server with 1 and 10 browsers, in the same rounds.
     pub(super) floor: Vec<FloorRun>,
     /// Bytes of the floor server's message: by default the viewer's update,
-    /// 61,832 (`--floor-bytes`); with `floor_reads_skin`, the skin's own
+    /// 61,872 (`--floor-bytes`); with `floor_reads_skin`, the skin's own
     /// update, which is that size on this skin.
     pub(super) floor_bytes: usize,
     /// Whether the floor server read the skin's layers with the viewer's

@@ -102,8 +102,9 @@ fn browse(
     use tungstenite::Message;
     let stream = TcpStream::connect(address).with_context(|| format!("cannot connect to the viewer at {address}"))?;
     stream.set_read_timeout(Some(Duration::from_millis(16)))?;
-    let (mut socket, _) = tungstenite::client(format!("ws://{address}/ws"), stream)
-        .map_err(|e| anyhow::anyhow!("WebSocket handshake with the viewer failed: {e}"))?;
+    let (mut socket, _) =
+        tungstenite::client(format!("ws://{address}{}", skinware_viewer::protocol::WEBSOCKET_PATH), stream)
+            .map_err(|e| anyhow::anyhow!("WebSocket handshake with the viewer failed: {e}"))?;
     let mut unacked = 0u32;
     let mut last_update: Option<Instant> = None;
     let mut next_ack = Instant::now();

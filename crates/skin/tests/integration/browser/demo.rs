@@ -1,26 +1,22 @@
-//! The viewer in a real browser: `skin demo` (the paper's 30,848-sensor skin)
-//! looked at by headless Chromium, driven through chromedriver with the W3C
-//! WebDriver protocol. It checks that the heatmap is drawn and moves, that
-//! hovering names a taxel, that a pulled cable shows as faulted and then as
-//! recovered while the other layers keep updating, that the three reader modes
-//! work, that the page keeps up (frame rate, lag behind the writers), and that
-//! Ctrl-C leaves nothing behind. It saves screenshots in `target/browser/`.
-//!
-//! Needs `chromium` and `chromedriver` (Debian: `apt-get install chromium
-//! chromium-driver`). Without them it is skipped, except under `CI=true`.
+//! `skin demo` (the paper's 30,848-sensor skin) in headless Chromium. It
+//! checks that the heatmap is drawn and moves, that its pieces are labelled
+//! with their body parts, that hovering names a taxel and its place, that a
+//! pulled cable shows as faulted and then as recovered while the other
+//! layers keep updating, that the three reader modes work (and the overlays
+//! follow them), that no layer shows a false "gone" when the mode changes,
+//! that the page keeps up (frame rate, lag behind the writers), and that
+//! Ctrl-C leaves nothing behind, with the page saying its server is gone.
 
-#![forbid(unsafe_code)]
-
-use std::io::{BufRead, BufReader, Read, Write};
-use std::net::{TcpListener, TcpStream};
-use std::path::{Path, PathBuf};
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use serde_json::{Value, json};
+use serde_json::json;
 use skinware::{Reader, ReaderOptions};
 
+use super::*;
 use crate::util::{interrupt_and_wait, one_skin_at_a_time};
 
 /// The skin of `examples/demo.toml`.
@@ -29,51 +25,6 @@ const SKIN: &str = "default";
 const PULLED: &str = "virtual-2";
 /// The page must draw at least this many new updates per second.
 const MIN_FPS: f64 = 30.0;
-
-fn find_program(names: &[&str]) -> Option<PathBuf> {
-    let path = std::env::var_os("PATH")?;
-    names.iter().flat_map(|name| std::env::split_paths(&path).map(move |dir| dir.join(name))).find(|p| p.is_file())
-}
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
-}
-
-/// Where screenshots go: `target/browser/`, wherever the target directory is.
-fn artifact_dir() -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).parent().unwrap().join("browser");
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn send_signal(pid: u32, signal: rustix::process::Signal) {
-    if let Some(pid) = rustix::process::Pid::from_raw(pid as i32) {
-        let _ = rustix::process::kill_process(pid, signal);
-    }
-}
-
-fn wait_for_exit(child: &mut Child, within: Duration) -> Option<std::process::ExitStatus> {
-    let started = Instant::now();
-    while started.elapsed() < within {
-        if let Ok(Some(status)) = child.try_wait() {
-            return Some(status);
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    None
-}
-
-/// Polls `probe` until it returns something, or fails the test naming `what`.
-fn wait_for<T>(what: &str, within: Duration, mut probe: impl FnMut() -> Option<T>) -> T {
-    let started = Instant::now();
-    loop {
-        if let Some(value) = probe() {
-            return value;
-        }
-        assert!(started.elapsed() < within, "timed out after {within:?} waiting for {what}");
-        std::thread::sleep(Duration::from_millis(100));
-    }
-}
 
 /// `skin demo` in its own segment directory; stopped (and its directory
 /// removed) when dropped, even if the test failed.
@@ -168,189 +119,13 @@ impl Drop for Demo {
     }
 }
 
-/// One HTTP/1.1 exchange with chromedriver, which answers with a
-/// Content-Length (and may keep the connection open regardless).
-fn http(port: u16, method: &str, path: &str, body: Option<&Value>) -> Result<Value, String> {
-    let address = ([127, 0, 0, 1], port).into();
-    let mut stream = TcpStream::connect_timeout(&address, Duration::from_secs(5)).map_err(|e| e.to_string())?;
-    stream.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
-    let body = body.map(Value::to_string).unwrap_or_default();
-    write!(
-        stream,
-        "{method} {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nConnection: close\r\n\
-         Content-Type: application/json; charset=utf-8\r\nContent-Length: {}\r\n\r\n{body}",
-        body.len()
-    )
-    .map_err(|e| e.to_string())?;
-    let mut reply = Vec::new();
-    let mut chunk = [0u8; 64 * 1024];
-    let (head_end, length) = loop {
-        let n = stream.read(&mut chunk).map_err(|e| format!("{method} {path}: {e}"))?;
-        if n == 0 {
-            return Err(format!("{method} {path}: connection closed after {} bytes", reply.len()));
-        }
-        reply.extend_from_slice(&chunk[..n]);
-        if let Some(at) = reply.windows(4).position(|w| w == b"\r\n\r\n") {
-            let head = String::from_utf8_lossy(&reply[..at]).to_ascii_lowercase();
-            let length = head
-                .lines()
-                .find_map(|l| l.strip_prefix("content-length:"))
-                .and_then(|v| v.trim().parse::<usize>().ok());
-            break (at + 4, length.ok_or_else(|| format!("{method} {path}: no Content-Length in {head:?}"))?);
-        }
-    };
-    while reply.len() < head_end + length {
-        let n = stream.read(&mut chunk).map_err(|e| format!("{method} {path}: {e}"))?;
-        if n == 0 {
-            return Err(format!("{method} {path}: reply cut short"));
-        }
-        reply.extend_from_slice(&chunk[..n]);
-    }
-    let head = String::from_utf8_lossy(&reply[..head_end]);
-    let status: u16 = head.split_whitespace().nth(1).and_then(|s| s.parse().ok()).unwrap_or(0);
-    let body = &reply[head_end..head_end + length];
-    let value: Value = serde_json::from_slice(body)
-        .map_err(|e| format!("{method} {path}: not JSON ({e}): {}", String::from_utf8_lossy(body)))?;
-    if status != 200 {
-        return Err(format!("{method} {path}: HTTP {status}: {}", value["value"]["message"]));
-    }
-    Ok(value["value"].clone())
-}
-
-/// chromedriver and one headless Chromium session; both ended when dropped.
-struct Browser {
-    driver: Child,
-    port: u16,
-    session: String,
-}
-
-impl Browser {
-    fn start(chromedriver: &Path, chromium: &Path) -> Browser {
-        let port = free_port();
-        let driver = Command::new(chromedriver)
-            .arg(format!("--port={port}"))
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("start chromedriver");
-        let mut browser = Browser { driver, port, session: String::new() };
-        wait_for("chromedriver to be ready", Duration::from_secs(60), || {
-            http(port, "GET", "/status", None).ok().filter(|v| v["ready"] == true)
-        });
-        let capabilities = json!({ "capabilities": { "alwaysMatch": {
-            "browserName": "chrome",
-            "goog:chromeOptions": {
-                "binary": chromium,
-                "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-                         "--window-size=1400,900", "--hide-scrollbars"],
-            },
-        }}});
-        let session = http(port, "POST", "/session", Some(&capabilities)).expect("start a Chromium session");
-        browser.session = session["sessionId"].as_str().expect("a session id").to_owned();
-        browser
-    }
-
-    fn command(&self, method: &str, path: &str, body: Option<&Value>) -> Value {
-        let path = format!("/session/{}{path}", self.session);
-        http(self.port, method, &path, body).unwrap_or_else(|e| panic!("WebDriver: {e}"))
-    }
-
-    fn run(&self, script: &str) -> Value {
-        self.command("POST", "/execute/sync", Some(&json!({ "script": script, "args": [] })))
-    }
-
-    fn screenshot(&self, name: &str) -> PathBuf {
-        let encoded = self.command("GET", "/screenshot", None);
-        let png = base64_decode(encoded.as_str().expect("base64 screenshot"));
-        assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n", "the screenshot is not a PNG");
-        let path = artifact_dir().join(name);
-        std::fs::write(&path, &png).unwrap();
-        println!("browser: screenshot {} ({} bytes)", path.display(), png.len());
-        path
-    }
-}
-
-impl Drop for Browser {
-    fn drop(&mut self) {
-        if !self.session.is_empty() {
-            let _ = http(self.port, "DELETE", &format!("/session/{}", self.session), None);
-        }
-        let _ = self.driver.kill();
-        let _ = self.driver.wait();
-    }
-}
-
-fn base64_decode(text: &str) -> Vec<u8> {
-    let value = |c: u8| match c {
-        b'A'..=b'Z' => c - b'A',
-        b'a'..=b'z' => c - b'a' + 26,
-        b'0'..=b'9' => c - b'0' + 52,
-        b'+' => 62,
-        b'/' => 63,
-        _ => panic!("not base64: {c:?}"),
-    };
-    let digits: Vec<u8> = text.bytes().filter(|c| !c.is_ascii_whitespace() && *c != b'=').map(value).collect();
-    let mut out = Vec::with_capacity(digits.len() * 3 / 4);
-    for chunk in digits.chunks(4) {
-        let bits = chunk.iter().enumerate().fold(0u32, |acc, (i, &d)| acc | u32::from(d) << (18 - 6 * i));
-        out.extend_from_slice(&bits.to_be_bytes()[1..chunk.len()]);
-    }
-    out
-}
-
-/// The canvas: how many distinct colours (up to 1000), a hash of its
-/// pixels, and how many pixels are brighter than a resting taxel.
-const CANVAS_PROBE: &str = r#"
-    const c = document.getElementById('map');
-    const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
-    const colours = new Set(); let hash = 0, lit = 0;
-    for (let i = 0; i < d.length; i += 4) {
-      const v = (d[i] << 16) | (d[i + 1] << 8) | d[i + 2];
-      if (colours.size < 1000) colours.add(v);
-      hash = (Math.imul(hash, 31) + v) | 0;
-      if (d[i] + d[i + 1] + d[i + 2] > 150) lit++;
-    }
-    return { width: c.width, height: c.height, distinct: colours.size, hash, lit };
-"#;
-
-const STATS_PROBE: &str = "return Object.assign({ now: performance.now() }, window.skinStats);";
-
-fn layer_state(browser: &Browser, layer: &str) -> (String, String) {
-    let script = format!(
-        "const row = document.querySelector('tr[data-layer=\"{layer}\"]');
-         return row ? [row.dataset.state, row.querySelector('.badge').textContent] : null;"
-    );
-    let value = browser.run(&script);
-    (value[0].as_str().unwrap_or_default().to_owned(), value[1].as_str().unwrap_or_default().to_owned())
-}
-
-fn seqs(browser: &Browser) -> Vec<u64> {
-    browser.run(STATS_PROBE)["seqs"].as_array().unwrap().iter().map(|s| s.as_u64().unwrap()).collect()
-}
-
-fn choose_mode(browser: &Browser, mode: &str, rate_hz: f64) {
-    browser.run(&format!(
-        "document.getElementById('rate').value = '{rate_hz}';
-         document.querySelector('input[name=mode][value={mode}]').checked = true;
-         document.getElementById('mode').dispatchEvent(new Event('change'));"
-    ));
-    wait_for(&format!("the page to report mode {mode}"), Duration::from_secs(10), || {
-        (browser.run(STATS_PROBE)["mode"] == mode).then_some(())
-    });
-}
-
 #[test]
 #[cfg_attr(
     skip_no_chromium,
     ignore = "needs chromium and chromedriver (Debian: apt-get install chromium chromium-driver)"
 )]
 fn demo_in_headless_chromium() {
-    let chromedriver = find_program(&["chromedriver"]);
-    let chromium = find_program(&["chromium", "chromium-browser", "google-chrome"]);
-    let (Some(chromedriver), Some(chromium)) = (chromedriver, chromium) else {
-        let reason = "chromium and chromedriver are not installed (Debian: apt-get install chromium chromium-driver)";
-        assert!(std::env::var("CI").as_deref() != Ok("true"), "CI must run the browser test, but {reason}");
-        println!("SKIPPED: demo_in_headless_chromium: {reason}");
+    let Some((chromedriver, chromium)) = browser_programs("demo_in_headless_chromium") else {
         return;
     };
     let _alone = one_skin_at_a_time();
@@ -359,15 +134,46 @@ fn demo_in_headless_chromium() {
     browser.command("POST", "/url", Some(&json!({ "url": demo.url })));
 
     the_heatmap_is_drawn_and_changes(&browser);
+    the_pieces_are_labelled_with_their_body_parts(&browser);
+    a_page_of_the_old_protocol_is_told_to_reload(&browser);
     hovering_names_a_taxel(&browser);
     the_page_keeps_up(&browser, &demo);
     a_pulled_cable_shows_as_faulted_then_recovered(&browser, &demo);
     reader_modes_work(&browser, &demo);
 
-    // 6. Ctrl-C stops everything and leaves nothing behind.
-    drop(browser);
+    // 7. Ctrl-C stops everything and leaves nothing behind; the page says its server is gone.
     let left = demo.interrupt();
     assert!(left.is_empty(), "left in the segment directory: {left:?}");
+    the_page_says_its_server_is_gone(&browser);
+}
+
+/// A page of protocol 1 (open in a tab from before an upgrade) opened
+/// `/ws` without a version: it gets the text message every page shows,
+/// saying to reload, not bytes it cannot read.
+fn a_page_of_the_old_protocol_is_told_to_reload(browser: &Browser) {
+    let answer = browser.run_async(
+        "const ws = new WebSocket(`ws://${location.host}/ws`);
+         ws.binaryType = 'arraybuffer';
+         ws.onmessage = e => { done(typeof e.data === 'string' ? JSON.parse(e.data).error : 'binary'); ws.close(); };
+         ws.onerror = () => done('error');",
+    );
+    let text = answer.as_str().unwrap_or_default();
+    assert!(text.contains("older viewer") && text.contains("reload the page"), "an old page got {answer}");
+}
+
+/// Step 2: Each map piece is labelled with its body part (the virtual
+/// body's links) and the regions of `examples/demo.toml` that hold it whole.
+fn the_pieces_are_labelled_with_their_body_parts(browser: &Browser) {
+    let mut labels = piece_labels(browser);
+    labels.sort_unstable();
+    let mut expected = vec!["torso".to_owned()];
+    for side in ["left", "right"] {
+        for (part, region) in [("upper_arm", "arm"), ("forearm", "arm"), ("thigh", "leg"), ("shin", "leg")] {
+            expected.push(format!("{side}_{part} · {side}_{region}"));
+        }
+    }
+    expected.sort_unstable();
+    assert_eq!(labels, expected, "the labels over the map's pieces");
 }
 
 /// Step 1: The heatmap is drawn, is not uniform, and changes.
@@ -404,7 +210,9 @@ fn hovering_names_a_taxel(browser: &Browser) {
          return null;",
     );
     let tooltip = tooltip.as_str().expect("hovering the map never showed a tooltip");
-    for part in ["uid ", "module ", "patch ", "layer virtual-", "response "] {
+    for part in
+        ["uid ", "module ", "patch ", "link ", "region", "layer virtual-", "pressure", "response ", "full colour at "]
+    {
         assert!(tooltip.contains(part), "tooltip {tooltip:?} lacks {part:?}");
     }
 }
@@ -438,7 +246,7 @@ fn the_page_keeps_up(browser: &Browser, demo: &Demo) {
     println!("browser: virtual-0 frames behind the writer: {lags:?}");
     assert!(lags.iter().min().unwrap() <= &4, "the page lags behind the writer by {lags:?} frames");
     assert!(lags.iter().max().unwrap() <= &25, "the page fell behind the writer by {lags:?} frames");
-    browser.screenshot("view.png");
+    browser.screenshot("viewer-paper.png");
 }
 
 /// Step 4: A pulled cable shows as faulted while the other layers keep updating; then recovered.
@@ -506,8 +314,12 @@ fn a_killed_driver_shows_gone_then_its_successor_in_periodic_mode(browser: &Brow
     );
 }
 
-/// Step 5: Reader modes: periodic at the chosen rate, on request only when asked.
+/// Step 5: Reader modes: periodic at the chosen rate, on request only when
+/// asked, with the overlays following the requested frames and the colour
+/// range control changing the scale of frames that stay still; and no
+/// layer shown gone by a change of mode (only connecting, at most).
 fn reader_modes_work(browser: &Browser, demo: &Demo) {
+    let before = (0..5).map(|layer| states_seen(browser, layer).len()).collect::<Vec<_>>();
     choose_mode(browser, "periodic", 10.0);
     wait_for("virtual-0 to be read at about 10 Hz", Duration::from_secs(15), || {
         let rate: f64 = browser
@@ -517,7 +329,9 @@ fn reader_modes_work(browser: &Browser, demo: &Demo) {
             .ok()?;
         (7.0..=13.0).contains(&rate).then_some(())
     });
+    no_layer_was_shown_gone_since(browser, &before);
     a_killed_driver_shows_gone_then_its_successor_in_periodic_mode(browser, demo);
+    let before = (0..5).map(|layer| states_seen(browser, layer).len()).collect::<Vec<_>>();
     choose_mode(browser, "request", 10.0);
     std::thread::sleep(Duration::from_millis(500));
     let idle = seqs(browser);
@@ -527,5 +341,81 @@ fn reader_modes_work(browser: &Browser, demo: &Demo) {
     wait_for("every layer to answer the request", Duration::from_secs(10), || {
         seqs(browser).iter().zip(&idle).all(|(new, old)| new > old).then_some(())
     });
+    the_overlays_stay_with_the_requested_frames(browser);
+    the_colour_range_control_changes_the_scale(browser);
     choose_mode(browser, "asap", 10.0);
+    wait_for("every layer running again in asap mode", Duration::from_secs(10), || {
+        (0..5).all(|l| layer_state(browser, &format!("virtual-{l}")).0 == "running").then_some(())
+    });
+    no_layer_was_shown_gone_since(browser, &before);
+}
+
+/// The states the page was told of since `before` (each layer's count of
+/// states seen then) hold no "gone": a layer a new reader has not read yet
+/// is connecting.
+fn no_layer_was_shown_gone_since(browser: &Browser, before: &[usize]) {
+    for (layer, &from) in before.iter().enumerate() {
+        let seen = states_seen(browser, layer);
+        let since = &seen[from.min(seen.len())..];
+        println!("browser: virtual-{layer} states shown across the change of mode: {since:?}");
+        assert!(
+            !since.iter().any(|state| state == "gone"),
+            "virtual-{layer} was shown gone by a change of mode: {since:?}"
+        );
+    }
+}
+
+/// On request, the updates between requests (new rates) keep the contacts
+/// of the frames requested: the heatmap stands still, and so do its circles.
+fn the_overlays_stay_with_the_requested_frames(browser: &Browser) {
+    wait_for("requested frames with contacts on them", Duration::from_secs(30), || {
+        browser.run("document.getElementById('request').click();");
+        std::thread::sleep(Duration::from_millis(400));
+        (browser.run(STATS_PROBE)["markers"].as_u64()? > 0).then_some(())
+    });
+    let held = browser.run(STATS_PROBE);
+    let updates = held["updates"].as_u64().unwrap();
+    wait_for("updates between requests (new rates)", Duration::from_secs(10), || {
+        (browser.run(STATS_PROBE)["updates"].as_u64()? >= updates + 3).then_some(())
+    });
+    let later = browser.run(STATS_PROBE);
+    println!(
+        "browser: on request, {} updates without a request carried the same {} contact(s)",
+        later["updates"].as_u64().unwrap() - updates,
+        later["markers"]
+    );
+    assert_eq!(later["overlayChanges"], held["overlayChanges"], "the contacts moved without a request");
+    assert_eq!(later["markers"], held["markers"]);
+}
+
+/// The colour range typed in for the sensor type changes the colours of
+/// the same (requested, still) frames; "auto" brings back the learnt one.
+fn the_colour_range_control_changes_the_scale(browser: &Browser) {
+    let stats = browser.run(STATS_PROBE);
+    let auto = stats["autoScales"][0].as_u64().unwrap();
+    assert!(auto > 1_000, "the virtual skin's learnt full scale is {auto}");
+    // Full colour at 20 above baseline: the resting skin's noise (±8) lights up.
+    let [lit_auto, lit_narrow, lit_back] = lit_at_scales(browser, "pressure", 20);
+    println!(
+        "browser: lit pixels of the same frames: {lit_auto} at auto ({auto}), {lit_narrow} at 20, {lit_back} back at auto"
+    );
+    assert!(lit_narrow > 3 * lit_auto.max(1_000), "a narrow range must light the noise: {lit_narrow} vs {lit_auto}");
+    assert!(lit_back.abs_diff(lit_auto) * 20 <= lit_auto.max(100), "auto again: {lit_back} vs {lit_auto}");
+    assert_eq!(browser.run(STATS_PROBE)["fullScales"][0], browser.run(STATS_PROBE)["autoScales"][0]);
+}
+
+/// Step 7: Once the demo stopped, the page says its server is gone, shows
+/// no rates and draws no contacts.
+fn the_page_says_its_server_is_gone(browser: &Browser) {
+    let said = wait_for("the page to say its server is gone", Duration::from_secs(10), || {
+        banner(browser).filter(|text| text.contains("server is gone"))
+    });
+    println!("browser: after Ctrl-C the page says: {said}");
+    wait_for("the rates to be cleared", Duration::from_secs(5), || {
+        rate_cells(browser, "virtual-0").iter().all(|cell| cell == "\u{2014}").then_some(())
+    });
+    let stats = browser.run(STATS_PROBE);
+    assert_eq!((stats["markers"].as_u64(), stats["arrows"].as_u64()), (Some(0), Some(0)), "stale contacts");
+    assert_eq!(stats["skinState"], "server gone");
+    assert_eq!(layer_state(browser, "virtual-0").1, "unknown");
 }
