@@ -314,12 +314,46 @@ impl SkinCall {
     }
 }
 
+/// The paths `text` names outside its fenced blocks: every link target
+/// that is not a URL or an anchor (without its `#anchor`), and every
+/// backticked path into the repository (`crates/`, `docs/`, `examples/`,
+/// `fuzz/`, `.ci/`, possibly after `../`) that is not a pattern.
+pub fn named_paths(text: &str) -> Vec<String> {
+    let mut prose = String::new();
+    let mut fenced = false;
+    for line in text.lines() {
+        if line.trim_start().starts_with("```") {
+            fenced = !fenced;
+        } else if !fenced {
+            prose.push_str(line);
+            prose.push('\n');
+        }
+    }
+    let mut paths = Vec::new();
+    for link in prose.split("](").skip(1) {
+        let target = link.split([')', ' ']).next().unwrap_or("");
+        let path = target.split('#').next().unwrap_or("");
+        if !(path.is_empty() || path.contains("://") || path.starts_with("mailto:")) {
+            paths.push(path.to_owned());
+        }
+    }
+    for span in backticked(&prose) {
+        let span = span.trim_end_matches(['.', ',', ':', ';']);
+        let repo_path = ["crates/", "docs/", "examples/", "fuzz/", ".ci/"]
+            .iter()
+            .any(|top| span.trim_start_matches("../").starts_with(top));
+        if repo_path && !span.contains(char::is_whitespace) && !span.contains(['*', '<', '{']) {
+            paths.push(span.to_owned());
+        }
+    }
+    paths
+}
+
 /// The rows of the first Markdown table of `text` whose header's first cell
 /// is `first_header`: each row's cells, trimmed.
 pub fn table_rows(text: &str, first_header: &str) -> Vec<Vec<String>> {
-    let cells = |line: &str| -> Vec<String> {
-        line.trim().trim_matches('|').split('|').map(|c| c.trim().to_owned()).collect()
-    };
+    let cells =
+        |line: &str| -> Vec<String> { line.trim().trim_matches('|').split('|').map(|c| c.trim().to_owned()).collect() };
     let mut lines = text.lines().skip_while(|l| !(l.starts_with('|') && cells(l)[0] == first_header)).skip(2);
     let mut rows = Vec::new();
     for line in lines.by_ref() {

@@ -9,7 +9,8 @@
 //!   ran and skipped, and why.
 //! - `examples/README.md`'s table lists every file and folder of `examples/`
 //!   (and each folder's row names its files), and the README's layout table
-//!   links every `docs/*.md`, with nothing listed that is not there.
+//!   links every `docs/*.md`, with nothing listed that is not there; every
+//!   path the docs name (links, backticked repository paths) exists.
 
 mod markdown;
 mod session;
@@ -18,7 +19,7 @@ use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use markdown::{backticked, parse, table_rows};
+use markdown::{backticked, named_paths, parse, table_rows};
 use session::{Outcome, Session, Verdict};
 
 use crate::util::one_skin_at_a_time;
@@ -62,10 +63,10 @@ fn every_documented_command_runs_or_says_why_not() {
     let mut failures = Vec::new();
     let mut summary = String::new();
     let (mut ran, mut skipped) = (0, 0);
-    for name in docs(&repo) {
+    for (index, name) in docs(&repo).into_iter().enumerate() {
         let parsed = parse(&name, &std::fs::read_to_string(repo.join(&name)).unwrap());
         failures.extend(parsed.problems);
-        let mut session = Session::new(&name, &repo, netns);
+        let mut session = Session::new(&name, index, &repo, netns);
         for command in &parsed.commands {
             session.run(command);
         }
@@ -171,4 +172,22 @@ fn the_readme_layout_links_every_doc() {
     let stale: Vec<&String> = linked.difference(&in_tree).collect();
     assert!(missing.is_empty(), "docs/ has {missing:?}, which the README's `docs/` row does not link");
     assert!(stale.is_empty(), "the README's `docs/` row links {stale:?}, which docs/ does not have");
+}
+
+#[test]
+fn every_path_the_docs_name_exists() {
+    let repo = repo();
+    let mut missing = Vec::new();
+    for name in docs(&repo) {
+        let text = std::fs::read_to_string(repo.join(&name)).unwrap();
+        let here = repo.join(&name).parent().unwrap().to_owned();
+        for path in named_paths(&text) {
+            // Links are relative to the doc; backticked paths, to the
+            // repository (or, after `../`, to the doc).
+            if !here.join(&path).exists() && !repo.join(&path).exists() {
+                missing.push(format!("{name}: {path}"));
+            }
+        }
+    }
+    assert!(missing.is_empty(), "the docs name paths that are not in the tree:\n{}", missing.join("\n"));
 }

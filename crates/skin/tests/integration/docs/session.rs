@@ -113,13 +113,14 @@ pub struct Session {
 }
 
 impl Session {
-    /// A fresh scratch and segment directory for the doc `name`; `netns`:
-    /// run each command in a network namespace of its own.
-    pub fn new(name: &str, repo: &Path, netns: bool) -> Session {
+    /// A fresh scratch and segment directory for the doc `name`, the
+    /// `index`th; `netns`: run each command in a network namespace of its own.
+    pub fn new(name: &str, index: usize, repo: &Path, netns: bool) -> Session {
         let slug: String = name.chars().map(|c| if c.is_ascii_alphanumeric() { c } else { '-' }).collect();
-        let tag = format!("skin-docs-{}-{slug}", std::process::id());
-        let scratch = std::env::temp_dir().join(&tag);
-        let shm = PathBuf::from("/dev/shm").join(&tag);
+        let scratch = std::env::temp_dir().join(format!("skin-docs-{}-{slug}", std::process::id()));
+        // Short: a channel's socket path, bound first under a longer
+        // temporary name, must fit a Unix socket address (107 bytes).
+        let shm = PathBuf::from("/dev/shm").join(format!("skin-docs-{}-{index}", std::process::id()));
         let _ = std::fs::remove_dir_all(&scratch);
         let _ = std::fs::remove_dir_all(&shm);
         std::fs::create_dir_all(scratch.join("bin")).unwrap();
@@ -298,7 +299,10 @@ impl Session {
             return Err(format!("the test's skin: {}{}", describe(status), tail(&process.log)));
         }
         self.background.push(process);
-        Ok(format!("against a skin the test started (`skin run examples/paper-virtual-skin.toml`, up in {:.1} s)", up.as_secs_f64()))
+        Ok(format!(
+            "against a skin the test started (`skin run examples/paper-virtual-skin.toml`, up in {:.1} s)",
+            up.as_secs_f64()
+        ))
     }
 
     /// Stops the background processes (only the skins, if `only_skins`),
@@ -378,7 +382,9 @@ impl Session {
             }
             let layers_up = !known.is_empty()
                 && known.iter().all(|(skin, _)| match SkinGeometry::open_in(&self.shm, skin) {
-                    Ok(geometry) => geometry.layers.iter().all(|l| known.iter().any(|(s, c)| s == skin && *c == l.name)),
+                    Ok(geometry) => {
+                        geometry.layers.iter().all(|l| known.iter().any(|(s, c)| s == skin && *c == l.name))
+                    }
                     Err(_) => true,
                 });
             if layers_up && stable_since.elapsed() >= Duration::from_secs(1) {
