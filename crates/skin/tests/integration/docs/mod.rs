@@ -16,6 +16,7 @@ mod markdown;
 mod session;
 
 use std::collections::BTreeSet;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -61,7 +62,7 @@ fn every_documented_command_runs_or_says_why_not() {
     let repo = repo();
     let netns = private_network_works();
     let mut failures = Vec::new();
-    let mut summary = String::new();
+    let (mut details, mut counts) = (String::new(), String::new());
     let (mut ran, mut skipped) = (0, 0);
     for (index, name) in docs(&repo).into_iter().enumerate() {
         let parsed = parse(&name, &std::fs::read_to_string(repo.join(&name)).unwrap());
@@ -71,27 +72,32 @@ fn every_documented_command_runs_or_says_why_not() {
             session.run(command);
         }
         let outcomes = session.finish();
-        let counts = summarise(&name, &outcomes, &mut summary, &mut failures);
-        ran += counts.0;
-        skipped += counts.1;
+        let (doc_ran, doc_skipped) = summarise(&name, &outcomes, &mut details, &mut failures);
+        counts.push_str(&format!(
+            "docs: {name}: {doc_ran} ran, {doc_skipped} skipped, {} failed\n",
+            outcomes.len() - doc_ran - doc_skipped
+        ));
+        ran += doc_ran;
+        skipped += doc_skipped;
     }
-    println!("{summary}");
-    println!(
-        "docs: {ran} commands ran, {skipped} skipped, {} failed, in {:.0} s ({})",
+    counts.push_str(&format!(
+        "docs: {ran} commands ran, {skipped} skipped, {} problems, in {:.0} s ({})\n",
         failures.len(),
         started.elapsed().as_secs_f64(),
         if netns { "each in a network namespace of its own" } else { "no private network namespace here" }
-    );
+    ));
+    // Every command's line is printed as tests print (shown with
+    // --nocapture or on failure); the counts always, past the capture.
+    println!("{details}");
+    let _ = std::io::stderr().write_all(counts.as_bytes());
     assert!(failures.is_empty(), "the docs do not match the tree:\n{}", failures.join("\n"));
 }
 
-/// Adds a doc's outcomes to `summary` and its failures to `failures`;
-/// gives how many commands ran and how many were skipped.
-fn summarise(name: &str, outcomes: &[Outcome], summary: &mut String, failures: &mut Vec<String>) -> (usize, usize) {
+/// Adds a line per command of a doc to `details` and its failures to
+/// `failures`; gives how many commands ran and how many were skipped.
+fn summarise(name: &str, outcomes: &[Outcome], details: &mut String, failures: &mut Vec<String>) -> (usize, usize) {
     let ran = outcomes.iter().filter(|o| matches!(o.verdict, Verdict::Ran(_))).count();
     let skipped = outcomes.iter().filter(|o| matches!(o.verdict, Verdict::Skipped(_))).count();
-    let failed = outcomes.len() - ran - skipped;
-    summary.push_str(&format!("docs: {name}: {ran} ran, {skipped} skipped, {failed} failed\n"));
     for outcome in outcomes {
         let (word, detail) = match &outcome.verdict {
             Verdict::Ran(detail) => ("ran    ", detail),
@@ -102,7 +108,7 @@ fn summarise(name: &str, outcomes: &[Outcome], summary: &mut String, failures: &
         if matches!(outcome.verdict, Verdict::Failed(_)) {
             failures.push(line.trim_end().to_owned());
         }
-        summary.push_str(&line);
+        details.push_str(&line);
     }
     (ran, skipped)
 }
