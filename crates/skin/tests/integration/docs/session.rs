@@ -512,3 +512,21 @@ fn copy_dir(from: &Path, to: &Path) {
         }
     }
 }
+
+#[test]
+fn a_skipped_command_must_still_parse() {
+    let skipped_command = |shell: &str| DocCommand {
+        line: 1,
+        written: shell.to_owned(),
+        shell: shell.to_owned(),
+        background: false,
+        skip: Some("a full benchmark".to_owned()),
+    };
+    let verdict =
+        skipped(&skipped_command("sudo skin bench table1 --transport ethercat --out DIR"), "a full benchmark");
+    assert!(matches!(verdict, Verdict::Skipped(_)), "a command line that parses is skipped");
+    for stale in ["skin bench table1 --transprot slcan", "skin bench tableone", "SKINWARE_PYTHON=p skin lss"] {
+        let verdict = skipped(&skipped_command(stale), "a full benchmark");
+        assert!(matches!(&verdict, Verdict::Failed(why) if why.contains("does not parse")), "{stale} passed");
+    }
+}
