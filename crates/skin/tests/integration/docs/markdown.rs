@@ -7,7 +7,12 @@
 //!
 //! - `<!-- doc-test: skip — why -->` skips every command of the block;
 //! - ``<!-- doc-test: skip `text` — why -->`` skips the commands of the
-//!   block that contain `text`.
+//!   block that contain `text`;
+//! - `<!-- doc-test: feature bench -->` (or ``feature bench `text` ``, or
+//!   `feature bench,zenoh`): the block's commands (containing `text`) need
+//!   `skin` built with these cargo features; they run where the test is
+//!   built with them, and are skipped, saying so, where it is not. A
+//!   `cargo run ... -p skin --features F --` command says so itself.
 //!
 //! A marker anywhere else, a malformed one, or one whose `text` is in no
 //! command of its block is a problem of the doc: a stale marker must not hide
@@ -28,6 +33,9 @@ pub struct DocCommand {
     pub background: bool,
     /// Why it is not run, from a marker; `None`: it runs.
     pub skip: Option<String>,
+    /// The cargo features of `skin` it needs (a `feature` marker, or the
+    /// `--features` of its `cargo run`).
+    pub features: Vec<String>,
 }
 
 /// A doc's commands, in order, and what is wrong with its markers.
@@ -39,11 +47,19 @@ pub struct ParsedDoc {
     pub problems: Vec<String>,
 }
 
-/// A `skip` marker: for the whole block, or for its commands containing `needle`.
+/// A marker: for the whole block, or for its commands containing `needle`.
 struct Marker {
     line: usize,
     needle: Option<String>,
-    reason: String,
+    kind: MarkerKind,
+}
+
+/// What a marker says of the commands it applies to.
+enum MarkerKind {
+    /// They cannot run here, for this reason.
+    Skip(String),
+    /// They need `skin` built with these cargo features.
+    Features(Vec<String>),
 }
 
 /// Reads the shell blocks of `text` (the doc `name`) and their markers.
@@ -56,7 +72,7 @@ pub fn parse(name: &str, text: &str) -> ParsedDoc {
         let trimmed = lines[at].trim();
         if trimmed.starts_with("<!--") && trimmed.contains("doc-test:") {
             match parse_marker(trimmed) {
-                Ok((needle, reason)) => pending.push(Marker { line: at + 1, needle, reason }),
+                Ok((needle, kind)) => pending.push(Marker { line: at + 1, needle, kind }),
                 Err(why) => doc.problems.push(format!("{name}:{}: {why}", at + 1)),
             }
             at += 1;
@@ -88,12 +104,26 @@ pub fn parse(name: &str, text: &str) -> ParsedDoc {
     doc
 }
 
-/// `<!-- doc-test: skip [`needle`] — reason -->` as (needle, reason).
-fn parse_marker(comment: &str) -> Result<(Option<String>, String), String> {
-    let malformed = || format!("malformed marker {comment:?}: write <!-- doc-test: skip [`text`] — why -->");
+/// `<!-- doc-test: skip [`text`] — reason -->` or `<!-- doc-test: feature
+/// NAME[,NAME] [`text`] -->` as (needle, what it says).
+fn parse_marker(comment: &str) -> Result<(Option<String>, MarkerKind), String> {
+    let malformed = || {
+        format!(
+            "malformed marker {comment:?}: write <!-- doc-test: skip [`text`] — why --> or \
+             <!-- doc-test: feature NAME [`text`] -->"
+        )
+    };
     let body = comment.split_once("doc-test:").map(|(_, b)| b).ok_or_else(malformed)?;
     let body = body.strip_suffix("-->").ok_or_else(malformed)?.trim();
-    let rest = body.strip_prefix("skip").ok_or_else(malformed)?.trim_start();
+    let (word, rest) = body.split_once(char::is_whitespace).ok_or_else(malformed)?;
+    let (features, rest) = match word {
+        "skip" => (None, rest.trim_start()),
+        "feature" => {
+            let (names, rest) = rest.trim_start().split_once(char::is_whitespace).unwrap_or((rest.trim(), ""));
+            (Some(names.split(',').map(str::to_owned).collect::<Vec<_>>()), rest.trim_start())
+        }
+        _ => return Err(malformed()),
+    };
     let (needle, rest) = match rest.strip_prefix('`') {
         Some(quoted) => {
             let (needle, rest) = quoted.split_once('`').ok_or_else(malformed)?;
@@ -101,22 +131,44 @@ fn parse_marker(comment: &str) -> Result<(Option<String>, String), String> {
         }
         None => (None, rest),
     };
-    let reason = ["—", "–", "-", ":"].iter().find_map(|dash| rest.strip_prefix(dash)).ok_or_else(malformed)?.trim();
-    if reason.is_empty() || needle.as_deref() == Some("") {
+    if needle.as_deref() == Some("") {
         return Err(malformed());
     }
-    Ok((needle, reason.to_owned()))
+    if let Some(features) = features {
+        if !rest.is_empty() || features.iter().any(String::is_empty) {
+            return Err(malformed());
+        }
+        return Ok((needle, MarkerKind::Features(features)));
+    }
+    let reason = ["—", "–", "-", ":"].iter().find_map(|dash| rest.strip_prefix(dash)).ok_or_else(malformed)?.trim();
+    if reason.is_empty() {
+        return Err(malformed());
+    }
+    Ok((needle, MarkerKind::Skip(reason.to_owned())))
 }
 
-/// Gives each command the reason of the first marker that applies to it.
+/// Gives each command the reason of the first skip marker that applies to
+/// it, and the features of every feature marker that does.
 fn apply_markers(name: &str, commands: &mut [DocCommand], markers: Vec<Marker>, problems: &mut Vec<String>) {
     for marker in markers {
         let mut used = false;
         for command in commands.iter_mut() {
             let applies = marker.needle.as_deref().is_none_or(|needle| command.written_in_full().contains(needle));
-            if applies {
-                used = true;
-                command.skip.get_or_insert_with(|| marker.reason.clone());
+            if !applies {
+                continue;
+            }
+            used = true;
+            match &marker.kind {
+                MarkerKind::Skip(reason) => {
+                    command.skip.get_or_insert_with(|| reason.clone());
+                }
+                MarkerKind::Features(features) => {
+                    for feature in features {
+                        if !command.features.contains(feature) {
+                            command.features.push(feature.clone());
+                        }
+                    }
+                }
             }
         }
         if !used {
@@ -177,12 +229,12 @@ fn block_commands(body: &[(usize, &str)], console: bool) -> Vec<DocCommand> {
 }
 
 fn command(line: usize, written: String, stripped: &str) -> DocCommand {
-    let mut shell = written_as_skin(stripped.trim());
+    let (mut shell, features) = written_as_skin(stripped.trim());
     let background = shell.ends_with('&') && !shell.ends_with("&&");
     if background {
         shell = shell.trim_end_matches('&').trim_end().to_owned();
     }
-    DocCommand { line, written, shell, background, skip: None }
+    DocCommand { line, written, shell, background, skip: None, features }
 }
 
 /// `text` without its shell comments (a `#` starting a word outside quotes,
@@ -220,15 +272,21 @@ pub fn strip_comments(text: &str) -> (String, bool) {
     (out, quote != Quote::None)
 }
 
-/// The forms the docs write for the built binary, as `skin`.
-pub fn written_as_skin(command: &str) -> String {
+/// The forms the docs write for the built binary, as `skin`, with the
+/// features their `cargo run` asks for.
+pub fn written_as_skin(command: &str) -> (String, Vec<String>) {
     let mut out = command.replace("./target/release/skin", "skin");
+    let mut features = Vec::new();
     let cargo_run = "cargo run --release -p skin";
     while let Some(at) = out.find(cargo_run) {
         let Some(dashes) = out[at..].find(" -- ") else { break };
+        let options: Vec<&str> = out[at + cargo_run.len()..at + dashes].split_whitespace().collect();
+        for pair in options.windows(2).filter(|pair| pair[0] == "--features") {
+            features.extend(pair[1].split(',').map(str::to_owned));
+        }
         out.replace_range(at..at + dashes + " -- ".len(), "skin ");
     }
-    out
+    (out, features)
 }
 
 /// One `skin` invocation inside a command: its arguments after `skin`.
@@ -379,7 +437,8 @@ fn commands_are_read_as_bash_would_and_markers_skip_what_they_name() {
         skin run a.toml &\n\
         ```\n\
         \n\
-        <!-- doc-test: skip `--features zenoh` — needs the zenoh feature -->\n\
+        <!-- doc-test: skip `--stats` — figures each second -->\n\
+        <!-- doc-test: feature bench `bench follow` -->\n\
         \n\
         ```bash\n\
         cargo run --release -p skin --features zenoh -- bridge --stats\n\
@@ -402,11 +461,13 @@ fn commands_are_read_as_bash_would_and_markers_skip_what_they_name() {
     assert_eq!(shells[5], "skin ls --remote robot-pc:7447");
     assert_eq!(shells.len(), 6);
     let lines: Vec<usize> = parsed.commands.iter().map(|c| c.line).collect();
-    assert_eq!(lines, [3, 5, 11, 12, 16, 21]);
+    assert_eq!(lines, [3, 5, 12, 13, 17, 22]);
+    let features: Vec<&[String]> = parsed.commands.iter().map(|c| c.features.as_slice()).collect();
+    assert_eq!(features, [&[][..], &[], &["zenoh".to_owned()], &[], &["bench".to_owned()], &[]]);
     let background: Vec<bool> = parsed.commands.iter().map(|c| c.background).collect();
     assert_eq!(background, [false, true, false, false, false, false]);
     let skips: Vec<Option<&str>> = parsed.commands.iter().map(|c| c.skip.as_deref()).collect();
-    assert_eq!(skips, [None, None, Some("needs the zenoh feature"), None, None, Some("a second host")]);
+    assert_eq!(skips, [None, None, Some("figures each second"), None, None, Some("a second host")]);
     let inner: Vec<Vec<SkinCall>> = parsed.commands.iter().map(|c| skin_calls(&c.shell)).collect();
     assert_eq!(inner[3], [SkinCall { args: vec!["run".into(), "x.toml".into()] }]);
     assert!(inner[3][0].long_running() && inner[3][0].starts_skin() && inner[3][0].waits_until_up());
@@ -419,10 +480,12 @@ fn misplaced_malformed_and_stale_markers_are_problems() {
         <!-- doc-test: skip `absent` — matches nothing -->\n```sh\nskin ls\n```\n\
         <!-- doc-test: skip without a reason -->\n```sh\nskin top\n```\n\
         <!-- doc-test: skip — a rust block is not a shell block -->\n```rust\nfn main() {}\n```\n\
+        <!-- doc-test: feature bench — a feature marker has no reason -->\n```sh\nskin bench can\n```\n\
         <!-- doc-test: skip — at the end -->\n";
     let problems = parse("doc.md", doc).problems;
-    assert_eq!(problems.len(), 5, "{problems:#?}");
-    for (problem, line) in problems.iter().zip(["doc.md:1:", "doc.md:3:", "doc.md:7:", "doc.md:11:", "doc.md:15:"]) {
+    assert_eq!(problems.len(), 6, "{problems:#?}");
+    let lines = ["doc.md:1:", "doc.md:3:", "doc.md:7:", "doc.md:11:", "doc.md:15:", "doc.md:19:"];
+    for (problem, line) in problems.iter().zip(lines) {
         assert!(problem.starts_with(line), "{problem} should be at {line}");
     }
 }

@@ -5,8 +5,10 @@
 //!   its doc ([`session`] says how), unless a marker right before its block
 //!   says why it cannot run here ([`markdown`] says how to write one): a new
 //!   command is tested unless someone writes down why not. Skipped `skin`
-//!   commands are still parsed (`--help` after them). The test prints what it
-//!   ran and skipped, and why.
+//!   commands are still parsed (`--help` after them). Commands that need
+//!   `skin` built with a cargo feature (`bench`, `zenoh`) run where this test
+//!   is built with it, and are skipped, saying so, where it is not. The test
+//!   prints what it ran and skipped, and why.
 //! - `examples/README.md`'s table lists every file and folder of `examples/`
 //!   (and each folder's row names its files), and the README's layout table
 //!   links every `docs/*.md`, with nothing listed that is not there; every

@@ -133,12 +133,28 @@ impl Session {
 
     /// Runs `command` (or records why not), after what it depends on.
     pub fn run(&mut self, command: &DocCommand) {
-        let verdict = match &command.skip {
-            Some(reason) => skipped(command, reason),
-            None => match self.execute(command) {
-                Ok(detail) => Verdict::Ran(detail),
-                Err(failure) => Verdict::Failed(failure),
-            },
+        let mut lacking = Vec::new();
+        for feature in &command.features {
+            match built_with(feature) {
+                Some(true) => {}
+                Some(false) => lacking.push(feature.as_str()),
+                None => lacking.push("?"),
+            }
+        }
+        let verdict = if lacking.contains(&"?") {
+            Verdict::Failed(format!("needs the features {:?}, which skin does not have", command.features))
+        } else if !lacking.is_empty() {
+            // Its `skin` command line cannot even be parsed without them.
+            let why = format!("needs skin built with --features {} (this test was not)", lacking.join(","));
+            Verdict::Skipped(command.skip.as_ref().map_or(why.clone(), |reason| format!("{reason}; {why}")))
+        } else {
+            match &command.skip {
+                Some(reason) => skipped(command, reason),
+                None => match self.execute(command) {
+                    Ok(detail) => Verdict::Ran(detail),
+                    Err(failure) => Verdict::Failed(failure),
+                },
+            }
         };
         self.outcomes.push(Outcome { line: command.line, written: command.written.clone(), verdict });
     }
@@ -444,6 +460,18 @@ fn skipped(command: &DocCommand, reason: &str) -> Verdict {
     Verdict::Skipped(reason.to_owned())
 }
 
+/// Whether this build of `skin` (the test's) has the cargo feature `name`;
+/// `None` for a feature `skin` does not have.
+fn built_with(name: &str) -> Option<bool> {
+    match name {
+        "cli" => Some(true),
+        "bench" => Some(cfg!(feature = "bench")),
+        "zenoh" => Some(cfg!(feature = "zenoh")),
+        "iceoryx2" => Some(cfg!(feature = "iceoryx2")),
+        _ => None,
+    }
+}
+
 /// How long [`Session::run_for_a_while`] let it run before SIGINT.
 fn held_for(calls: &[SkinCall]) -> Duration {
     if calls.iter().any(SkinCall::waits_until_up) { ALIVE_AFTER_UP } else { ALIVE }
@@ -520,13 +548,14 @@ fn a_skipped_command_must_still_parse() {
         written: shell.to_owned(),
         shell: shell.to_owned(),
         background: false,
-        skip: Some("a full benchmark".to_owned()),
+        skip: Some("a second host".to_owned()),
+        features: Vec::new(),
     };
-    let verdict =
-        skipped(&skipped_command("sudo skin bench table1 --transport ethercat --out DIR"), "a full benchmark");
+    let parses = "sudo skin record run.mcap --services --seconds 60 --compression lz4";
+    let verdict = skipped(&skipped_command(parses), "a second host");
     assert!(matches!(verdict, Verdict::Skipped(_)), "a command line that parses is skipped");
-    for stale in ["skin bench table1 --transprot slcan", "skin bench tableone", "SKINWARE_PYTHON=p skin lss"] {
-        let verdict = skipped(&skipped_command(stale), "a full benchmark");
+    for stale in ["skin record run.mcap --compresion lz4", "skin recrod run.mcap", "SKINWARE_SHM_DIR=d skin lss"] {
+        let verdict = skipped(&skipped_command(stale), "a second host");
         assert!(matches!(&verdict, Verdict::Failed(why) if why.contains("does not parse")), "{stale} passed");
     }
 }
