@@ -13,7 +13,9 @@
 //! - [`browser`]: `skin demo` and `skin view` of the iCub example in
 //!   headless Chromium (skipped without it, except under `CI=true`);
 //! - [`python`]: the Python bindings' pytest suite, against this build's
-//!   `skin` (skipped without the package, except under `CI=true`).
+//!   `skin` (skipped without the package, except under `CI=true`);
+//! - [`docs`]: every command of the docs' shell blocks runs (or a marker
+//!   says why it cannot here), and the docs' tables list what is in the tree.
 //!
 //! - [`bridge_e2e`] (feature `zenoh`): `skin bridge` between two network
 //!   namespaces, and a ROS 2 subscriber made of Python's `eclipse-zenoh` and
@@ -26,6 +28,7 @@ mod bridge_e2e;
 mod browser;
 mod can_e2e;
 mod cli_e2e;
+mod docs;
 mod e2e;
 mod ethercat_e2e;
 mod python;
