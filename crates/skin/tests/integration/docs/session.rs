@@ -133,16 +133,12 @@ impl Session {
 
     /// Runs `command` (or records why not), after what it depends on.
     pub fn run(&mut self, command: &DocCommand) {
-        let mut lacking = Vec::new();
-        for feature in &command.features {
-            match built_with(feature) {
-                Some(true) => {}
-                Some(false) => lacking.push(feature.as_str()),
-                None => lacking.push("?"),
-            }
-        }
-        let verdict = if lacking.contains(&"?") {
-            Verdict::Failed(format!("needs the features {:?}, which skin does not have", command.features))
+        let unknown: Vec<&str> =
+            command.features.iter().map(String::as_str).filter(|f| built_with(f).is_none()).collect();
+        let lacking: Vec<&str> =
+            command.features.iter().map(String::as_str).filter(|f| built_with(f) == Some(false)).collect();
+        let verdict = if !unknown.is_empty() {
+            Verdict::Failed(format!("needs the cargo features {unknown:?}, which skin does not have"))
         } else if !lacking.is_empty() {
             // Its `skin` command line cannot even be parsed without them.
             let why = format!("needs skin built with --features {} (this test was not)", lacking.join(","));
