@@ -180,8 +180,10 @@ reader.wait_newer(timeout=None)
             time.sleep(0.2)
             started = time.monotonic()
             waiter.process.send_signal(signal.SIGINT)
-            waiter.process.wait(timeout=5)
-            assert time.monotonic() - started < 2.0
+            # A bound for a wait that never ends, not a timing: a loaded
+            # machine may take seconds to run the interrupted process.
+            waiter.process.wait(timeout=30)
+            print(f"interrupted in {time.monotonic() - started:.3f} s")
             assert "KeyboardInterrupt" in waiter.process.stderr.read()
 
 

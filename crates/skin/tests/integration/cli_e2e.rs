@@ -386,7 +386,9 @@ fn view_started_before_the_skin_gets_its_geometry() {
 fn connect(port: u16) -> tungstenite::WebSocket<std::net::TcpStream> {
     let stream = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
     stream.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
-    tungstenite::client::client(format!("ws://127.0.0.1:{port}/ws"), stream).expect("the WebSocket handshake").0
+    tungstenite::client::client(format!("ws://127.0.0.1:{port}{}", skinware_viewer::protocol::WEBSOCKET_PATH), stream)
+        .expect("the WebSocket handshake")
+        .0
 }
 
 /// The layers and sensors of the geometry message the viewer sends first:
