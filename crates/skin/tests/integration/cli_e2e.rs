@@ -42,7 +42,9 @@ impl Place {
     fn start_skin(&mut self, config: &str) -> usize {
         let path = self.dir.join("config.toml");
         std::fs::write(&path, config).unwrap();
-        self.children.push(self.skin().arg("run").arg(&path).spawn().expect("start skin run"));
+        let log = || crate::util::log_file(&self.dir, "skin-run");
+        self.children
+            .push(self.skin().arg("run").arg(&path).stdout(log()).stderr(log()).spawn().expect("start skin run"));
         self.children.len() - 1
     }
 
@@ -87,6 +89,7 @@ impl Drop for Place {
             let _ = child.kill();
             let _ = child.wait();
         }
+        crate::util::show_logs_if_failing(&self.dir);
         let _ = std::fs::remove_dir_all(&self.dir);
     }
 }
