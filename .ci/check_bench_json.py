@@ -160,7 +160,7 @@ need(khz.get("viewer_cpu_ratio_at_floor", 0) > 0, "kilohertz.json: the viewer's 
 need(all(f.get("process_cpu_percent", 0) >= f.get("cpu_percent", 1) for f in khz.get("floor", []))
      and khz.get("floor_cpu_ratio_10_to_1", 0) > 0 and khz.get("floor_reads_skin") is False,
      "kilohertz.json: the floor server's whole CPU (at least its browser threads'), its 10/1 ratio, and that it read no skin")
-need(khz.get("floor_bytes") == 61832, "kilohertz.json: the floor server's message is the viewer's update (61,832 bytes)")
+need(khz.get("floor_bytes") == 61872, "kilohertz.json: the floor server's message is the viewer's update (61,872 bytes since the viewer's protocol 2)")
 need(all(round(b.get("kb_per_update", 0) * 1000) == khz.get("floor_bytes") for f in khz.get("floor", []) for b in f.get("per_browser", [])),
      "kilohertz.json: every floor browser received messages of floor_bytes")
 
