@@ -182,6 +182,10 @@ mod tests {
     }
 
     #[test]
+    #[cfg_attr(
+        miri,
+        ignore = "arithmetic over tens of thousands of frames: nothing for Miri to check, minutes under it"
+    )]
     fn a_flapping_source_is_said_once_then_summarised_every_window() {
         let mut log = FaultLog::default();
         let said = flapping(&mut log, 1_000 * MS, 30);
@@ -203,6 +207,10 @@ mod tests {
     }
 
     #[test]
+    #[cfg_attr(
+        miri,
+        ignore = "arithmetic over tens of thousands of frames: nothing for Miri to check, minutes under it"
+    )]
     fn a_fault_after_a_quiet_window_is_said_in_full_again() {
         let mut log = FaultLog::default();
         assert_eq!(log.failed(0, true, &"cable pulled"), vec![FaultLine::Failed { error: "cable pulled" }]);
@@ -218,6 +226,10 @@ mod tests {
     }
 
     #[test]
+    #[cfg_attr(
+        miri,
+        ignore = "arithmetic over tens of thousands of frames: nothing for Miri to check, minutes under it"
+    )]
     fn a_lasting_fault_is_summarised_with_its_newest_error() {
         let mut log = FaultLog::default();
         assert_eq!(log.failed(0, true, &"no answer").len(), 1);
