@@ -157,7 +157,8 @@ impl NameLock {
             };
             if !os::try_lock_writer(&file).map_err(|e| os_error("lock", e))? {
                 let pid = NameRecord::read(&file).writer_pid;
-                if held_by_a_fork_of_ours(pid, &path) && os::monotonic_ns() - started < FORK_COPY_WAIT_NS {
+                if held_by_a_fork_of_ours(pid, &path) && os::monotonic_ns().saturating_sub(started) < FORK_COPY_WAIT_NS
+                {
                     std::thread::sleep(std::time::Duration::from_millis(1));
                     continue;
                 }
