@@ -47,9 +47,13 @@
 
 pub mod cdr;
 pub mod clock;
+pub mod cloud;
+pub mod diagnostics;
 pub mod heatmap;
+pub mod markers;
 pub mod messages;
 pub mod schema;
+pub mod standard;
 pub mod tactile;
 pub mod topics;
 pub mod type_hash;

@@ -4,6 +4,8 @@
 //! without any package of ours.
 
 use crate::messages::{GAP, IMAGE, LAYER_STATS, SKIN_FRAME};
+use crate::standard::{DIAGNOSTIC_ARRAY, MARKER_ARRAY, POINT_CLOUD2, TF_MESSAGE};
+use crate::type_hash::{MessageType, message_type};
 
 /// The separator between a `.msg` text and the definitions it depends on.
 const SEPARATOR: &str = "================================================================================";
@@ -12,8 +14,12 @@ const SEPARATOR: &str = "=======================================================
 const TIME_DEPENDENCY: &str = "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n";
 
 /// The `.msg` text of `name` (one of [`SKIN_FRAME`], [`GAP`], [`LAYER_STATS`],
-/// [`IMAGE`]) with its dependencies, or `None` for another type.
+/// [`IMAGE`], [`POINT_CLOUD2`], [`MARKER_ARRAY`], [`DIAGNOSTIC_ARRAY`],
+/// [`TF_MESSAGE`]) with its dependencies, or `None` for another type.
 pub fn schema_text(name: &str) -> Option<String> {
+    if [POINT_CLOUD2, MARKER_ARRAY, DIAGNOSTIC_ARRAY, TF_MESSAGE].contains(&name) {
+        return standard_schema_text(message_type(name)?);
+    }
     let own = match name {
         SKIN_FRAME => concat!(
             "# One frame of a skinware channel (a layer or a service), as the recorder read it.\n",
@@ -58,6 +64,28 @@ pub fn schema_text(name: &str) -> Option<String> {
     Some(format!("{own}{SEPARATOR}\n{TIME_DEPENDENCY}"))
 }
 
+/// A standard type's `.msg` text (fields only: constants do not change the
+/// encoding), then every type it uses, each once, in the order first met.
+fn standard_schema_text(root: &MessageType) -> Option<String> {
+    let fields = |t: &MessageType| -> String {
+        t.fields.iter().map(|(name, ty)| format!("{} {name}\n", ty.msg_text())).collect()
+    };
+    let mut text = fields(root);
+    let mut seen: Vec<&str> = Vec::new();
+    let mut queue: Vec<&str> = root.fields.iter().filter_map(|(_, ty)| ty.nested()).collect();
+    while !queue.is_empty() {
+        let next = queue.remove(0);
+        if seen.contains(&next) {
+            continue;
+        }
+        seen.push(next);
+        let used = message_type(next)?;
+        text.push_str(&format!("{SEPARATOR}\nMSG: {}\n{}", next.replace("/msg/", "/"), fields(used)));
+        queue.extend(used.fields.iter().filter_map(|(_, ty)| ty.nested()));
+    }
+    Some(text)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -70,5 +98,24 @@ mod tests {
         }
         assert!(schema_text(IMAGE).unwrap().contains("MSG: std_msgs/Header"));
         assert!(schema_text("pkg/msg/Other").is_none());
+    }
+
+    #[test]
+    fn standard_schemas_carry_every_type_they_use() {
+        let cloud = schema_text(POINT_CLOUD2).unwrap();
+        assert!(cloud.starts_with("std_msgs/Header header\nuint32 height\n"), "{cloud}");
+        assert!(cloud.contains("sensor_msgs/PointField[] fields\n"));
+        assert!(
+            cloud.contains("MSG: sensor_msgs/PointField\nstring name\nuint32 offset\nuint8 datatype\nuint32 count\n")
+        );
+        assert!(cloud.contains("MSG: builtin_interfaces/Time\n"));
+        let markers = schema_text(MARKER_ARRAY).unwrap();
+        for used in
+            ["visualization_msgs/Marker", "geometry_msgs/Pose", "std_msgs/ColorRGBA", "visualization_msgs/MeshFile"]
+        {
+            assert_eq!(markers.matches(&format!("MSG: {used}\n")).count(), 1, "{used}");
+        }
+        assert!(schema_text(DIAGNOSTIC_ARRAY).unwrap().contains("MSG: diagnostic_msgs/DiagnosticStatus\nbyte level\n"));
+        assert!(schema_text(TF_MESSAGE).unwrap().contains("MSG: geometry_msgs/TransformStamped\n"));
     }
 }

@@ -121,7 +121,7 @@ impl Rig {
             rate_hz: RATE_HZ,
             // Generous: the machine is shared; lost frames are lost on purpose.
             frame_timeout: Some(Duration::from_millis(50)),
-            rt: Default::default(),
+            rt: crate::driver_rt(),
         };
         let driver = EthercatDriver::new(config, FrameLink::InProcess(bus)).unwrap();
         let status = driver.status_handle();
@@ -354,7 +354,14 @@ fn lost_frames_fault_the_layers_they_belong_to() {
     // Meanwhile, the others deliver new samples, whole.
     for _ in 0..40 {
         for position in [0, 2] {
-            assert_eq!(rig.readers[position].writer_state(), WriterState::Running, "segment {position}");
+            assert_eq!(
+                rig.readers[position].writer_state(),
+                WriterState::Running,
+                "segment {position}: bus {:?}, segments {:?}, layer faults {:?}",
+                rig.status.bus_fault(),
+                rig.status.segments(),
+                rig.readers.iter().map(|r| r.writer_stats().faults).collect::<Vec<_>>(),
+            );
             let frame = rig.readers[position].wait_newer(Duration::from_secs(1)).unwrap();
             check_frame(position, frame.responses());
         }
@@ -466,7 +473,7 @@ fn stop_during_bring_up(bus: Arc<Mutex<dyn FrameExchange>>, frame_timeout: Durat
         segments: vec![segment_config(0, 24)],
         rate_hz: RATE_HZ,
         frame_timeout: Some(frame_timeout),
-        rt: Default::default(),
+        rt: crate::driver_rt(),
     };
     let mut driver = EthercatDriver::new(config, FrameLink::InProcess(bus)).unwrap();
     let status = driver.status_handle();
@@ -525,7 +532,7 @@ fn the_emulated_skin_reaches_readers_with_the_virtual_bodys_responses() {
         segments: vec![segment_config(0, 60), segment_config(1, 60)],
         rate_hz: RATE_HZ,
         frame_timeout: Some(Duration::from_millis(50)),
-        rt: Default::default(),
+        rt: crate::driver_rt(),
     };
     let driver = EthercatDriver::new(config, FrameLink::InProcess(bus)).unwrap();
     let options = HandlerOptions { dir: Some(dir.clone()), ..HandlerOptions::default() };

@@ -112,6 +112,14 @@ fn wait_for(reader: &mut Reader, state: WriterState, within: Duration) -> Durati
     started.elapsed()
 }
 
+/// Runs the calling emulator thread at SCHED_FIFO, just below the driver's
+/// threads, as hardware answers whatever the host is doing.
+fn emulator_priority() {
+    for refused in (skinware::RtOptions { fifo_priority: Some(70), ..Default::default() }).apply() {
+        println!("emulator thread: {refused}");
+    }
+}
+
 /// Waits until the driver's status says the bus is up and every segment has
 /// cycled at least once.
 fn wait_for_bus_up(status: &EthercatStatus, within: Duration) {
@@ -134,6 +142,7 @@ fn driver_and_segments_over_veth() {
     let emulator = {
         let (segment, stop, frames) = (segment.clone(), stop.clone(), frames.clone());
         std::thread::spawn(move || {
+            emulator_priority();
             let mut count = |_: &[u8], _: Option<&[u8]>| *frames.lock().unwrap() += 1;
             serve_interface(&segment, SEGMENT_END, &|| stop.load(Ordering::Relaxed), Some(&mut count))
         })
@@ -194,7 +203,7 @@ fn start_driver(
         segments: segments.clone(),
         rate_hz: 200.0,
         frame_timeout: Some(frame_timeout),
-        rt: Default::default(),
+        rt: crate::driver_rt(),
     };
     let driver = EthercatDriver::new(config, FrameLink::Interface(DRIVER_END.into())).unwrap();
     let status = driver.status_handle();
@@ -424,6 +433,9 @@ fn late_answers_fault_only_their_segment_and_never_the_bus() {
     let emulator = {
         let (segment, stop, late_phase, hit) = (segment.clone(), stop.clone(), late_phase.clone(), hit.clone());
         std::thread::spawn(move || {
+            // The segments answer as real ones do, however busy the host:
+            // only the answers held back on purpose are late.
+            emulator_priority();
             let mut process_data = 0u64;
             let mut observe = |request: &[u8], _: Option<&[u8]>| {
                 if let Some(position) = segment_of_lrw(request, &taxels) {
@@ -602,7 +614,7 @@ fn golden_capture_drives_the_driver_to_op_and_its_taxels_to_readers() {
         }],
         rate_hz: 200.0,
         frame_timeout: Some(Duration::from_millis(20)),
-        rt: Default::default(),
+        rt: crate::driver_rt(),
     };
     let driver = EthercatDriver::new(config, FrameLink::InProcess(bus)).unwrap();
     let status = driver.status_handle();
