@@ -19,6 +19,11 @@
 //! * [`tactile`]: a layer's frame as a `TactileState`, the contact
 //!   service's as `TactileContacts` ([`tactile_state`], [`tactile_contacts`]);
 //! * [`heatmap`]: the skin's 2-D map as a `sensor_msgs/Image` ([`HeatMap`]);
+//! * [`standard`]: the standard messages ROS tools draw
+//!   ([`PointCloud2`](standard::PointCloud2), [`MarkerArray`](standard::MarkerArray),
+//!   [`DiagnosticArray`](standard::DiagnosticArray), [`TfMessage`](standard::TfMessage)),
+//!   made by [`cloud`] (a layer's taxels in 3-D, per link), [`markers`] (contacts
+//!   as arrows) and [`diagnostics`] (every channel's health);
 //! * [`clock`]: frames' CLOCK_MONOTONIC stamps as ROS time
 //!   ([`clock_offset_ns`], [`ros_time`]).
 //!
@@ -67,5 +72,8 @@ pub use messages::{
 };
 pub use schema::schema_text;
 pub use tactile::{RESPONSE_FULL_SCALE, tactile_contacts, tactile_state};
-pub use topics::{contacts_topic, frame_topic, gaps_topic, map_topic, ros_name, stats_topic, tactile_state_topic};
+pub use topics::{
+    DIAGNOSTICS_TOPIC, TF_STATIC_TOPIC, cloud_topic, contacts_topic, frame_topic, gaps_topic, map_topic, markers_topic,
+    ros_name, stats_topic, tactile_state_topic,
+};
 pub use type_hash::{dds_type_name, hashed_type_description, type_hash};

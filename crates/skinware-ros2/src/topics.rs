@@ -10,6 +10,16 @@
 //! | `/skin/<skin>/<layer>/state` | `tactile_msgs/TactileState` |
 //! | `/skin/<skin>/<service>/contacts` | `tactile_msgs/TactileContacts` |
 //! | `/skin/<skin>/map` | `sensor_msgs/Image` |
+//! | `/skin/<skin>/<layer>/cloud/<link>` | `sensor_msgs/PointCloud2` |
+//! | `/skin/<skin>/<service>/markers` | `visualization_msgs/MarkerArray` |
+//! | `/diagnostics` | `diagnostic_msgs/DiagnosticArray` |
+//! | `/tf_static` | `tf2_msgs/TFMessage` |
+
+/// ROS's topic of health reports (`rqt_robot_monitor` and the diagnostic
+/// aggregator read it).
+pub const DIAGNOSTICS_TOPIC: &str = "/diagnostics";
+/// ROS's topic of transforms that never change.
+pub const TF_STATIC_TOPIC: &str = "/tf_static";
 
 /// A ROS 2 name token made from a skinware name: every character ROS forbids
 /// becomes `_`, and a token may not be empty or start with a digit.
@@ -53,6 +63,16 @@ pub fn contacts_topic(skin: &str, service: &str) -> String {
     format!("{}/contacts", frame_topic(skin, service))
 }
 
+/// The topic of the point cloud of a layer's taxels on link `link`.
+pub fn cloud_topic(skin: &str, layer: &str, link: &str) -> String {
+    format!("{}/cloud/{}", frame_topic(skin, layer), ros_name(link))
+}
+
+/// The topic of the contact service's markers.
+pub fn markers_topic(skin: &str, service: &str) -> String {
+    format!("{}/markers", frame_topic(skin, service))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -65,6 +85,8 @@ mod tests {
         assert_eq!(contacts_topic("default", "contact"), "/skin/default/contact/contacts");
         assert_eq!(map_topic("a-b"), "/skin/a_b/map");
         assert_eq!(gaps_topic("default"), "/skin/default/gaps");
+        assert_eq!(cloud_topic("default", "virtual-0", "left_forearm"), "/skin/default/virtual_0/cloud/left_forearm");
+        assert_eq!(markers_topic("default", "contact"), "/skin/default/contact/markers");
     }
 
     #[test]

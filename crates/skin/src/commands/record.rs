@@ -34,6 +34,14 @@ pub struct Args {
     /// Width of the map image, pixels.
     #[arg(long, default_value_t = 480)]
     map_width: usize,
+    /// Point clouds and contact markers per second for ROS tools (Foxglove,
+    /// rviz2): copies of the newest frames, beside every frame as
+    /// skinware's own message. 0: none, and no /diagnostics or /tf_static.
+    #[arg(long, default_value_t = 10.0)]
+    ros2_hz: f64,
+    /// The frame every link hangs from in /tf_static (the robot's root).
+    #[arg(long, default_value = "base_link")]
+    root_frame: String,
     /// Chunk compression.
     #[arg(long, value_enum, default_value = "zstd")]
     compression: CompressionArg,
@@ -120,6 +128,12 @@ fn record_options(args: &Args) -> Result<RecordOptions> {
     if !(args.map_hz.is_finite() && args.map_hz >= 0.0) {
         bail!("--map-hz {} must be 0 (no map) or more", args.map_hz);
     }
+    if !(args.ros2_hz.is_finite() && (args.ros2_hz == 0.0 || (0.1..=60.0).contains(&args.ros2_hz))) {
+        bail!("--ros2-hz {} must be 0 (no messages for ROS tools) or from 0.1 to 60", args.ros2_hz);
+    }
+    if args.root_frame.is_empty() || args.root_frame.chars().any(char::is_whitespace) {
+        bail!("--root-frame {:?} must be one word, the name of a TF frame (such as base_link)", args.root_frame);
+    }
     let services = match &args.services {
         None => ServiceChoice::None,
         Some(names) if names.iter().any(|n| n == "*") => ServiceChoice::All,
@@ -131,6 +145,8 @@ fn record_options(args: &Args) -> Result<RecordOptions> {
         services,
         map_hz: args.map_hz,
         map_width: args.map_width,
+        ros2_hz: args.ros2_hz,
+        root_frame: args.root_frame.clone(),
         compression: args.compression.library(),
         command: std::env::args().collect::<Vec<_>>().join(" "),
         ..RecordOptions::default()

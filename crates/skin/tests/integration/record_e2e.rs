@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 use sha2::Digest;
 use skinware_record::file::{RecordStream, RecordingHeader, read_header};
 use skinware_record::mcap::records::{MessageHeader, Record};
-use skinware_ros2::{self as msgs, Gap, Image, LayerStats, SkinFrame};
+use skinware_ros2::{self as msgs, Gap, Image, LayerStats, SkinFrame, standard};
 
 use crate::util::{interrupt_and_wait, one_skin_at_a_time};
 
@@ -108,6 +108,7 @@ fn the_paper_skin_is_recorded_replayed_and_read_by_an_independent_reader() {
     assert!(summary["frames"].as_u64().unwrap() > 1500, "{summary}");
     assert!(summary["images"].as_u64().unwrap() >= 30, "{summary}");
 
+    the_recording_holds_what_ros_tools_draw(&a);
     killed_recorder_leaves_a_readable_file(d);
     a_stopped_recorder_writes_its_gaps(d);
     interrupt(&mut supervisor.0);
@@ -432,6 +433,8 @@ fn our_view(path: &Path) -> BTreeMap<String, Vec<String>> {
         } else if topic.ends_with("/gaps") {
             let m: Gap = msgs::decode(data, msgs::GAP).unwrap();
             c.time(m.stamp).text(&m.channel).int(m.first_seq).int(m.count);
+        } else if let Some(view) = ros_view_canonical(&topic, data) {
+            c = view;
         } else {
             let m: LayerStats = msgs::decode(data, msgs::LAYER_STATS).unwrap();
             c.time(m.stamp).text(&m.channel).text(&m.state).int(m.frames).int(m.lost).int(m.faulted);
@@ -440,6 +443,78 @@ fn our_view(path: &Path) -> BTreeMap<String, Vec<String>> {
         topics.entry(topic).or_default().push(c.digest());
     });
     topics
+}
+
+/// Ten seconds of the paper's skin at the default 10 clouds a second: a
+/// cloud topic per layer and link, the contact service's markers, the
+/// health of all 8 channels on /diagnostics, and /tf_static once.
+fn the_recording_holds_what_ros_tools_draw(path: &Path) {
+    let topics = our_view(path);
+    let count = |topic: &str| topics.get(topic).map_or(0, Vec::len);
+    let clouds: Vec<(&String, usize)> =
+        topics.iter().filter(|(t, _)| t.contains("/cloud/")).map(|(t, m)| (t, m.len())).collect();
+    println!(
+        "ROS view: {} cloud topics {clouds:?}; markers {}, diagnostics {}, tf_static {}",
+        clouds.len(),
+        count("/skin/default/contact/markers"),
+        count("/diagnostics"),
+        count("/tf_static")
+    );
+    assert!(clouds.len() >= 5, "a cloud per layer and link: {clouds:?}");
+    assert!(clouds.iter().all(|(_, n)| *n >= 10), "clouds at up to 10 Hz for 10 s: {clouds:?}");
+    assert!(count("/skin/default/contact/markers") >= 10);
+    assert!(count("/diagnostics") >= 5);
+    assert_eq!(count("/tf_static"), 1);
+    each_message(path, |header, message, data| {
+        if header.topics[&message.channel_id] == "/diagnostics" {
+            let m: standard::DiagnosticArray = msgs::decode(data, standard::DIAGNOSTIC_ARRAY).unwrap();
+            assert_eq!(m.status.len(), 8, "every recorded channel: {m:?}");
+        }
+    });
+}
+
+/// The canonical bytes of a message for ROS tools (clouds, markers,
+/// diagnostics, `/tf_static`), or `None` for a topic of another kind.
+fn ros_view_canonical(topic: &str, data: &[u8]) -> Option<Canonical> {
+    let mut c = Canonical::default();
+    if topic.contains("/cloud/") {
+        let m: standard::PointCloud2 = msgs::decode(data, standard::POINT_CLOUD2).unwrap();
+        c.time(m.header.stamp).text(&m.header.frame_id).int(m.height).int(m.width).int(m.fields.len() as u64);
+        for f in &m.fields {
+            c.text(&f.name).int(f.offset).int(f.datatype).int(f.count);
+        }
+        c.int(u8::from(m.is_bigendian)).int(m.point_step).int(m.row_step).u8s(&m.data).int(u8::from(m.is_dense));
+    } else if topic.ends_with("/markers") {
+        let m: standard::MarkerArray = msgs::decode(data, standard::MARKER_ARRAY).unwrap();
+        c.int(m.markers.len() as u64);
+        for k in &m.markers {
+            c.time(k.header.stamp).text(&k.header.frame_id).text(&k.ns).int(k.id).int(k.kind).int(k.action);
+            c.int(k.lifetime.sec).int(k.lifetime.nanosec).int(k.points.len() as u64);
+            for p in &k.points {
+                c.float(p.x).float(p.y).float(p.z);
+            }
+        }
+    } else if topic == msgs::DIAGNOSTICS_TOPIC {
+        let m: standard::DiagnosticArray = msgs::decode(data, standard::DIAGNOSTIC_ARRAY).unwrap();
+        c.time(m.header.stamp).text(&m.header.frame_id).int(m.status.len() as u64);
+        for s in &m.status {
+            c.int(s.level).text(&s.name).text(&s.message).text(&s.hardware_id).int(s.values.len() as u64);
+            for kv in &s.values {
+                c.text(&kv.key).text(&kv.value);
+            }
+        }
+    } else if topic == msgs::TF_STATIC_TOPIC {
+        let m: standard::TfMessage = msgs::decode(data, standard::TF_MESSAGE).unwrap();
+        c.int(m.transforms.len() as u64);
+        for t in &m.transforms {
+            c.time(t.header.stamp).text(&t.header.frame_id).text(&t.child_frame_id);
+            let (v, q) = (t.transform.translation, t.transform.rotation);
+            c.float(v.x).float(v.y).float(v.z).float(q.x).float(q.y).float(q.z).float(q.w);
+        }
+    } else {
+        return None;
+    }
+    Some(c)
 }
 
 fn the_python_oracle_reads_what_was_written(path: &Path) {

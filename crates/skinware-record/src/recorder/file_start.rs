@@ -1,7 +1,8 @@
 //! Everything a recording holds before its first frame, written and flushed
 //! before any frame is read: the schemas, the recording's metadata, one MCAP
-//! channel per topic, the layout outline, and the geometry and every
-//! channel's description as attachments. A recorder killed at its first
+//! channel per topic (those for ROS tools too, and their `/tf_static`), the
+//! layout outline, and the geometry and every channel's description as
+//! attachments. A recorder killed at its first
 //! frame leaves a file that still says what it was recording.
 //!
 //! The order of the records is the order of their ids (schemas and channels
@@ -19,6 +20,7 @@ use skinware_geometry::SkinGeometry;
 use skinware_ros2::{GAP, HeatMap, IMAGE, LAYER_STATS, SKIN_FRAME, clock_offset_ns, unix_ns};
 
 use super::discovery::Sources;
+use super::ros_view::{RosView, add_view};
 use super::summary::channel_name;
 use super::{CHUNK_BYTES, RecordOptions};
 use crate::error::mcap_write_error;
@@ -40,6 +42,8 @@ pub(super) struct Started {
     pub(super) gap_channel: u16,
     /// The map image's channel and its renderer, if the map is recorded.
     pub(super) map: Option<(u16, HeatMap)>,
+    /// The messages for ROS tools, if wanted.
+    pub(super) ros: Option<RosView>,
     /// CLOCK_REALTIME minus CLOCK_MONOTONIC, as written in the metadata.
     pub(super) clock_offset_ns: i64,
 }
@@ -57,6 +61,7 @@ pub(super) fn write_start(
     file: &File,
     options: &RecordOptions,
     sources: &Sources,
+    dir: &Path,
 ) -> Result<Started, RecordError> {
     let write_error = |e: mcap::McapError| mcap_write_error(path, e);
     let mut writer = create_writer(path, file, options)?;
@@ -75,6 +80,7 @@ pub(super) fn write_start(
         .add_channel(gap_schema, &skinware_ros2::gaps_topic(&options.skin), MESSAGE_ENCODING, &BTreeMap::new())
         .map_err(write_error)?;
     let map = add_map(&mut writer, options, sources.geometry.as_ref()).map_err(write_error)?;
+    let ros = add_view(&mut writer, options, sources, dir.to_owned(), started_unix_ns).map_err(write_error)?;
     writer.write_metadata(&Metadata { name: LAYOUT_METADATA.into(), metadata: topics.layout }).map_err(write_error)?;
     attach(&mut writer, started_unix_ns, sources).map_err(write_error)?;
     writer.flush().map_err(write_error)?;
@@ -84,6 +90,7 @@ pub(super) fn write_start(
         stats_channels: topics.stats_channels,
         gap_channel,
         map,
+        ros,
         clock_offset_ns,
     })
 }

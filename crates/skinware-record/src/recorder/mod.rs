@@ -9,7 +9,7 @@
 //! The pieces, in the order a recording runs them: `discovery` opens the
 //! channels, `file_start` writes everything before the first frame,
 //! `reading` runs the reader threads, `watcher` the map image and the
-//! statistics, `file_writer` the file's thread, and `summary` holds what
+//! statistics (and, through `ros_view`, the messages for ROS tools), `file_writer` the file's thread, and `summary` holds what
 //! they count.
 
 use std::path::{Path, PathBuf};
@@ -28,6 +28,7 @@ mod discovery;
 mod file_start;
 mod file_writer;
 mod reading;
+mod ros_view;
 mod summary;
 mod watcher;
 
@@ -97,6 +98,12 @@ pub struct RecordOptions {
     pub map_hz: f64,
     /// Width of the map image, pixels.
     pub map_width: usize,
+    /// Point clouds and contact markers per second for ROS tools (0: none,
+    /// and no diagnostics or `/tf_static` either); see `docs/recording.md`.
+    pub ros2_hz: f64,
+    /// The frame every link hangs from in `/tf_static`, and the frame of a
+    /// contact whose link is unknown.
+    pub root_frame: String,
     /// Chunk compression.
     pub compression: Compression,
     /// How often the current chunk is finished, written and synced to disk:
@@ -116,6 +123,8 @@ impl Default for RecordOptions {
             services: ServiceChoice::None,
             map_hz: 4.0,
             map_width: 480,
+            ros2_hz: 10.0,
+            root_frame: "base_link".into(),
             compression: Compression::Zstd,
             flush_interval: Duration::from_secs(1),
             dir: None,
@@ -170,7 +179,7 @@ impl Recorder {
         let dir = options.dir.clone().unwrap_or_else(skinware::shm::segment_dir);
         let sources = discovery::open_sources(&dir, &options)?;
         let file = crate::error::create_new(path)?;
-        let started = file_start::write_start(path, &file, &options, &sources)?;
+        let started = file_start::write_start(path, &file, &options, &sources, &dir)?;
         Recorder::run(path, options, dir, sources, file, started)
     }
 
@@ -192,13 +201,15 @@ impl Recorder {
         let channels: Vec<Recorded> = sources.readers.iter().map(Recorded::of).collect();
         let (sender, receiver) = sync_channel::<Item>(QUEUE);
         let mut threads = reading::start_readers(sources.readers, &channels, &started, &sender, &shared)?;
-        let Started { writer, stats_channels, map, clock_offset_ns, .. } = started;
+        let Started { writer, stats_channels, map, ros, clock_offset_ns, .. } = started;
         let watcher = Watcher {
             skin: options.skin.clone(),
             dir,
             geometry: sources.geometry,
             map,
             map_hz: options.map_hz,
+            ros,
+            ros2_hz: options.ros2_hz,
             channels: channels.clone(),
             stats_channels,
             clock_offset_ns,

@@ -1,5 +1,6 @@
-//! The watcher thread: the map image a few times a second and every
-//! channel's statistics once a second, from readers of its own (the map
+//! The watcher thread: the map image a few times a second, every
+//! channel's statistics once a second, and the messages for ROS tools
+//! (`ros_view`), from readers of its own (the map
 //! needs every layer of the geometry, recorded or not), so that neither
 //! delays a recorded frame.
 
@@ -12,8 +13,9 @@ use std::time::{Duration, Instant};
 use skinware::rt::Ticker;
 use skinware::{ChannelKind, FrameStatus, Reader, ReaderOptions, WriterState};
 use skinware_geometry::SkinGeometry;
-use skinware_ros2::{Header, HeatMap, LayerLook, LayerStats, Time, now_unix_ns};
+use skinware_ros2::{Header, HeatMap, LayerLook, LayerStats, Time, now_unix_ns, unix_ns};
 
+use super::ros_view::RosView;
 use super::summary::Recorded;
 use super::{Item, STATS_INTERVAL, Shared};
 
@@ -25,6 +27,9 @@ pub(super) struct Watcher {
     /// The map image's MCAP channel and its renderer.
     pub(super) map: Option<(u16, HeatMap)>,
     pub(super) map_hz: f64,
+    /// The messages for ROS tools, and how often to write clouds and markers.
+    pub(super) ros: Option<RosView>,
+    pub(super) ros2_hz: f64,
     pub(super) channels: Vec<Recorded>,
     /// The MCAP channel of each recorded channel's statistics.
     pub(super) stats_channels: Vec<u16>,
@@ -42,19 +47,28 @@ struct NewestLayers {
     readers: Vec<Option<Reader>>,
     /// Per name, the newest responses and how to draw them, once read.
     newest: Vec<Option<(Vec<u16>, LayerLook)>>,
+    /// Per name, when its newest frame was acquired (CLOCK_MONOTONIC ns).
+    acquired_ns: Vec<u64>,
+    /// Per name, whether the last read found a frame newer than the one before.
+    fresh: Vec<bool>,
 }
 
 impl NewestLayers {
     fn open(skin: &str, options: ReaderOptions, names: Vec<String>) -> NewestLayers {
         let readers = names.iter().map(|name| Reader::open_with(skin, name, &options).ok()).collect();
         let newest = vec![None; names.len()];
-        NewestLayers { skin: skin.to_owned(), options, names, readers, newest }
+        let (acquired_ns, fresh) = (vec![0; names.len()], vec![false; names.len()]);
+        NewestLayers { skin: skin.to_owned(), options, names, readers, newest, acquired_ns, fresh }
     }
 
     /// Reads every layer's newest frame; a layer not read keeps its last
     /// responses, drawn as gone.
     fn read(&mut self) {
-        for ((reader, slot), name) in self.readers.iter_mut().zip(&mut self.newest).zip(&self.names) {
+        let layers = self.readers.iter_mut().zip(&mut self.newest).zip(&self.names);
+        for (((reader, slot), name), (acquired_ns, fresh)) in
+            layers.zip(self.acquired_ns.iter_mut().zip(self.fresh.iter_mut()))
+        {
+            *fresh = false;
             if reader.is_none() {
                 *reader = Reader::open_with(&self.skin, name, &self.options).ok();
             }
@@ -70,6 +84,8 @@ impl NewestLayers {
                     };
                     let values: Vec<u16> =
                         frame.bytes().chunks_exact(2).map(|b| u16::from_ne_bytes([b[0], b[1]])).collect();
+                    *fresh = frame.acquired_ns() != *acquired_ns;
+                    *acquired_ns = frame.acquired_ns();
                     *slot = Some((values, look));
                 }
                 Err(_) => {
@@ -88,6 +104,19 @@ impl NewestLayers {
             .map(|n| match n {
                 Some((values, look)) => (Some(values.as_slice()), *look),
                 None => (None, LayerLook::Gone),
+            })
+            .collect()
+    }
+
+    /// Per name, the newest responses and their acquisition time (Unix ns)
+    /// if the last read found them new: what the clouds show.
+    fn fresh_frames(&self, clock_offset_ns: i64) -> Vec<Option<(&[u16], u64)>> {
+        self.newest
+            .iter()
+            .zip(self.acquired_ns.iter().zip(&self.fresh))
+            .map(|(newest, (&acquired_ns, &fresh))| match newest {
+                Some((values, _)) if fresh => Some((values.as_slice(), unix_ns(acquired_ns, clock_offset_ns))),
+                _ => None,
             })
             .collect()
     }
@@ -125,13 +154,19 @@ impl Watcher {
             None => self.channels.iter().filter(|c| c.kind == ChannelKind::Layer).map(|c| c.name.clone()).collect(),
         };
         let mut layers = NewestLayers::open(&self.skin, options, layer_names);
-        let hz = if self.map.is_some() { self.map_hz.clamp(0.1, 60.0) } else { 1.0 };
-        let mut ticker = Ticker::from_hz(hz);
+        let map_hz = if self.map.is_some() { self.map_hz.clamp(0.1, 60.0) } else { 0.0 };
+        let ros_hz = if self.ros.is_some() { self.ros2_hz.clamp(0.1, 60.0) } else { 0.0 };
+        let mut ticker = Ticker::from_hz(map_hz.max(ros_hz).max(1.0));
+        let mut map_due = Every::new(map_hz);
+        let mut ros_due = Every::new(ros_hz);
         let mut interval = StatsInterval { started: Instant::now(), previous: vec![(0, 0); self.channels.len()] };
         while ticker.wait(&self.shared.stop).is_some() {
             layers.read();
             let now_ns = now_unix_ns(self.clock_offset_ns);
-            if !self.write_map(&layers, now_ns) {
+            if map_due.now() && !self.write_map(&layers, now_ns) {
+                return;
+            }
+            if ros_due.now() && !self.write_ros(&layers) {
                 return;
             }
             let elapsed = interval.started.elapsed();
@@ -160,8 +195,25 @@ impl Watcher {
         true
     }
 
-    /// Sends every channel's statistics over the last `elapsed`; `false` once the file is gone.
-    fn write_stats(&self, layers: &NewestLayers, previous: &mut [(u64, u64)], elapsed: Duration, now_ns: u64) -> bool {
+    /// Sends the clouds of the layers with a new frame, and the contact
+    /// services' markers; `false` once the file is gone.
+    fn write_ros(&mut self, layers: &NewestLayers) -> bool {
+        let Some(ros) = &mut self.ros else { return true };
+        ros.send_clouds(&layers.fresh_frames(self.clock_offset_ns), &self.sender)
+            && ros.send_markers(self.geometry.as_ref(), self.clock_offset_ns, &self.sender)
+    }
+
+    /// Sends every channel's statistics over the last `elapsed` (and, for
+    /// ROS tools, their health); `false` once the file is gone.
+    fn write_stats(
+        &mut self,
+        layers: &NewestLayers,
+        previous: &mut [(u64, u64)],
+        elapsed: Duration,
+        now_ns: u64,
+    ) -> bool {
+        let mut states = Vec::with_capacity(self.channels.len());
+        let mut rates_hz = Vec::with_capacity(self.channels.len());
         for (k, channel) in self.channels.iter().enumerate() {
             let counters = &channel.counters;
             let frames = counters.frames.load(Ordering::Relaxed);
@@ -202,7 +254,38 @@ impl Watcher {
                     return false;
                 }
             }
+            states
+                .push(WriterState::from_number(counters.state.load(Ordering::Relaxed)).unwrap_or(WriterState::Running));
+            rates_hz.push(stats.rate_hz);
         }
+        match &mut self.ros {
+            Some(ros) => ros.send_diagnostics(&states, &rates_hz, now_ns, &self.sender),
+            None => true,
+        }
+    }
+}
+
+/// Whether something done `hz` times a second is due, on a ticker at least as fast.
+struct Every {
+    period: Option<Duration>,
+    next: Instant,
+}
+
+impl Every {
+    /// Due at once, then every `1/hz` s; never for `hz` 0.
+    fn new(hz: f64) -> Every {
+        Every { period: (hz > 0.0).then(|| Duration::from_secs_f64(1.0 / hz)), next: Instant::now() }
+    }
+
+    fn now(&mut self) -> bool {
+        let Some(period) = self.period else { return false };
+        let now = Instant::now();
+        // The ticker's wake-ups jitter: a due time a little ahead counts.
+        if now + period / 4 < self.next {
+            return false;
+        }
+        // After a late wake-up, no burst to catch up.
+        self.next = (self.next + period).max(now + period / 2);
         true
     }
 }

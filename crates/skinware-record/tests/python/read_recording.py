@@ -77,6 +77,32 @@ def canonical(schema, m):
         c.float(m.rate_hz).float(m.latency_ms).int(m.min_response).int(m.max_response).float(m.mean_response)
     elif schema == "skinware_msgs/msg/Gap":
         c.time(m.stamp).text(m.channel).int(m.first_seq).int(m.count)
+    elif schema == "sensor_msgs/msg/PointCloud2":
+        c.time(m.header.stamp).text(m.header.frame_id).int(m.height).int(m.width).int(len(m.fields))
+        for f in m.fields:
+            c.text(f.name).int(f.offset).int(f.datatype).int(f.count)
+        c.int(m.is_bigendian).int(m.point_step).int(m.row_step).u8s(m.data).int(m.is_dense)
+    elif schema == "visualization_msgs/msg/MarkerArray":
+        c.int(len(m.markers))
+        for k in m.markers:
+            c.time(k.header.stamp).text(k.header.frame_id).text(k.ns).int(k.id).int(k.type).int(k.action)
+            c.int(k.lifetime.sec).int(k.lifetime.nanosec).int(len(k.points))
+            for p in k.points:
+                c.float(p.x).float(p.y).float(p.z)
+    elif schema == "diagnostic_msgs/msg/DiagnosticArray":
+        c.time(m.header.stamp).text(m.header.frame_id).int(len(m.status))
+        for s in m.status:
+            # `byte` decodes as an int or as a one-byte bytes, by version.
+            level = s.level[0] if isinstance(s.level, (bytes, bytearray)) else s.level
+            c.int(level).text(s.name).text(s.message).text(s.hardware_id).int(len(s.values))
+            for kv in s.values:
+                c.text(kv.key).text(kv.value)
+    elif schema == "tf2_msgs/msg/TFMessage":
+        c.int(len(m.transforms))
+        for t in m.transforms:
+            c.time(t.header.stamp).text(t.header.frame_id).text(t.child_frame_id)
+            v, q = t.transform.translation, t.transform.rotation
+            c.float(v.x).float(v.y).float(v.z).float(q.x).float(q.y).float(q.z).float(q.w)
     else:
         raise SystemExit(f"unexpected schema {schema}")
     return c.digest()

@@ -1,0 +1,235 @@
+//! What a recording holds for ROS tools, beside skinware's own frames: the
+//! standard messages that Foxglove's 3-D and diagnostics panels (and rviz2,
+//! from a bag of them) draw with no schema of ours.
+//!
+//! | topic | message | when |
+//! |---|---|---|
+//! | `/skin/<skin>/<layer>/cloud/<link>` | `sensor_msgs/PointCloud2` | `ros2_hz` times a second, each layer's newest frame |
+//! | `/skin/<skin>/<service>/markers` | `visualization_msgs/MarkerArray` | `ros2_hz`, a recorded contact service's newest frame |
+//! | `/diagnostics` | `diagnostic_msgs/DiagnosticArray` | every statistics interval, every recorded channel |
+//! | `/tf_static` | `tf2_msgs/TFMessage` | once, at the start: every link at the root frame |
+//!
+//! They are copies at a bounded rate, not every frame: a cloud is 8 times
+//! the bytes of the frame it shows. The frames themselves are in
+//! `skinware_msgs/SkinFrame` (every one), which is what `skin replay` uses;
+//! it ignores these.
+
+use std::collections::BTreeMap;
+use std::io::{Seek, Write};
+use std::path::PathBuf;
+use std::sync::mpsc::SyncSender;
+use std::time::Duration;
+
+use mcap::records::MessageHeader;
+use skinware::{Reader, ReaderOptions, WriterState};
+use skinware_geometry::SkinGeometry;
+use skinware_ros2::cloud::{LayerClouds, static_links};
+use skinware_ros2::diagnostics::{ChannelHealth, diagnostics};
+use skinware_ros2::markers::ContactMarkers;
+use skinware_ros2::standard::{DIAGNOSTIC_ARRAY, MARKER_ARRAY, POINT_CLOUD2, TF_MESSAGE};
+use skinware_ros2::{Time, unix_ns};
+use skinware_services::{RegionContacts, ServicePayload};
+
+use super::discovery::Sources;
+use super::summary::channel_name;
+use super::{Item, RecordOptions};
+use crate::{MESSAGE_ENCODING, SCHEMA_ENCODING};
+
+/// A recorded contact service, drawn as markers.
+struct ContactSource {
+    name: String,
+    channel_id: u16,
+    /// Opened by the watcher (its own reader), once it can be.
+    reader: Option<Reader>,
+    /// The newest frame drawn.
+    last_seq: u64,
+}
+
+/// The ROS tools' view of a recording: its channels, and the watcher's own
+/// readers for what it draws.
+pub(super) struct RosView {
+    /// Per layer of the geometry, in its order: the layer's clouds, and each
+    /// cloud's MCAP channel.
+    clouds: Vec<(LayerClouds, Vec<u16>)>,
+    contacts: Vec<ContactSource>,
+    diagnostics_channel: u16,
+    /// Per recorded channel, in the recording's order: its name and the
+    /// watcher's reader of it (for its writer's counters and period).
+    health: Vec<(String, Option<Reader>)>,
+    root_frame: String,
+    /// How long a marker lives without an update.
+    marker_lifetime: Duration,
+    skin: String,
+    reader_options: ReaderOptions,
+}
+
+/// Adds the view's schemas and channels to `writer` and writes `/tf_static`;
+/// `None` if the view is not wanted (`ros2_hz` 0).
+pub(super) fn add_view<W: Write + Seek>(
+    writer: &mut mcap::Writer<W>,
+    options: &RecordOptions,
+    sources: &Sources,
+    dir: PathBuf,
+    started_unix_ns: u64,
+) -> Result<Option<RosView>, mcap::McapError> {
+    if options.ros2_hz <= 0.0 {
+        return Ok(None);
+    }
+    let schema = |writer: &mut mcap::Writer<W>, name: &str| {
+        let text = skinware_ros2::schema_text(name).unwrap_or_default();
+        writer.add_schema(name, SCHEMA_ENCODING, text.as_bytes())
+    };
+    let channel = |writer: &mut mcap::Writer<W>, schema: u16, topic: &str| {
+        writer.add_channel(schema, topic, MESSAGE_ENCODING, &BTreeMap::new())
+    };
+    let skin = &options.skin;
+    let mut clouds = Vec::new();
+    if let Some(geometry) = &sources.geometry {
+        let cloud_schema = schema(writer, POINT_CLOUD2)?;
+        for layer in 0..geometry.layers.len() {
+            let Some(layer_clouds) = LayerClouds::new(geometry, layer) else { continue };
+            let mut ids = Vec::new();
+            for cloud in &layer_clouds.clouds {
+                let topic = skinware_ros2::cloud_topic(skin, &layer_clouds.layer, &cloud.link);
+                ids.push(channel(writer, cloud_schema, &topic)?);
+            }
+            clouds.push((layer_clouds, ids));
+        }
+        let tf_schema = schema(writer, TF_MESSAGE)?;
+        let tf_channel = channel(writer, tf_schema, skinware_ros2::TF_STATIC_TOPIC)?;
+        if let Ok(data) = static_links(geometry, &options.root_frame, Time::from_ns(started_unix_ns)) {
+            let header = MessageHeader {
+                channel_id: tf_channel,
+                sequence: 0,
+                log_time: started_unix_ns,
+                publish_time: started_unix_ns,
+            };
+            writer.write_to_known_channel(&header, &data)?;
+        }
+    }
+    let mut contacts = Vec::new();
+    for reader in &sources.readers {
+        if reader.schema().0 == <RegionContacts as ServicePayload>::SCHEMA {
+            let marker_schema = schema(writer, MARKER_ARRAY)?;
+            let name = channel_name(reader);
+            let channel_id = channel(writer, marker_schema, &skinware_ros2::markers_topic(skin, &name))?;
+            contacts.push(ContactSource { name, channel_id, reader: None, last_seq: 0 });
+        }
+    }
+    let diagnostics_schema = schema(writer, DIAGNOSTIC_ARRAY)?;
+    let diagnostics_channel = channel(writer, diagnostics_schema, skinware_ros2::DIAGNOSTICS_TOPIC)?;
+    let period = Duration::from_secs_f64(1.0 / options.ros2_hz.clamp(0.1, 60.0));
+    Ok(Some(RosView {
+        clouds,
+        contacts,
+        diagnostics_channel,
+        health: sources.readers.iter().map(|r| (channel_name(r), None)).collect(),
+        root_frame: options.root_frame.clone(),
+        marker_lifetime: (period * 3).max(Duration::from_millis(200)),
+        skin: skin.clone(),
+        reader_options: ReaderOptions { dir: Some(dir), allow_gone: true, ..ReaderOptions::default() },
+    }))
+}
+
+impl RosView {
+    /// Sends every layer's clouds; `newest[l]` is layer `l`'s newest
+    /// responses and their acquisition time (Unix ns), if read. `false` once
+    /// the file is gone.
+    pub(super) fn send_clouds(&self, newest: &[Option<(&[u16], u64)>], sender: &SyncSender<Item>) -> bool {
+        for ((layer, ids), frame) in self.clouds.iter().zip(newest) {
+            let Some((responses, acquired_unix_ns)) = frame else { continue };
+            for (cloud, &channel_id) in layer.clouds.iter().zip(ids) {
+                let Ok(data) = cloud.encode(responses, Time::from_ns(*acquired_unix_ns)) else { continue };
+                let item = Item {
+                    channel_id,
+                    sequence: 0,
+                    log_time: *acquired_unix_ns,
+                    publish_time: *acquired_unix_ns,
+                    data,
+                };
+                if sender.send(item).is_err() {
+                    return false;
+                }
+            }
+        }
+        true
+    }
+
+    /// Sends each contact service's newest frame as markers, if it is new.
+    pub(super) fn send_markers(
+        &mut self,
+        geometry: Option<&SkinGeometry>,
+        clock_offset_ns: i64,
+        sender: &SyncSender<Item>,
+    ) -> bool {
+        let drawing = ContactMarkers { geometry, root: &self.root_frame, lifetime: self.marker_lifetime };
+        for source in &mut self.contacts {
+            if source.reader.is_none() {
+                source.reader = Reader::open_with(&self.skin, &source.name, &self.reader_options).ok();
+            }
+            let Some(reader) = &mut source.reader else { continue };
+            let Ok(frame) = reader.latest() else { continue };
+            if frame.seq() == source.last_seq {
+                continue;
+            }
+            source.last_seq = frame.seq();
+            // A service's frame is its writer's bytes: records that do not
+            // fit are left out, never read past.
+            let records: Vec<RegionContacts> = frame
+                .bytes()
+                .chunks_exact(std::mem::size_of::<RegionContacts>())
+                .map(bytemuck::pod_read_unaligned)
+                .collect();
+            let stamp_ns = unix_ns(frame.acquired_ns(), clock_offset_ns);
+            let Ok(data) = drawing.encode(&records, Time::from_ns(stamp_ns)) else { continue };
+            let item =
+                Item { channel_id: source.channel_id, sequence: 0, log_time: stamp_ns, publish_time: stamp_ns, data };
+            if sender.send(item).is_err() {
+                return false;
+            }
+        }
+        true
+    }
+
+    /// Sends every recorded channel's health: `states` and `rates_hz` are
+    /// the recording's, per channel, over the last statistics interval.
+    pub(super) fn send_diagnostics(
+        &mut self,
+        states: &[WriterState],
+        rates_hz: &[f64],
+        now_ns: u64,
+        sender: &SyncSender<Item>,
+    ) -> bool {
+        let mut channels = Vec::new();
+        for (((name, reader), &state), &rate_hz) in self.health.iter_mut().zip(states).zip(rates_hz) {
+            if reader.is_none() {
+                *reader = Reader::open_with(&self.skin, name, &self.reader_options).ok();
+            }
+            let (stats, nominal_hz) = match reader {
+                // The period is the writer's number: one under a microsecond
+                // (or none) is no nominal rate to judge by.
+                Some(reader) => (
+                    reader.writer_stats(),
+                    reader
+                        .writer_period()
+                        .filter(|p| *p >= Duration::from_micros(1))
+                        .map_or(0.0, |p| 1.0 / p.as_secs_f64()),
+                ),
+                None => (Default::default(), 0.0),
+            };
+            channels.push(ChannelHealth {
+                channel: name.clone(),
+                writer: format!("skinware {}", self.skin),
+                state,
+                rate_hz,
+                nominal_hz,
+                stats,
+                restarts: None,
+            });
+        }
+        let Ok(data) = diagnostics(&self.skin, &channels, Time::from_ns(now_ns)) else { return true };
+        let item =
+            Item { channel_id: self.diagnostics_channel, sequence: 0, log_time: now_ns, publish_time: now_ns, data };
+        sender.send(item).is_ok()
+    }
+}
