@@ -80,9 +80,12 @@ pub(super) fn write_start(
         .add_channel(gap_schema, &skinware_ros2::gaps_topic(&options.skin), MESSAGE_ENCODING, &BTreeMap::new())
         .map_err(write_error)?;
     let map = add_map(&mut writer, options, sources.geometry.as_ref()).map_err(write_error)?;
-    let ros = add_view(&mut writer, options, sources, dir.to_owned(), started_unix_ns).map_err(write_error)?;
+    let mut ros = add_view(&mut writer, options, sources, dir.to_owned(), started_unix_ns).map_err(write_error)?;
     writer.write_metadata(&Metadata { name: LAYOUT_METADATA.into(), metadata: topics.layout }).map_err(write_error)?;
     attach(&mut writer, started_unix_ns, sources).map_err(write_error)?;
+    if let Some(ros) = &mut ros {
+        ros.write_static(&mut writer, started_unix_ns).map_err(write_error)?;
+    }
     writer.flush().map_err(write_error)?;
     Ok(Started {
         writer,

@@ -48,6 +48,8 @@ struct ContactSource {
 /// The ROS tools' view of a recording: its channels, and the watcher's own
 /// readers for what it draws.
 pub(super) struct RosView {
+    /// `/tf_static`'s channel and its one message, until written.
+    tf_static: Option<(u16, Vec<u8>)>,
     /// Per layer of the geometry, in its order: the layer's clouds, and each
     /// cloud's MCAP channel.
     clouds: Vec<(LayerClouds, Vec<u16>)>,
@@ -63,8 +65,9 @@ pub(super) struct RosView {
     reader_options: ReaderOptions,
 }
 
-/// Adds the view's schemas and channels to `writer` and writes `/tf_static`;
-/// `None` if the view is not wanted (`ros2_hz` 0).
+/// Adds the view's schemas and channels to `writer` (its `/tf_static`
+/// message is written by [`RosView::write_static`]); `None` if the view is
+/// not wanted (`ros2_hz` 0).
 pub(super) fn add_view<W: Write + Seek>(
     writer: &mut mcap::Writer<W>,
     options: &RecordOptions,
@@ -84,6 +87,7 @@ pub(super) fn add_view<W: Write + Seek>(
     };
     let skin = &options.skin;
     let mut clouds = Vec::new();
+    let mut tf_static = None;
     if let Some(geometry) = &sources.geometry {
         let cloud_schema = schema(writer, POINT_CLOUD2)?;
         for layer in 0..geometry.layers.len() {
@@ -98,13 +102,7 @@ pub(super) fn add_view<W: Write + Seek>(
         let tf_schema = schema(writer, TF_MESSAGE)?;
         let tf_channel = channel(writer, tf_schema, skinware_ros2::TF_STATIC_TOPIC)?;
         if let Ok(data) = static_links(geometry, &options.root_frame, Time::from_ns(started_unix_ns)) {
-            let header = MessageHeader {
-                channel_id: tf_channel,
-                sequence: 0,
-                log_time: started_unix_ns,
-                publish_time: started_unix_ns,
-            };
-            writer.write_to_known_channel(&header, &data)?;
+            tf_static = Some((tf_channel, data));
         }
     }
     let mut contacts = Vec::new();
@@ -120,6 +118,7 @@ pub(super) fn add_view<W: Write + Seek>(
     let diagnostics_channel = channel(writer, diagnostics_schema, skinware_ros2::DIAGNOSTICS_TOPIC)?;
     let period = Duration::from_secs_f64(1.0 / options.ros2_hz.clamp(0.1, 60.0));
     Ok(Some(RosView {
+        tf_static,
         clouds,
         contacts,
         diagnostics_channel,
@@ -132,6 +131,20 @@ pub(super) fn add_view<W: Write + Seek>(
 }
 
 impl RosView {
+    /// Writes `/tf_static`'s one message. Last in the file's start: readers
+    /// of a recording's start (skinware's own) stop at its first message,
+    /// and must have seen every channel, the metadata and the attachments.
+    pub(super) fn write_static<W: Write + Seek>(
+        &mut self,
+        writer: &mut mcap::Writer<W>,
+        started_unix_ns: u64,
+    ) -> Result<(), mcap::McapError> {
+        let Some((channel_id, data)) = self.tf_static.take() else { return Ok(()) };
+        let header =
+            MessageHeader { channel_id, sequence: 0, log_time: started_unix_ns, publish_time: started_unix_ns };
+        writer.write_to_known_channel(&header, &data)
+    }
+
     /// Sends every layer's clouds; `newest[l]` is layer `l`'s newest
     /// responses and their acquisition time (Unix ns), if read. `false` once
     /// the file is gone.
