@@ -2,12 +2,13 @@
 //! layer covers: each taxel's calibrated position and its response, so that
 //! rviz2 and Foxglove draw the skin in 3-D on the robot, coloured by pressure.
 //!
-//! A cloud's `frame_id` is its link. The calibration gives every position in
-//! the robot's frame at the calibration pose, so a skin whose links do not
-//! move (the virtual skins) is drawn by placing each link's frame at the
-//! robot's root: [`static_links`] gives those identity transforms for
-//! `/tf_static`. A robot that publishes its own TF draws each cloud on its
-//! moving link.
+//! A cloud's `frame_id` is its link, and its points are the calibrated
+//! positions. skinware's calibration gives every position in the robot's
+//! frame at the calibration pose, so the skin is drawn as calibrated by
+//! placing every link's frame at the robot's root: [`static_links`] gives
+//! those identity transforms for `/tf_static`. On a robot whose own TF moves
+//! the links, the clouds follow their links only if the calibration gives
+//! each taxel's position in its link's frame (and `/tf_static` is left out).
 //!
 //! A point is 16 bytes: `x`, `y`, `z` (metres) and `response` (the raw
 //! response, which a `float32` holds exactly), all little-endian `float32`.
@@ -34,6 +35,8 @@ pub struct LinkCloud {
     pub sensors: Vec<u32>,
     /// The points with their positions filled in and responses 0.
     template: Vec<u8>,
+    /// Whether every position is finite (the geometry came from a file).
+    finite: bool,
 }
 
 impl LinkCloud {
@@ -58,7 +61,7 @@ impl LinkCloud {
             point_step: POINT_STEP as u32,
             row_step: width * POINT_STEP as u32,
             data,
-            is_dense: true,
+            is_dense: self.finite,
         };
         encode(&cloud, 256 + self.template.len())
     }
@@ -88,11 +91,17 @@ impl LayerClouds {
             let cloud = match clouds.iter().position(|c| &c.link == link_name) {
                 Some(found) => &mut clouds[found],
                 None => {
-                    clouds.push(LinkCloud { link: link_name.clone(), sensors: Vec::new(), template: Vec::new() });
+                    clouds.push(LinkCloud {
+                        link: link_name.clone(),
+                        sensors: Vec::new(),
+                        template: Vec::new(),
+                        finite: true,
+                    });
                     clouds.last_mut()?
                 }
             };
             cloud.sensors.push(u32::try_from(global - start).ok()?);
+            cloud.finite &= position.iter().all(|v| v.is_finite());
             for coordinate in position {
                 cloud.template.extend_from_slice(&coordinate.to_le_bytes());
             }

@@ -25,7 +25,7 @@ pub const SLOW_FRACTION: f64 = 0.8;
 pub struct ChannelHealth {
     /// The channel (layer or service) name.
     pub channel: String,
-    /// Its writer: the driver or service that writes it (`hardware_id`).
+    /// Who writes it, as far as the publisher knows (`hardware_id`).
     pub writer: String,
     /// Its writer's state.
     pub state: WriterState,

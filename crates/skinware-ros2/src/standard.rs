@@ -236,7 +236,7 @@ pub struct DiagnosticStatus {
     pub name: String,
     /// One line on the state.
     pub message: String,
-    /// The driver or service that writes the channel.
+    /// Who writes the channel, as far as the publisher knows it.
     pub hardware_id: String,
     /// The figures.
     pub values: Vec<KeyValue>,

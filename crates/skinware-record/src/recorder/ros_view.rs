@@ -1,6 +1,8 @@
 //! What a recording holds for ROS tools, beside skinware's own frames: the
-//! standard messages that Foxglove's 3-D and diagnostics panels (and rviz2,
-//! from a bag of them) draw with no schema of ours.
+//! standard messages that Foxglove's 3-D and diagnostics panels draw with no
+//! schema of ours. (The channels carry no `offered_qos_profiles` yet, so
+//! `ros2 bag play` would publish `/tf_static` volatile, which tf2's static
+//! listener does not match.)
 //!
 //! | topic | message | when |
 //! |---|---|---|
@@ -35,6 +37,17 @@ use super::summary::channel_name;
 use super::{Item, RecordOptions};
 use crate::{MESSAGE_ENCODING, SCHEMA_ENCODING};
 
+/// One layer's clouds and where they go.
+struct LayerTopics {
+    /// The layer's index in the geometry (and in the watcher's newest frames).
+    layer: usize,
+    clouds: LayerClouds,
+    /// Each cloud's MCAP channel.
+    channels: Vec<u16>,
+    /// The newest frame drawn: each frame once, whatever the ticks.
+    last_seq: u64,
+}
+
 /// A recorded contact service, drawn as markers.
 struct ContactSource {
     name: String,
@@ -50,9 +63,8 @@ struct ContactSource {
 pub(super) struct RosView {
     /// `/tf_static`'s channel and its one message, until written.
     tf_static: Option<(u16, Vec<u8>)>,
-    /// Per layer of the geometry, in its order: the layer's clouds, and each
-    /// cloud's MCAP channel.
-    clouds: Vec<(LayerClouds, Vec<u16>)>,
+    /// The layers drawn as clouds.
+    clouds: Vec<LayerTopics>,
     contacts: Vec<ContactSource>,
     diagnostics_channel: u16,
     /// Per recorded channel, in the recording's order: its name and the
@@ -75,7 +87,8 @@ pub(super) fn add_view<W: Write + Seek>(
     dir: PathBuf,
     started_unix_ns: u64,
 ) -> Result<Option<RosView>, mcap::McapError> {
-    if options.ros2_hz <= 0.0 {
+    // Also a NaN: `RecordOptions` is public, and only the CLI checks it.
+    if !(options.ros2_hz > 0.0 && options.ros2_hz.is_finite()) {
         return Ok(None);
     }
     let schema = |writer: &mut mcap::Writer<W>, name: &str| {
@@ -90,14 +103,16 @@ pub(super) fn add_view<W: Write + Seek>(
     let mut tf_static = None;
     if let Some(geometry) = &sources.geometry {
         let cloud_schema = schema(writer, POINT_CLOUD2)?;
+        let mut topics = std::collections::BTreeSet::new();
         for layer in 0..geometry.layers.len() {
             let Some(layer_clouds) = LayerClouds::new(geometry, layer) else { continue };
-            let mut ids = Vec::new();
+            let mut channels = Vec::new();
             for cloud in &layer_clouds.clouds {
-                let topic = skinware_ros2::cloud_topic(skin, &layer_clouds.layer, &cloud.link);
-                ids.push(channel(writer, cloud_schema, &topic)?);
+                let topic =
+                    unique_topic(&mut topics, skinware_ros2::cloud_topic(skin, &layer_clouds.layer, &cloud.link));
+                channels.push(channel(writer, cloud_schema, &topic)?);
             }
-            clouds.push((layer_clouds, ids));
+            clouds.push(LayerTopics { layer, clouds: layer_clouds, channels, last_seq: 0 });
         }
         let tf_schema = schema(writer, TF_MESSAGE)?;
         let tf_channel = channel(writer, tf_schema, skinware_ros2::TF_STATIC_TOPIC)?;
@@ -107,7 +122,8 @@ pub(super) fn add_view<W: Write + Seek>(
     }
     let mut contacts = Vec::new();
     for reader in &sources.readers {
-        if reader.schema().0 == <RegionContacts as ServicePayload>::SCHEMA {
+        let contacts_schema = (<RegionContacts as ServicePayload>::SCHEMA, <RegionContacts as ServicePayload>::VERSION);
+        if reader.schema() == (contacts_schema.0.to_owned(), contacts_schema.1) {
             let marker_schema = schema(writer, MARKER_ARRAY)?;
             let name = channel_name(reader);
             let channel_id = channel(writer, marker_schema, &skinware_ros2::markers_topic(skin, &name))?;
@@ -145,13 +161,18 @@ impl RosView {
         writer.write_to_known_channel(&header, &data)
     }
 
-    /// Sends every layer's clouds; `newest[l]` is layer `l`'s newest
-    /// responses and their acquisition time (Unix ns), if read. `false` once
-    /// the file is gone.
-    pub(super) fn send_clouds(&self, newest: &[Option<(&[u16], u64)>], sender: &SyncSender<Item>) -> bool {
-        for ((layer, ids), frame) in self.clouds.iter().zip(newest) {
-            let Some((responses, acquired_unix_ns)) = frame else { continue };
-            for (cloud, &channel_id) in layer.clouds.iter().zip(ids) {
+    /// Sends the clouds of every layer whose newest frame was not drawn yet;
+    /// `newest[l]` is geometry layer `l`'s newest frame (responses, sequence
+    /// number, acquisition time in Unix ns), if read. `false` once the file
+    /// is gone.
+    pub(super) fn send_clouds(&mut self, newest: &[Option<(&[u16], u64, u64)>], sender: &SyncSender<Item>) -> bool {
+        for layer in &mut self.clouds {
+            let Some(Some((responses, seq, acquired_unix_ns))) = newest.get(layer.layer) else { continue };
+            if *seq == layer.last_seq {
+                continue;
+            }
+            layer.last_seq = *seq;
+            for (cloud, &channel_id) in layer.clouds.clouds.iter().zip(&layer.channels) {
                 let Ok(data) = cloud.encode(responses, Time::from_ns(*acquired_unix_ns)) else { continue };
                 let item = Item {
                     channel_id,
@@ -232,6 +253,7 @@ impl RosView {
             };
             channels.push(ChannelHealth {
                 channel: name.clone(),
+                // The recorder knows the channel, not the process writing it.
                 writer: format!("skinware {}", self.skin),
                 state,
                 rate_hz,
@@ -244,5 +266,31 @@ impl RosView {
         let item =
             Item { channel_id: self.diagnostics_channel, sequence: 0, log_time: now_ns, publish_time: now_ns, data };
         sender.send(item).is_ok()
+    }
+}
+
+/// `topic`, or, if another topic of the view took that name already (two
+/// links whose names differ only in characters ROS forbids), it with `_2`,
+/// `_3`, ... appended.
+fn unique_topic(taken: &mut std::collections::BTreeSet<String>, topic: String) -> String {
+    let mut unique = topic.clone();
+    let mut n = 2;
+    while !taken.insert(unique.clone()) {
+        unique = format!("{topic}_{n}");
+        n += 1;
+    }
+    unique
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn two_links_never_share_a_topic() {
+        let mut taken = std::collections::BTreeSet::new();
+        assert_eq!(unique_topic(&mut taken, "/skin/s/l/cloud/a_b".into()), "/skin/s/l/cloud/a_b");
+        assert_eq!(unique_topic(&mut taken, "/skin/s/l/cloud/a_b".into()), "/skin/s/l/cloud/a_b_2");
+        assert_eq!(unique_topic(&mut taken, "/skin/s/l/cloud/a_b".into()), "/skin/s/l/cloud/a_b_3");
     }
 }

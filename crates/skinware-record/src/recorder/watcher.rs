@@ -47,28 +47,24 @@ struct NewestLayers {
     readers: Vec<Option<Reader>>,
     /// Per name, the newest responses and how to draw them, once read.
     newest: Vec<Option<(Vec<u16>, LayerLook)>>,
-    /// Per name, when its newest frame was acquired (CLOCK_MONOTONIC ns).
-    acquired_ns: Vec<u64>,
-    /// Per name, whether the last read found a frame newer than the one before.
-    fresh: Vec<bool>,
+    /// Per name, its newest frame's sequence number and acquisition time
+    /// (CLOCK_MONOTONIC ns).
+    seq_and_acquired: Vec<(u64, u64)>,
 }
 
 impl NewestLayers {
     fn open(skin: &str, options: ReaderOptions, names: Vec<String>) -> NewestLayers {
         let readers = names.iter().map(|name| Reader::open_with(skin, name, &options).ok()).collect();
         let newest = vec![None; names.len()];
-        let (acquired_ns, fresh) = (vec![0; names.len()], vec![false; names.len()]);
-        NewestLayers { skin: skin.to_owned(), options, names, readers, newest, acquired_ns, fresh }
+        let seq_and_acquired = vec![(0, 0); names.len()];
+        NewestLayers { skin: skin.to_owned(), options, names, readers, newest, seq_and_acquired }
     }
 
     /// Reads every layer's newest frame; a layer not read keeps its last
     /// responses, drawn as gone.
     fn read(&mut self) {
         let layers = self.readers.iter_mut().zip(&mut self.newest).zip(&self.names);
-        for (((reader, slot), name), (acquired_ns, fresh)) in
-            layers.zip(self.acquired_ns.iter_mut().zip(self.fresh.iter_mut()))
-        {
-            *fresh = false;
+        for (((reader, slot), name), seq_and_acquired) in layers.zip(&mut self.seq_and_acquired) {
             if reader.is_none() {
                 *reader = Reader::open_with(&self.skin, name, &self.options).ok();
             }
@@ -84,8 +80,7 @@ impl NewestLayers {
                     };
                     let values: Vec<u16> =
                         frame.bytes().chunks_exact(2).map(|b| u16::from_ne_bytes([b[0], b[1]])).collect();
-                    *fresh = frame.acquired_ns() != *acquired_ns;
-                    *acquired_ns = frame.acquired_ns();
+                    *seq_and_acquired = (frame.seq(), frame.acquired_ns());
                     *slot = Some((values, look));
                 }
                 Err(_) => {
@@ -108,15 +103,14 @@ impl NewestLayers {
             .collect()
     }
 
-    /// Per name, the newest responses and their acquisition time (Unix ns)
-    /// if the last read found them new: what the clouds show.
-    fn fresh_frames(&self, clock_offset_ns: i64) -> Vec<Option<(&[u16], u64)>> {
+    /// Per name, the newest responses read, their sequence number and
+    /// acquisition time (Unix ns): what the clouds show.
+    fn newest_frames(&self, clock_offset_ns: i64) -> Vec<Option<(&[u16], u64, u64)>> {
         self.newest
             .iter()
-            .zip(self.acquired_ns.iter().zip(&self.fresh))
-            .map(|(newest, (&acquired_ns, &fresh))| match newest {
-                Some((values, _)) if fresh => Some((values.as_slice(), unix_ns(acquired_ns, clock_offset_ns))),
-                _ => None,
+            .zip(&self.seq_and_acquired)
+            .map(|(newest, &(seq, acquired_ns))| {
+                newest.as_ref().map(|(values, _)| (values.as_slice(), seq, unix_ns(acquired_ns, clock_offset_ns)))
             })
             .collect()
     }
@@ -199,7 +193,7 @@ impl Watcher {
     /// services' markers; `false` once the file is gone.
     fn write_ros(&mut self, layers: &NewestLayers) -> bool {
         let Some(ros) = &mut self.ros else { return true };
-        ros.send_clouds(&layers.fresh_frames(self.clock_offset_ns), &self.sender)
+        ros.send_clouds(&layers.newest_frames(self.clock_offset_ns), &self.sender)
             && ros.send_markers(self.geometry.as_ref(), self.clock_offset_ns, &self.sender)
     }
 
@@ -278,14 +272,50 @@ impl Every {
     }
 
     fn now(&mut self) -> bool {
+        self.at(Instant::now())
+    }
+
+    fn at(&mut self, now: Instant) -> bool {
         let Some(period) = self.period else { return false };
-        let now = Instant::now();
-        // The ticker's wake-ups jitter: a due time a little ahead counts.
-        if now + period / 4 < self.next {
+        // The ticker's wake-ups jitter: a due time a little ahead counts
+        // (a few ms: more would make a slow rate on a fast ticker early).
+        if now + (period / 4).min(Duration::from_millis(5)) < self.next {
             return false;
         }
         // After a late wake-up, no burst to catch up.
         self.next = (self.next + period).max(now + period / 2);
         true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Ticks at `tick_hz` for a second, with every tick `late` behind time:
+    /// how often `Every::new(hz)` was due.
+    fn due_in_a_second(hz: f64, tick_hz: f64, late: Duration) -> usize {
+        let start = Instant::now();
+        let mut every = Every { period: Some(Duration::from_secs_f64(1.0 / hz)), next: start };
+        let ticks = tick_hz as u32;
+        (0..ticks).filter(|&k| every.at(start + Duration::from_secs_f64(f64::from(k) / tick_hz) + late)).count()
+    }
+
+    #[test]
+    fn due_as_often_as_asked_on_a_faster_or_equal_ticker() {
+        assert_eq!(due_in_a_second(10.0, 10.0, Duration::ZERO), 10);
+        assert_eq!(due_in_a_second(4.0, 10.0, Duration::ZERO), 4);
+        assert_eq!(due_in_a_second(10.0, 10.0, Duration::from_millis(3)), 10);
+        assert_eq!(due_in_a_second(1.0, 60.0, Duration::ZERO), 1);
+    }
+
+    #[test]
+    fn early_wake_ups_are_not_skipped_and_never_due_at_zero() {
+        let start = Instant::now();
+        let mut every = Every { period: Some(Duration::from_millis(100)), next: start };
+        assert!(every.at(start));
+        // The next tick 5 ms early (the ticker's jitter) still counts.
+        assert!(every.at(start + Duration::from_millis(95)));
+        assert!(!Every::new(0.0).now());
     }
 }
