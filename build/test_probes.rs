@@ -54,7 +54,12 @@ mod test_probes {
         if let Some(site) = site.filter(|site| Path::new(site).is_dir()) {
             println!("cargo::rerun-if-changed={site}");
         }
-        Command::new(&python)
+        imports(&python, modules)
+    }
+
+    /// Whether `python` runs and imports every module of `modules`.
+    pub fn imports(python: &str, modules: &[&str]) -> bool {
+        Command::new(python)
             .args(["-c", &format!("import {}", modules.join(", "))])
             .output()
             .is_ok_and(|out| out.status.success())

@@ -15,9 +15,6 @@ fn rclpy_everywhere() -> bool {
     let pythons: Vec<&str> = list.split(':').filter(|p| !p.is_empty()).collect();
     !pythons.is_empty()
         && pythons.iter().all(|python| {
-            std::process::Command::new(python)
-                .args(["-c", "import rclpy, sensor_msgs.msg, visualization_msgs.msg, diagnostic_msgs.msg"])
-                .output()
-                .is_ok_and(|out| out.status.success())
+            test_probes::imports(python, &["rclpy", "sensor_msgs.msg", "visualization_msgs.msg", "diagnostic_msgs.msg"])
         })
 }

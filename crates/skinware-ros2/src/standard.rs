@@ -11,7 +11,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::messages::{Header, Time, Vector3};
+use crate::messages::{Header, Vector3};
 
 /// Full name of a layer's point cloud message.
 pub const POINT_CLOUD2: &str = "sensor_msgs/msg/PointCloud2";
@@ -276,9 +276,4 @@ pub struct TransformStamped {
 pub struct TfMessage {
     /// The transforms.
     pub transforms: Vec<TransformStamped>,
-}
-
-/// A `std_msgs/Header`.
-pub fn header(stamp: Time, frame_id: &str) -> Header {
-    Header { stamp, frame_id: frame_id.to_owned() }
 }

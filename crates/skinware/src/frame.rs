@@ -97,4 +97,11 @@ impl<'r> Frame<'r> {
     pub fn pod<T: bytemuck::AnyBitPattern>(&self) -> Option<T> {
         self.payload.get(..size_of::<T>()).map(bytemuck::pod_read_unaligned)
     }
+
+    /// The payload as consecutive plain-old-data records of type `T` (a
+    /// service's per-region records): as many whole ones as it holds, a
+    /// partial one at the end left out.
+    pub fn records<T: bytemuck::AnyBitPattern>(&self) -> Vec<T> {
+        self.payload.chunks_exact(size_of::<T>().max(1)).map(bytemuck::pod_read_unaligned).collect()
+    }
 }

@@ -141,14 +141,7 @@ impl ChannelRos {
         let stamp = skinware_ros2::ros_time(frame.acquired_ns(), shared.clock_offset_ns);
         let message = match &self.layer {
             Some(layer) => skinware_ros2::tactile_state(layer, frame.responses(), stamp),
-            None => {
-                let records: Vec<RegionContacts> = frame
-                    .bytes()
-                    .chunks_exact(std::mem::size_of::<RegionContacts>())
-                    .map(bytemuck::pod_read_unaligned)
-                    .collect();
-                skinware_ros2::tactile_contacts(&self.regions, &records, stamp)
-            }
+            None => skinware_ros2::tactile_contacts(&self.regions, &frame.records::<RegionContacts>(), stamp),
         };
         match message.map_err(BridgeError::from).and_then(|bytes| publisher.put(bytes, shared.wall_now_ns())) {
             Ok(()) => {

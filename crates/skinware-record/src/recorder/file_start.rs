@@ -22,11 +22,11 @@ use skinware_ros2::{GAP, HeatMap, IMAGE, LAYER_STATS, SKIN_FRAME, clock_offset_n
 use super::discovery::Sources;
 use super::ros_view::{RosView, add_view};
 use super::summary::channel_name;
-use super::{CHUNK_BYTES, RecordOptions};
+use super::{CHUNK_BYTES, RecordOptions, add_schema};
 use crate::error::mcap_write_error;
 use crate::{
     DESCRIPTION_ATTACHMENT_PREFIX, FORMAT_VERSION, GEOMETRY_ATTACHMENT, LAYOUT_METADATA, MESSAGE_ENCODING,
-    RECORDING_METADATA, RecordError, SCHEMA_ENCODING, channel_keys,
+    RECORDING_METADATA, RecordError, channel_keys,
 };
 
 /// The file's writer.
@@ -114,11 +114,6 @@ fn create_writer(path: &Path, file: &File, options: &RecordOptions) -> Result<Mc
         .chunk_size(Some(CHUNK_BYTES))
         .create(BufWriter::with_capacity(256 << 10, second_handle))
         .map_err(|e| mcap_write_error(path, e))
-}
-
-fn add_schema(writer: &mut McapWriter, name: &str) -> Result<u16, mcap::McapError> {
-    let text = skinware_ros2::schema_text(name).unwrap_or_default();
-    writer.add_schema(name, SCHEMA_ENCODING, text.as_bytes())
 }
 
 /// The `skinware.recording` metadata: what was recorded, when, where and how.

@@ -133,6 +133,15 @@ impl Default for RecordOptions {
     }
 }
 
+/// Adds the schema of ROS 2 message `name` (its ros2msg text) to `writer`.
+fn add_schema<W: std::io::Write + std::io::Seek>(
+    writer: &mut mcap::Writer<W>,
+    name: &str,
+) -> Result<u16, mcap::McapError> {
+    let text = skinware_ros2::schema_text(name).unwrap_or_default();
+    writer.add_schema(name, crate::SCHEMA_ENCODING, text.as_bytes())
+}
+
 /// What the writer thread writes.
 struct Item {
     channel_id: u16,

@@ -34,8 +34,8 @@ use skinware_services::{RegionContacts, ServicePayload};
 
 use super::discovery::Sources;
 use super::summary::channel_name;
-use super::{Item, RecordOptions};
-use crate::{MESSAGE_ENCODING, SCHEMA_ENCODING};
+use super::{Item, RecordOptions, add_schema};
+use crate::MESSAGE_ENCODING;
 
 /// One layer's clouds and where they go.
 struct LayerTopics {
@@ -91,10 +91,6 @@ pub(super) fn add_view<W: Write + Seek>(
     if !(options.ros2_hz > 0.0 && options.ros2_hz.is_finite()) {
         return Ok(None);
     }
-    let schema = |writer: &mut mcap::Writer<W>, name: &str| {
-        let text = skinware_ros2::schema_text(name).unwrap_or_default();
-        writer.add_schema(name, SCHEMA_ENCODING, text.as_bytes())
-    };
     let channel = |writer: &mut mcap::Writer<W>, schema: u16, topic: &str| {
         writer.add_channel(schema, topic, MESSAGE_ENCODING, &BTreeMap::new())
     };
@@ -102,7 +98,7 @@ pub(super) fn add_view<W: Write + Seek>(
     let mut clouds = Vec::new();
     let mut tf_static = None;
     if let Some(geometry) = &sources.geometry {
-        let cloud_schema = schema(writer, POINT_CLOUD2)?;
+        let cloud_schema = add_schema(writer, POINT_CLOUD2)?;
         let mut topics = std::collections::BTreeSet::new();
         for layer in 0..geometry.layers.len() {
             let Some(layer_clouds) = LayerClouds::new(geometry, layer) else { continue };
@@ -114,23 +110,26 @@ pub(super) fn add_view<W: Write + Seek>(
             }
             clouds.push(LayerTopics { layer, clouds: layer_clouds, channels, last_seq: 0 });
         }
-        let tf_schema = schema(writer, TF_MESSAGE)?;
+        let tf_schema = add_schema(writer, TF_MESSAGE)?;
         let tf_channel = channel(writer, tf_schema, skinware_ros2::TF_STATIC_TOPIC)?;
         if let Ok(data) = static_links(geometry, &options.root_frame, Time::from_ns(started_unix_ns)) {
             tf_static = Some((tf_channel, data));
         }
     }
     let mut contacts = Vec::new();
-    for reader in &sources.readers {
-        let contacts_schema = (<RegionContacts as ServicePayload>::SCHEMA, <RegionContacts as ServicePayload>::VERSION);
-        if reader.schema() == (contacts_schema.0.to_owned(), contacts_schema.1) {
-            let marker_schema = schema(writer, MARKER_ARRAY)?;
-            let name = channel_name(reader);
-            let channel_id = channel(writer, marker_schema, &skinware_ros2::markers_topic(skin, &name))?;
-            contacts.push(ContactSource { name, channel_id, reader: None, last_seq: 0 });
-        }
+    let contact_schema =
+        (<RegionContacts as ServicePayload>::SCHEMA.to_owned(), <RegionContacts as ServicePayload>::VERSION);
+    let mut marker_schema = None;
+    for reader in sources.readers.iter().filter(|r| r.schema() == contact_schema) {
+        let schema_id = match marker_schema {
+            Some(id) => id,
+            None => *marker_schema.insert(add_schema(writer, MARKER_ARRAY)?),
+        };
+        let name = channel_name(reader);
+        let channel_id = channel(writer, schema_id, &skinware_ros2::markers_topic(skin, &name))?;
+        contacts.push(ContactSource { name, channel_id, reader: None, last_seq: 0 });
     }
-    let diagnostics_schema = schema(writer, DIAGNOSTIC_ARRAY)?;
+    let diagnostics_schema = add_schema(writer, DIAGNOSTIC_ARRAY)?;
     let diagnostics_channel = channel(writer, diagnostics_schema, skinware_ros2::DIAGNOSTICS_TOPIC)?;
     let period = Duration::from_secs_f64(1.0 / options.ros2_hz.clamp(0.1, 60.0));
     Ok(Some(RosView {
@@ -207,15 +206,11 @@ impl RosView {
                 continue;
             }
             source.last_seq = frame.seq();
-            // A service's frame is its writer's bytes: records that do not
-            // fit are left out, never read past.
-            let records: Vec<RegionContacts> = frame
-                .bytes()
-                .chunks_exact(std::mem::size_of::<RegionContacts>())
-                .map(bytemuck::pod_read_unaligned)
-                .collect();
+            // A service's frame is its writer's bytes: whole records only.
             let stamp_ns = unix_ns(frame.acquired_ns(), clock_offset_ns);
-            let Ok(data) = drawing.encode(&records, Time::from_ns(stamp_ns)) else { continue };
+            let Ok(data) = drawing.encode(&frame.records::<RegionContacts>(), Time::from_ns(stamp_ns)) else {
+                continue;
+            };
             let item =
                 Item { channel_id: source.channel_id, sequence: 0, log_time: stamp_ns, publish_time: stamp_ns, data };
             if sender.send(item).is_err() {

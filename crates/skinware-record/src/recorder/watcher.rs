@@ -216,13 +216,12 @@ impl Watcher {
             previous[k] = (frames, latency);
             let new_frames = frames - frames_before;
             let (min, max, mean) = layers.response_range(&channel.name);
+            let state =
+                WriterState::from_number(counters.state.load(Ordering::Relaxed)).unwrap_or(WriterState::Running);
             let stats = LayerStats {
                 stamp: Time::from_ns(now_ns),
                 channel: channel.name.clone(),
-                state: WriterState::from_number(counters.state.load(Ordering::Relaxed))
-                    .unwrap_or(WriterState::Running)
-                    .as_str()
-                    .to_owned(),
+                state: state.as_str().to_owned(),
                 frames,
                 lost: counters.lost.load(Ordering::Relaxed),
                 faulted: counters.faulted.load(Ordering::Relaxed),
@@ -248,8 +247,7 @@ impl Watcher {
                     return false;
                 }
             }
-            states
-                .push(WriterState::from_number(counters.state.load(Ordering::Relaxed)).unwrap_or(WriterState::Running));
+            states.push(state);
             rates_hz.push(stats.rate_hz);
         }
         match &mut self.ros {
