@@ -43,6 +43,12 @@ impl LinkCloud {
     /// Encodes the cloud of `responses` (one frame of the layer): a response
     /// the frame lacks (a short frame) is 0.
     pub fn encode(&self, responses: &[u16], stamp: Time) -> Result<Vec<u8>, EncodeError> {
+        encode(&self.cloud(responses, stamp), 256 + self.template.len())
+    }
+
+    /// The cloud of `responses`, as [`encode`](Self::encode) encodes it (for
+    /// a transport that encodes messages itself, such as DDS).
+    pub fn cloud(&self, responses: &[u16], stamp: Time) -> PointCloud2 {
         let mut data = self.template.clone();
         for (point, &sensor) in data.chunks_exact_mut(POINT_STEP).zip(&self.sensors) {
             let response = responses.get(sensor as usize).copied().unwrap_or(0);
@@ -52,7 +58,7 @@ impl LinkCloud {
         let width = self.sensors.len() as u32;
         let field =
             |name: &str, offset: u32| PointField { name: name.into(), offset, datatype: POINT_FIELD_FLOAT32, count: 1 };
-        let cloud = PointCloud2 {
+        PointCloud2 {
             header: Header { stamp, frame_id: self.link.clone() },
             height: 1,
             width,
@@ -62,8 +68,7 @@ impl LinkCloud {
             row_step: width * POINT_STEP as u32,
             data,
             is_dense: self.finite,
-        };
-        encode(&cloud, 256 + self.template.len())
+        }
     }
 }
 
@@ -117,6 +122,11 @@ impl LayerClouds {
 /// `/tf_static`: a skin whose calibration is in the robot's frame, on a
 /// robot that publishes no TF of its own, is drawn as calibrated.
 pub fn static_links(geometry: &SkinGeometry, root: &str, stamp: Time) -> Result<Vec<u8>, EncodeError> {
+    encode(&static_transforms(geometry, root, stamp), 64 + 128 * geometry.links.len())
+}
+
+/// The message [`static_links`] encodes.
+pub fn static_transforms(geometry: &SkinGeometry, root: &str, stamp: Time) -> TfMessage {
     let transforms = geometry
         .links
         .iter()
@@ -127,7 +137,7 @@ pub fn static_links(geometry: &SkinGeometry, root: &str, stamp: Time) -> Result<
             transform: Transform { translation: Vector3::default(), rotation: Quaternion::IDENTITY },
         })
         .collect();
-    encode(&TfMessage { transforms }, 64 + 128 * geometry.links.len())
+    TfMessage { transforms }
 }
 
 #[cfg(test)]

@@ -82,9 +82,13 @@ impl ChannelHealth {
 
 /// Encodes the health of every channel of skin `skin` as one `DiagnosticArray`.
 pub fn diagnostics(skin: &str, channels: &[ChannelHealth], stamp: Time) -> Result<Vec<u8>, EncodeError> {
+    encode(&diagnostic_array(skin, channels, stamp), 64 + 512 * channels.len())
+}
+
+/// The message [`diagnostics`] encodes.
+pub fn diagnostic_array(skin: &str, channels: &[ChannelHealth], stamp: Time) -> DiagnosticArray {
     let status: Vec<DiagnosticStatus> = channels.iter().map(|c| c.status(skin)).collect();
-    let size = 64 + 512 * status.len();
-    encode(&DiagnosticArray { header: Header { stamp, frame_id: String::new() }, status }, size)
+    DiagnosticArray { header: Header { stamp, frame_id: String::new() }, status }
 }
 
 #[cfg(test)]

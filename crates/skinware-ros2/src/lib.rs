@@ -24,6 +24,7 @@
 //!   [`DiagnosticArray`](standard::DiagnosticArray), [`TfMessage`](standard::TfMessage)),
 //!   made by [`cloud`] (a layer's taxels in 3-D, per link), [`markers`] (contacts
 //!   as arrows) and [`diagnostics`] (every channel's health);
+//! * [`rate`]: per-topic rate limits ([`rate::Every`]);
 //! * [`clock`]: frames' CLOCK_MONOTONIC stamps as ROS time
 //!   ([`clock_offset_ns`], [`ros_time`]).
 //!
@@ -57,6 +58,7 @@ pub mod diagnostics;
 pub mod heatmap;
 pub mod markers;
 pub mod messages;
+pub mod rate;
 pub mod schema;
 pub mod standard;
 pub mod tactile;
@@ -71,7 +73,7 @@ pub use messages::{
     TACTILE_CONTACTS, TACTILE_STATE, TactileContact, TactileContacts, TactileState, Time, Vector3, Wrench,
 };
 pub use schema::schema_text;
-pub use tactile::{RESPONSE_FULL_SCALE, tactile_contacts, tactile_state};
+pub use tactile::{RESPONSE_FULL_SCALE, tactile_contacts, tactile_contacts_message, tactile_state, tactile_state_message};
 pub use topics::{
     DIAGNOSTICS_TOPIC, TF_STATIC_TOPIC, cloud_topic, contacts_topic, frame_topic, gaps_topic, map_topic, markers_topic,
     ros_name, stats_topic, tactile_state_topic,

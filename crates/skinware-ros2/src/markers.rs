@@ -42,6 +42,13 @@ impl ContactMarkers<'_> {
     /// Contacts with a non-finite centroid or normal (from a writer that
     /// is not the contact service) are left out.
     pub fn encode(&self, records: &[RegionContacts], stamp: Time) -> Result<Vec<u8>, EncodeError> {
+        let array = self.markers(records, stamp);
+        let size = 256 * array.markers.len();
+        encode(&array, size)
+    }
+
+    /// The message [`encode`](Self::encode) encodes.
+    pub fn markers(&self, records: &[RegionContacts], stamp: Time) -> MarkerArray {
         let mut markers = vec![self.marker(stamp, self.root, 0, MARKER_DELETE_ALL, Vec::new())];
         for (region, record) in records.iter().enumerate() {
             for (rank, contact) in record.contacts().iter().enumerate() {
@@ -61,8 +68,7 @@ impl ContactMarkers<'_> {
                 markers.push(self.marker(stamp, frame, id, MARKER_ADD, vec![tail, at]));
             }
         }
-        let size = 256 * markers.len();
-        encode(&MarkerArray { markers }, size)
+        MarkerArray { markers }
     }
 
     fn frame_of(&self, sensor: u32) -> &str {

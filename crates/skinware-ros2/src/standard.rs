@@ -277,3 +277,46 @@ pub struct TfMessage {
     /// The transforms.
     pub transforms: Vec<TransformStamped>,
 }
+
+/// Full name of the raw-response array a `ros2` driver reads.
+pub const UINT16_MULTI_ARRAY: &str = "std_msgs/msg/UInt16MultiArray";
+/// Full name of the full-scale (0..1) array a `ros2` driver reads.
+pub const FLOAT32_MULTI_ARRAY: &str = "std_msgs/msg/Float32MultiArray";
+
+/// `std_msgs/MultiArrayDimension`.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct MultiArrayDimension {
+    /// The dimension's name.
+    pub label: String,
+    /// Its length.
+    pub size: u32,
+    /// Elements spanned by one step of the dimension above.
+    pub stride: u32,
+}
+
+/// `std_msgs/MultiArrayLayout`.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct MultiArrayLayout {
+    /// The dimensions, outermost first.
+    pub dim: Vec<MultiArrayDimension>,
+    /// Elements before the array's first.
+    pub data_offset: u32,
+}
+
+/// `std_msgs/UInt16MultiArray`.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct UInt16MultiArray {
+    /// The layout.
+    pub layout: MultiArrayLayout,
+    /// The elements.
+    pub data: Vec<u16>,
+}
+
+/// `std_msgs/Float32MultiArray`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Float32MultiArray {
+    /// The layout.
+    pub layout: MultiArrayLayout,
+    /// The elements.
+    pub data: Vec<f32>,
+}

@@ -16,6 +16,11 @@ pub const RESPONSE_FULL_SCALE: f32 = 65535.0;
 /// Encodes one frame of `layer` as a `TactileState`: one `ChannelFloat32`
 /// per patch, in topology order, values scaled to 0..1.
 pub fn tactile_state(layer: &LayerTopology, responses: &[u16], acquired: Time) -> Result<Vec<u8>, EncodeError> {
+    encode(&tactile_state_message(layer, responses, acquired), 64 + 4 * responses.len() + 32 * layer.patches.len())
+}
+
+/// The message [`tactile_state`] encodes.
+pub fn tactile_state_message(layer: &LayerTopology, responses: &[u16], acquired: Time) -> TactileState {
     let mut sensors = Vec::with_capacity(layer.patches.len());
     for patch in &layer.patches {
         let first = layer.modules.get(patch.modules.start).map_or(0, |m| m.sensors.start);
@@ -25,8 +30,7 @@ pub fn tactile_state(layer: &LayerTopology, responses: &[u16], acquired: Time) -
             (first..end).map(|i| f32::from(responses.get(i).copied().unwrap_or(0)) / RESPONSE_FULL_SCALE).collect();
         sensors.push(ChannelFloat32 { name: format!("{}/patch{}", layer.name, patch.id), values });
     }
-    let message = TactileState { header: Header { stamp: acquired, frame_id: layer.name.clone() }, sensors };
-    encode(&message, 64 + 4 * responses.len() + 32 * layer.patches.len())
+    TactileState { header: Header { stamp: acquired, frame_id: layer.name.clone() }, sensors }
 }
 
 /// Encodes one frame of the contact service (one record per region, named
@@ -36,6 +40,11 @@ pub fn tactile_contacts(
     records: &[RegionContacts],
     acquired: Time,
 ) -> Result<Vec<u8>, EncodeError> {
+    encode(&tactile_contacts_message(regions, records, acquired), 256)
+}
+
+/// The message [`tactile_contacts`] encodes.
+pub fn tactile_contacts_message(regions: &[String], records: &[RegionContacts], acquired: Time) -> TactileContacts {
     let vector = |v: [f32; 3]| Vector3 { x: f64::from(v[0]), y: f64::from(v[1]), z: f64::from(v[2]) };
     let mut contacts = Vec::new();
     for (index, record) in records.iter().enumerate() {
@@ -55,7 +64,7 @@ pub fn tactile_contacts(
             });
         }
     }
-    encode(&TactileContacts { contacts }, 256)
+    TactileContacts { contacts }
 }
 
 #[cfg(test)]

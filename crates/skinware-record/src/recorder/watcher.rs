@@ -13,6 +13,7 @@ use std::time::{Duration, Instant};
 use skinware::rt::Ticker;
 use skinware::{ChannelKind, FrameStatus, Reader, ReaderOptions, WriterState};
 use skinware_geometry::SkinGeometry;
+use skinware_ros2::rate::Every;
 use skinware_ros2::{Header, HeatMap, LayerLook, LayerStats, Time, now_unix_ns, unix_ns};
 
 use super::ros_view::RosView;
@@ -254,66 +255,5 @@ impl Watcher {
             Some(ros) => ros.send_diagnostics(&states, &rates_hz, now_ns, &self.sender),
             None => true,
         }
-    }
-}
-
-/// Whether something done `hz` times a second is due, on a ticker at least as fast.
-struct Every {
-    period: Option<Duration>,
-    next: Instant,
-}
-
-impl Every {
-    /// Due at once, then every `1/hz` s; never for `hz` 0.
-    fn new(hz: f64) -> Every {
-        Every { period: (hz > 0.0).then(|| Duration::from_secs_f64(1.0 / hz)), next: Instant::now() }
-    }
-
-    fn now(&mut self) -> bool {
-        self.at(Instant::now())
-    }
-
-    fn at(&mut self, now: Instant) -> bool {
-        let Some(period) = self.period else { return false };
-        // The ticker's wake-ups jitter: a due time a little ahead counts
-        // (a few ms: more would make a slow rate on a fast ticker early).
-        if now + (period / 4).min(Duration::from_millis(5)) < self.next {
-            return false;
-        }
-        // After a late wake-up, no burst to catch up.
-        self.next = (self.next + period).max(now + period / 2);
-        true
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Ticks at `tick_hz` for a second, with every tick `late` behind time:
-    /// how often `Every::new(hz)` was due.
-    fn due_in_a_second(hz: f64, tick_hz: f64, late: Duration) -> usize {
-        let start = Instant::now();
-        let mut every = Every { period: Some(Duration::from_secs_f64(1.0 / hz)), next: start };
-        let ticks = tick_hz as u32;
-        (0..ticks).filter(|&k| every.at(start + Duration::from_secs_f64(f64::from(k) / tick_hz) + late)).count()
-    }
-
-    #[test]
-    fn due_as_often_as_asked_on_a_faster_or_equal_ticker() {
-        assert_eq!(due_in_a_second(10.0, 10.0, Duration::ZERO), 10);
-        assert_eq!(due_in_a_second(4.0, 10.0, Duration::ZERO), 4);
-        assert_eq!(due_in_a_second(10.0, 10.0, Duration::from_millis(3)), 10);
-        assert_eq!(due_in_a_second(1.0, 60.0, Duration::ZERO), 1);
-    }
-
-    #[test]
-    fn early_wake_ups_are_not_skipped_and_never_due_at_zero() {
-        let start = Instant::now();
-        let mut every = Every { period: Some(Duration::from_millis(100)), next: start };
-        assert!(every.at(start));
-        // The next tick 5 ms early (the ticker's jitter) still counts.
-        assert!(every.at(start + Duration::from_millis(95)));
-        assert!(!Every::new(0.0).now());
     }
 }
