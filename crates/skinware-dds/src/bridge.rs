@@ -240,7 +240,8 @@ impl DdsBridge {
         let node_name = format!("skin_bridge_{}", skinware_ros2::ros_name(&options.skin).trim_start_matches('_'));
         let node = context
             .new_node(
-                NodeName::new("/", &node_name).map_err(|e| DdsError::Invalid(format!("node name {node_name}: {e:?}")))?,
+                NodeName::new("/", &node_name)
+                    .map_err(|e| DdsError::Invalid(format!("node name {node_name}: {e:?}")))?,
                 NodeOptions::new().enable_rosout(false).start_parameter_services(false),
             )
             .map_err(|e| DdsError::Dds(format!("cannot create the ROS 2 node {node_name}: {e:?}")))?;
@@ -296,7 +297,6 @@ impl Publishing {
         check_layers(&options, &listed)?;
         let geometry = SkinGeometry::open_in(&dir, &skin).ok();
         let reader_options = ReaderOptions { dir: Some(dir.clone()), allow_gone: true, ..ReaderOptions::default() };
-        let rates = options.rates;
         let mut layers = Vec::new();
         let mut contacts = Vec::new();
         let mut watched = Vec::new();
@@ -318,17 +318,7 @@ impl Publishing {
             if reader.kind() == ChannelKind::Layer {
                 layers.push(LayerSource::declare(&mut node, &options, geometry.as_ref(), reader, &info.channel)?);
             } else if reader.schema().0 == <RegionContacts as ServicePayload>::SCHEMA {
-                let regions = ServiceInfo::parse(&reader.description()).map(|i| i.labels).unwrap_or_default();
-                let markers_topic = skinware_ros2::markers_topic(&skin, &info.channel);
-                let contacts_topic = skinware_ros2::contacts_topic(&skin, &info.channel);
-                let sensor = TopicClass::Sensor;
-                contacts.push(ContactSource {
-                    reader,
-                    regions,
-                    markers: Topic::declare(&mut node, &options, &markers_topic, MARKER_ARRAY, sensor, rates.markers_hz, 0.0)?,
-                    contacts: Topic::declare(&mut node, &options, &contacts_topic, TACTILE_CONTACTS, sensor, rates.contacts_hz, 0.0)?,
-                    sent_seq: (0, 0),
-                });
+                contacts.push(ContactSource::declare(&mut node, &options, reader, &info.channel)?);
             }
         }
         if watched.is_empty() {
@@ -337,35 +327,7 @@ impl Publishing {
                 dir.display()
             )));
         }
-        let diagnostics = Topic::declare(
-            &mut node,
-            &options,
-            skinware_ros2::DIAGNOSTICS_TOPIC,
-            DIAGNOSTIC_ARRAY,
-            TopicClass::Status,
-            rates.diagnostics_hz,
-            0.0,
-        )?;
-        let map = match &geometry {
-            Some(geometry) if rates.map_hz > 0.0 => {
-                let topic = skinware_ros2::map_topic(&skin);
-                let map_topic = Topic::declare(&mut node, &options, &topic, IMAGE, TopicClass::Sensor, rates.map_hz, 0.5)?;
-                Some((HeatMap::new(geometry, options.map_width.clamp(16, 4096)), map_topic))
-            }
-            _ => None,
-        };
-        let tf_static = match (&geometry, &options.root_frame) {
-            (Some(_), Some(_)) => Some(Topic::declare(
-                &mut node,
-                &options,
-                skinware_ros2::TF_STATIC_TOPIC,
-                TF_MESSAGE,
-                TopicClass::Static,
-                0.0,
-                0.0,
-            )?),
-            _ => None,
-        };
+        let (diagnostics, map, tf_static) = declare_fixed(&mut node, &options, geometry.as_ref())?;
         Ok(Publishing {
             options,
             clock_offset_ns: skinware_ros2::clock_offset_ns(),
@@ -425,8 +387,7 @@ impl Publishing {
 
     /// `/tf_static`, once: transient-local, so later subscribers get it too.
     fn send_static(&mut self) {
-        let (Some(topic), Some(geometry), Some(root)) =
-            (&mut self.tf_static, &self.geometry, &self.options.root_frame)
+        let (Some(topic), Some(geometry), Some(root)) = (&mut self.tf_static, &self.geometry, &self.options.root_frame)
         else {
             return;
         };
@@ -552,6 +513,67 @@ impl Publishing {
     }
 }
 
+/// The skin's own topics: `/diagnostics`, the map and `/tf_static`.
+type FixedTopics = (
+    Topic<skinware_ros2::standard::DiagnosticArray>,
+    Option<(HeatMap, Topic<skinware_ros2::Image>)>,
+    Option<Topic<skinware_ros2::standard::TfMessage>>,
+);
+
+fn declare_fixed(
+    node: &mut Node,
+    options: &DdsOptions,
+    geometry: Option<&SkinGeometry>,
+) -> Result<FixedTopics, DdsError> {
+    let rates = options.rates;
+    let diagnostics = Topic::declare(
+        node,
+        options,
+        skinware_ros2::DIAGNOSTICS_TOPIC,
+        DIAGNOSTIC_ARRAY,
+        TopicClass::Status,
+        rates.diagnostics_hz,
+        0.0,
+    )?;
+    let map = match geometry {
+        Some(geometry) if rates.map_hz > 0.0 => {
+            let topic = skinware_ros2::map_topic(&options.skin);
+            let map_topic = Topic::declare(node, options, &topic, IMAGE, TopicClass::Sensor, rates.map_hz, 0.5)?;
+            Some((HeatMap::new(geometry, options.map_width.clamp(16, 4096)), map_topic))
+        }
+        _ => None,
+    };
+    let tf_static = match (geometry, &options.root_frame) {
+        (Some(_), Some(_)) => Some(Topic::declare(
+            node,
+            options,
+            skinware_ros2::TF_STATIC_TOPIC,
+            TF_MESSAGE,
+            TopicClass::Static,
+            0.0,
+            0.0,
+        )?),
+        _ => None,
+    };
+    Ok((diagnostics, map, tf_static))
+}
+
+impl ContactSource {
+    fn declare(node: &mut Node, options: &DdsOptions, reader: Reader, name: &str) -> Result<ContactSource, DdsError> {
+        let regions = ServiceInfo::parse(&reader.description()).map(|i| i.labels).unwrap_or_default();
+        let markers_topic = skinware_ros2::markers_topic(&options.skin, name);
+        let contacts_topic = skinware_ros2::contacts_topic(&options.skin, name);
+        let (sensor, rates) = (TopicClass::Sensor, options.rates);
+        Ok(ContactSource {
+            reader,
+            regions,
+            markers: Topic::declare(node, options, &markers_topic, MARKER_ARRAY, sensor, rates.markers_hz, 0.0)?,
+            contacts: Topic::declare(node, options, &contacts_topic, TACTILE_CONTACTS, sensor, rates.contacts_hz, 0.0)?,
+            sent_seq: (0, 0),
+        })
+    }
+}
+
 impl LayerSource {
     fn declare(
         node: &mut Node,
@@ -562,7 +584,9 @@ impl LayerSource {
     ) -> Result<LayerSource, DdsError> {
         let skin = &options.skin;
         let topology = LayerTopology::decode(&reader.description(), name).map_err(|e| {
-            DdsError::Invalid(format!("layer {name} of skin {skin} describes no topology ({e}); is its writer skinware's?"))
+            DdsError::Invalid(format!(
+                "layer {name} of skin {skin} describes no topology ({e}); is its writer skinware's?"
+            ))
         })?;
         let state_topic = skinware_ros2::tactile_state_topic(skin, name);
         let sensor = TopicClass::Sensor;

@@ -16,8 +16,9 @@
 //! The layer runs at its configured rate. Each period it takes the newest
 //! message that arrived (older ones are dropped, as a keep-last reader
 //! would); with none new, it repeats the last responses marked
-//! [`FrameStatus::PARTIAL`]. Silence longer than the timeout faults the layer,
-//! naming the topic; the next message brings it back to running. A message
+//! [`FrameStatus::PARTIAL`]. The layer is faulted until the first message,
+//! and again after silence longer than the timeout, naming the topic; the
+//! next message brings it back to running. A message
 //! that does not fit the layout is counted and named in the layer's fault,
 //! never a panic: [`decode`] takes any bytes.
 
@@ -26,9 +27,9 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use ros2_client::{Context, ContextOptions, Name, Node, NodeName, NodeOptions, Subscription};
+use skinware::FrameWriter;
 use skinware::driver::{Driver, DriverError, LayerSource, LayerSpec};
 use skinware::rt::RtOptions;
-use skinware::FrameWriter;
 use skinware::{FrameStatus, LayerTopology};
 use skinware_ros2::standard::{
     FLOAT32_MULTI_ARRAY, Float32MultiArray, MultiArrayLayout, POINT_CLOUD2, PointCloud2, UINT16_MULTI_ARRAY,
@@ -91,7 +92,9 @@ pub enum InputError {
     #[error("{0}")]
     Cdr(String),
     /// The message has another number of responses than the layer has sensors.
-    #[error("{what} holds {got} responses, but the layer has {want} sensors; publish one per sensor, in topology order")]
+    #[error(
+        "{what} holds {got} responses, but the layer has {want} sensors; publish one per sensor, in topology order"
+    )]
     Count {
         /// The message type.
         what: &'static str,
@@ -101,7 +104,9 @@ pub enum InputError {
         want: usize,
     },
     /// The `PointCloud2` has no usable field of that name.
-    #[error("the PointCloud2 has no numeric field {field:?} inside its points (its fields: {fields:?}); set `field` to one of them")]
+    #[error(
+        "the PointCloud2 has no numeric field {field:?} inside its points (its fields: {fields:?}); set `field` to one of them"
+    )]
     NoField {
         /// The field asked for.
         field: String,
@@ -134,7 +139,12 @@ pub fn decode(bytes: &[u8], input: &Ros2Input, out: &mut [u16]) -> Result<(), In
 }
 
 /// The elements of an array message from its `data_offset`, if exactly `want`.
-fn elements<'a, T>(layout: &MultiArrayLayout, data: &'a [T], what: &'static str, want: usize) -> Result<&'a [T], InputError> {
+fn elements<'a, T>(
+    layout: &MultiArrayLayout,
+    data: &'a [T],
+    what: &'static str,
+    want: usize,
+) -> Result<&'a [T], InputError> {
     let rest = data.get(layout.data_offset as usize..).unwrap_or_default();
     if rest.len() != want {
         return Err(InputError::Count { what, got: rest.len(), want });
@@ -281,7 +291,7 @@ impl Ros2Driver {
         Name::parse(topic).map_err(|e| {
             DdsError::Invalid(format!("topic = {topic:?} is not a ROS 2 topic name ({e:?}); write it as /a/b"))
         })?;
-        if !(topology.rate_hz > 0.0) {
+        if topology.rate_hz.is_nan() || topology.rate_hz <= 0.0 {
             return Err(DdsError::Invalid(format!(
                 "layer {}: a ros2 layer needs rate_hz, the rate its topic is published at",
                 topology.name
@@ -326,7 +336,9 @@ impl Driver for Ros2Driver {
                 Inputs::Cloud(node.create_subscription(&topic, Some(qos)).map_err(subscribe)?, field.clone())
             }
             Ros2Input::UInt16MultiArray => Inputs::U16(node.create_subscription(&topic, Some(qos)).map_err(subscribe)?),
-            Ros2Input::Float32MultiArray => Inputs::F32(node.create_subscription(&topic, Some(qos)).map_err(subscribe)?),
+            Ros2Input::Float32MultiArray => {
+                Inputs::F32(node.create_subscription(&topic, Some(qos)).map_err(subscribe)?)
+            }
         };
         let source = TopicSource {
             _node: node,
@@ -410,7 +422,8 @@ impl LayerSource for TopicSource {
             self.counters.received.fetch_add(1, Ordering::Relaxed);
             self.last_message = now;
             self.ever = true;
-        } else if now.duration_since(self.last_message) > self.timeout {
+        } else if !self.ever || now.duration_since(self.last_message) > self.timeout {
+            // Responses no message gave are no frame: faulted until the first.
             let silent = if self.ever { "no message" } else { "no message yet" };
             return Err(format!(
                 "topic {}: {silent} for {:.1} s (timeout {:.1} s); is its publisher running, in the same ROS_DOMAIN_ID?",
@@ -482,10 +495,8 @@ mod tests {
         let mut short = cloud(&[1.0, 2.0, 3.0], false);
         short.data.truncate(40);
         assert!(matches!(from_cloud(&short, "response", &mut out), Err(InputError::Layout(_))));
-        let array = UInt16MultiArray {
-            layout: MultiArrayLayout { dim: Vec::new(), data_offset: 1 },
-            data: vec![9, 1, 2, 3],
-        };
+        let array =
+            UInt16MultiArray { layout: MultiArrayLayout { dim: Vec::new(), data_offset: 1 }, data: vec![9, 1, 2, 3] };
         from_u16(&array, &mut out).unwrap();
         assert_eq!(out, [1, 2, 3], "data_offset skips the first");
         let full = Float32MultiArray { layout: MultiArrayLayout::default(), data: vec![0.0, 0.5, 2.0] };

@@ -35,9 +35,10 @@ impl TopicClass {
                 base.reliability(Reliability::BestEffort).history(History::KeepLast { depth: SENSOR_DEPTH })
             }
             TopicClass::Status => base.reliability(reliable).history(History::KeepLast { depth: 10 }),
-            TopicClass::Static => {
-                base.reliability(reliable).durability(Durability::TransientLocal).history(History::KeepLast { depth: 1 })
-            }
+            TopicClass::Static => base
+                .reliability(reliable)
+                .durability(Durability::TransientLocal)
+                .history(History::KeepLast { depth: 1 }),
         }
     }
 

@@ -73,7 +73,9 @@ pub use messages::{
     TACTILE_CONTACTS, TACTILE_STATE, TactileContact, TactileContacts, TactileState, Time, Vector3, Wrench,
 };
 pub use schema::schema_text;
-pub use tactile::{RESPONSE_FULL_SCALE, tactile_contacts, tactile_contacts_message, tactile_state, tactile_state_message};
+pub use tactile::{
+    RESPONSE_FULL_SCALE, tactile_contacts, tactile_contacts_message, tactile_state, tactile_state_message,
+};
 pub use topics::{
     DIAGNOSTICS_TOPIC, TF_STATIC_TOPIC, cloud_topic, contacts_topic, frame_topic, gaps_topic, map_topic, markers_topic,
     ros_name, stats_topic, tactile_state_topic,
