@@ -117,8 +117,10 @@ fn main() -> std::process::ExitCode {
     #[cfg(not(feature = "bench"))]
     let soak = false;
     // zenoh's own warnings (a scouting delay elapsed at every remote command)
-    // are about its discovery, not the skin: its errors still show.
-    let default_filter = if soak { "warn" } else { "info,zenoh=error" };
+    // are about its discovery, not the skin: its errors still show. RustDDS
+    // logs every discovery step at info, and ros2-client warns that no
+    // ROS_DISTRO is set (skinware needs none).
+    let default_filter = if soak { "warn" } else { "info,zenoh=error,rustdds=warn,ros2_client=error" };
     {
         use tracing_subscriber::layer::SubscriberExt as _;
         use tracing_subscriber::util::SubscriberInitExt as _;

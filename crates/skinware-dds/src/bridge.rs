@@ -209,7 +209,6 @@ struct Watched {
 struct Publishing {
     options: DdsOptions,
     clock_offset_ns: i64,
-    node: Node,
     geometry: Option<SkinGeometry>,
     layers: Vec<LayerSource>,
     contacts: Vec<ContactSource>,
@@ -218,6 +217,11 @@ struct Publishing {
     map: Option<(HeatMap, Topic<skinware_ros2::Image>)>,
     tf_static: Option<Topic<skinware_ros2::standard::TfMessage>>,
     reports: Arc<Mutex<Vec<TopicReport>>>,
+    /// After the topics: fields drop in order, and a writer dropped after
+    /// its participant logs errors.
+    node: Node,
+    /// After the node, which drops its context before its own writers.
+    _context: Context,
 }
 
 /// A running DDS bridge. Dropping it stops it.
@@ -245,7 +249,8 @@ impl DdsBridge {
                 NodeOptions::new().enable_rosout(false).start_parameter_services(false),
             )
             .map_err(|e| DdsError::Dds(format!("cannot create the ROS 2 node {node_name}: {e:?}")))?;
-        let publishing = Publishing::declare(options, dir, node)?;
+        let publishing = Publishing::declare(options, dir, node, context)?;
+        *lock(&publishing.reports) = publishing.reports();
         let stop = Stop::new();
         let reports = Arc::clone(&publishing.reports);
         let stopping = stop.clone();
@@ -288,7 +293,7 @@ impl Drop for DdsBridge {
 
 impl Publishing {
     /// Opens the chosen channels and declares their topics.
-    fn declare(options: DdsOptions, dir: PathBuf, mut node: Node) -> Result<Publishing, DdsError> {
+    fn declare(options: DdsOptions, dir: PathBuf, mut node: Node, context: Context) -> Result<Publishing, DdsError> {
         let skin = options.skin.clone();
         let listed: Vec<skinware::ChannelInfo> = skinware::list_skin_channels(&dir, &skin)?
             .into_iter()
@@ -340,6 +345,7 @@ impl Publishing {
             map,
             tf_static,
             reports: Arc::new(Mutex::new(Vec::new())),
+            _context: context,
         })
     }
 

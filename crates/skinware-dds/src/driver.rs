@@ -341,8 +341,9 @@ impl Driver for Ros2Driver {
             }
         };
         let source = TopicSource {
-            _node: node,
             inputs,
+            _node: node,
+            _context: context,
             topic: self.topic.clone(),
             timeout: self.timeout,
             responses: vec![0; self.topology.sensors.len()],
@@ -356,9 +357,14 @@ impl Driver for Ros2Driver {
 
 /// The layer's source: its subscription and the newest responses.
 struct TopicSource {
-    // Kept alive: the subscription is the node's.
-    _node: Node,
+    // Before the node: fields drop in order, and a subscription dropped
+    // after its participant logs errors.
     inputs: Inputs,
+    /// Kept alive: the subscription is the node's.
+    _node: Node,
+    /// After the node: a node's own writers dropped after their
+    /// participant log errors, and the node drops its context first.
+    _context: Context,
     topic: String,
     timeout: Duration,
     responses: Vec<u16>,

@@ -1,8 +1,10 @@
 //! `skin bridge`: the skin on zenoh, for remote skinware readers and ROS 2
-//! (rmw_zenoh); and the remote side of `skin ls`, `skin echo` and `skin view`.
+//! (rmw_zenoh), and on DDS for ROS 2's default RMW (`--ros2 dds`, see
+//! `bridge_dds`); and the remote side of `skin ls`, `skin echo` and `skin
+//! view`.
 //!
-//! Everything here needs the `zenoh` feature; a `skin` built without it says
-//! how to rebuild instead.
+//! The zenoh side needs the `zenoh` feature, and the DDS side the `dds`
+//! feature; a `skin` built without one says how to rebuild instead.
 
 use std::path::PathBuf;
 
@@ -14,26 +16,46 @@ use anyhow::Result;
 pub struct Args {
     /// The skin to bridge.
     #[arg(long, default_value = "default")]
-    skin: String,
+    pub(super) skin: String,
     /// Only these layers (comma-separated; default: every layer).
     #[arg(long, value_delimiter = ',')]
-    layers: Option<Vec<String>>,
+    pub(super) layers: Option<Vec<String>>,
     /// Leave the services out.
     #[arg(long)]
-    no_services: bool,
+    pub(super) no_services: bool,
     /// Rate limit for slow links: `HZ` for every channel, or `CHANNEL=HZ`
     /// (repeatable). The newest frame is sent; what is left out is counted.
     #[arg(long)]
     max_hz: Vec<String>,
     /// Map images a second for ROS 2 (`/skin/<skin>/map`); 0 for none.
     #[arg(long, default_value_t = 5.0)]
-    map_hz: f64,
-    /// Publish only for skinware readers, not for ROS 2.
+    pub(super) map_hz: f64,
+    /// Publish only for skinware readers, not for ROS 2 (`--ros2 none`).
     #[arg(long)]
     no_ros: bool,
+    /// Where the ROS 2 topics go: `zenoh` (rmw_zenoh nodes, beside the
+    /// remote readers), `dds` (the default RMW: Fast DDS or Cyclone DDS
+    /// nodes; no zenoh), `both`, or `none`.
+    #[arg(long, value_enum, default_value_t = Ros2Mode::Zenoh)]
+    pub(super) ros2: Ros2Mode,
     /// ROS domain id (default: $ROS_DOMAIN_ID, else 0).
     #[arg(long)]
-    domain: Option<u32>,
+    pub(super) domain: Option<u32>,
+    /// DDS: point clouds a second, per layer and link (0: none).
+    #[arg(long, default_value_t = skinware_ros2_rates::CLOUD_HZ)]
+    pub(super) cloud_hz: f64,
+    /// DDS: `TactileState` messages a second, per layer (0: none).
+    #[arg(long, default_value_t = skinware_ros2_rates::STATE_HZ)]
+    pub(super) state_hz: f64,
+    /// DDS: contact markers and `TactileContacts` a second, per contact service (0: none).
+    #[arg(long, default_value_t = skinware_ros2_rates::CONTACTS_HZ)]
+    pub(super) contacts_hz: f64,
+    /// DDS: one topic's own rate, `TOPIC=HZ` (repeatable), over its kind's.
+    #[arg(long)]
+    pub(super) topic_hz: Vec<String>,
+    /// DDS: the frame every link hangs from on `/tf_static` (`none`: no `/tf_static`).
+    #[arg(long, default_value = "base_link")]
+    pub(super) root_frame: String,
     /// Endpoint to listen on (repeatable); `tcp/127.0.0.1:7447` unless
     /// --connect or a --zenoh-config says otherwise. `tcp/0.0.0.0:7447`
     /// opens the bridge to the network.
@@ -53,13 +75,55 @@ pub struct Args {
     send_buffer: usize,
     /// Print every channel's figures each second.
     #[arg(long)]
-    stats: bool,
+    pub(super) stats: bool,
     /// Print JSON: a line each second with --stats, and the summary at the end.
     #[arg(long)]
-    json: bool,
+    pub(super) json: bool,
     /// Stop after this many seconds (default: at Ctrl-C).
     #[arg(long)]
-    seconds: Option<f64>,
+    pub(super) seconds: Option<f64>,
+}
+
+/// The default rates of the DDS side's topics (as `skinware_dds::Rates`
+/// gives them, which a `skin` without DDS does not build).
+mod skinware_ros2_rates {
+    pub const CLOUD_HZ: f64 = 10.0;
+    pub const STATE_HZ: f64 = 30.0;
+    pub const CONTACTS_HZ: f64 = 30.0;
+}
+
+/// Where `skin bridge` sends the ROS 2 topics.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Ros2Mode {
+    /// rmw_zenoh, beside the remote readers (feature `zenoh`).
+    Zenoh,
+    /// DDS, ROS 2's default RMW (feature `dds`); no zenoh.
+    Dds,
+    /// Both.
+    Both,
+    /// No ROS 2 topics: zenoh for skinware's remote readers only.
+    None,
+}
+
+impl Args {
+    /// The ROS 2 side asked for, `--no-ros` included.
+    fn ros2_mode(&self) -> Result<Ros2Mode, anyhow::Error> {
+        match (self.no_ros, self.ros2) {
+            (false, mode) => Ok(mode),
+            (true, Ros2Mode::Zenoh | Ros2Mode::None) => Ok(Ros2Mode::None),
+            (true, mode) => {
+                Err(anyhow::anyhow!("--no-ros and --ros2 {mode:?} disagree; give one (--ros2 none is --no-ros)"))
+            }
+        }
+    }
+}
+
+/// Runs `skin bridge`: zenoh, DDS, or both.
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    match args.ros2_mode()? {
+        Ros2Mode::Dds => super::bridge_dds::run_alone(args),
+        mode => run_zenoh(args, mode == Ros2Mode::Both),
+    }
 }
 
 /// The `--remote` option of `skin ls`, `echo` and `view`, and how to link.
@@ -82,10 +146,10 @@ fn without_zenoh() -> anyhow::Error {
     )
 }
 
-/// Runs `skin bridge`.
+/// Runs the zenoh side of `skin bridge`.
 #[cfg(not(feature = "zenoh"))]
-pub fn run(_: &Args) -> Result<()> {
-    Err(without_zenoh())
+fn run_zenoh(_: &Args, _: bool) -> Result<()> {
+    Err(anyhow::anyhow!("{}; or publish for ROS 2 on DDS alone with --ros2 dds (feature dds)", without_zenoh()))
 }
 
 /// `skin ls --remote`.
@@ -139,7 +203,9 @@ pub enum EchoMode {
 }
 
 #[cfg(feature = "zenoh")]
-pub use with_zenoh::{echo, ls, run, view};
+use with_zenoh::run_zenoh;
+#[cfg(feature = "zenoh")]
+pub use with_zenoh::{echo, ls, view};
 
 #[cfg(feature = "zenoh")]
 mod with_zenoh {
@@ -182,12 +248,13 @@ mod with_zenoh {
         Ok(())
     }
 
-    /// Runs `skin bridge` until Ctrl-C or `--seconds`.
-    pub fn run(args: &Args) -> Result<()> {
+    /// Runs `skin bridge` on zenoh (and on DDS too with `with_dds`) until
+    /// Ctrl-C or `--seconds`.
+    pub fn run_zenoh(args: &Args, with_dds: bool) -> Result<()> {
         let mut options = BridgeOptions::new(&args.skin);
         options.layers = args.layers.clone();
         options.services = !args.no_services;
-        options.ros = !args.no_ros;
+        options.ros = !args.no_ros && args.ros2 != super::Ros2Mode::None;
         options.map_hz = args.map_hz.max(0.0);
         options.domain = match args.domain {
             Some(domain) => domain,
@@ -216,6 +283,7 @@ mod with_zenoh {
         };
         let shutdown = super::super::run::shutdown_on_signals()?;
         let bridge = Bridge::start(options.clone())?;
+        let dds = if with_dds { Some(super::super::bridge_dds::start(args)?) } else { None };
         eprintln!(
             "skin bridge: skin {} ({} channels: {}) on zenoh {}{}{}; Ctrl-C to stop",
             args.skin,
@@ -251,6 +319,9 @@ mod with_zenoh {
             writeln!(out)?;
         } else {
             print_table(&mut out, &report, started.elapsed().as_secs_f64())?;
+        }
+        if let Some(dds) = dds {
+            super::super::bridge_dds::finish(dds, args, &mut out, started.elapsed().as_secs_f64())?;
         }
         Ok(())
     }

@@ -3,6 +3,7 @@
 #[cfg(feature = "bench")]
 pub mod bench;
 pub mod bridge;
+pub mod bridge_dds;
 pub mod clean;
 pub mod demo;
 pub mod driver;

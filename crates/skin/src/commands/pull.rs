@@ -89,6 +89,7 @@ fn check_pullable(skin: &str, layer: &str) -> Result<()> {
             match kind {
                 Some(DriverKind::Can | DriverKind::Ethercat) => " (a real bus's fault is a real unplugged cable)",
                 Some(DriverKind::Replay) => " (a replay plays back the faults it recorded)",
+                Some(DriverKind::Ros2) => " (a ros2 layer faults when its topic falls silent: stop its publisher)",
                 _ => "",
             }
         ),

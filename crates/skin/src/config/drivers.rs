@@ -27,11 +27,14 @@ pub enum DriverKind {
     Replay,
     /// Tactile segments on EtherCAT (one SubDevice each).
     Ethercat,
+    /// A ROS 2 topic (DDS): a sensor's own ROS 2 driver, or a simulator.
+    Ros2,
 }
 
 impl DriverKind {
     /// Every kind, in the order the docs list them.
-    pub const ALL: [DriverKind; 4] = [DriverKind::Virtual, DriverKind::Can, DriverKind::Ethercat, DriverKind::Replay];
+    pub const ALL: [DriverKind; 5] =
+        [DriverKind::Virtual, DriverKind::Can, DriverKind::Ethercat, DriverKind::Ros2, DriverKind::Replay];
 
     /// Its name in a config (`kind = "virtual"`) and in a driver's status.
     pub fn as_str(self) -> &'static str {
@@ -40,6 +43,7 @@ impl DriverKind {
             DriverKind::Can => "can",
             DriverKind::Replay => "replay",
             DriverKind::Ethercat => "ethercat",
+            DriverKind::Ros2 => "ros2",
         }
     }
 
@@ -186,8 +190,20 @@ pub struct DriverConfig {
     pub base_ids: Vec<u16>,
     /// XELA: the board's address.
     pub address: Option<u8>,
-    /// XELA: its taxels.
+    /// XELA, ROS 2: its taxels.
     pub taxels: Option<usize>,
+    // ROS 2 driver parameters (`taxels`, `layer_name`, `rate_hz`,
+    // `sensors_per_module` are shared).
+    /// The topic to read (`/fingertip/pressure`).
+    pub topic: Option<String>,
+    /// Its message type: `PointCloud2`, `UInt16MultiArray` or `Float32MultiArray`.
+    pub message: Option<String>,
+    /// A `PointCloud2`'s field holding the response (default `response`).
+    pub field: Option<String>,
+    /// The ROS domain (default: `$ROS_DOMAIN_ID`, else 0).
+    pub domain: Option<u32>,
+    /// Silence longer than this faults the layer (default 500 ms).
+    pub timeout_ms: Option<f64>,
     // EtherCAT driver parameters (`interface` is the network interface).
     /// The segments in ring order (`[[driver.segment]]`).
     #[serde(default, rename = "segment")]
@@ -231,6 +247,9 @@ pub enum BuiltDriver {
     Replay(Box<ReplayDriver>),
     /// An EtherCAT skin.
     Ethercat(EthercatDriver),
+    /// A ROS 2 topic.
+    #[cfg(feature = "dds")]
+    Ros2(Box<skinware_dds::driver::Ros2Driver>),
 }
 
 /// Reads a driver's device status now (see [`BuiltDriver::status_source`]).
@@ -243,6 +262,8 @@ impl BuiltDriver {
             BuiltDriver::Virtual(driver) => driver.layers(),
             BuiltDriver::Can(driver) => driver.layers(),
             BuiltDriver::Ethercat(driver) => driver.layers(),
+            #[cfg(feature = "dds")]
+            BuiltDriver::Ros2(driver) => driver.layers(),
             BuiltDriver::Replay(replay) => replay
                 .header
                 .channels
@@ -254,7 +275,7 @@ impl BuiltDriver {
         }
     }
 
-    /// Its own calibration: the virtual skin's body; for a CAN or EtherCAT
+    /// Its own calibration: the virtual skin's body; for a CAN, EtherCAT or ROS 2
     /// skin without a calibration file, a flat layout (modules in rows of 16,
     /// taxels on a 4 mm grid), the driver's `index`-th 0.5 m apart, so that
     /// the viewer shows every taxel.
@@ -262,7 +283,8 @@ impl BuiltDriver {
         match self {
             BuiltDriver::Virtual(driver) => driver.calibration(),
             BuiltDriver::Replay(replay) => replay_calibration(replay),
-            BuiltDriver::Can(_) | BuiltDriver::Ethercat(_) => {
+            // CAN, EtherCAT and ROS 2: a flat layout.
+            _ => {
                 let mut calibration = Calibration::new();
                 for spec in self.layers() {
                     let topology = spec.topology;
@@ -293,6 +315,8 @@ impl BuiltDriver {
             BuiltDriver::Can(_) => DriverKind::Can,
             BuiltDriver::Replay(_) => DriverKind::Replay,
             BuiltDriver::Ethercat(_) => DriverKind::Ethercat,
+            #[cfg(feature = "dds")]
+            BuiltDriver::Ros2(_) => DriverKind::Ros2,
         }
     }
 
@@ -353,6 +377,8 @@ impl BuiltDriver {
             BuiltDriver::Virtual(driver) => Some(Box::new(driver)),
             BuiltDriver::Can(driver) => Some(Box::new(driver)),
             BuiltDriver::Ethercat(driver) => Some(Box::new(driver)),
+            #[cfg(feature = "dds")]
+            BuiltDriver::Ros2(driver) => Some(driver),
             BuiltDriver::Replay(_) => None,
         }
     }
@@ -431,7 +457,20 @@ impl DriverConfig {
                 bail!("`frame_timeout_ms` is a setting of kind = \"ethercat\", not of this driver");
             }
         }
+        if self.kind != DriverKind::Ros2 {
+            let ros2_keys = [
+                ("topic", self.topic.is_some()),
+                ("message", self.message.is_some()),
+                ("field", self.field.is_some()),
+                ("domain", self.domain.is_some()),
+                ("timeout_ms", self.timeout_ms.is_some()),
+            ];
+            if let Some((key, _)) = ros2_keys.iter().find(|(_, given)| *given) {
+                bail!("`{key}` is a setting of kind = \"ros2\", not of this driver");
+            }
+        }
         match self.kind {
+            DriverKind::Ros2 => self.build_ros2(),
             DriverKind::Can => self.build_can().map(BuiltDriver::Can),
             DriverKind::Ethercat => self.build_ethercat().map(BuiltDriver::Ethercat),
             DriverKind::Replay => self.build_replay().map(|r| BuiltDriver::Replay(Box::new(r))),
@@ -544,6 +583,66 @@ impl DriverConfig {
             ..skinware_record::ReplayOptions::default()
         };
         Ok(ReplayDriver { file, header, options })
+    }
+
+    /// The driver of a `kind = "ros2"` table: one layer from one topic.
+    #[cfg(not(feature = "dds"))]
+    fn build_ros2(&self) -> Result<BuiltDriver> {
+        bail!(
+            "driver {}: kind = \"ros2\" needs a skin built with DDS: `cargo build --release -p skin --features dds`",
+            self.name
+        )
+    }
+
+    /// The driver of a `kind = "ros2"` table: one layer from one topic.
+    #[cfg(feature = "dds")]
+    fn build_ros2(&self) -> Result<BuiltDriver> {
+        use skinware_dds::driver::{Ros2Driver, Ros2Input};
+        let foreign_keys = [
+            ("sensors", self.sensors.is_some()),
+            ("layers", self.layers.is_some()),
+            ("[[driver.layer]]", !self.explicit_layers.is_empty()),
+            ("interface", self.interface.is_some()),
+            ("protocol", self.protocol.is_some()),
+        ];
+        if let Some((key, _)) = foreign_keys.iter().find(|(_, given)| *given) {
+            bail!("`{key}` is not a setting of kind = \"ros2\" (it reads one layer of `taxels` from `topic`)");
+        }
+        let Some(topic) = &self.topic else {
+            bail!("kind = \"ros2\" needs `topic`, the ROS 2 topic to read, e.g. \"/fingertip/pressure\"");
+        };
+        let Some(message) = &self.message else {
+            bail!("kind = \"ros2\" needs `message`: \"PointCloud2\", \"UInt16MultiArray\" or \"Float32MultiArray\"");
+        };
+        let input = Ros2Input::parse(message, self.field.as_deref())?;
+        let Some(taxels) = self.taxels.filter(|t| (1..=1_000_000).contains(t)) else {
+            bail!("kind = \"ros2\" needs `taxels`, the layer's sensors (1 to 1,000,000): one value each per message");
+        };
+        let rate_hz = match &self.rate_hz {
+            Some(Rate::Fixed(hz)) if hz.is_finite() && *hz > 0.0 => *hz,
+            _ => bail!("kind = \"ros2\" needs `rate_hz`, one number: the rate the topic is published at"),
+        };
+        let timeout_ms = self.timeout_ms.unwrap_or(500.0);
+        if !(timeout_ms.is_finite() && timeout_ms > 0.0) {
+            bail!("timeout_ms = {timeout_ms}: give the silence, in ms, after which the layer is faulted");
+        }
+        let domain = match self.domain {
+            Some(domain) => skinware_dds::check_domain(domain)?,
+            None => skinware_dds::domain_from_env()?,
+        };
+        let layer = self.layer_name.clone().unwrap_or_else(|| self.name.clone());
+        skinware::shm::validate_name("layer", &layer)?;
+        let per_module = self.sensors_per_module.unwrap_or(16).max(1);
+        let mut builder = skinware::TopologyBuilder::new(&layer, "ros2", rate_hz);
+        let patch = builder.patch(1);
+        for (m, first) in (0..taxels).step_by(per_module).enumerate() {
+            let uids = (first..(first + per_module).min(taxels)).map(|uid| uid as u32);
+            patch.module(m as u32, uids);
+        }
+        let topology = builder.build()?;
+        let timeout = std::time::Duration::from_secs_f64(timeout_ms / 1e3);
+        let driver = Ros2Driver::new(topology, self.rt.options(), topic, input, domain, timeout)?;
+        Ok(BuiltDriver::Ros2(Box::new(driver)))
     }
 
     /// The CAN driver of a `kind = "can"` table.

@@ -92,12 +92,16 @@ def subscribe(seconds, topics):
         )
 
         def callback(msg, topic=topic, kind=kind):
-            entry = {"stamp_ns": msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec,
+            header = msg.markers[0].header if kind == "visualization_msgs/msg/MarkerArray" else msg.header
+            entry = {"stamp_ns": header.stamp.sec * 1_000_000_000 + header.stamp.nanosec,
                      "received_ns": time.time_ns()}
             if kind == "sensor_msgs/msg/PointCloud2":
                 entry.update(cloud_json(msg))
             elif kind == "diagnostic_msgs/msg/DiagnosticArray":
                 entry["status"] = diagnostics_json(msg)
+            elif kind == "visualization_msgs/msg/MarkerArray":
+                entry["markers"] = [{"action": m.action, "type": m.type, "frame_id": m.header.frame_id,
+                                     "points": [[p.x, p.y, p.z] for p in m.points]} for m in msg.markers]
             elif kind == "sensor_msgs/msg/Image":
                 entry.update({"width": msg.width, "height": msg.height, "encoding": msg.encoding,
                               "bytes": len(msg.data), "frame_id": msg.header.frame_id})
