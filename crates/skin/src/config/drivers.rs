@@ -433,9 +433,8 @@ impl DriverConfig {
         Ok(())
     }
 
-    /// Builds the driver this table describes.
-    pub fn build(&self, skin: &str) -> Result<BuiltDriver> {
-        skinware::shm::validate_name("driver", &self.name)?;
+    /// Refuses a key of another kind of driver, naming whose it is.
+    fn refuse_other_kinds_keys(&self) -> Result<()> {
         if self.kind != DriverKind::Replay {
             let replay_keys = [
                 ("file", self.file.is_some()),
@@ -469,6 +468,13 @@ impl DriverConfig {
                 bail!("`{key}` is a setting of kind = \"ros2\", not of this driver");
             }
         }
+        Ok(())
+    }
+
+    /// Builds the driver this table describes.
+    pub fn build(&self, skin: &str) -> Result<BuiltDriver> {
+        skinware::shm::validate_name("driver", &self.name)?;
+        self.refuse_other_kinds_keys()?;
         match self.kind {
             DriverKind::Ros2 => self.build_ros2(),
             DriverKind::Can => self.build_can().map(BuiltDriver::Can),
