@@ -430,12 +430,18 @@ impl LayerSource for TopicSource {
             self.ever = true;
         } else if !self.ever || now.duration_since(self.last_message) > self.timeout {
             // Responses no message gave are no frame: faulted until the first.
-            let silent = if self.ever { "no message" } else { "no message yet" };
+            let silent = if self.ever {
+                format!(
+                    "no message for {:.1} s (timeout {:.1} s)",
+                    now.duration_since(self.last_message).as_secs_f64(),
+                    self.timeout.as_secs_f64()
+                )
+            } else {
+                "no message yet".to_owned()
+            };
             return Err(format!(
-                "topic {}: {silent} for {:.1} s (timeout {:.1} s); is its publisher running, in the same ROS_DOMAIN_ID?",
-                self.topic,
-                now.duration_since(self.last_message).as_secs_f64(),
-                self.timeout.as_secs_f64()
+                "topic {}: {silent}; is its publisher running, in the same ROS_DOMAIN_ID?",
+                self.topic
             )
             .into());
         }

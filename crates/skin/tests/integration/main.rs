@@ -19,7 +19,10 @@
 //!
 //! - [`bridge_e2e`] (feature `zenoh`): `skin bridge` between two network
 //!   namespaces, and a ROS 2 subscriber made of Python's `eclipse-zenoh` and
-//!   `rosbags`.
+//!   `rosbags`;
+//! - [`ros2_e2e`] (feature `dds`): a ROS 2 sensor on one network namespace
+//!   is a `ros2` layer of `skin run` on another, whose `skin bridge --ros2
+//!   dds` cloud comes back to an rclpy subscriber.
 //!
 //! Run one file's tests with `cargo test -p skin --test integration e2e::`.
 
@@ -33,5 +36,7 @@ mod e2e;
 mod ethercat_e2e;
 mod python;
 mod record_e2e;
+#[cfg(feature = "dds")]
+mod ros2_e2e;
 mod services_e2e;
 mod util;

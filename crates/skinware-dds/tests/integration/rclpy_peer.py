@@ -163,8 +163,11 @@ def publish(topic, kind, hz, plan, sensors):
 
 
 if __name__ == "__main__":
-    if sys.argv[1] == "subscribe":
-        subscribe(float(sys.argv[2]), sys.argv[3:])
-    else:
-        topic, kind, hz, plan, sensors = sys.argv[2:7]
-        publish(topic, kind, float(hz), [float(s) for s in plan.split(",")], int(sensors))
+    try:
+        if sys.argv[1] == "subscribe":
+            subscribe(float(sys.argv[2]), sys.argv[3:])
+        else:
+            topic, kind, hz, plan, sensors = sys.argv[2:7]
+            publish(topic, kind, float(hz), [float(s) for s in plan.split(",")], int(sensors))
+    except KeyboardInterrupt:
+        pass  # stopped by the test (SIGINT), as a node is
