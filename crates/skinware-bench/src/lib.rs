@@ -34,6 +34,10 @@
 //! * [`bridge`]: the paper's skin across a veth link between two network
 //!   namespaces, through `skin bridge` (feature `zenoh`).
 //!
+//! * [`ros2`]: the skin's ROS 2 topics to stock rclpy subscribers, over
+//!   DDS (feature `dds`) and rmw_zenoh (feature `zenoh`), beside rclpy to
+//!   rclpy.
+//!
 //! Every bench takes a [`RunOptions`] (quick or full, where its files go,
 //! seconds per configuration, the `skin` executable), alone or inside its
 //! own options. Helper processes (application processes, readers, the floor
@@ -41,7 +45,8 @@
 //! hidden role ([`roles`]).
 //!
 //! Cargo features: `iceoryx2` adds iceoryx2 to [`peers`]; `zenoh` builds
-//! [`bridge`] (without it, the bridge bench says how to get it).
+//! [`bridge`] (without it, the bridge bench says how to get it) and the
+//! rmw_zenoh rows of [`ros2`]; `dds` its DDS rows.
 
 // `unsafe` is denied everywhere but in the lock-based peer (pthread objects
 // in shared memory), which says so itself.
@@ -66,6 +71,7 @@ pub mod procs;
 pub mod python;
 pub mod record;
 pub mod roles;
+pub mod ros2;
 pub mod run_options;
 mod rwlock_peer;
 pub mod soak;

@@ -40,6 +40,8 @@ pub enum Which {
     Follow(FollowArgs),
     /// The paper's skin across a veth link between two network namespaces: `skin bridge` (feature `zenoh`) beside the local exchange, at 100/10/1 Mbit/s, and a cut link (needs root).
     Bridge(Common),
+    /// The skin's ROS 2 topics to stock rclpy subscribers (Fast DDS): skin bridge's DDS side (feature `dds`) at its default rates, with clouds at 30 Hz, and with the shipped 4 MiB Fast DDS profile; rclpy to rclpy over UDP as the baseline; the rmw_zenoh path (feature `zenoh`). Needs SKINWARE_ROS2_PYTHONS.
+    Ros2(Common),
     /// Faults for N minutes on a skin of virtual drivers under `skin run`, with verifying readers in every mode, both services, the viewer and a browser, and a recorder: torn, backwards and lost frames, stuck readers, leaks, and how long every layer takes to run again after each kind of fault.
     Soak(SoakArgs),
 }
@@ -184,6 +186,19 @@ pub fn run(which: &Which) -> Result<()> {
             follow::run(&follow::FollowOptions { run: common.run_options()?, rounds }).map(drop)
         }
         Which::Bridge(common) => bridge::bench(&common.run_options()?),
+        Which::Ros2(common) => {
+            let ros_python = skinware_bench::ros2::default_ros_python().context(
+                "skin bench ros2 needs SKINWARE_ROS2_PYTHONS: a Python with rclpy and the standard messages \
+                 (pip, no ROS installation; docs/ros2.md)",
+            )?;
+            let zenoh_python = std::env::var("SKINWARE_PYTHON").unwrap_or_else(|_| "python3".into());
+            skinware_bench::ros2::bench(&skinware_bench::ros2::Ros2BenchOptions {
+                run: common.run_options()?,
+                ros_python: ros_python.display().to_string(),
+                zenoh_python,
+            })
+            .map(drop)
+        }
         Which::Soak(args) => soak::bench(&args.options()?, &soak_config::SkinConfigs),
     }
 }

@@ -463,6 +463,7 @@ fn built_with(name: &str) -> Option<bool> {
         "cli" => Some(true),
         "bench" => Some(cfg!(feature = "bench")),
         "zenoh" => Some(cfg!(feature = "zenoh")),
+        "dds" => Some(cfg!(feature = "dds")),
         "iceoryx2" => Some(cfg!(feature = "iceoryx2")),
         _ => None,
     }
