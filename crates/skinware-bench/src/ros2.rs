@@ -175,9 +175,11 @@ fn process_cpu_s(pid: u32) -> f64 {
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
     // Fields after the command's closing parenthesis: utime and stime are the 12th and 13th.
     let rest = stat.rsplit_once(')').map_or("", |(_, rest)| rest);
-    let fields: Vec<u64> = rest.split_whitespace().filter_map(|f| f.parse().ok()).collect();
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let field = |k: usize| fields.get(k).and_then(|f| f.parse::<u64>().ok()).unwrap_or(0);
     let ticks = rustix::param::clock_ticks_per_second() as f64;
-    (fields.get(11).copied().unwrap_or(0) + fields.get(12).copied().unwrap_or(0)) as f64 / ticks
+    // After the state (index 0): utime at 11, stime at 12.
+    (field(11) + field(12)) as f64 / ticks
 }
 
 /// A subscriber process: started, then its window's start and its JSON.
@@ -206,7 +208,15 @@ impl Listener {
         }
     }
 
-    /// Its JSON, at the end of its window.
+    /// Waits for the line `stopped`, the end of its window.
+    fn stopped(&mut self) -> Result<()> {
+        match self.lines.next() {
+            Some(Ok(line)) if line.trim() == "stopped" => Ok(()),
+            other => bail!("the ROS 2 subscriber did not stop counting: {other:?}"),
+        }
+    }
+
+    /// Its JSON, after its window.
     fn result(mut self) -> Result<Value> {
         let line = self.lines.next().context("the subscriber's result")??;
         let _ = self.child.wait();
@@ -290,9 +300,10 @@ fn dds_rows(
         let mut listener = Listener::start(&options.ros_python, &args, &env)?;
         listener.counting()?;
         let (before, cpu_before, started) = (bridge.report(), process_cpu_s(std::process::id()), Instant::now());
-        let got = listener.result()?;
+        listener.stopped()?;
         let (after, cpu_after, wall) =
             (bridge.report(), process_cpu_s(std::process::id()), started.elapsed().as_secs_f64());
+        let got = listener.result()?;
         let cpu_pct = 100.0 * (cpu_after - cpu_before) / wall;
         for topic in &topics {
             let sent = |report: &[skinware_dds::TopicReport]| {
@@ -326,8 +337,9 @@ fn baseline(options: &Ros2BenchOptions, sizes: &[usize], hz: f64, window: f64) -
     let mut listener = Listener::start(&options.ros_python, &args, &env)?;
     listener.counting()?;
     let (cpu_before, started) = (process_cpu_s(talker.0.id()), Instant::now());
-    let got = listener.result()?;
+    listener.stopped()?;
     let (cpu_after, wall) = (process_cpu_s(talker.0.id()), started.elapsed().as_secs_f64());
+    let got = listener.result()?;
     let _ = talker.0.kill();
     let cpu_pct = 100.0 * (cpu_after - cpu_before) / wall;
     let scenario = format!("baseline rclpy -> rclpy, UDP, reliable, {hz:.0} Hz");
@@ -383,14 +395,16 @@ fn zenoh_rows(
     let mut listener = Listener::start(&options.zenoh_python, &args, &[])?;
     listener.counting()?;
     let (before, cpu_before, started) = (bridge.report(), process_cpu_s(std::process::id()), Instant::now());
-    let got = listener.result()?;
+    listener.stopped()?;
     let (after, cpu_after, wall) =
         (bridge.report(), process_cpu_s(std::process::id()), started.elapsed().as_secs_f64());
+    let got = listener.result()?;
     let cpu_pct = 100.0 * (cpu_after - cpu_before) / wall;
     for (key, figures) in got.as_object().into_iter().flatten() {
+        // The key's topic names the channel as ROS names it (`virtual_0`).
         let channel = key.split('/').nth(3).unwrap_or_default();
         let sent = |report: &[skinware_bridge::bridge::ChannelReport]| {
-            report.iter().find(|c| c.channel == channel).map_or(0, |c| c.ros_sent) as f64
+            report.iter().find(|c| skinware_ros2::ros_name(&c.channel) == channel).map_or(0, |c| c.ros_sent) as f64
         };
         let topic = key.split('/').take(5).collect::<Vec<_>>().join("/");
         rows.push(row("ours rmw_zenoh, every frame", &topic, figures, sent(&after) - sent(&before), wall, cpu_pct));

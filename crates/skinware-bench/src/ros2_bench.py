@@ -72,6 +72,7 @@ def listen(window, topics):
     while time.monotonic() < end:
         rclpy.spin_once(node, timeout_sec=0.05)
     counting[0] = False
+    print("stopped", flush=True)
     out = {}
     for topic, entry in received.items():
         seqs = entry.pop("seqs")
@@ -154,6 +155,7 @@ def zlisten(endpoint, window, keyexpr):
     print("counting", flush=True)
     time.sleep(window)
     counting[0] = False
+    print("stopped", flush=True)
     out = {}
     for key, entry in received.items():
         ages = entry.pop("ages_ms")

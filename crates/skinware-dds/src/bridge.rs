@@ -65,6 +65,9 @@ impl Default for Rates {
     }
 }
 
+/// The DDS map's default width, pixels.
+pub const DEFAULT_MAP_WIDTH: usize = 200;
+
 /// What to publish, and how.
 #[derive(Clone, Debug)]
 pub struct DdsOptions {
@@ -84,7 +87,9 @@ pub struct DdsOptions {
     pub rates: Rates,
     /// Per-topic rates (full topic name → Hz), over the kind's.
     pub topic_hz: BTreeMap<String, f64>,
-    /// The map image's width in pixels.
+    /// The map image's width in pixels (200 by default: 100 KB a message,
+    /// which a default socket buffer takes whole; 480, rmw_zenoh's, is
+    /// 580 KB, which needs the large-message profile).
     pub map_width: usize,
 }
 
@@ -101,7 +106,7 @@ impl DdsOptions {
             root_frame: Some("base_link".into()),
             rates: Rates::default(),
             topic_hz: BTreeMap::new(),
-            map_width: 480,
+            map_width: DEFAULT_MAP_WIDTH,
         }
     }
 }
@@ -302,7 +307,7 @@ impl Publishing {
         check_layers(&options, &listed)?;
         let geometry = SkinGeometry::open_in(&dir, &skin).ok();
         let reader_options = ReaderOptions { dir: Some(dir.clone()), allow_gone: true, ..ReaderOptions::default() };
-        let mut layers = Vec::new();
+        let mut layers: Vec<LayerSource> = Vec::new();
         let mut contacts = Vec::new();
         let mut watched = Vec::new();
         for info in &listed {
@@ -332,7 +337,8 @@ impl Publishing {
                 dir.display()
             )));
         }
-        let (diagnostics, map, tf_static) = declare_fixed(&mut node, &options, geometry.as_ref())?;
+        let (diagnostics, mut map, tf_static) = declare_fixed(&mut node, &options, geometry.as_ref())?;
+        phase_large_topics(&mut layers, map.as_mut().map(|(_, topic)| topic));
         Ok(Publishing {
             options,
             clock_offset_ns: skinware_ros2::clock_offset_ns(),
@@ -600,20 +606,35 @@ impl LayerSource {
         let link_clouds = geometry
             .and_then(|g| g.layers.iter().position(|l| l.name == name).and_then(|index| LayerClouds::new(g, index)));
         let mut clouds = Vec::new();
-        let count = link_clouds.as_ref().map_or(0, |c| c.clouds.len()).max(1) as f64;
         let mut taken = std::collections::BTreeSet::new();
-        for (k, cloud) in link_clouds.into_iter().flat_map(|c| c.clouds).enumerate() {
+        for cloud in link_clouds.into_iter().flat_map(|c| c.clouds) {
             let mut topic = skinware_ros2::cloud_topic(skin, name, &cloud.link);
             let mut n = 2;
             while !taken.insert(topic.clone()) {
                 topic = format!("{}_{n}", skinware_ros2::cloud_topic(skin, name, &cloud.link));
                 n += 1;
             }
-            let phase = k as f64 / count;
-            let declared = Topic::declare(node, options, &topic, POINT_CLOUD2, sensor, options.rates.cloud_hz, phase)?;
+            // Phased with the skin's other large topics (`phase_large_topics`).
+            let declared = Topic::declare(node, options, &topic, POINT_CLOUD2, sensor, options.rates.cloud_hz, 0.0)?;
             clouds.push((cloud, declared, 0));
         }
         Ok(LayerSource { reader, topology, state, clouds, state_seq: 0 })
+    }
+}
+
+/// Spreads the large messages (every link's cloud, the map) evenly over
+/// their period: a receiver's socket buffer (208 KiB by default) holds one
+/// burst of a cloud's datagrams, not all of them at once, and a datagram
+/// dropped for room takes its whole message with it.
+fn phase_large_topics<M: Serialize>(layers: &mut [LayerSource], map: Option<&mut Topic<M>>) {
+    let mut large: Vec<&mut Every> =
+        layers.iter_mut().flat_map(|layer| layer.clouds.iter_mut().map(|(_, topic, _)| &mut topic.every)).collect();
+    let count = large.len() + usize::from(map.is_some());
+    if let Some(map) = map {
+        large.push(&mut map.every);
+    }
+    for (k, every) in large.into_iter().enumerate() {
+        *every = every.rephased(k as f64 / count as f64);
     }
 }
 

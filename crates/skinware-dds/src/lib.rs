@@ -28,7 +28,7 @@ mod bridge;
 pub mod driver;
 pub mod qos;
 
-pub use bridge::{DdsBridge, DdsOptions, Rates, TopicReport};
+pub use bridge::{DEFAULT_MAP_WIDTH, DdsBridge, DdsOptions, Rates, TopicReport};
 
 /// What went wrong in skinware's DDS side, with what to do about it.
 #[derive(Debug, thiserror::Error)]

@@ -26,6 +26,12 @@ impl Every {
         Every { period, next: Instant::now() + offset }
     }
 
+    /// The same rate, first due `phase` (0..1) of a period from now.
+    pub fn rephased(&self, phase: f64) -> Every {
+        let offset = self.period.map_or(Duration::ZERO, |p| p.mul_f64(phase.clamp(0.0, 1.0)));
+        Every { period: self.period, next: Instant::now() + offset }
+    }
+
     /// Its period (`None`: never due).
     pub fn period(&self) -> Option<Duration> {
         self.period

@@ -30,6 +30,10 @@ pub struct Args {
     /// Map images a second for ROS 2 (`/skin/<skin>/map`); 0 for none.
     #[arg(long, default_value_t = 5.0)]
     pub(super) map_hz: f64,
+    /// The map's width in pixels, 16 to 4096 (default: 480 on zenoh, 200 on
+    /// DDS, where 480 is a 580 KB message that a default socket buffer drops).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(16..=4096))]
+    pub(super) map_width: Option<u32>,
     /// Publish only for skinware readers, not for ROS 2 (`--ros2 none`).
     #[arg(long)]
     no_ros: bool,
@@ -256,6 +260,9 @@ mod with_zenoh {
         options.services = !args.no_services;
         options.ros = !args.no_ros && args.ros2 != super::Ros2Mode::None;
         options.map_hz = args.map_hz.max(0.0);
+        if let Some(width) = args.map_width {
+            options.map_width = width as usize;
+        }
         options.domain = match args.domain {
             Some(domain) => domain,
             None => match std::env::var("ROS_DOMAIN_ID") {

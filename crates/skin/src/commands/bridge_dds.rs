@@ -82,6 +82,7 @@ mod with_dds {
             map_hz: rate("--map-hz", args.map_hz)?,
             ..Rates::default()
         };
+        options.map_width = args.map_width.map_or(skinware_dds::DEFAULT_MAP_WIDTH, |w| w as usize);
         options.root_frame = match args.root_frame.trim() {
             "none" => None,
             "" => bail!("--root-frame is empty: name the robot's root frame (base_link), or give `none`"),
