@@ -38,7 +38,7 @@ use skinware_ros2::{Header, HeatMap, IMAGE, LayerLook, TACTILE_CONTACTS, TACTILE
 use skinware_services::{RegionContacts, ServiceInfo, ServicePayload};
 
 use crate::DdsError;
-use crate::qos::TopicClass;
+use crate::qos::{QosClass, profile};
 
 /// Each kind of topic's rate, messages a second (0: not published).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -119,7 +119,7 @@ pub struct TopicReport {
     /// Its message type.
     pub type_name: &'static str,
     /// Its QoS.
-    pub class: TopicClass,
+    pub class: QosClass,
     /// Its rate limit, Hz (0: once).
     pub hz: f64,
     /// Messages written.
@@ -145,13 +145,13 @@ impl<M: Serialize> Topic<M> {
         options: &DdsOptions,
         topic: &str,
         type_name: &'static str,
-        class: TopicClass,
+        class: QosClass,
         kind_hz: f64,
         phase: f64,
     ) -> Result<Topic<M>, DdsError> {
         let dds = |e: &dyn std::fmt::Display| DdsError::Dds(format!("cannot declare the ROS 2 topic {topic}: {e}"));
         let name = Name::parse(topic).map_err(|e| dds(&format!("{e:?}")))?;
-        let qos = class.profile();
+        let qos = profile(class);
         let ros_topic = node.create_topic(&name, crate::type_name(type_name), &qos).map_err(|e| dds(&e))?;
         let publisher = node.create_publisher::<M>(&ros_topic, Some(qos)).map_err(|e| dds(&e))?;
         let hz = options.topic_hz.get(topic).copied().unwrap_or(kind_hz);
@@ -369,7 +369,11 @@ impl Publishing {
         .chain(self.options.topic_hz.values().copied())
         .filter(|hz| hz.is_finite())
         .fold(self.options.rates.diagnostics_hz.max(1.0), f64::max);
-        let mut ticker = skinware::Ticker::from_hz(fastest.min(1000.0));
+        // Fast enough to send each large topic at its own phase (two ticks
+        // between them), not several in one tick's burst.
+        let large: usize = self.layers.iter().map(|l| l.clouds.len()).sum::<usize>() + usize::from(self.map.is_some());
+        let phased = 2.0 * large as f64 * self.options.rates.cloud_hz.max(self.options.rates.map_hz);
+        let mut ticker = skinware::Ticker::from_hz(fastest.max(phased).clamp(1.0, 1000.0));
         while ticker.wait(stop).is_some() {
             let now = Instant::now();
             self.send_layers(now);
@@ -543,28 +547,22 @@ fn declare_fixed(
         options,
         skinware_ros2::DIAGNOSTICS_TOPIC,
         DIAGNOSTIC_ARRAY,
-        TopicClass::Status,
+        QosClass::Status,
         rates.diagnostics_hz,
         0.0,
     )?;
     let map = match geometry {
         Some(geometry) if rates.map_hz > 0.0 => {
             let topic = skinware_ros2::map_topic(&options.skin);
-            let map_topic = Topic::declare(node, options, &topic, IMAGE, TopicClass::Sensor, rates.map_hz, 0.5)?;
+            let map_topic = Topic::declare(node, options, &topic, IMAGE, QosClass::Sensor, rates.map_hz, 0.5)?;
             Some((HeatMap::new(geometry, options.map_width.clamp(16, 4096)), map_topic))
         }
         _ => None,
     };
     let tf_static = match (geometry, &options.root_frame) {
-        (Some(_), Some(_)) => Some(Topic::declare(
-            node,
-            options,
-            skinware_ros2::TF_STATIC_TOPIC,
-            TF_MESSAGE,
-            TopicClass::Static,
-            0.0,
-            0.0,
-        )?),
+        (Some(_), Some(_)) => {
+            Some(Topic::declare(node, options, skinware_ros2::TF_STATIC_TOPIC, TF_MESSAGE, QosClass::Static, 0.0, 0.0)?)
+        }
         _ => None,
     };
     Ok((diagnostics, map, tf_static))
@@ -575,7 +573,7 @@ impl ContactSource {
         let regions = ServiceInfo::parse(&reader.description()).map(|i| i.labels).unwrap_or_default();
         let markers_topic = skinware_ros2::markers_topic(&options.skin, name);
         let contacts_topic = skinware_ros2::contacts_topic(&options.skin, name);
-        let (sensor, rates) = (TopicClass::Sensor, options.rates);
+        let (sensor, rates) = (QosClass::Sensor, options.rates);
         Ok(ContactSource {
             reader,
             regions,
@@ -601,7 +599,7 @@ impl LayerSource {
             ))
         })?;
         let state_topic = skinware_ros2::tactile_state_topic(skin, name);
-        let sensor = TopicClass::Sensor;
+        let sensor = QosClass::Sensor;
         let state = Topic::declare(node, options, &state_topic, TACTILE_STATE, sensor, options.rates.state_hz, 0.0)?;
         let link_clouds = geometry
             .and_then(|g| g.layers.iter().position(|l| l.name == name).and_then(|index| LayerClouds::new(g, index)));
@@ -629,12 +627,17 @@ impl LayerSource {
 fn phase_large_topics<M: Serialize>(layers: &mut [LayerSource], map: Option<&mut Topic<M>>) {
     let mut large: Vec<&mut Every> =
         layers.iter_mut().flat_map(|layer| layer.clouds.iter_mut().map(|(_, topic, _)| &mut topic.every)).collect();
-    let count = large.len() + usize::from(map.is_some());
     if let Some(map) = map {
         large.push(&mut map.every);
     }
+    // Slots of the shortest period, one per topic: a slower topic (the map
+    // at 5 Hz beside clouds at 10) lands in its own slot of every period.
+    let Some(shortest) = large.iter().filter_map(|every| every.period()).min() else { return };
+    let count = large.len() as f64;
     for (k, every) in large.into_iter().enumerate() {
-        *every = every.rephased(k as f64 / count as f64);
+        let Some(period) = every.period() else { continue };
+        let offset = shortest.as_secs_f64() * k as f64 / count;
+        *every = every.rephased(offset / period.as_secs_f64());
     }
 }
 

@@ -11,49 +11,19 @@ use std::time::Duration;
 use ros2_client::QosProfile;
 use ros2_client::qos::{Durability, History, Reliability, WhenFull};
 
-/// What kind of data a topic carries, which decides its QoS.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum TopicClass {
-    /// Frames, clouds, contacts, the map: best-effort, volatile, keep last 5
-    /// (ROS's `SensorDataQoS`).
-    Sensor,
-    /// `/diagnostics`: reliable, volatile, keep last 10 (ROS's default).
-    Status,
-    /// `/tf_static`: reliable, transient-local, keep last 1 (tf2's static
-    /// broadcaster's durability; a subscriber's depth may be larger).
-    Static,
+pub use skinware_ros2::qos::{QosClass, SENSOR_DEPTH};
+
+/// The DDS profile of a publisher of `class`.
+pub fn profile(class: QosClass) -> QosProfile {
+    // Never wait for a slow reliable reader: fail and count it.
+    let reliability =
+        if class.reliable() { Reliability::Reliable { when_full: WhenFull::Fail } } else { Reliability::BestEffort };
+    let durability = if class.transient_local() { Durability::TransientLocal } else { Durability::Volatile };
+    QosProfile::subscription_default()
+        .reliability(reliability)
+        .durability(durability)
+        .history(History::KeepLast { depth: class.depth() })
 }
-
-impl TopicClass {
-    /// Its QoS profile, for a publisher.
-    pub fn profile(self) -> QosProfile {
-        // Never wait for a slow reliable reader: fail and count it.
-        let reliable = Reliability::Reliable { when_full: WhenFull::Fail };
-        let base = QosProfile::subscription_default();
-        match self {
-            TopicClass::Sensor => {
-                base.reliability(Reliability::BestEffort).history(History::KeepLast { depth: SENSOR_DEPTH })
-            }
-            TopicClass::Status => base.reliability(reliable).history(History::KeepLast { depth: 10 }),
-            TopicClass::Static => base
-                .reliability(reliable)
-                .durability(Durability::TransientLocal)
-                .history(History::KeepLast { depth: 1 }),
-        }
-    }
-
-    /// How `skin bridge --stats` and the docs name it.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            TopicClass::Sensor => "best-effort, volatile, keep last 5",
-            TopicClass::Status => "reliable, volatile, keep last 10",
-            TopicClass::Static => "reliable, transient-local, keep last 1",
-        }
-    }
-}
-
-/// The history depth of a sensor topic (ROS's `SensorDataQoS`).
-pub const SENSOR_DEPTH: usize = 5;
 
 /// The QoS the `ros2` driver subscribes with: best-effort, keep last 5. A
 /// best-effort subscriber matches reliable and best-effort publishers alike.
@@ -71,14 +41,14 @@ mod tests {
 
     #[test]
     fn each_class_has_the_qos_ros_users_expect() {
-        let sensor = TopicClass::Sensor.profile();
+        let sensor = profile(QosClass::Sensor);
         assert_eq!(sensor.reliability, Reliability::BestEffort);
         assert_eq!(sensor.durability, Durability::Volatile);
         assert_eq!(sensor.history, History::KeepLast { depth: 5 });
-        let status = TopicClass::Status.profile();
+        let status = profile(QosClass::Status);
         assert!(matches!(status.reliability, Reliability::Reliable { when_full: WhenFull::Fail }));
         assert_eq!(status.durability, Durability::Volatile);
-        let fixed = TopicClass::Static.profile();
+        let fixed = profile(QosClass::Static);
         assert!(matches!(fixed.reliability, Reliability::Reliable { .. }));
         assert_eq!(fixed.durability, Durability::TransientLocal);
     }

@@ -24,6 +24,8 @@
 //!   [`DiagnosticArray`](standard::DiagnosticArray), [`TfMessage`](standard::TfMessage)),
 //!   made by [`cloud`] (a layer's taxels in 3-D, per link), [`markers`] (contacts
 //!   as arrows) and [`diagnostics`] (every channel's health);
+//! * [`qos`]: each kind of topic's QoS ([`qos::QosClass`]), also as a
+//!   recording's `offered_qos_profiles`;
 //! * [`rate`]: per-topic rate limits ([`rate::Every`]);
 //! * [`clock`]: frames' CLOCK_MONOTONIC stamps as ROS time
 //!   ([`clock_offset_ns`], [`ros_time`]).
@@ -58,6 +60,7 @@ pub mod diagnostics;
 pub mod heatmap;
 pub mod markers;
 pub mod messages;
+pub mod qos;
 pub mod rate;
 pub mod schema;
 pub mod standard;

@@ -116,6 +116,7 @@ fn the_paper_skin_is_recorded_replayed_and_read_by_an_independent_reader() {
     replay_is_recorded_bit_for_bit(d, &a);
     the_demo_shows_a_recording(d, &a);
     the_python_oracle_reads_what_was_written(&a);
+    rosbags_reads_the_offered_qos(&a);
     the_python_oracle_reads_what_was_written(&d.join("recovered.mcap"));
 }
 
@@ -515,6 +516,42 @@ fn ros_view_canonical(topic: &str, data: &[u8]) -> Option<Canonical> {
         return None;
     }
     Some(c)
+}
+
+/// `rosbags` (an independent reader of rosbag2 storage) finds each ROS view
+/// channel's `offered_qos_profiles`: what `ros2 bag play` offers again.
+fn rosbags_reads_the_offered_qos(path: &Path) {
+    let python = std::env::var("SKINWARE_PYTHON").unwrap_or_else(|_| "python3".into());
+    let probe = Command::new(&python).args(["-c", "import rosbags.rosbag2"]).output();
+    if !probe.is_ok_and(|o| o.status.success()) {
+        let reason = "no Python with rosbags (set SKINWARE_PYTHON, or pip install rosbags)";
+        assert!(std::env::var("CI").as_deref() != Ok("true"), "{reason}: CI must run this oracle");
+        println!("SKIPPED: {reason}");
+        return;
+    }
+    let script = r#"
+import json, sys
+from rosbags.rosbag2 import Reader
+with Reader(sys.argv[1]) as reader:
+    print(json.dumps({c.topic: [[q.reliability.name, q.durability.name, q.history.name, q.depth]
+                                for q in c.ext.offered_qos_profiles] for c in reader.connections}))
+"#;
+    let output = Command::new(&python).args(["-c", script]).arg(path).output().unwrap();
+    assert!(output.status.success(), "rosbags on {}: {}", path.display(), String::from_utf8_lossy(&output.stderr));
+    let qos: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    let offered = |topic: &str| qos[topic].as_array().and_then(|profiles| profiles.first()).cloned();
+    assert_eq!(
+        offered("/tf_static"),
+        Some(serde_json::json!(["RELIABLE", "TRANSIENT_LOCAL", "KEEP_LAST", 1])),
+        "{qos}"
+    );
+    assert_eq!(offered("/diagnostics"), Some(serde_json::json!(["RELIABLE", "VOLATILE", "KEEP_LAST", 10])), "{qos}");
+    let clouds: Vec<&String> = qos.as_object().unwrap().keys().filter(|t| t.contains("/cloud/")).collect();
+    assert!(!clouds.is_empty(), "{qos}");
+    for cloud in clouds {
+        assert_eq!(offered(cloud), Some(serde_json::json!(["BEST_EFFORT", "VOLATILE", "KEEP_LAST", 5])), "{cloud}");
+    }
+    println!("rosbags reads the offered QoS of {}: {qos}", path.display());
 }
 
 fn the_python_oracle_reads_what_was_written(path: &Path) {

@@ -1,8 +1,6 @@
 //! What a recording holds for ROS tools, beside skinware's own frames: the
 //! standard messages that Foxglove's 3-D and diagnostics panels draw with no
-//! schema of ours. (The channels carry no `offered_qos_profiles` yet, so
-//! `ros2 bag play` would publish `/tf_static` volatile, which tf2's static
-//! listener does not match.)
+//! schema of ours.
 //!
 //! | topic | message | when |
 //! |---|---|---|
@@ -10,6 +8,11 @@
 //! | `/skin/<skin>/<service>/markers` | `visualization_msgs/MarkerArray` | `ros2_hz`, a recorded contact service's newest frame |
 //! | `/diagnostics` | `diagnostic_msgs/DiagnosticArray` | every statistics interval, every recorded channel |
 //! | `/tf_static` | `tf2_msgs/TFMessage` | once, at the start: every link at the root frame |
+//!
+//! Each channel carries the QoS its ROS publisher offers, as rosbag2 records
+//! it (`offered_qos_profiles`: sensor best-effort, `/diagnostics` reliable,
+//! `/tf_static` reliable and transient-local), so `ros2 bag play` offers the
+//! same and tf2's static listener matches `/tf_static`.
 //!
 //! They are copies at a bounded rate, not every frame: a cloud is 8 times
 //! the bytes of the frame it shows. The frames themselves are in
@@ -28,6 +31,7 @@ use skinware_geometry::SkinGeometry;
 use skinware_ros2::cloud::{LayerClouds, static_links};
 use skinware_ros2::diagnostics::{ChannelHealth, diagnostics};
 use skinware_ros2::markers::ContactMarkers;
+use skinware_ros2::qos::QosClass;
 use skinware_ros2::standard::{DIAGNOSTIC_ARRAY, MARKER_ARRAY, POINT_CLOUD2, TF_MESSAGE};
 use skinware_ros2::{Time, unix_ns};
 use skinware_services::{RegionContacts, ServicePayload};
@@ -91,8 +95,10 @@ pub(super) fn add_view<W: Write + Seek>(
     if !(options.ros2_hz > 0.0 && options.ros2_hz.is_finite()) {
         return Ok(None);
     }
-    let channel = |writer: &mut mcap::Writer<W>, schema: u16, topic: &str| {
-        writer.add_channel(schema, topic, MESSAGE_ENCODING, &BTreeMap::new())
+    // Each with the QoS a ROS publisher of it offers, as rosbag2 records it.
+    let channel = |writer: &mut mcap::Writer<W>, schema: u16, topic: &str, qos: QosClass| {
+        let metadata = BTreeMap::from([("offered_qos_profiles".to_owned(), qos.offered_qos_profiles())]);
+        writer.add_channel(schema, topic, MESSAGE_ENCODING, &metadata)
     };
     let skin = &options.skin;
     let mut clouds = Vec::new();
@@ -106,12 +112,12 @@ pub(super) fn add_view<W: Write + Seek>(
             for cloud in &layer_clouds.clouds {
                 let topic =
                     unique_topic(&mut topics, skinware_ros2::cloud_topic(skin, &layer_clouds.layer, &cloud.link));
-                channels.push(channel(writer, cloud_schema, &topic)?);
+                channels.push(channel(writer, cloud_schema, &topic, QosClass::Sensor)?);
             }
             clouds.push(LayerTopics { layer, clouds: layer_clouds, channels, last_seq: 0 });
         }
         let tf_schema = add_schema(writer, TF_MESSAGE)?;
-        let tf_channel = channel(writer, tf_schema, skinware_ros2::TF_STATIC_TOPIC)?;
+        let tf_channel = channel(writer, tf_schema, skinware_ros2::TF_STATIC_TOPIC, QosClass::Static)?;
         if let Ok(data) = static_links(geometry, &options.root_frame, Time::from_ns(started_unix_ns)) {
             tf_static = Some((tf_channel, data));
         }
@@ -126,11 +132,11 @@ pub(super) fn add_view<W: Write + Seek>(
             None => *marker_schema.insert(add_schema(writer, MARKER_ARRAY)?),
         };
         let name = channel_name(reader);
-        let channel_id = channel(writer, schema_id, &skinware_ros2::markers_topic(skin, &name))?;
+        let channel_id = channel(writer, schema_id, &skinware_ros2::markers_topic(skin, &name), QosClass::Sensor)?;
         contacts.push(ContactSource { name, channel_id, reader: None, last_seq: 0 });
     }
     let diagnostics_schema = add_schema(writer, DIAGNOSTIC_ARRAY)?;
-    let diagnostics_channel = channel(writer, diagnostics_schema, skinware_ros2::DIAGNOSTICS_TOPIC)?;
+    let diagnostics_channel = channel(writer, diagnostics_schema, skinware_ros2::DIAGNOSTICS_TOPIC, QosClass::Status)?;
     let period = Duration::from_secs_f64(1.0 / options.ros2_hz.clamp(0.1, 60.0));
     Ok(Some(RosView {
         tf_static,
