@@ -186,3 +186,69 @@ fn wait_for_running_layer(dir: &Path, within: Duration) -> Reader {
         std::thread::sleep(Duration::from_millis(100));
     }
 }
+
+/// The topics `skin demo`'s skin has on DDS, as `skin bridge --ros2 dds --json` lists them.
+fn demo_topics() -> Vec<String> {
+    let id = std::process::id() % 10_000;
+    let dir = std::env::temp_dir().join(format!("skin-ros2-demo-{id}"));
+    std::fs::create_dir_all(&dir).unwrap();
+    let skin = |args: &[&str]| {
+        let mut command = Command::new(env!("CARGO_BIN_EXE_skin"));
+        command.args(args).env("SKINWARE_SHM_DIR", &dir).env("RUST_LOG", "warn");
+        command
+    };
+    let port = format!("127.0.0.1:{}", 19_000 + id % 1_000);
+    let demo = Running(skin(&["demo", "--listen", &port, "--no-browser-hint"]).stdout(Stdio::null()).spawn().unwrap());
+    let deadline = Instant::now() + Duration::from_secs(180);
+    loop {
+        let running = skinware::list_channels(&dir)
+            .unwrap_or_default()
+            .iter()
+            .filter(|c| c.state == WriterState::Running && c.stats.frames > 2)
+            .count();
+        // 5 layers and the contact service's channels.
+        if running >= 6 {
+            break;
+        }
+        assert!(Instant::now() < deadline, "skin demo's skin did not come up");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let domain = (60 + id % 100).to_string();
+    let output = skin(&["bridge", "--ros2", "dds", "--domain", &domain, "--seconds", "1", "--json"]).output().unwrap();
+    drop(demo);
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&output.stdout).expect("--json");
+    report["dds_topics"].as_array().unwrap().iter().map(|t| t["topic"].as_str().unwrap().to_owned()).collect()
+}
+
+#[test]
+fn the_rviz_config_and_the_foxglove_layout_name_what_skin_demo_publishes() {
+    let _alone = one_skin_at_a_time();
+    let topics = demo_topics();
+    let docs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/ros2");
+    let rviz = std::fs::read_to_string(docs.join("skin.rviz")).unwrap();
+    let named: Vec<&str> =
+        rviz.lines().filter_map(|line| line.trim().strip_prefix("Value: ")).filter(|v| v.starts_with('/')).collect();
+    let clouds: Vec<&String> = topics.iter().filter(|t| t.contains("/cloud/")).collect();
+    assert_eq!(clouds.len(), 13, "the paper's skin: 13 layer-and-link clouds: {topics:?}");
+    for topic in &named {
+        assert!(topics.iter().any(|t| t == topic), "skin.rviz names {topic}, which skin demo does not publish");
+    }
+    for cloud in &clouds {
+        assert!(named.contains(&cloud.as_str()), "skin.rviz does not show {cloud}");
+    }
+    assert!(rviz.contains("Fixed Frame: base_link") && rviz.contains("Channel Name: response"));
+    let layout: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(docs.join("foxglove-layout.json")).unwrap()).unwrap();
+    let three_d = layout["configById"]["3D!skin"]["topics"].as_object().unwrap();
+    for topic in three_d.keys() {
+        assert!(topics.contains(topic), "the Foxglove layout names {topic}, which skin demo does not publish");
+    }
+    for cloud in &clouds {
+        assert_eq!(three_d[cloud.as_str()]["colorField"], "response", "{cloud}");
+    }
+    let image = layout["configById"]["Image!map"]["imageMode"]["imageTopic"].as_str().unwrap();
+    assert!(topics.iter().any(|t| t == image), "{image}");
+    assert_eq!(layout["configById"]["DiagnosticSummary!skin"]["topicToRender"], "/diagnostics");
+}
