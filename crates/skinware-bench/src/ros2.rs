@@ -278,12 +278,11 @@ fn dds_rows(
     ];
     for (k, (scenario, rates, profile)) in scenarios.into_iter().enumerate() {
         let domain = 60 + k as u16;
-        let bridge = skinware_dds::DdsBridge::start(skinware_dds::DdsOptions {
-            dir: Some(dir.to_owned()),
-            domain,
-            rates,
-            ..skinware_dds::DdsOptions::new(SKIN)
-        })?;
+        let mut dds = skinware_dds::DdsOptions::new(SKIN);
+        dds.domain = domain;
+        dds.view.dir = Some(dir.to_owned());
+        dds.view.rates = rates;
+        let bridge = skinware_dds::DdsBridge::start(dds)?;
         // What rclpy has types for: not the tactile stack's, nor tf2_msgs.
         let topics: Vec<String> = bridge
             .report()

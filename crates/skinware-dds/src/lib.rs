@@ -28,7 +28,7 @@ mod bridge;
 pub mod driver;
 pub mod qos;
 
-pub use bridge::{DEFAULT_MAP_WIDTH, DdsBridge, DdsOptions, Rates, TopicReport};
+pub use bridge::{DEFAULT_MAP_WIDTH, DdsBridge, DdsOptions, DdsTransport, Rates, TopicReport};
 
 /// What went wrong in skinware's DDS side, with what to do about it.
 #[derive(Debug, thiserror::Error)]
@@ -42,6 +42,9 @@ pub enum DdsError {
     /// A skinware channel could not be read.
     #[error(transparent)]
     Skinware(#[from] skinware::Error),
+    /// The skin's topics could not be set up.
+    #[error(transparent)]
+    View(#[from] skinware_ros2::view::ViewError),
     /// A thread could not be started.
     #[error("cannot start {thread}: {source}")]
     Thread {

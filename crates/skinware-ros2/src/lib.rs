@@ -27,6 +27,8 @@
 //! * [`qos`]: each kind of topic's QoS ([`qos::QosClass`]), also as a
 //!   recording's `offered_qos_profiles`;
 //! * [`rate`]: per-topic rate limits ([`rate::Every`]);
+//! * [`view`]: the skin as standard ROS 2 topics for any transport
+//!   ([`view::View`], over a [`view::Transport`]);
 //! * [`clock`]: frames' CLOCK_MONOTONIC stamps as ROS time
 //!   ([`clock_offset_ns`], [`ros_time`]).
 //!
@@ -67,6 +69,7 @@ pub mod standard;
 pub mod tactile;
 pub mod topics;
 pub mod type_hash;
+pub mod view;
 
 pub use cdr::{DecodeError, EncodeError, decode, encode};
 pub use clock::{clock_offset_ns, monotonic_ns, now_unix_ns, ros_time, unix_ns};

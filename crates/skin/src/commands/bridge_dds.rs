@@ -66,13 +66,14 @@ mod with_dds {
 
     /// The DDS bridge's options from the command line.
     pub(super) fn options(args: &Args) -> Result<DdsOptions> {
-        let mut options = DdsOptions::new(&args.skin);
-        options.layers = args.layers.clone();
-        options.services = !args.no_services;
-        options.domain = match args.domain {
+        let mut dds = DdsOptions::new(&args.skin);
+        dds.domain = match args.domain {
             Some(domain) => skinware_dds::check_domain(domain)?,
             None => skinware_dds::domain_from_env()?,
         };
+        let options = &mut dds.view;
+        options.layers = args.layers.clone();
+        options.services = !args.no_services;
         let contacts_hz = rate("--contacts-hz", args.contacts_hz)?;
         options.rates = Rates {
             state_hz: rate("--state-hz", args.state_hz)?,
@@ -99,7 +100,7 @@ mod with_dds {
             let hz: f64 = hz.trim().parse().with_context(|| format!("--topic-hz {spec:?}: {hz:?} is not a number"))?;
             options.topic_hz.insert(topic.to_owned(), rate("--topic-hz", hz)?);
         }
-        Ok(options)
+        Ok(dds)
     }
 
     /// Starts the DDS side and says so.

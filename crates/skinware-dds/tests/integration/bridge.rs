@@ -82,13 +82,11 @@ fn one_distro(python: &str, domain: u16) {
         let (stop, written) = (stop.clone(), Arc::clone(&written));
         std::thread::spawn(move || write_layer(writer, stop, written))
     };
-    let bridge = DdsBridge::start(DdsOptions {
-        dir: Some(dir.path().to_owned()),
-        domain,
-        rates: Rates { map_hz: 5.0, ..Rates::default() },
-        ..DdsOptions::new(SKIN)
-    })
-    .unwrap();
+    let mut options = DdsOptions::new(SKIN);
+    options.domain = domain;
+    options.view.dir = Some(dir.path().to_owned());
+    options.view.rates = Rates { map_hz: 5.0, ..Rates::default() };
+    let bridge = DdsBridge::start(options).unwrap();
     let clouds = ["forearm", "hand"].map(|link| skinware_ros2::cloud_topic(SKIN, "arm", link));
     let map = skinware_ros2::map_topic(SKIN);
     let output = rclpy(python, domain)
