@@ -45,16 +45,16 @@ pub struct Args {
     /// ROS domain id (default: $ROS_DOMAIN_ID, else 0).
     #[arg(long)]
     pub(super) domain: Option<u32>,
-    /// DDS: point clouds a second, per layer and link (0: none).
+    /// Point clouds a second, per layer and link (0: none).
     #[arg(long, default_value_t = skinware_ros2_rates::CLOUD_HZ)]
     pub(super) cloud_hz: f64,
-    /// DDS: `TactileState` messages a second, per layer (0: none).
+    /// DDS: `TactileState` messages a second, per layer (0: none; on zenoh, every frame, or --max-hz).
     #[arg(long, default_value_t = skinware_ros2_rates::STATE_HZ)]
     pub(super) state_hz: f64,
-    /// DDS: contact markers and `TactileContacts` a second, per contact service (0: none).
+    /// Contact markers a second (and on DDS `TactileContacts`), per contact service (0: none).
     #[arg(long, default_value_t = skinware_ros2_rates::CONTACTS_HZ)]
     pub(super) contacts_hz: f64,
-    /// DDS: one topic's own rate, `TOPIC=HZ` (repeatable), over its kind's.
+    /// One standard topic's own rate, `TOPIC=HZ` (repeatable), over its kind's.
     #[arg(long)]
     pub(super) topic_hz: Vec<String>,
     /// DDS: the frame every link hangs from on `/tf_static` (`none`: no `/tf_static`).
@@ -109,7 +109,47 @@ pub enum Ros2Mode {
     None,
 }
 
+/// A rate option: 0 (none) or a positive number of messages a second.
+#[cfg_attr(not(any(feature = "zenoh", feature = "dds")), allow(dead_code))]
+fn rate(flag: &str, hz: f64) -> anyhow::Result<f64> {
+    if !(hz.is_finite() && hz >= 0.0) {
+        anyhow::bail!("{flag} {hz}: give messages a second, 0 (none) or more");
+    }
+    Ok(hz)
+}
+
 impl Args {
+    /// The standard ROS 2 topics' rates (`--state-hz`, `--cloud-hz`,
+    /// `--contacts-hz`, `--map-hz`) and per-topic rates (`--topic-hz`).
+    #[cfg_attr(not(any(feature = "zenoh", feature = "dds")), allow(dead_code))]
+    pub(super) fn standard_rates(
+        &self,
+    ) -> anyhow::Result<(skinware_ros2::view::Rates, std::collections::BTreeMap<String, f64>)> {
+        use anyhow::Context as _;
+        let contacts_hz = rate("--contacts-hz", self.contacts_hz)?;
+        let rates = skinware_ros2::view::Rates {
+            state_hz: rate("--state-hz", self.state_hz)?,
+            cloud_hz: rate("--cloud-hz", self.cloud_hz)?,
+            markers_hz: contacts_hz,
+            contacts_hz,
+            map_hz: rate("--map-hz", self.map_hz)?,
+            ..skinware_ros2::view::Rates::default()
+        };
+        let mut topic_hz = std::collections::BTreeMap::new();
+        for spec in &self.topic_hz {
+            let (topic, hz) = spec
+                .split_once('=')
+                .with_context(|| format!("--topic-hz {spec:?}: give TOPIC=HZ, such as /skin/default/map=1"))?;
+            let topic = topic.trim();
+            if !topic.starts_with('/') {
+                anyhow::bail!("--topic-hz {spec:?}: {topic:?} is not a topic; give its full name, from `/`");
+            }
+            let hz: f64 = hz.trim().parse().with_context(|| format!("--topic-hz {spec:?}: {hz:?} is not a number"))?;
+            topic_hz.insert(topic.to_owned(), rate("--topic-hz", hz)?);
+        }
+        Ok((rates, topic_hz))
+    }
+
     /// The ROS 2 side asked for, `--no-ros` included.
     fn ros2_mode(&self) -> Result<Ros2Mode, anyhow::Error> {
         match (self.no_ros, self.ros2) {
@@ -260,6 +300,7 @@ mod with_zenoh {
         options.services = !args.no_services;
         options.ros = !args.no_ros && args.ros2 != super::Ros2Mode::None;
         options.map_hz = args.map_hz.max(0.0);
+        (options.standard, options.topic_hz) = args.standard_rates()?;
         if let Some(width) = args.map_width {
             options.map_width = width as usize;
         }

@@ -48,21 +48,13 @@ mod with_dds {
     use std::sync::atomic::Ordering;
     use std::time::{Duration, Instant};
 
-    use anyhow::{Context, Result, bail};
-    use skinware_dds::{DdsBridge, DdsOptions, Rates, TopicReport};
+    use anyhow::{Result, bail};
+    use skinware_dds::{DdsBridge, DdsOptions, TopicReport};
 
     use super::Args;
 
     /// The DDS side, running.
     pub struct Running(pub(super) DdsBridge);
-
-    /// A rate option: 0 (none) or a positive number of messages a second.
-    fn rate(flag: &str, hz: f64) -> Result<f64> {
-        if !(hz.is_finite() && hz >= 0.0) {
-            bail!("{flag} {hz}: give messages a second, 0 (none) or more");
-        }
-        Ok(hz)
-    }
 
     /// The DDS bridge's options from the command line.
     pub(super) fn options(args: &Args) -> Result<DdsOptions> {
@@ -74,32 +66,13 @@ mod with_dds {
         let options = &mut dds.view;
         options.layers = args.layers.clone();
         options.services = !args.no_services;
-        let contacts_hz = rate("--contacts-hz", args.contacts_hz)?;
-        options.rates = Rates {
-            state_hz: rate("--state-hz", args.state_hz)?,
-            cloud_hz: rate("--cloud-hz", args.cloud_hz)?,
-            markers_hz: contacts_hz,
-            contacts_hz,
-            map_hz: rate("--map-hz", args.map_hz)?,
-            ..Rates::default()
-        };
+        (options.rates, options.topic_hz) = args.standard_rates()?;
         options.map_width = args.map_width.map_or(skinware_dds::DEFAULT_MAP_WIDTH, |w| w as usize);
         options.root_frame = match args.root_frame.trim() {
             "none" => None,
             "" => bail!("--root-frame is empty: name the robot's root frame (base_link), or give `none`"),
             frame => Some(frame.to_owned()),
         };
-        for spec in &args.topic_hz {
-            let (topic, hz) = spec
-                .split_once('=')
-                .with_context(|| format!("--topic-hz {spec:?}: give TOPIC=HZ, such as /skin/default/map=1"))?;
-            let topic = topic.trim();
-            if !topic.starts_with('/') {
-                bail!("--topic-hz {spec:?}: {topic:?} is not a topic; give its full name, from `/`");
-            }
-            let hz: f64 = hz.trim().parse().with_context(|| format!("--topic-hz {spec:?}: {hz:?} is not a number"))?;
-            options.topic_hz.insert(topic.to_owned(), rate("--topic-hz", hz)?);
-        }
         Ok(dds)
     }
 

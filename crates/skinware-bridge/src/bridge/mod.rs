@@ -17,8 +17,10 @@
 //! (`heartbeat`; its absence tells a remote reader the link is cut), one
 //! picks up channels that appear later, one answers for the channel list and
 //! the geometry and one per channel serves frames on request (`queries`), and
-//! one renders the 2-D map for ROS (`map`). `channel` holds what each channel
-//! counts, and `ros` the bridge's node and publishers in the ROS graph.
+//! one renders the 2-D map for ROS (`map`), and one publishes the standard
+//! ROS 2 topics (`standard`: clouds, markers, `/diagnostics`). `channel`
+//! holds what each channel counts, and `ros` the bridge's node and
+//! publishers in the ROS graph.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -41,6 +43,7 @@ mod heartbeat;
 mod map;
 mod queries;
 mod ros;
+mod standard;
 
 pub use channel::ChannelReport;
 use channel::{Channel, Counters, RequestQueue};
@@ -70,6 +73,12 @@ pub struct BridgeOptions {
     pub map_hz: f64,
     /// Map width in pixels.
     pub map_width: usize,
+    /// The standard ROS 2 topics' rates (`skinware_ros2::view`): clouds,
+    /// markers and `/diagnostics` (the tactile messages and the map are
+    /// the rates above; all 0: none).
+    pub standard: skinware_ros2::view::Rates,
+    /// Per-topic rates of the standard topics (full topic name → Hz).
+    pub topic_hz: BTreeMap<String, f64>,
     /// Endpoints and zenoh configuration.
     pub link: LinkOptions,
 }
@@ -89,6 +98,8 @@ impl BridgeOptions {
             domain: 0,
             map_hz: 5.0,
             map_width: 480,
+            standard: skinware_ros2::view::Rates::default(),
+            topic_hz: BTreeMap::new(),
             link: LinkOptions::default(),
         }
     }
@@ -257,6 +268,13 @@ impl Bridge {
             }
         })?;
         bridge._requests = Some(queries::declare_requests(&shared)?);
+        if shared.options.ros {
+            shared.spawn("br-standard".into(), |shared| {
+                if let Err(e) = standard::publish_standard(&shared) {
+                    tracing::warn!("the bridge publishes no standard ROS 2 topics: {e}");
+                }
+            })?;
+        }
         if shared.options.ros && shared.options.map_hz > 0.0 {
             shared.spawn("br-map".into(), |shared| {
                 if let Err(e) = map::publish_map(&shared) {
