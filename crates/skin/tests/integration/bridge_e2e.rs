@@ -307,7 +307,7 @@ fn a_ros2_subscriber_decodes_what_the_bridge_publishes() {
     let output = checked(
         Command::new(&python)
             .arg(&script)
-            .args([endpoint.as_str(), "default", "virtual-0", &sensors.to_string(), "contact"])
+            .args([endpoint.as_str(), "default", "virtual-0", &sensors.to_string(), "contact", "torso"])
             .output()
             .unwrap(),
         "the rmw_zenoh oracle",
@@ -317,7 +317,15 @@ fn a_ros2_subscriber_decodes_what_the_bridge_publishes() {
     assert_eq!(report["ok"], true);
     assert_eq!(report["state"]["values"], sensors);
     // The hashes rosbags computed are the ones the bridge put in its keys.
-    for type_name in ["tactile_msgs/msg/TactileState", "sensor_msgs/msg/Image", "tactile_msgs/msg/TactileContacts"] {
+    assert_eq!(report["cloud"]["points"], sensors, "virtual-0 is all on the torso: {report}");
+    for type_name in [
+        "tactile_msgs/msg/TactileState",
+        "sensor_msgs/msg/Image",
+        "tactile_msgs/msg/TactileContacts",
+        "sensor_msgs/msg/PointCloud2",
+        "visualization_msgs/msg/MarkerArray",
+        "diagnostic_msgs/msg/DiagnosticArray",
+    ] {
         assert_eq!(report["hashes"][type_name].as_str(), skinware_ros2::type_hash(type_name).as_deref(), "{type_name}");
     }
 }

@@ -4,7 +4,8 @@ declares (no wildcard, so the type hash must match), `rosbags` computes the
 type hashes and decodes the CDR, and zenoh's own deserializer reads the
 attachment.
 
-Usage: bridge_ros2_oracle.py ENDPOINT SKIN LAYER SENSORS CONTACT_SERVICE
+Usage: bridge_ros2_oracle.py ENDPOINT SKIN LAYER SENSORS CONTACT_SERVICE LINK
+(LINK: the one robot link the layer covers, whose cloud holds all its SENSORS.)
 Prints one JSON line with what it decoded; exits non-zero on any mismatch.
 """
 
@@ -18,7 +19,7 @@ import zenoh
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from zenoh.ext import Int64, z_deserialize
 
-endpoint, skin, layer, sensors, contact_service = sys.argv[1:6]
+endpoint, skin, layer, sensors, contact_service, link = sys.argv[1:7]
 sensors = int(sensors)
 
 store = get_typestore(Stores.ROS2_JAZZY)
@@ -66,12 +67,16 @@ topics = {
     "state": (f"/skin/{ros_name(skin)}/{ros_name(layer)}/state", "tactile_msgs/msg/TactileState"),
     "map": (f"/skin/{ros_name(skin)}/map", "sensor_msgs/msg/Image"),
     "contacts": (f"/skin/{ros_name(skin)}/{ros_name(contact_service)}/contacts", "tactile_msgs/msg/TactileContacts"),
+    # The standard topics, as ROS tools draw them.
+    "cloud": (f"/skin/{ros_name(skin)}/{ros_name(layer)}/cloud/{ros_name(link)}", "sensor_msgs/msg/PointCloud2"),
+    "markers": (f"/skin/{ros_name(skin)}/{ros_name(contact_service)}/markers", "visualization_msgs/msg/MarkerArray"),
+    "diagnostics": ("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray"),
 }
 subscribers = {
     name: session.declare_subscriber(key(topic, type_name), zenoh.handlers.FifoChannel(256))
     for name, (topic, type_name) in topics.items()
 }
-wanted = {"state": 10, "map": 2, "contacts": 5}
+wanted = {"state": 10, "map": 2, "contacts": 5, "cloud": 3, "markers": 3, "diagnostics": 2}
 samples = {name: [] for name in topics}
 deadline = time.time() + 30
 while time.time() < deadline and any(len(samples[n]) < wanted[n] for n in topics):
@@ -140,6 +145,25 @@ report["map"] = {"width": image.width, "height": image.height, "bytes": len(imag
 
 contacts = [store.deserialize_cdr(s.payload.to_bytes(), "tactile_msgs/msg/TactileContacts") for s in samples["contacts"]]
 report["contacts"] = {"messages": len(contacts), "contacts": sum(len(c.contacts) for c in contacts)}
+cloud = store.deserialize_cdr(samples["cloud"][-1].payload.to_bytes(), "sensor_msgs/msg/PointCloud2")
+fields = [(f.name, f.offset, f.datatype) for f in cloud.fields]
+if fields != [("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("response", 12, 7)] or cloud.header.frame_id != link:
+    fail(f"PointCloud2: fields {fields}, frame {cloud.header.frame_id}")
+if cloud.width * cloud.height != sensors or len(cloud.data) != 16 * sensors:
+    fail(f"PointCloud2: {cloud.width}x{cloud.height} points, {len(cloud.data)} bytes, for {sensors} taxels")
+responses = [struct.unpack_from("<f", bytes(cloud.data), 16 * p + 12)[0] for p in range(sensors)]
+if not all(0.0 <= r <= 65535.0 and r == int(r) for r in responses):
+    fail("PointCloud2: responses that are not raw responses")
+report["cloud"] = {"points": cloud.width * cloud.height, "frame": cloud.header.frame_id, "max": max(responses)}
+markers = store.deserialize_cdr(samples["markers"][-1].payload.to_bytes(), "visualization_msgs/msg/MarkerArray")
+if not markers.markers or markers.markers[0].action != 3:
+    fail("MarkerArray: not a DELETEALL first")
+report["markers"] = {"markers": len(markers.markers)}
+health = store.deserialize_cdr(samples["diagnostics"][-1].payload.to_bytes(), "diagnostic_msgs/msg/DiagnosticArray")
+names = [status.name for status in health.status]
+if f"skin/{skin}/{layer}" not in names:
+    fail(f"DiagnosticArray: no status of the layer among {names}")
+report["diagnostics"] = {"status": names}
 report["hashes"] = {t: store.hash_rihs01(t) for _, t in topics.values()}
 print(json.dumps(report))
 session.close()
