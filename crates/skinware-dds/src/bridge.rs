@@ -68,10 +68,16 @@ impl Transport for DdsTransport {
         let name = Name::parse(topic).map_err(|e| dds(&format!("{e:?}")))?;
         let qos = profile(class);
         let ros_topic = self.node.create_topic(&name, crate::type_name(type_name), &qos).map_err(|e| dds(&e))?;
+        let offered = ros2_client::ros2::QosPolicies::from(&qos);
         let publisher = self.node.create_publisher::<M>(&ros_topic, Some(qos)).map_err(|e| dds(&e))?;
-        // As ros2-client names a ROS topic in DDS.
-        let dds_name = format!("rt/{}", topic.trim_start_matches('/'));
-        Ok(Box::new(DdsSink { publisher, context: self.context.clone(), dds_name }))
+        Ok(Box::new(DdsSink {
+            publisher,
+            context: self.context.clone(),
+            // As ros2-client names a ROS topic and its type in DDS.
+            dds_name: format!("rt/{}", topic.trim_start_matches('/')),
+            dds_type: crate::type_name(type_name).dds_msg_type(),
+            offered,
+        }))
     }
 }
 
@@ -80,6 +86,9 @@ struct DdsSink<M: Serialize> {
     publisher: Publisher<M>,
     context: Context,
     dds_name: String,
+    dds_type: String,
+    /// The QoS it offers, which a reader must accept to match.
+    offered: ros2_client::ros2::QosPolicies,
 }
 
 impl<M: Serialize + Send> Sink<M> for DdsSink<M> {
@@ -87,9 +96,17 @@ impl<M: Serialize + Send> Sink<M> for DdsSink<M> {
         self.publisher.publish(message).map_err(|e| SinkError(format!("DDS refused a write: {e}")))
     }
 
+    /// The readers that match: of its topic and type, requesting no more
+    /// than it offers (a reliable reader does not match a best-effort
+    /// writer, and is not counted).
     fn subscribers(&self) -> usize {
         let readers = self.context.domain_participant().discovered_readers();
-        readers.iter().filter(|r| r.subscription_topic_data.topic_name() == &self.dds_name).count()
+        readers
+            .iter()
+            .map(|reader| &reader.subscription_topic_data)
+            .filter(|data| data.topic_name() == &self.dds_name && data.type_name() == &self.dds_type)
+            .filter(|data| self.offered.compliance_failure_wrt(&data.qos()).is_none())
+            .count()
     }
 }
 

@@ -56,7 +56,15 @@ impl Ros2Input {
     /// The input of a config's `message` (a full type name, or its short
     /// name) and `field` (a `PointCloud2`'s, default `response`).
     pub fn parse(message: &str, field: Option<&str>) -> Result<Ros2Input, DdsError> {
-        let input = match message.rsplit('/').next().unwrap_or(message) {
+        let short = message.rsplit('/').next().unwrap_or(message);
+        let package = message.split('/').next().filter(|_| message.contains('/'));
+        let expected = if short == "PointCloud2" { "sensor_msgs" } else { "std_msgs" };
+        if package.is_some_and(|package| package != expected) {
+            return Err(DdsError::Invalid(format!(
+                "message = {message:?}: a ros2 layer reads {expected}'s {short}, not another package's"
+            )));
+        }
+        let input = match short {
             "PointCloud2" => Ros2Input::PointCloud2 { field: field.unwrap_or("response").to_owned() },
             "UInt16MultiArray" => Ros2Input::UInt16MultiArray,
             "Float32MultiArray" => Ros2Input::Float32MultiArray,
@@ -347,8 +355,10 @@ impl Driver for Ros2Driver {
             topic: self.topic.clone(),
             timeout: self.timeout,
             responses: vec![0; self.topology.sensors.len()],
+            scratch: vec![0; self.topology.sensors.len()],
             last_message: Instant::now(),
             ever: false,
+            misfit: None,
             counters: Arc::clone(&self.counters),
         };
         Ok(vec![Box::new(source)])
@@ -368,9 +378,14 @@ struct TopicSource {
     topic: String,
     timeout: Duration,
     responses: Vec<u16>,
+    /// Where a message is decoded before it is known to fit (kept: no
+    /// allocation in a period).
+    scratch: Vec<u16>,
     last_message: Instant,
     /// Whether any message came yet.
     ever: bool,
+    /// Why the newest message did not fit, until one does.
+    misfit: Option<String>,
     counters: Arc<Ros2Counters>,
 }
 
@@ -380,23 +395,26 @@ impl TopicSource {
     fn take_newest(&mut self) -> Result<bool, InputError> {
         let mut fresh = false;
         let mut misfit = None;
-        let mut scratch = vec![0u16; self.responses.len()];
-        loop {
+        let mut scratch = std::mem::take(&mut self.scratch);
+        scratch.resize(self.responses.len(), 0);
+        // At most a few subscriptions' worth a period: a flooding publisher
+        // cannot keep the layer's thread draining.
+        for _ in 0..MAX_TAKEN_PER_PERIOD {
             let fitted = match &self.inputs {
                 Inputs::Cloud(sub, field) => match sub.take() {
                     Ok(Some((cloud, _))) => from_cloud(&cloud, field, &mut scratch),
                     Ok(None) => break,
-                    Err(e) => Err(InputError::Cdr(format!("{e:?}"))),
+                    Err(e) => Err(not_the_type(&e)),
                 },
                 Inputs::U16(sub) => match sub.take() {
                     Ok(Some((array, _))) => from_u16(&array, &mut scratch),
                     Ok(None) => break,
-                    Err(e) => Err(InputError::Cdr(format!("{e:?}"))),
+                    Err(e) => Err(not_the_type(&e)),
                 },
                 Inputs::F32(sub) => match sub.take() {
                     Ok(Some((array, _))) => from_f32(&array, &mut scratch),
                     Ok(None) => break,
-                    Err(e) => Err(InputError::Cdr(format!("{e:?}"))),
+                    Err(e) => Err(not_the_type(&e)),
                 },
             };
             match fitted {
@@ -413,6 +431,7 @@ impl TopicSource {
                 }
             }
         }
+        self.scratch = scratch;
         match (fresh, misfit) {
             (false, Some(e)) => Err(e),
             _ => Ok(fresh),
@@ -420,9 +439,33 @@ impl TopicSource {
     }
 }
 
+/// Messages a layer takes in one period at most (its subscription keeps
+/// the newest [`SENSOR_DEPTH`](crate::qos::SENSOR_DEPTH)).
+const MAX_TAKEN_PER_PERIOD: usize = 4 * crate::qos::SENSOR_DEPTH;
+
+/// A message the subscription could not decode as its type.
+fn not_the_type(error: &ros2_client::ReadError) -> InputError {
+    InputError::Cdr(format!(
+        "a message that does not decode as the topic's type ({error}); does its publisher send the `message` the config names?"
+    ))
+}
+
 impl LayerSource for TopicSource {
     fn acquire(&mut self, frame: &mut FrameWriter<'_>) -> Result<(), DriverError> {
-        let fresh = self.take_newest().map_err(|e| format!("topic {}: {e}", self.topic))?;
+        let fresh = match self.take_newest() {
+            Ok(fresh) => fresh,
+            Err(misfit) => {
+                self.misfit = Some(format!("topic {}: {misfit}", self.topic));
+                false
+            }
+        };
+        if fresh {
+            self.misfit = None;
+        }
+        // The newest message did not fit: faulted until one does.
+        if let Some(misfit) = &self.misfit {
+            return Err(misfit.clone().into());
+        }
         let now = Instant::now();
         if fresh {
             self.counters.received.fetch_add(1, Ordering::Relaxed);

@@ -20,8 +20,9 @@ impl Every {
     /// spread over the period rather than in one burst that a receiver's
     /// socket buffer cannot hold.
     pub fn phased(hz: f64, phase: f64) -> Every {
-        // Also a NaN or an infinite rate: never due, rather than a panic.
-        let period = (hz > 0.0 && hz.is_finite()).then(|| Duration::from_secs_f64(1.0 / hz));
+        // Also a NaN, an infinite rate or one whose period no Duration
+        // holds (1e-30 Hz): never due, rather than a panic.
+        let period = (hz > 0.0).then(|| Duration::try_from_secs_f64(1.0 / hz).ok()).flatten().filter(|p| !p.is_zero());
         let offset = period.map_or(Duration::ZERO, |p| p.mul_f64(phase.clamp(0.0, 1.0)));
         Every { period, next: Instant::now() + offset }
     }
@@ -50,8 +51,16 @@ impl Every {
         if now + (period / 4).min(Duration::from_millis(5)) < self.next {
             return false;
         }
-        // After a late wake-up, no burst to catch up.
-        self.next = (self.next + period).max(now + period / 2);
+        // After a late wake-up, no burst to catch up, and no new phase
+        // either: the periods it missed are skipped, so that topics phased
+        // apart stay apart after a stall.
+        let mut next = self.next + period;
+        if next <= now {
+            let missed = (now - next).as_nanos() / period.as_nanos() + 1;
+            let skip = u32::try_from(missed).ok().and_then(|missed| period.checked_mul(missed));
+            next = skip.map_or(now + period, |skip| next + skip);
+        }
+        self.next = next;
         true
     }
 }
@@ -75,6 +84,21 @@ mod tests {
         assert_eq!(due_in_a_second(4.0, 10.0, Duration::ZERO), 4);
         assert_eq!(due_in_a_second(10.0, 10.0, Duration::from_millis(3)), 10);
         assert_eq!(due_in_a_second(1.0, 60.0, Duration::ZERO), 1);
+    }
+
+    #[test]
+    fn a_stall_keeps_each_topic_on_its_phase() {
+        let start = Instant::now();
+        let period = Duration::from_millis(100);
+        let mut first = Every { period: Some(period), next: start };
+        let mut second = Every { period: Some(period), next: start + Duration::from_millis(50) };
+        assert!(first.at(start));
+        // Both overdue after a 230 ms stall: each fires once, then keeps its phase.
+        let late = start + Duration::from_millis(230);
+        assert!(first.at(late) && second.at(late));
+        assert_eq!(first.next, start + Duration::from_millis(300));
+        assert_eq!(second.next, start + Duration::from_millis(250));
+        assert!(!Every::new(1e-30).now() && !Every::new(f64::NAN).now() && !Every::new(f64::INFINITY).now());
     }
 
     #[test]

@@ -104,6 +104,11 @@ impl Default for Rates {
     }
 }
 
+/// The slowest rate a topic may have, Hz (0 is none at all).
+pub const MIN_HZ: f64 = 0.001;
+/// The fastest rate a topic may have, Hz.
+pub const MAX_HZ: f64 = 10_000.0;
+
 /// The map's default width, pixels: 100 KB a message, which a DDS
 /// receiver's default socket buffer takes whole.
 pub const DEFAULT_MAP_WIDTH: usize = 200;
@@ -129,6 +134,10 @@ pub struct ViewOptions {
     /// which a default socket buffer takes whole; 480, rmw_zenoh's, is
     /// 580 KB, which needs the large-message profile).
     pub map_width: usize,
+    /// The tactile messages (`TactileState`, `TactileContacts`) and the map
+    /// too; `false` where a transport publishes them itself (rmw_zenoh's
+    /// channel threads), whatever the rates say.
+    pub tactile_and_map: bool,
 }
 
 impl ViewOptions {
@@ -143,6 +152,7 @@ impl ViewOptions {
             rates: Rates::default(),
             topic_hz: BTreeMap::new(),
             map_width: DEFAULT_MAP_WIDTH,
+            tactile_and_map: true,
         }
     }
 }
@@ -178,17 +188,18 @@ struct Topic<M> {
 
 impl<M: Serialize + Send + 'static> Topic<M> {
     /// Declares `topic` on `transport` unless its rate (`kind_hz`, or its
-    /// own in the options) is 0; `None` (once) for static data.
+    /// own in the options) is 0, or it is not `allowed`; `None` (once) for
+    /// static data.
     fn declare<T: Transport>(
         transport: &mut T,
         options: &ViewOptions,
         topic: &str,
-        type_name: &'static str,
-        class: QosClass,
+        (type_name, class): (&'static str, QosClass),
         kind_hz: Option<f64>,
+        allowed: bool,
     ) -> Result<Topic<M>, ViewError> {
         let hz = options.topic_hz.get(topic).copied().or(kind_hz);
-        let declared = hz.is_none_or(|hz| hz > 0.0);
+        let declared = allowed && hz.is_none_or(|hz| hz > 0.0);
         let sink = if declared { Some(transport.declare(topic, type_name, class)?) } else { None };
         let hz = hz.unwrap_or(0.0);
         Ok(Topic {
@@ -218,6 +229,11 @@ impl<M: Serialize + Send + 'static> Topic<M> {
                 tracing::debug!(topic = %self.report.topic, "a message was not sent: {e}");
             }
         }
+    }
+
+    /// Its rate, if it was declared (`None`: not, or once).
+    fn declared_hz(&self) -> Option<f64> {
+        self.sink.as_ref().map(|_| self.report.hz).filter(|hz| *hz > 0.0)
     }
 
     /// Its figures, if it was declared.
@@ -297,11 +313,10 @@ impl<T: Transport> View<T> {
                 continue;
             }
             let reader = Reader::open_with(&skin, &info.channel, &reader_options)?;
-            watched.push(Watched {
-                name: info.channel.clone(),
-                reader: Reader::open_with(&skin, &info.channel, &reader_options)?,
-                frames_then: None,
-            });
+            // Its frame count now: the first `/diagnostics` already has a rate.
+            let watcher = Reader::open_with(&skin, &info.channel, &reader_options)?;
+            let frames_then = Some((watcher.writer_stats().frames, Instant::now()));
+            watched.push(Watched { name: info.channel.clone(), reader: watcher, frames_then });
             if reader.kind() == ChannelKind::Layer {
                 layers.push(LayerSource::declare(&mut transport, &options, geometry.as_ref(), reader, &info.channel)?);
             } else if reader.schema().0 == <RegionContacts as ServicePayload>::SCHEMA {
@@ -329,6 +344,7 @@ impl<T: Transport> View<T> {
             reports: Arc::new(Mutex::new(Vec::new())),
             transport,
         };
+        check_topic_rates(&view)?;
         *lock(&view.reports) = view.reports();
         Ok(view)
     }
@@ -347,31 +363,42 @@ impl<T: Transport> View<T> {
     /// Publishes until `stop`.
     pub fn run(&mut self, stop: &Stop) {
         self.send_static();
-        let fastest = [
-            self.options.rates.state_hz,
-            self.options.rates.cloud_hz,
-            self.options.rates.markers_hz,
-            self.options.rates.contacts_hz,
-            self.options.rates.map_hz,
-        ]
-        .into_iter()
-        .chain(self.options.topic_hz.values().copied())
-        .filter(|hz| hz.is_finite())
-        .fold(self.options.rates.diagnostics_hz.max(1.0), f64::max);
-        // Fast enough to send each large topic at its own phase (two ticks
-        // between them), not several in one tick's burst.
-        let large: usize = self.layers.iter().map(|l| l.clouds.len()).sum::<usize>() + usize::from(self.map.is_some());
-        let phased = 2.0 * large as f64 * self.options.rates.cloud_hz.max(self.options.rates.map_hz);
-        let mut ticker = skinware::Ticker::from_hz(fastest.max(phased).clamp(1.0, 1000.0));
+        let mut ticker = skinware::Ticker::from_hz(self.tick_hz());
+        let mut report_at = Instant::now();
         while ticker.wait(stop).is_some() {
             let now = Instant::now();
             self.send_layers(now);
             self.send_contacts(now);
             self.send_map(now);
             self.send_diagnostics(now);
-            let reports = self.reports();
-            *lock(&self.reports) = reports;
+            if now >= report_at {
+                let reports = self.reports();
+                *lock(&self.reports) = reports;
+                report_at = now + Duration::from_secs(1);
+            }
         }
+        let reports = self.reports();
+        *lock(&self.reports) = reports;
+    }
+
+    /// The ticker's rate: as fast as the fastest topic, and fast enough to
+    /// send each large topic in its own slot of the grid
+    /// `phase_large_topics` made (two ticks a slot), at most 1 kHz.
+    fn tick_hz(&self) -> f64 {
+        let mut rates: Vec<f64> = Vec::new();
+        let mut large: Vec<f64> = Vec::new();
+        for layer in &self.layers {
+            rates.extend(layer.state.declared_hz());
+            large.extend(layer.clouds.iter().filter_map(|(_, topic, _)| topic.declared_hz()));
+        }
+        for source in &self.contacts {
+            rates.extend(source.markers.declared_hz().into_iter().chain(source.contacts.declared_hz()));
+        }
+        rates.extend(self.diagnostics.declared_hz());
+        large.extend(self.map.iter().filter_map(|(_, topic)| topic.declared_hz()));
+        let fastest = rates.iter().chain(&large).copied().fold(1.0, f64::max);
+        let slots = 2.0 * large.len() as f64 * large.iter().copied().fold(0.0, f64::max);
+        fastest.max(slots).clamp(1.0, 1000.0)
     }
 
     fn reports(&self) -> Vec<TopicReport> {
@@ -426,12 +453,13 @@ impl<T: Transport> View<T> {
     }
 
     fn send_contacts(&mut self, now: Instant) {
-        let drawing = ContactMarkers {
-            geometry: self.geometry.as_ref(),
-            root: self.options.root_frame.as_deref().unwrap_or("base_link"),
-            lifetime: marker_lifetime(self.options.rates.markers_hz),
-        };
         for source in &mut self.contacts {
+            // A few of this topic's own periods.
+            let drawing = ContactMarkers {
+                geometry: self.geometry.as_ref(),
+                root: self.options.root_frame.as_deref().unwrap_or("base_link"),
+                lifetime: marker_lifetime(source.markers.report.hz),
+            };
             let markers_due = source.markers.due(now);
             let contacts_due = source.contacts.due(now);
             if !markers_due && !contacts_due {
@@ -534,22 +562,28 @@ fn declare_fixed<T: Transport>(
         transport,
         options,
         crate::DIAGNOSTICS_TOPIC,
-        DIAGNOSTIC_ARRAY,
-        QosClass::Status,
+        (DIAGNOSTIC_ARRAY, QosClass::Status),
         Some(rates.diagnostics_hz),
+        true,
     )?;
     let map = match geometry {
-        Some(geometry) if rates.map_hz > 0.0 => {
+        Some(geometry) if options.tactile_and_map => {
             let topic = crate::map_topic(&options.skin);
-            let map_topic = Topic::declare(transport, options, &topic, IMAGE, QosClass::Sensor, Some(rates.map_hz))?;
+            let map_topic =
+                Topic::declare(transport, options, &topic, (IMAGE, QosClass::Sensor), Some(rates.map_hz), true)?;
             Some((HeatMap::new(geometry, options.map_width.clamp(16, 4096)), map_topic))
         }
         _ => None,
     };
     let tf_static = match (geometry, &options.root_frame) {
-        (Some(_), Some(_)) => {
-            Some(Topic::declare(transport, options, crate::TF_STATIC_TOPIC, TF_MESSAGE, QosClass::Static, None)?)
-        }
+        (Some(_), Some(_)) => Some(Topic::declare(
+            transport,
+            options,
+            crate::TF_STATIC_TOPIC,
+            (TF_MESSAGE, QosClass::Static),
+            None,
+            true,
+        )?),
         _ => None,
     };
     Ok((diagnostics, map, tf_static))
@@ -569,14 +603,21 @@ impl ContactSource {
         Ok(ContactSource {
             reader,
             regions,
-            markers: Topic::declare(transport, options, &markers_topic, MARKER_ARRAY, sensor, Some(rates.markers_hz))?,
+            markers: Topic::declare(
+                transport,
+                options,
+                &markers_topic,
+                (MARKER_ARRAY, sensor),
+                Some(rates.markers_hz),
+                true,
+            )?,
             contacts: Topic::declare(
                 transport,
                 options,
                 &contacts_topic,
-                TACTILE_CONTACTS,
-                sensor,
+                (TACTILE_CONTACTS, sensor),
                 Some(rates.contacts_hz),
+                options.tactile_and_map,
             )?,
             sent_seq: (0, 0),
         })
@@ -599,8 +640,14 @@ impl LayerSource {
         })?;
         let state_topic = crate::tactile_state_topic(skin, name);
         let sensor = QosClass::Sensor;
-        let state =
-            Topic::declare(transport, options, &state_topic, TACTILE_STATE, sensor, Some(options.rates.state_hz))?;
+        let state = Topic::declare(
+            transport,
+            options,
+            &state_topic,
+            (TACTILE_STATE, sensor),
+            Some(options.rates.state_hz),
+            options.tactile_and_map,
+        )?;
         let link_clouds = geometry
             .and_then(|g| g.layers.iter().position(|l| l.name == name).and_then(|index| LayerClouds::new(g, index)));
         let mut clouds = Vec::new();
@@ -614,7 +661,7 @@ impl LayerSource {
             }
             // Phased with the skin's other large topics (`phase_large_topics`).
             let declared =
-                Topic::declare(transport, options, &topic, POINT_CLOUD2, sensor, Some(options.rates.cloud_hz))?;
+                Topic::declare(transport, options, &topic, (POINT_CLOUD2, sensor), Some(options.rates.cloud_hz), true)?;
             clouds.push((cloud, declared, 0));
         }
         Ok(LayerSource { reader, topology, state, clouds, state_seq: 0 })
@@ -660,10 +707,45 @@ fn check_layers(options: &ViewOptions, live: &[skinware::ChannelInfo]) -> Result
             )));
         }
     }
-    for (topic, hz) in &options.topic_hz {
-        if !(hz.is_finite() && *hz >= 0.0) {
+    let rates = options.rates;
+    let kinds = [
+        ("--state-hz", rates.state_hz),
+        ("--cloud-hz", rates.cloud_hz),
+        ("--contacts-hz", rates.markers_hz),
+        ("--contacts-hz", rates.contacts_hz),
+        ("--map-hz", rates.map_hz),
+        ("the diagnostics' rate", rates.diagnostics_hz),
+    ];
+    let topics = options.topic_hz.iter().map(|(topic, hz)| ("--topic-hz", *hz, Some(topic)));
+    for (flag, hz, topic) in kinds.into_iter().map(|(flag, hz)| (flag, hz, None)).chain(topics) {
+        if !(hz == 0.0 || (MIN_HZ..=MAX_HZ).contains(&hz)) {
+            let named = topic.map_or(String::new(), |topic| format!(" {topic}="));
             return Err(ViewError::Invalid(format!(
-                "--topic-hz {topic}={hz}: a rate is 0 (never) or a positive number of messages a second"
+                "{flag}{named} {hz}: a rate is 0 (none) or {MIN_HZ} to {MAX_HZ} messages a second"
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Refuses a `--topic-hz` that names no topic of this view.
+fn check_topic_rates<T: Transport>(view: &View<T>) -> Result<(), ViewError> {
+    let mut known: Vec<&str> = Vec::new();
+    for layer in &view.layers {
+        known.push(&layer.state.report.topic);
+        known.extend(layer.clouds.iter().map(|(_, topic, _)| topic.report.topic.as_str()));
+    }
+    for source in &view.contacts {
+        known.extend([source.markers.report.topic.as_str(), source.contacts.report.topic.as_str()]);
+    }
+    known.push(&view.diagnostics.report.topic);
+    known.extend(view.map.iter().map(|(_, topic)| topic.report.topic.as_str()));
+    for topic in view.options.topic_hz.keys() {
+        if !known.contains(&topic.as_str()) {
+            let some: Vec<&str> = known.iter().copied().take(8).collect();
+            return Err(ViewError::Invalid(format!(
+                "--topic-hz {topic}=...: skin {} has no such topic; its topics include {some:?} (skin bridge --stats lists them all)",
+                view.options.skin
             )));
         }
     }

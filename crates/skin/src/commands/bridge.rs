@@ -48,18 +48,20 @@ pub struct Args {
     /// Point clouds a second, per layer and link (0: none).
     #[arg(long, default_value_t = skinware_ros2_rates::CLOUD_HZ)]
     pub(super) cloud_hz: f64,
-    /// DDS: `TactileState` messages a second, per layer (0: none; on zenoh, every frame, or --max-hz).
-    #[arg(long, default_value_t = skinware_ros2_rates::STATE_HZ)]
-    pub(super) state_hz: f64,
+    /// DDS: `TactileState` messages a second, per layer (0: none; default
+    /// 30). On rmw_zenoh every frame is sent, or --max-hz.
+    #[arg(long)]
+    pub(super) state_hz: Option<f64>,
     /// Contact markers a second (and on DDS `TactileContacts`), per contact service (0: none).
     #[arg(long, default_value_t = skinware_ros2_rates::CONTACTS_HZ)]
     pub(super) contacts_hz: f64,
     /// One standard topic's own rate, `TOPIC=HZ` (repeatable), over its kind's.
     #[arg(long)]
     pub(super) topic_hz: Vec<String>,
-    /// DDS: the frame every link hangs from on `/tf_static` (`none`: no `/tf_static`).
-    #[arg(long, default_value = "base_link")]
-    pub(super) root_frame: String,
+    /// DDS: the frame every link hangs from on `/tf_static` (`none`: no
+    /// `/tf_static`; default `base_link`).
+    #[arg(long)]
+    pub(super) root_frame: Option<String>,
     /// Endpoint to listen on (repeatable); `tcp/127.0.0.1:7447` unless
     /// --connect or a --zenoh-config says otherwise. `tcp/0.0.0.0:7447`
     /// opens the bridge to the network.
@@ -88,8 +90,7 @@ pub struct Args {
     pub(super) seconds: Option<f64>,
 }
 
-/// The default rates of the DDS side's topics (as `skinware_dds::Rates`
-/// gives them, which a `skin` without DDS does not build).
+/// The default rates of the standard topics (as `skinware_ros2::view::Rates` gives them).
 mod skinware_ros2_rates {
     pub const CLOUD_HZ: f64 = 10.0;
     pub const STATE_HZ: f64 = 30.0;
@@ -112,8 +113,9 @@ pub enum Ros2Mode {
 /// A rate option: 0 (none) or a positive number of messages a second.
 #[cfg_attr(not(any(feature = "zenoh", feature = "dds")), allow(dead_code))]
 fn rate(flag: &str, hz: f64) -> anyhow::Result<f64> {
-    if !(hz.is_finite() && hz >= 0.0) {
-        anyhow::bail!("{flag} {hz}: give messages a second, 0 (none) or more");
+    use skinware_ros2::view::{MAX_HZ, MIN_HZ};
+    if !(hz == 0.0 || (MIN_HZ..=MAX_HZ).contains(&hz)) {
+        anyhow::bail!("{flag} {hz}: give messages a second, 0 (none) or {MIN_HZ} to {MAX_HZ}");
     }
     Ok(hz)
 }
@@ -128,7 +130,7 @@ impl Args {
         use anyhow::Context as _;
         let contacts_hz = rate("--contacts-hz", self.contacts_hz)?;
         let rates = skinware_ros2::view::Rates {
-            state_hz: rate("--state-hz", self.state_hz)?,
+            state_hz: rate("--state-hz", self.state_hz.unwrap_or(skinware_ros2_rates::STATE_HZ))?,
             cloud_hz: rate("--cloud-hz", self.cloud_hz)?,
             markers_hz: contacts_hz,
             contacts_hz,
@@ -164,10 +166,58 @@ impl Args {
 
 /// Runs `skin bridge`: zenoh, DDS, or both.
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    match args.ros2_mode()? {
+    if let Some(seconds) = args.seconds
+        && !(seconds.is_finite() && (0.0..=1e9).contains(&seconds))
+    {
+        anyhow::bail!("--seconds {seconds}: give the seconds to run, 0 to 1e9 (or leave it out: until Ctrl-C)");
+    }
+    let mode = args.ros2_mode()?;
+    refuse_other_modes_options(args, mode)?;
+    match mode {
         Ros2Mode::Dds => super::bridge_dds::run_alone(args),
         mode => run_zenoh(args, mode == Ros2Mode::Both),
     }
+}
+
+/// Refuses an option that the chosen `--ros2` mode would ignore.
+fn refuse_other_modes_options(args: &Args, mode: Ros2Mode) -> anyhow::Result<()> {
+    if mode == Ros2Mode::Dds {
+        let zenoh_only = [
+            ("--max-hz", !args.max_hz.is_empty()),
+            ("--listen", !args.listen.is_empty()),
+            ("--connect", !args.connect.is_empty()),
+            ("--zenoh-config", args.zenoh_config.is_some()),
+        ];
+        if let Some((flag, _)) = zenoh_only.iter().find(|(_, given)| *given) {
+            anyhow::bail!(
+                "{flag} is a zenoh option, and --ros2 dds sends nothing over zenoh; give --ros2 both for both"
+            );
+        }
+        return Ok(());
+    }
+    if mode == Ros2Mode::Both {
+        return Ok(());
+    }
+    let dds_only = [("--state-hz", args.state_hz.is_some()), ("--root-frame", args.root_frame.is_some())];
+    if let Some((flag, _)) = dds_only.iter().find(|(_, given)| *given) {
+        anyhow::bail!(
+            "{flag} is a DDS option (on rmw_zenoh every frame's TactileState is sent, or --max-hz; /tf_static is DDS's only); \
+             give --ros2 dds or --ros2 both"
+        );
+    }
+    let map = skinware_ros2::map_topic(&args.skin);
+    if let Some(topic) = args
+        .topic_hz
+        .iter()
+        .filter_map(|spec| spec.split_once('=').map(|(topic, _)| topic.trim()))
+        .find(|topic| *topic == map || topic.ends_with("/state") || topic.ends_with("/contacts"))
+    {
+        anyhow::bail!(
+            "--topic-hz {topic}=...: on rmw_zenoh the tactile messages follow --max-hz and the map --map-hz; \
+             --topic-hz sets the clouds, markers and /diagnostics there (or give --ros2 both for DDS)"
+        );
+    }
+    Ok(())
 }
 
 /// The `--remote` option of `skin ls`, `echo` and `view`, and how to link.

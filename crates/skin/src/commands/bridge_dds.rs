@@ -68,10 +68,11 @@ mod with_dds {
         options.services = !args.no_services;
         (options.rates, options.topic_hz) = args.standard_rates()?;
         options.map_width = args.map_width.map_or(skinware_dds::DEFAULT_MAP_WIDTH, |w| w as usize);
-        options.root_frame = match args.root_frame.trim() {
-            "none" => None,
-            "" => bail!("--root-frame is empty: name the robot's root frame (base_link), or give `none`"),
-            frame => Some(frame.to_owned()),
+        options.root_frame = match args.root_frame.as_deref().map(str::trim) {
+            None => Some("base_link".to_owned()),
+            Some("none") => None,
+            Some("") => bail!("--root-frame is empty: name the robot's root frame (base_link), or give `none`"),
+            Some(frame) => Some(frame.to_owned()),
         };
         Ok(dds)
     }

