@@ -182,7 +182,8 @@ fn example_configs_load() {
             let loading = Config::load(&path);
             // A ros2 driver needs DDS; without it, the config says how to get it.
             if !cfg!(feature = "dds") && path.ends_with("ros2-sensor.toml") {
-                let refusal = format!("{:#}", loading.err().expect("a ros2 driver without DDS is refused"));
+                let Err(refusal) = loading else { panic!("a ros2 driver without DDS is refused") };
+                let refusal = format!("{refusal:#}");
                 assert!(refusal.contains("--features dds"), "{refusal}");
                 continue;
             }
