@@ -2,7 +2,8 @@
 //! Humble, Jazzy and Kilted), with no ROS installation on skinware's side.
 //!
 //! * [`DdsBridge`]: every layer and service of a skin as the standard ROS 2
-//!   topics (`skin bridge --ros2 dds`): a `sensor_msgs/PointCloud2` per layer
+//!   topics (`skin bridge --ros2 dds`), the view of `skinware_ros2::view`
+//!   over [`DdsTransport`]: a `sensor_msgs/PointCloud2` per layer
 //!   and link, contacts as a `visualization_msgs/MarkerArray`, every
 //!   channel's health on `/diagnostics`, the links on `/tf_static`, the 2-D
 //!   map as a `sensor_msgs/Image`, and the ROS tactile stack's
@@ -14,13 +15,15 @@
 //!
 //! The messages, their names and their encodings are `skinware-ros2`'s,
 //! shared with the recorder and the rmw_zenoh bridge. The DDS participant is
-//! `ros2-client` (Atostek, on RustDDS): pure Rust, it builds in seconds
-//! where a Fast DDS binding needs a C++ toolchain and a ROS installation,
-//! and its nodes appear in `rclpy`'s graph with their topics and types. Its
-//! limits, measured, are in `docs/ros2.md`: it sends large messages as many
-//! small datagrams (a stock Fast DDS subscriber needs a larger socket
-//! buffer for whole-skin clouds, shipped as `docs/ros2/fastdds-large.xml`),
-//! and it announces no REP-2016 type hash (matching does not need it).
+//! `ros2-client` (Atostek, on RustDDS): pure Rust, it builds with cargo
+//! alone where a Fast DDS binding needs a C++ toolchain and a ROS
+//! installation, and its nodes appear in `rclpy`'s graph with their topics
+//! and types. Its limits, measured, are in `docs/ros2.md`: it sends large
+//! messages as many small datagrams (so the large topics are phased apart,
+//! and a subscriber of clouds faster than the defaults wants the larger
+//! socket buffer of `docs/ros2/fastdds-large.xml`), it announces no
+//! REP-2016 type hash (matching does not need it), and it reassembles a
+//! fragmented message into a buffer of the announced size, up to 4 GiB.
 
 #![forbid(unsafe_code)]
 
