@@ -390,7 +390,9 @@ fn zenoh_rows(
     bridge_options.map_hz = 0.0;
     bridge_options.link = LinkOptions { listen: vec![endpoint.clone()], ..LinkOptions::default() };
     let bridge = Bridge::start(bridge_options)?;
-    let args = ["zlisten".to_owned(), endpoint, window.to_string(), format!("0/skin/{SKIN}/**")];
+    // Each layer's TactileState: its channel counts what it sent (the
+    // clouds and markers beside it are the view's, which counts per topic).
+    let args = ["zlisten".to_owned(), endpoint, window.to_string(), format!("0/skin/{SKIN}/*/state/**")];
     let mut listener = Listener::start(&options.zenoh_python, &args, &[])?;
     listener.counting()?;
     let (before, cpu_before, started) = (bridge.report(), process_cpu_s(std::process::id()), Instant::now());
