@@ -65,6 +65,16 @@ mod test_probes {
             .is_ok_and(|out| out.status.success())
     }
 
+    /// Whether every Python of `SKINWARE_ROS2_PYTHONS` (colon-separated, one
+    /// per ROS distro) imports every module of `modules` (rclpy and the
+    /// message packages a test uses).
+    pub fn ros2_pythons_import(modules: &[&str]) -> bool {
+        println!("cargo::rerun-if-env-changed=SKINWARE_ROS2_PYTHONS");
+        let list = std::env::var("SKINWARE_ROS2_PYTHONS").unwrap_or_default();
+        let pythons: Vec<&str> = list.split(':').filter(|p| !p.is_empty()).collect();
+        !pythons.is_empty() && pythons.iter().all(|python| imports(python, modules))
+    }
+
     /// Whether one of `names` is a program on PATH.
     pub fn program(names: &[&str]) -> bool {
         println!("cargo::rerun-if-env-changed=PATH");

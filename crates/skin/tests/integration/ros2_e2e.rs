@@ -17,12 +17,12 @@
 //! them the test says so and is skipped, except under `CI=true`.
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use skinware::{Reader, ReaderOptions, WriterState};
 
-use crate::util::one_skin_at_a_time;
+use crate::util::{Running, one_skin_at_a_time};
 
 fn skip(reason: &str) {
     assert!(std::env::var("CI").map_or(true, |v| v != "true"), "under CI=true this test must run: {reason}");
@@ -31,24 +31,6 @@ fn skip(reason: &str) {
 
 fn peer() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../skinware-dds/tests/integration/rclpy_peer.py")
-}
-
-/// A child stopped with SIGINT (then killed) when dropped.
-struct Running(Child);
-
-impl Drop for Running {
-    fn drop(&mut self) {
-        let _ = Command::new("kill").args(["-INT", &self.0.id().to_string()]).status();
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while Instant::now() < deadline {
-            if let Ok(Some(_)) = self.0.try_wait() {
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
 }
 
 /// Two network namespaces joined by a veth pair, with multicast routed

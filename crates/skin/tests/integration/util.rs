@@ -86,3 +86,27 @@ pub fn show_logs_if_failing(dir: &std::path::Path) {
     }
     let _ = std::fs::remove_dir_all(&logs);
 }
+
+/// A background child (a skin, a bridge, a peer) stopped with SIGINT when
+/// dropped, then killed if it has not exited within 10 s; never a panic in
+/// drop, where a failing test is already unwinding.
+#[cfg(any(feature = "zenoh", feature = "dds"))]
+pub struct Running(pub Child);
+
+#[cfg(any(feature = "zenoh", feature = "dds"))]
+impl Drop for Running {
+    fn drop(&mut self) {
+        if let Some(pid) = rustix::process::Pid::from_raw(self.0.id() as i32) {
+            let _ = rustix::process::kill_process(pid, rustix::process::Signal::INT);
+        }
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while Instant::now() < deadline {
+            if let Ok(Some(_)) = self.0.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
