@@ -9,6 +9,19 @@ use std::path::PathBuf;
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum Error {
+    /// A caller's buffer too small for the channel's frames.
+    #[error(
+        "a buffer of {given} bytes cannot hold a frame of channel {channel}, which has {needed}-byte frames; give a buffer of at least {needed} bytes (the reader's payload size)"
+    )]
+    BufferTooSmall {
+        /// `skin/channel`.
+        channel: String,
+        /// Bytes per frame.
+        needed: usize,
+        /// Bytes given.
+        given: usize,
+    },
+
     /// A skin or channel name that cannot be used as a segment name.
     #[error("invalid {what} name {name:?}: {reason}; use 1 to {max_len} characters from A-Z a-z 0-9 _ -")]
     InvalidName {

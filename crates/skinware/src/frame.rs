@@ -36,6 +36,38 @@ impl std::ops::BitOr for FrameStatus {
     }
 }
 
+/// What a read says about the frame it copied, apart from the payload: what
+/// [`Reader::latest_into`](crate::Reader::latest_into) and the other reads
+/// into a caller's buffer return, and [`Frame::info`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FrameInfo {
+    /// Sequence number: 1 for the channel's first frame, +1 per frame.
+    pub seq: u64,
+    /// When the data was acquired (CLOCK_MONOTONIC ns).
+    pub acquired_ns: u64,
+    /// When the frame was published (CLOCK_MONOTONIC ns).
+    pub published_ns: u64,
+    /// Status flags.
+    pub status: FrameStatus,
+    /// Frames published between the reader's previous frame and this one.
+    pub skipped: u64,
+    /// `false` when this is the frame the reader got last time.
+    pub fresh: bool,
+}
+
+impl FrameInfo {
+    pub(crate) fn new(meta: Meta, skipped: u64, fresh: bool) -> FrameInfo {
+        FrameInfo {
+            seq: meta.seq,
+            acquired_ns: meta.acquired_ns,
+            published_ns: meta.published_ns,
+            status: FrameStatus(meta.status),
+            skipped,
+            fresh,
+        }
+    }
+}
+
 /// One frame as a reader obtained it: a private copy, so it stays valid and
 /// whole however long the reader keeps it (until its next read).
 #[derive(Clone, Copy, Debug)]
@@ -76,6 +108,11 @@ impl<'r> Frame<'r> {
     /// reader faster than its writer sees each frame more than once).
     pub fn is_fresh(&self) -> bool {
         self.fresh
+    }
+
+    /// Everything but the payload.
+    pub fn info(&self) -> FrameInfo {
+        FrameInfo::new(self.meta, self.skipped, self.fresh)
     }
 
     /// The payload bytes.

@@ -95,7 +95,7 @@ pub use driver::{Driver, DriverError, DriverHandler, HandlerOptions, LayerSource
 #[cfg(not(loom))]
 pub use error::{Error, Result};
 #[cfg(not(loom))]
-pub use frame::{Frame, FrameStatus};
+pub use frame::{Frame, FrameInfo, FrameStatus};
 /// The one way skinware takes a lock whose holder panicked.
 pub use locks::lock;
 #[cfg(not(loom))]

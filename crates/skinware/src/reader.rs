@@ -17,7 +17,7 @@ use crate::channel::ring::{Meta, ReadFailure};
 use crate::channel::segment::{self, Opened, Shared};
 use crate::channel::succession::{self, Follower};
 use crate::error::{Error, Result};
-use crate::frame::Frame;
+use crate::frame::{Frame, FrameInfo};
 use crate::os::{self, SHARED_FUTEX};
 use crate::rt::{Stop, Ticker};
 use crate::shm;
@@ -367,10 +367,46 @@ impl Reader {
     /// seen it appear, and the check costs an unchanged channel one relaxed
     /// load.
     pub fn latest(&mut self) -> Result<Frame<'_>> {
+        let (skipped, fresh) = self.read_newest(None)?;
+        Ok(self.frame(skipped, fresh))
+    }
+
+    /// [`latest`](Self::latest), copied straight into `out` (one copy, no
+    /// allocation): for a caller that keeps frames in its own memory, such as
+    /// the C API. `out` must hold [`payload_bytes`](Self::payload_bytes); only
+    /// that many bytes are written. After an error `out` may hold a partial
+    /// copy, and [`last_frame`](Self::last_frame) is `None` after any read
+    /// into a caller's buffer (the reader's own copy is not refreshed).
+    pub fn latest_into(&mut self, out: &mut [u8]) -> Result<FrameInfo> {
+        let (skipped, fresh) = self.read_newest(Some(out))?;
+        Ok(FrameInfo::new(self.last, skipped, fresh))
+    }
+
+    /// Copies the newest frame into the reader's buffer or into `into`, and
+    /// accounts for it: returns its skipped count and freshness.
+    fn read_newest(&mut self, into: Option<&mut [u8]>) -> Result<(u64, bool)> {
         self.follow_successor();
         let started = os::monotonic_ns();
-        let read = self.shared.ring().read_latest(&mut self.buffer, MAX_READ_ATTEMPTS);
-        self.copied = read.as_ref().ok().map(|(meta, _)| *meta);
+        let payload = self.payload_bytes();
+        let ring = self.shared.ring();
+        let read = match into {
+            None => {
+                let read = ring.read_latest(&mut self.buffer, MAX_READ_ATTEMPTS);
+                self.copied = read.as_ref().ok().map(|(meta, _)| *meta);
+                read
+            }
+            Some(out) => {
+                self.copied = None;
+                let Some(out) = out.get_mut(..payload) else {
+                    return Err(Error::BufferTooSmall {
+                        channel: self.shared.label.clone(),
+                        needed: payload,
+                        given: out.len(),
+                    });
+                };
+                ring.read_latest(out, MAX_READ_ATTEMPTS)
+            }
+        };
         match read {
             Ok((meta, retries)) => {
                 // Sequence numbers only go backwards if the channel's memory
@@ -391,7 +427,7 @@ impl Reader {
                 };
                 self.stats.record(os::monotonic_ns() - started, retries, skipped);
                 self.last = meta;
-                Ok(self.frame(skipped, fresh))
+                Ok((skipped, fresh))
             }
             Err(ReadFailure::Empty) => Err(Error::NoFrameYet { channel: self.shared.label.clone() }),
             Err(ReadFailure::Lapped(retries)) => {
@@ -442,13 +478,25 @@ impl Reader {
     /// later than the timeout. A channel re-created meanwhile is followed
     /// within the same timeout.
     pub fn wait_newer(&mut self, timeout: Duration) -> Result<Frame<'_>> {
+        self.wait_for_newer(timeout)?;
+        self.latest()
+    }
+
+    /// [`wait_newer`](Self::wait_newer), copied into `out` as
+    /// [`latest_into`](Self::latest_into) does.
+    pub fn wait_newer_into(&mut self, timeout: Duration, out: &mut [u8]) -> Result<FrameInfo> {
+        self.wait_for_newer(timeout)?;
+        self.latest_into(out)
+    }
+
+    fn wait_for_newer(&mut self, timeout: Duration) -> Result<()> {
         let deadline = deadline_after(timeout);
         loop {
             // What was published is the reference, unless this reader saw a
             // number the writer has not reached (forged, or a previous channel).
             let after = self.last.seq.min(self.published_seq());
             match self.wait_slices(after, deadline, timeout) {
-                Ok(Waited::Frame) => return self.latest(),
+                Ok(Waited::Frame) => return Ok(()),
                 // Followed: what the new channel already has counts, and
                 // the wait goes on to the same deadline.
                 Ok(Waited::Followed) => {}
@@ -463,6 +511,18 @@ impl Reader {
     /// [`wait_newer`](Self::wait_newer); a request made while the writer is
     /// gone is made again to its successor.
     pub fn request(&mut self, timeout: Duration) -> Result<Frame<'_>> {
+        self.wait_for_requested(timeout)?;
+        self.latest()
+    }
+
+    /// [`request`](Self::request), copied into `out` as
+    /// [`latest_into`](Self::latest_into) does.
+    pub fn request_into(&mut self, timeout: Duration, out: &mut [u8]) -> Result<FrameInfo> {
+        self.wait_for_requested(timeout)?;
+        self.latest_into(out)
+    }
+
+    fn wait_for_requested(&mut self, timeout: Duration) -> Result<()> {
         let deadline = deadline_after(timeout);
         loop {
             let after = self.published_seq();
@@ -470,7 +530,7 @@ impl Reader {
                 doorbell::request(&self.shared.doorbell().requests, &SHARED_FUTEX);
             }
             match self.wait_slices(after, deadline, timeout) {
-                Ok(Waited::Frame) => return self.latest(),
+                Ok(Waited::Frame) => return Ok(()),
                 Ok(Waited::Followed) => {}
                 Err(e) => return Err(e),
             }

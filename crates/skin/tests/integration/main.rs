@@ -8,6 +8,8 @@
 //! - [`ethercat_e2e`]: `skin run` of an EtherCAT skin on a veth pair in a
 //!   network namespace, a reader outside it, `skin ls` showing SubDevices;
 //! - [`services_e2e`]: services, regions and geometry through the CLI;
+//! - [`c_api`]: the C API and the C++ wrapper, from C and C++ test programs
+//!   (also under AddressSanitizer and Valgrind);
 //! - [`record_e2e`]: `skin record`, `replay`, `info` and `--recover` on the
 //!   paper's skin, with Python's `mcap` as the independent reader;
 //! - [`browser`]: `skin demo` and `skin view` of the iCub example in
@@ -29,6 +31,7 @@
 #[cfg(feature = "zenoh")]
 mod bridge_e2e;
 mod browser;
+mod c_api;
 mod can_e2e;
 mod cli_e2e;
 mod docs;

@@ -41,11 +41,24 @@ const BLOCK_WORDS: usize = 16;
 /// loads. The writer may be storing into `src` meanwhile: the copy may then be
 /// torn, and the caller must detect that (the seqlock stamp) and discard it.
 pub(crate) fn load_words(dst: &mut [u64], src: &[AtomicU64]) {
-    let len = dst.len().min(src.len());
-    let (dst, src) = (&mut dst[..len], &src[..len]);
-    let done = load_blocks(dst, src);
-    for (to, from) in dst[done..].iter_mut().zip(&src[done..]) {
-        *to = from.load(Ordering::Relaxed);
+    load_bytes(bytemuck::cast_slice_mut(dst), src);
+}
+
+/// Copies `src` into `dst` as bytes in native order, up to whichever ends
+/// first (a ragged last word copies only the bytes `dst` has room for), with
+/// relaxed atomic loads and the same tearing caveat as [`load_words`]. `dst`
+/// need not be aligned: it is a caller's buffer (the C API's reads copy a
+/// frame straight into it, once).
+pub(crate) fn load_bytes(dst: &mut [u8], src: &[AtomicU64]) {
+    let len = dst.len().min(src.len() * 8);
+    let whole = len / 8;
+    let done = load_blocks(&mut dst[..whole * 8], &src[..whole]);
+    for (to, from) in dst[done * 8..whole * 8].chunks_exact_mut(8).zip(&src[done..whole]) {
+        to.copy_from_slice(&from.load(Ordering::Relaxed).to_ne_bytes());
+    }
+    if len > whole * 8 {
+        let word = src[whole].load(Ordering::Relaxed).to_ne_bytes();
+        dst[whole * 8..len].copy_from_slice(&word[..len - whole * 8]);
     }
 }
 
@@ -65,10 +78,11 @@ pub(crate) fn store_words(dst: &[AtomicU64], src: &[u8]) -> usize {
     len
 }
 
-/// Copies whole blocks; returns how many words it copied.
+/// Copies whole blocks of `src` into `dst` (`src.len() * 8` bytes, any
+/// alignment); returns how many words it copied.
 #[cfg(all(target_arch = "x86_64", not(miri), not(loom)))]
-fn load_blocks(dst: &mut [u64], src: &[AtomicU64]) -> usize {
-    debug_assert_eq!(dst.len(), src.len());
+fn load_blocks(dst: &mut [u8], src: &[AtomicU64]) -> usize {
+    debug_assert_eq!(dst.len(), src.len() * 8);
     let blocks = src.len() / BLOCK_WORDS;
     if blocks == 0 {
         return 0;
@@ -165,7 +179,7 @@ fn store_blocks(dst: &[AtomicU64], src: &[u8]) -> usize {
 }
 
 #[cfg(not(all(target_arch = "x86_64", not(miri), not(loom))))]
-fn load_blocks(_dst: &mut [u64], _src: &[AtomicU64]) -> usize {
+fn load_blocks(_dst: &mut [u8], _src: &[AtomicU64]) -> usize {
     0
 }
 
@@ -194,6 +208,23 @@ mod tests {
                     assert_eq!(word, pattern(start + i), "start {start}, len {len}, word {i}");
                 }
                 assert_eq!(out[len], 7, "wrote past the end (start {start}, len {len})");
+            }
+        }
+    }
+
+    #[test]
+    fn byte_loads_copy_every_byte_for_every_length_and_alignment() {
+        let shared: Vec<AtomicU64> = (0..40).map(|i| AtomicU64::new(pattern(i))).collect();
+        let expected: Vec<u8> = (0..40).flat_map(|i| pattern(i).to_ne_bytes()).collect();
+        // Unaligned starts in the destination, and lengths that end mid-word.
+        for start in [0, 1, 3, 8] {
+            for len in 0..=(shared.len() * 8 + 5) {
+                let mut out = vec![0xAAu8; start + len + 1];
+                load_bytes(&mut out[start..start + len], &shared);
+                let copied = len.min(expected.len());
+                assert_eq!(&out[start..start + copied], &expected[..copied], "start {start}, len {len}");
+                assert!(out[..start].iter().all(|&b| b == 0xAA), "wrote before the start ({start}, {len})");
+                assert!(out[start + copied..].iter().all(|&b| b == 0xAA), "wrote past the end ({start}, {len})");
             }
         }
     }

@@ -58,6 +58,37 @@ pub(crate) struct Meta {
     pub status: u64,
 }
 
+/// Where a read copies a frame's payload: the reader's own aligned words, or a
+/// caller's bytes.
+pub(crate) trait Destination {
+    /// Copies `src` in (up to the shorter), atomically word by word.
+    fn fill_from(&mut self, src: &[AtomicU64]);
+}
+
+impl Destination for [u64] {
+    fn fill_from(&mut self, src: &[AtomicU64]) {
+        super::copy::load_words(self, src);
+    }
+}
+
+impl Destination for Vec<u64> {
+    fn fill_from(&mut self, src: &[AtomicU64]) {
+        super::copy::load_words(self, src);
+    }
+}
+
+impl<const N: usize> Destination for [u64; N] {
+    fn fill_from(&mut self, src: &[AtomicU64]) {
+        super::copy::load_words(self, src);
+    }
+}
+
+impl Destination for [u8] {
+    fn fill_from(&mut self, src: &[AtomicU64]) {
+        super::copy::load_bytes(self, src);
+    }
+}
+
 /// Why a read attempt did not produce a frame.
 #[derive(Debug, PartialEq, Eq)]
 pub(crate) enum ReadFailure {
@@ -127,7 +158,7 @@ impl<'a> Ring<'a> {
     /// length) and returns its metadata and the number of retries it took.
     ///
     /// Lock-free: it retries only when the writer lapped it, at most `max_attempts` times.
-    pub(crate) fn read_latest(&self, out: &mut [u64], max_attempts: u32) -> Result<(Meta, u32), ReadFailure> {
+    pub(crate) fn read_latest<D: Destination + ?Sized>(&self, out: &mut D, max_attempts: u32) -> Result<(Meta, u32), ReadFailure> {
         let mut attempt = 0;
         loop {
             let seq = self.published();
@@ -147,7 +178,7 @@ impl<'a> Ring<'a> {
                     published_ns: slot[PUBLISHED_NS].load(Ordering::Relaxed),
                     status: slot[STATUS].load(Ordering::Relaxed),
                 };
-                super::copy::load_words(out, &slot[META_WORDS..]);
+                out.fill_from(&slot[META_WORDS..]);
                 // Acquire fence: if any load above read a store made after the
                 // writer's Release fence in `begin`, the stamp load below sees that
                 // writer's odd stamp or a later one, and the copy is discarded.
@@ -175,7 +206,7 @@ impl<'a> Ring<'a> {
     /// This is how a reader that woke late catches up on the frames between
     /// its previous one and the newest: each stays readable until the writer
     /// comes back to its slot, K-1 frames later.
-    pub(crate) fn read_seq(&self, seq: u64, out: &mut [u64]) -> Option<Meta> {
+    pub(crate) fn read_seq<D: Destination + ?Sized>(&self, seq: u64, out: &mut D) -> Option<Meta> {
         if seq == 0 || seq > self.published() {
             return None;
         }
@@ -191,7 +222,7 @@ impl<'a> Ring<'a> {
             published_ns: slot[PUBLISHED_NS].load(Ordering::Relaxed),
             status: slot[STATUS].load(Ordering::Relaxed),
         };
-        super::copy::load_words(out, &slot[META_WORDS..]);
+        out.fill_from(&slot[META_WORDS..]);
         // As in `read_latest`: a copy that raced the writer's reuse of the
         // slot sees the stamp move, and is discarded.
         fence(Ordering::Acquire);
