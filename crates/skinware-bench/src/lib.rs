@@ -54,6 +54,7 @@
 
 pub mod app;
 pub mod bridge;
+pub mod c;
 pub mod can;
 pub mod contact;
 pub mod ethercat;

@@ -446,7 +446,8 @@ class new_frames {
   bool advance() {
     // Short waits, so that a writer gone for `gone_timeout` is noticed.
     const std::uint64_t slice_ns = 250000000;
-    std::optional<std::chrono::steady_clock::time_point> gone_since;
+    bool gone = false;
+    std::chrono::steady_clock::time_point gone_since{};
     for (;;) {
       skinware_status status = skinware_reader_wait_newer(
           reader_->get(), slice_ns, buffer_.data(), buffer_.size() * sizeof(T), &current_.info);
@@ -456,13 +457,14 @@ class new_frames {
       }
       if (status == SKINWARE_E_STOPPED) return false;
       if (status == SKINWARE_E_TIMEOUT) {
-        gone_since.reset();
+        gone = false;
         continue;
       }
       if (status == SKINWARE_E_WRITER_GONE) {
         auto now = std::chrono::steady_clock::now();
-        if (!gone_since) gone_since = now;
-        if (now - *gone_since < gone_timeout_) continue;
+        if (!gone) gone_since = now;
+        gone = true;
+        if (now - gone_since < gone_timeout_) continue;
       }
       throw_status(status);
     }

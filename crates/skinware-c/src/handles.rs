@@ -7,7 +7,9 @@ use std::ffi::CString;
 use std::sync::Mutex;
 use std::time::Duration;
 
-use skinware::{Access, ChannelKind, FrameInfo, LayerTopology, ReaderOptions, Stop, Ticker, WriterOptions, WriterState};
+use skinware::{
+    Access, ChannelKind, FrameInfo, LayerTopology, ReaderOptions, Stop, Ticker, WriterOptions, WriterState,
+};
 use skinware_geometry::SkinGeometry;
 use skinware_services::ServiceInfo;
 
@@ -104,13 +106,7 @@ impl ReaderHandle {
         };
         let stop = Stop::new();
         reader.set_stop(&stop);
-        Ok(ReaderHandle {
-            core: Mutex::new(reader),
-            stop,
-            skin: c_string(skin),
-            name: c_string(channel),
-            kind,
-        })
+        Ok(ReaderHandle { core: Mutex::new(reader), stop, skin: c_string(skin), name: c_string(channel), kind })
     }
 
     pub(crate) fn label(&self) -> String {
@@ -131,9 +127,9 @@ impl ReaderHandle {
     /// Waits for `ticker`'s next tick, then reads the newest frame into `out`.
     pub(crate) fn read_periodic(&self, ticker: &TickerHandle, out: &mut [u8]) -> Result<(Read, Tick), Failure> {
         let mut ticker = skinware::lock(&ticker.core);
-        let tick = ticker.wait(&self.stop).ok_or_else(|| {
-            Failure::new(SKINWARE_E_STOPPED, format!("the reader of {} was stopped", self.label()))
-        })?;
+        let tick = ticker
+            .wait(&self.stop)
+            .ok_or_else(|| Failure::new(SKINWARE_E_STOPPED, format!("the reader of {} was stopped", self.label())))?;
         let mut reader = skinware::lock(&self.core);
         let info = reader.latest_into(out)?;
         Ok((Read { info, state: state_after(&reader, &info) }, Tick::from(tick)))
@@ -193,7 +189,12 @@ pub(crate) struct Tick {
 
 impl From<skinware::Tick> for Tick {
     fn from(tick: skinware::Tick) -> Tick {
-        Tick { deadline_ns: tick.deadline_ns, lateness_ns: tick.lateness_ns, missed: tick.missed, overrun: tick.overrun }
+        Tick {
+            deadline_ns: tick.deadline_ns,
+            lateness_ns: tick.lateness_ns,
+            missed: tick.missed,
+            overrun: tick.overrun,
+        }
     }
 }
 
@@ -295,7 +296,8 @@ impl WriterHandle {
         let mut layout = topology.clone();
         layout.name = layer.to_owned();
         let period = (layout.rate_hz > 0.0).then(|| Duration::from_secs_f64(1.0 / layout.rate_hz));
-        let options = WriterOptions { slots: choices.slots, period, access: choices.access, ..WriterOptions::default() };
+        let options =
+            WriterOptions { slots: choices.slots, period, access: choices.access, ..WriterOptions::default() };
         let mut writer = skinware::Writer::create(skin, layer, layout.frame_bytes(), &layout.encode(), &options)?;
         let stop = Stop::new();
         writer.set_stop(&stop);

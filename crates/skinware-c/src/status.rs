@@ -88,9 +88,7 @@ impl From<skinware::Error> for Failure {
             E::Busy { .. } => SKINWARE_E_BUSY,
             E::SchemaMismatch { .. } | E::NotThisService { .. } => SKINWARE_E_SCHEMA_MISMATCH,
             E::Lapped { .. } => SKINWARE_E_LAPPED,
-            E::InvalidName { .. } | E::InvalidLayout { .. } | E::PayloadTooLarge { .. } => {
-                SKINWARE_E_INVALID_ARGUMENT
-            }
+            E::InvalidName { .. } | E::InvalidLayout { .. } | E::PayloadTooLarge { .. } => SKINWARE_E_INVALID_ARGUMENT,
             _ => SKINWARE_E_CHANNEL,
         };
         Failure::new(status, error.to_string())

@@ -3,7 +3,7 @@
 //! scheduling. The protocols that use them live in `channel/` (the doorbell,
 //! liveness); this module only makes the calls. The only `unsafe` here is the
 //! libc calls that `rustix` does not wrap (`fcntl` locks and the scheduler's
-//! policy).
+//! policy) or that Valgrind cannot follow through it (the clock).
 
 use std::io;
 use std::num::NonZeroU32;
@@ -11,14 +11,23 @@ use std::os::fd::{AsFd, AsRawFd};
 use std::time::Duration;
 
 use rustix::thread::futex;
-use rustix::time::{ClockId, Timespec, clock_gettime};
+use rustix::time::Timespec;
 
 use crate::channel::doorbell::{Futex, Wake};
 use crate::sync::AtomicU32;
 
 /// Nanoseconds on CLOCK_MONOTONIC: the clock of every timestamp in a frame.
+///
+/// Through libc (the vDSO, as fast as rustix's) rather than rustix: rustix
+/// finds the vDSO by parsing the ELF image the auxiliary vector points at,
+/// which Valgrind does not map, so every program using skinware crashed
+/// under Valgrind (rustix issue #1559), and the C API's users run Valgrind.
 pub fn monotonic_ns() -> u64 {
-    let now = clock_gettime(ClockId::Monotonic);
+    let mut now = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: `now` is a valid, writable timespec for the call's duration;
+    // CLOCK_MONOTONIC always exists on Linux, so the call cannot fail (and
+    // if it did, `now` would stay zero rather than be uninitialised).
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut now) };
     now.tv_sec as u64 * 1_000_000_000 + now.tv_nsec as u64
 }
 

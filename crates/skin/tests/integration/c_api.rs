@@ -67,7 +67,10 @@ fn library_dir() -> PathBuf {
             return dir;
         }
     }
-    panic!("libskinware_c.so is neither in {} nor beside it: build skinware-c (a dev-dependency of skin)", deps.display());
+    panic!(
+        "libskinware_c.so is neither in {} nor beside it: build skinware-c (a dev-dependency of skin)",
+        deps.display()
+    );
 }
 
 fn compile(compiler: &str, source: &Path, out: &Path, extra: &[&str]) -> PathBuf {
@@ -164,9 +167,9 @@ fn start_skin() -> Skin {
     let options = ReaderOptions { dir: Some(skin.dir.clone()), ..ReaderOptions::default() };
     let started = Instant::now();
     loop {
-        let ready = ["body-0", "body-1", "contact", "motion"].iter().all(|channel| {
-            Reader::open_with("capi", channel, &options).is_ok_and(|r| r.published_seq() > 5)
-        });
+        let ready = ["body-0", "body-1", "contact", "motion"]
+            .iter()
+            .all(|channel| Reader::open_with("capi", channel, &options).is_ok_and(|r| r.published_seq() > 5));
         if ready {
             return skin;
         }
@@ -177,7 +180,10 @@ fn start_skin() -> Skin {
 
 /// FNV-1a over the responses' little-endian bytes, as the C programs compute it.
 fn checksum(values: &[u16]) -> u64 {
-    values.iter().flat_map(|v| v.to_le_bytes()).fold(0xcbf2_9ce4_8422_2325, |h, b| (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3))
+    values
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .fold(0xcbf2_9ce4_8422_2325, |h, b| (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3))
 }
 
 /// The value `api_check write` publishes for sensor `i` of frame `seq`.
@@ -216,12 +222,11 @@ fn c_and_cpp_read_the_virtual_skin_as_rust_does() {
     let skin = start_skin();
     let programs = Programs::build(&skin.dir);
 
-    let compared = same_frames_as_rust(&skin, &programs.api, &["frames", "capi", "body-0", "200"], "body-0");
-    assert!(compared >= 150, "only {compared} of 200 C frames were also read by Rust");
-    let compared =
-        same_frames_as_rust(&skin, &programs.wrapper, &["periodic", "capi", "body-1", "100", "100"], "body-1");
-    assert!(compared >= 75, "only {compared} of 100 C++ frames were also read by Rust");
-    println!("C and C++ frames equal Rust's by sequence");
+    let c = same_frames_as_rust(&skin, &programs.api, &["frames", "capi", "body-0", "200"], "body-0");
+    assert!(c >= 150, "only {c} of 200 C frames were also read by Rust");
+    let cpp = same_frames_as_rust(&skin, &programs.wrapper, &["periodic", "capi", "body-1", "100", "100"], "body-1");
+    assert!(cpp >= 75, "only {cpp} of 100 C++ frames were also read by Rust");
+    println!("C and C++ frames equal Rust's by sequence: {c} of 200 C frames, {cpp} of 100 C++ frames compared");
 
     let modes = skin.run(&programs.api, &["modes", "capi", "body-0"]);
     let text = String::from_utf8_lossy(&modes.stdout);
@@ -229,7 +234,9 @@ fn c_and_cpp_read_the_virtual_skin_as_rust_does() {
         assert!(text.contains(part), "{part} missing from:\n{text}");
     }
     println!("{text}");
-    assert!(String::from_utf8_lossy(&skin.run(&programs.api, &["errors", "capi", "body-0"]).stdout).contains("errors ok"));
+    assert!(
+        String::from_utf8_lossy(&skin.run(&programs.api, &["errors", "capi", "body-0"]).stdout).contains("errors ok")
+    );
     let wrapped = skin.run(&programs.wrapper, &["exceptions", "capi", "body-0"]);
     assert!(String::from_utf8_lossy(&wrapped.stdout).contains("wrapper ok"));
 
@@ -240,7 +247,8 @@ fn c_and_cpp_read_the_virtual_skin_as_rust_does() {
 
 /// A periodic C writer's every frame, and a sporadic C writer's answers.
 fn c_writers_are_read_by_rust(skin: &Skin, api: &Path) {
-    let mut writer = skin.command(api).args(["write", "capi", "c_layer", "300", "200"]).stdout(Stdio::piped()).spawn().unwrap();
+    let mut writer =
+        skin.command(api).args(["write", "capi", "c_layer", "300", "200"]).stdout(Stdio::piped()).spawn().unwrap();
     let mut lines = BufReader::new(writer.stdout.take().unwrap()).lines();
     assert_eq!(lines.next().unwrap().unwrap(), "writing");
     let mut reader = skin.reader("c_layer");
@@ -248,19 +256,26 @@ fn c_writers_are_read_by_rust(skin: &Skin, api: &Path) {
     while last < 300 {
         let frame = reader.wait_newer(Duration::from_secs(2)).expect("the C writer's frames");
         let seq = frame.seq();
-        assert!(frame.responses().iter().enumerate().all(|(i, &v)| v == pattern(seq, i)), "frame {seq} is not pattern({seq})");
+        assert!(
+            frame.responses().iter().enumerate().all(|(i, &v)| v == pattern(seq, i)),
+            "frame {seq} is not pattern({seq})"
+        );
         last = seq;
     }
     assert!(writer.wait().unwrap().success());
     assert_eq!(reader.writer_state(), WriterState::Gone, "a closed C writer is gone");
 
-    let mut server = skin.command(api).args(["serve", "capi", "c_sporadic", "5"]).stdout(Stdio::piped()).spawn().unwrap();
+    let mut server =
+        skin.command(api).args(["serve", "capi", "c_sporadic", "5"]).stdout(Stdio::piped()).spawn().unwrap();
     let mut lines = BufReader::new(server.stdout.take().unwrap()).lines();
     assert_eq!(lines.next().unwrap().unwrap(), "serving");
     let mut reader = skin.reader("c_sporadic");
     for answer in 1..=5u64 {
         let frame = reader.request(Duration::from_secs(2)).expect("the sporadic C writer answers");
-        assert_eq!(frame.responses(), &[pattern(answer, 0), pattern(answer, 1), pattern(answer, 2), pattern(answer, 3)]);
+        assert_eq!(
+            frame.responses(),
+            &[pattern(answer, 0), pattern(answer, 1), pattern(answer, 2), pattern(answer, 3)]
+        );
     }
     assert!(server.wait().unwrap().success());
     println!("C writers: 300 periodic frames and 5 requests read back by Rust");
@@ -297,13 +312,17 @@ fn sanitizers_find_nothing(skin: &Skin, programs: &Programs) {
         (&programs.api_asan, vec!["errors", "capi", "body-0"]),
         (&programs.wrapper_asan, vec!["exceptions", "capi", "body-1"]),
     ] {
-        let output = skin.command(program).args(&args).env("ASAN_OPTIONS", "detect_leaks=1:halt_on_error=1").output().unwrap();
+        let output =
+            skin.command(program).args(&args).env("ASAN_OPTIONS", "detect_leaks=1:halt_on_error=1").output().unwrap();
         let stderr = String::from_utf8_lossy(&output.stderr);
         assert!(output.status.success() && !stderr.contains("Sanitizer"), "ASan {args:?}:\n{stderr}");
         println!("ASan {} {args:?}: 0 errors, 0 leaks", program.file_name().unwrap().to_string_lossy());
     }
     if Command::new("valgrind").arg("--version").output().is_err() {
-        assert!(std::env::var("CI").as_deref() != Ok("true"), "valgrind is missing under CI=true (.ci/run installs it)");
+        assert!(
+            std::env::var("CI").as_deref() != Ok("true"),
+            "valgrind is missing under CI=true (.ci/run installs it)"
+        );
         println!("SKIPPED: Valgrind is not installed (apt-get install valgrind)");
         return;
     }
@@ -320,7 +339,15 @@ fn sanitizers_find_nothing(skin: &Skin, programs: &Programs) {
             .output()
             .unwrap();
         let stderr = String::from_utf8_lossy(&output.stderr);
-        let summary: Vec<&str> = stderr.lines().filter(|l| l.contains("ERROR SUMMARY") || l.contains("definitely lost") || l.contains("indirectly lost") || l.contains("All heap blocks")).collect();
+        let summary: Vec<&str> = stderr
+            .lines()
+            .filter(|l| {
+                l.contains("ERROR SUMMARY")
+                    || l.contains("definitely lost")
+                    || l.contains("indirectly lost")
+                    || l.contains("All heap blocks")
+            })
+            .collect();
         assert!(output.status.success() && stderr.contains("ERROR SUMMARY: 0 errors"), "Valgrind {args:?}:\n{stderr}");
         println!("Valgrind {} {args:?}: {}", program.file_name().unwrap().to_string_lossy(), summary.join(" | "));
     }

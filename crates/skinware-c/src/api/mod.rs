@@ -6,10 +6,7 @@
 //! pointers into Rust memory at all (see `registry`): a closed or made-up
 //! handle is refused, never dereferenced.
 
-#![allow(
-    non_camel_case_types,
-    reason = "the C API's names are C's: skinware_reader, skinware_frame_info"
-)]
+#![allow(non_camel_case_types, reason = "the C API's names are C's: skinware_reader, skinware_frame_info")]
 #![allow(
     clippy::missing_safety_doc,
     reason = "one contract for every entry point's pointers, stated in the module docs and in the header's preamble"
@@ -109,7 +106,12 @@ fn live<T, C>(registry: &Registry<T>, handle: *const C, function: &str, what: &s
 
 /// Closes C handle `handle`: NULL is ignored; a closed or made-up handle is
 /// an error (a double close).
-fn release<T, C>(registry: &Registry<T>, handle: *const C, function: &str, what: &str) -> Result<Option<Arc<T>>, Failure> {
+fn release<T, C>(
+    registry: &Registry<T>,
+    handle: *const C,
+    function: &str,
+    what: &str,
+) -> Result<Option<Arc<T>>, Failure> {
     if handle.is_null() {
         return Ok(None);
     }
@@ -199,7 +201,10 @@ fn array<'a, T>(pointer: *const T, count: usize, function: &str, argument: &str)
         return Err(Failure::null(function, argument));
     }
     if !pointer.is_aligned() || count > isize::MAX as usize / size_of::<T>().max(1) {
-        return Err(Failure::invalid(function, format_args!("{argument} {pointer:p} with {count} values is misaligned or too large")));
+        return Err(Failure::invalid(
+            function,
+            format_args!("{argument} {pointer:p} with {count} values is misaligned or too large"),
+        ));
     }
     // SAFETY: non-NULL, aligned, the size fits an allocation, and by the
     // entry point's contract valid for reads of `count` values during the call.
@@ -209,7 +214,12 @@ fn array<'a, T>(pointer: *const T, count: usize, function: &str, argument: &str)
 /// A caller's array of `count` values to fill.
 ///
 /// Sound only for a pointer satisfying the module's contract.
-fn array_mut<'a, T: Copy>(pointer: *mut T, count: usize, function: &str, argument: &str) -> Result<&'a mut [T], Failure> {
+fn array_mut<'a, T: Copy>(
+    pointer: *mut T,
+    count: usize,
+    function: &str,
+    argument: &str,
+) -> Result<&'a mut [T], Failure> {
     if count == 0 {
         return Ok(&mut []);
     }
@@ -217,7 +227,10 @@ fn array_mut<'a, T: Copy>(pointer: *mut T, count: usize, function: &str, argumen
         return Err(Failure::null(function, argument));
     }
     if !pointer.is_aligned() || count > isize::MAX as usize / size_of::<T>().max(1) {
-        return Err(Failure::invalid(function, format_args!("{argument} {pointer:p} with {count} values is misaligned or too large")));
+        return Err(Failure::invalid(
+            function,
+            format_args!("{argument} {pointer:p} with {count} values is misaligned or too large"),
+        ));
     }
     // SAFETY: as in `array`, for writes; T is Copy (plain C values), so
     // overwriting what was there drops nothing.

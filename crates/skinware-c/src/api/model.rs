@@ -383,7 +383,8 @@ pub unsafe extern "C" fn skinware_geometry_get_layer(
         let out = Out::new(layer, function, "layer")?;
         let g = live(&GEOMETRIES, geometry, function, "geometry")?;
         let count = g.inner.layers.len();
-        let topology = g.inner.layers.get(index).ok_or_else(|| handles::out_of_range("layer", index, count, "the skin"))?;
+        let topology =
+            g.inner.layers.get(index).ok_or_else(|| handles::out_of_range("layer", index, count, "the skin"))?;
         out.put(skinware_geometry_layer {
             name: g.layer_names[index].as_ptr(),
             first_sensor: g.inner.layer_starts[index],
@@ -404,8 +405,10 @@ pub unsafe extern "C" fn skinware_geometry_link(
     entry(|| {
         let out = Out::new(name, function, "name")?;
         let g = live(&GEOMETRIES, geometry, function, "geometry")?;
-        let found =
-            g.link_names.get(index).ok_or_else(|| handles::out_of_range("link", index, g.link_names.len(), "the skin"))?;
+        let found = g
+            .link_names
+            .get(index)
+            .ok_or_else(|| handles::out_of_range("link", index, g.link_names.len(), "the skin"))?;
         out.put(found.as_ptr());
         Ok(())
     })

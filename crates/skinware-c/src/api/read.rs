@@ -1,10 +1,10 @@
 //! Readers (layers and services, every mode), tickers, and the listing of
 //! channels.
 
-use std::ffi::{c_char, c_void};
 use skinware::{ChannelKind, ReaderOptions, WriterState};
 use skinware_services::framework::ServicePayload;
 use skinware_services::{MotionRecord, RegionContacts};
+use std::ffi::{c_char, c_void};
 
 use super::*;
 use crate::handles::{self, ReadMode, ReaderKind, ServiceCheck, Tick};
@@ -542,9 +542,13 @@ pub unsafe extern "C" fn skinware_reader_label(
         let out = Out::new(label, function, "label")?;
         let reader = live(&READERS, reader, function, "reader")?;
         let ReaderKind::Service { labels, .. } = &reader.kind else {
-            return Err(Failure::invalid(function, format_args!("{} is a layer; layers have no labels", reader.label())));
+            return Err(Failure::invalid(
+                function,
+                format_args!("{} is a layer; layers have no labels", reader.label()),
+            ));
         };
-        let found = labels.get(index).ok_or_else(|| handles::out_of_range("label", index, labels.len(), &reader.label()))?;
+        let found =
+            labels.get(index).ok_or_else(|| handles::out_of_range("label", index, labels.len(), &reader.label()))?;
         out.put(found.as_ptr());
         Ok(())
     })
@@ -562,7 +566,10 @@ pub unsafe extern "C" fn skinware_reader_topology(
         let out = Out::new(topology, function, "topology")?;
         let reader = live(&READERS, reader, function, "reader")?;
         let ReaderKind::Layer { topology, .. } = &reader.kind else {
-            return Err(Failure::invalid(function, format_args!("{} is a service; it has labels, not a topology", reader.label())));
+            return Err(Failure::invalid(
+                function,
+                format_args!("{} is a service; it has labels, not a topology", reader.label()),
+            ));
         };
         out.put(register(&TOPOLOGIES, TopologyHandle::new(topology.clone()), "topology")?);
         Ok(())
@@ -623,7 +630,10 @@ pub unsafe extern "C" fn skinware_ticker_new(period_ns: u64, ticker: *mut *mut s
 /// `skinware_reader_next_periodic`). Deadlines already past are skipped and
 /// counted in `tick->missed`. `*tick` may be NULL.
 #[unsafe(no_mangle)]
-pub unsafe extern "C" fn skinware_ticker_wait(ticker: *mut skinware_ticker, tick: *mut skinware_tick) -> skinware_status {
+pub unsafe extern "C" fn skinware_ticker_wait(
+    ticker: *mut skinware_ticker,
+    tick: *mut skinware_tick,
+) -> skinware_status {
     let function = "skinware_ticker_wait";
     entry(|| {
         let out = Out::optional(tick, function, "tick")?;
@@ -724,8 +734,10 @@ pub unsafe extern "C" fn skinware_channel_list_get(
     entry(|| {
         let out = Out::new(info, function, "info")?;
         let list = live(&LISTS, list, function, "channel list")?;
-        let channel =
-            list.channels.get(index).ok_or_else(|| handles::out_of_range("channel", index, list.channels.len(), "the list"))?;
+        let channel = list
+            .channels
+            .get(index)
+            .ok_or_else(|| handles::out_of_range("channel", index, list.channels.len(), "the list"))?;
         let c = &channel.info;
         out.put(skinware_channel_info {
             skin: channel.skin.as_ptr(),

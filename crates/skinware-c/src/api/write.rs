@@ -44,7 +44,11 @@ pub unsafe extern "C" fn skinware_topology_builder_new(
         let sensor_type = text(sensor_type, function, "sensor_type")?;
         let rate_hz = handles::rate(rate_hz, function)?;
         let inner = skinware::TopologyBuilder::new(name, sensor_type, rate_hz);
-        out.put(register(&BUILDERS, BuilderHandle { inner: std::sync::Mutex::new((inner, None)) }, "topology builder")?);
+        out.put(register(
+            &BUILDERS,
+            BuilderHandle { inner: std::sync::Mutex::new((inner, None)) },
+            "topology builder",
+        )?);
         Ok(())
     })
 }
@@ -240,7 +244,10 @@ pub unsafe extern "C" fn skinware_writer_ticker(
         let Some(period) = writer.period else {
             return Err(Failure::invalid(
                 function,
-                format_args!("{} is sporadic (rate 0): answer requests with skinware_writer_wait_request", writer.label),
+                format_args!(
+                    "{} is sporadic (rate 0): answer requests with skinware_writer_wait_request",
+                    writer.label
+                ),
             ));
         };
         let period_ns = period.as_nanos().min(u128::from(u64::MAX)) as u64;

@@ -307,6 +307,7 @@ static int spin(const char *skin, const char *layer) {
   printf("spinning\n");
   fflush(stdout);
   for (;;) skinware_reader_latest(reader, buffer, sensors * 2, NULL);
+  return 0; /* never: the test SIGKILLs it */
 }
 
 static int write_frames(const char *skin, const char *layer, long n, double hz) {

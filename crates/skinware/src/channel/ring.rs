@@ -158,7 +158,11 @@ impl<'a> Ring<'a> {
     /// length) and returns its metadata and the number of retries it took.
     ///
     /// Lock-free: it retries only when the writer lapped it, at most `max_attempts` times.
-    pub(crate) fn read_latest<D: Destination + ?Sized>(&self, out: &mut D, max_attempts: u32) -> Result<(Meta, u32), ReadFailure> {
+    pub(crate) fn read_latest<D: Destination + ?Sized>(
+        &self,
+        out: &mut D,
+        max_attempts: u32,
+    ) -> Result<(Meta, u32), ReadFailure> {
         let mut attempt = 0;
         loop {
             let seq = self.published();
