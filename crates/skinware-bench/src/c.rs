@@ -13,6 +13,8 @@
 //! * a periodic reader at 1 kHz: Rust's `Ticker` + `latest()` against the C++
 //!   wrapper's `reader.periodic()` range, by each tick's wake-up lateness.
 //!
+//! Every reader runs on the same CPU (the last), one at a time, and each
+//! block starts with untimed reads (a new process faults its pages in).
 //! It also reports the sizes of the installed header, shared and static libraries.
 
 use std::path::{Path, PathBuf};
@@ -62,6 +64,8 @@ pub struct CReport {
     pub rust_periodic_lateness: Percentiles,
     /// C++ `reader.periodic()`: wake-up lateness, ns.
     pub cpp_periodic_lateness: Percentiles,
+    /// The CPU every reader of the bench ran on (`None`: pinning failed).
+    pub pinned_cpu: Option<usize>,
     /// The installed files' sizes, bytes.
     pub sizes: Sizes,
     /// The compilers, as `cc --version` and `c++ --version` name them.
@@ -218,22 +222,62 @@ fn samples_of(dir: &Path, program: &Path, args: &[String]) -> Result<Vec<u64>> {
         .collect()
 }
 
+/// Untimed reads at the start of every block, on both sides: a new
+/// process's first reads fault in its buffer and the channel's pages.
+const WARMUP: usize = 100;
+/// Blocks per side, alternating.
+const BLOCKS: usize = 8;
+
 fn measure(dir: &Path, programs: &Programs, reads: usize, seconds: usize, installed: &Installed) -> Result<CReport> {
     let mut reader =
         Reader::open_with(SKIN, LAYER, &ReaderOptions { dir: Some(dir.to_owned()), ..Default::default() })?;
     reader.wait_newer(Duration::from_secs(5))?;
+    // Both sides on the same CPU (the C and C++ programs inherit this
+    // thread's affinity), so that neither copies across caches the other does not.
+    let cpus = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let pinned = skinware::os::pin_to_cpus(&[cpus - 1]).is_ok();
+    let result = measure_pinned(dir, programs, &mut reader, reads, seconds);
+    let _ = skinware::os::pin_to_cpus(&(0..cpus).collect::<Vec<_>>());
+    let (rust, c, rust_periodic, cpp_periodic) = result?;
+    Ok(CReport {
+        sensors: SENSORS,
+        rate_hz: RATE_HZ,
+        latest_ratio_p50: c.p50 as f64 / rust.p50.max(1) as f64,
+        latest_ratio_mean: c.avg / rust.avg.max(1.0),
+        rust_latest: rust,
+        c_latest: c,
+        rust_periodic_lateness: rust_periodic,
+        cpp_periodic_lateness: cpp_periodic,
+        pinned_cpu: pinned.then_some(cpus - 1),
+        sizes: installed.sizes(),
+        compilers: compilers(),
+    })
+}
+
+type Measured = (Percentiles, Percentiles, Percentiles, Percentiles);
+
+fn measure_pinned(
+    dir: &Path,
+    programs: &Programs,
+    reader: &mut Reader,
+    reads: usize,
+    seconds: usize,
+) -> Result<Measured> {
     let (mut rust_latest, mut c_latest) = (Vec::with_capacity(reads), Vec::with_capacity(reads));
-    const BLOCKS: usize = 4;
     let block = reads / BLOCKS;
     let args = |extra: &[String]| [vec![SKIN.to_owned(), LAYER.to_owned()], extra.to_vec()].concat();
     for _ in 0..BLOCKS {
-        for _ in 0..block {
+        for read in 0..WARMUP + block {
             let started = skinware::os::monotonic_ns();
             let frame = reader.latest()?;
-            rust_latest.push(skinware::os::monotonic_ns() - started);
+            let took = skinware::os::monotonic_ns() - started;
             std::hint::black_box(frame.seq());
+            if read >= WARMUP {
+                rust_latest.push(took);
+            }
         }
-        c_latest.extend(samples_of(dir, &programs.latest, &args(&[block.to_string()]))?);
+        let samples = samples_of(dir, &programs.latest, &args(&[(WARMUP + block).to_string()]))?;
+        c_latest.extend(samples.into_iter().skip(WARMUP));
     }
     let stop = Stop::new();
     let (mut rust_periodic, mut cpp_periodic) = (Vec::new(), Vec::new());
@@ -246,20 +290,12 @@ fn measure(dir: &Path, programs: &Programs, reads: usize, seconds: usize, instal
         }
         cpp_periodic.extend(samples_of(dir, &programs.periodic, &args(&[RATE_HZ.to_string(), "1".to_owned()]))?);
     }
-    let rust = Percentiles::of(&mut rust_latest);
-    let c = Percentiles::of(&mut c_latest);
-    Ok(CReport {
-        sensors: SENSORS,
-        rate_hz: RATE_HZ,
-        latest_ratio_p50: c.p50 as f64 / rust.p50.max(1) as f64,
-        latest_ratio_mean: c.avg / rust.avg.max(1.0),
-        rust_latest: rust,
-        c_latest: c,
-        rust_periodic_lateness: Percentiles::of(&mut rust_periodic),
-        cpp_periodic_lateness: Percentiles::of(&mut cpp_periodic),
-        sizes: installed.sizes(),
-        compilers: compilers(),
-    })
+    Ok((
+        Percentiles::of(&mut rust_latest),
+        Percentiles::of(&mut c_latest),
+        Percentiles::of(&mut rust_periodic),
+        Percentiles::of(&mut cpp_periodic),
+    ))
 }
 
 fn compilers() -> String {

@@ -45,7 +45,15 @@ pub(crate) struct ReaderHandle {
     pub(crate) skin: CString,
     pub(crate) name: CString,
     pub(crate) kind: ReaderKind,
+    /// When the kernel was last asked whether the writer lives (CLOCK_MONOTONIC
+    /// ns), and what it said: asked at most once a millisecond.
+    liveness: Mutex<(u64, WriterState)>,
 }
+
+/// How often a reader re-reading a stale frame asks the kernel whether its
+/// writer still lives: a system call that would otherwise cost every
+/// `skinware_reader_latest()` in a tight loop as much as half a frame's copy.
+const LIVENESS_CHECK_NS: u64 = 1_000_000;
 
 /// The read modes.
 #[derive(Clone, Copy, Debug)]
@@ -106,7 +114,14 @@ impl ReaderHandle {
         };
         let stop = Stop::new();
         reader.set_stop(&stop);
-        Ok(ReaderHandle { core: Mutex::new(reader), stop, skin: c_string(skin), name: c_string(channel), kind })
+        Ok(ReaderHandle {
+            core: Mutex::new(reader),
+            stop,
+            skin: c_string(skin),
+            name: c_string(channel),
+            kind,
+            liveness: Mutex::new((0, WriterState::Running)),
+        })
     }
 
     pub(crate) fn label(&self) -> String {
@@ -121,7 +136,7 @@ impl ReaderHandle {
             ReadMode::Newer(timeout) => reader.wait_newer_into(timeout, out)?,
             ReadMode::Request(timeout) => reader.request_into(timeout, out)?,
         };
-        Ok(Read { info, state: state_after(&reader, &info) })
+        Ok(Read { info, state: self.state_after(&reader, &info) })
     }
 
     /// Waits for `ticker`'s next tick, then reads the newest frame into `out`.
@@ -132,7 +147,7 @@ impl ReaderHandle {
             .ok_or_else(|| Failure::new(SKINWARE_E_STOPPED, format!("the reader of {} was stopped", self.label())))?;
         let mut reader = skinware::lock(&self.core);
         let info = reader.latest_into(out)?;
-        Ok((Read { info, state: state_after(&reader, &info) }, Tick::from(tick)))
+        Ok((Read { info, state: self.state_after(&reader, &info) }, Tick::from(tick)))
     }
 
     pub(crate) fn payload_bytes(&self) -> usize {
@@ -140,11 +155,23 @@ impl ReaderHandle {
     }
 }
 
-/// The writer's state as a read leaves it: what the writer stored while
-/// frames keep coming (no system call on the fast path), what the kernel
-/// says about it when the frame is one the reader had already seen.
-fn state_after(reader: &skinware::Reader, info: &FrameInfo) -> WriterState {
-    if info.fresh { reader.stored_writer_state() } else { reader.writer_state() }
+impl ReaderHandle {
+    /// The writer's state as a read leaves it: what the writer stored while
+    /// its frames are new or at most two periods old (it was alive then);
+    /// for an older frame, what the kernel says about its process, asked at
+    /// most once a millisecond.
+    fn state_after(&self, reader: &skinware::Reader, info: &FrameInfo) -> WriterState {
+        let now = skinware::os::monotonic_ns();
+        let period = reader.writer_period().map_or(0, |p| p.as_nanos().min(u128::from(u64::MAX)) as u64);
+        if info.fresh || now.saturating_sub(info.published_ns) <= period.saturating_mul(2) {
+            return reader.stored_writer_state();
+        }
+        let mut liveness = skinware::lock(&self.liveness);
+        if now.saturating_sub(liveness.0) >= LIVENESS_CHECK_NS {
+            *liveness = (now, reader.writer_state());
+        }
+        liveness.1
+    }
 }
 
 fn layer_kind(reader: &skinware::Reader) -> Result<ReaderKind, Failure> {

@@ -11,7 +11,7 @@ use skinware_bench::kilohertz::{self, KilohertzOptions, Part, Wake};
 use skinware_bench::run_options::{RunOptions, parse_bench_seconds};
 use skinware_bench::soak::{self, SoakBenchOptions};
 use skinware_bench::table1::{self, Table1Options, Transport};
-use skinware_bench::{bridge, can, contact, ethercat, follow, netns, paper, peers, python, record, wake};
+use skinware_bench::{bridge, c, can, contact, ethercat, follow, netns, paper, peers, python, record, wake};
 
 /// Which benchmark.
 #[derive(clap::Subcommand)]
@@ -32,6 +32,8 @@ pub enum Which {
     Contact(Common),
     /// The Python bindings beside the Rust reader on a 30,848-sensor layer of `skin run`: latest(), read_into(), wait_newer() latency ($SKINWARE_PYTHON).
     Python(Common),
+    /// The C API and the C++ wrapper beside the Rust reader on a 30,848-sensor layer at 1 kHz: C latest() into a buffer against Rust latest(), the C++ periodic reader's wake-up jitter against Rust's, the installed files' sizes (builds against the installed library: pkg-config skinware).
+    C(Common),
     /// A 1 kHz writer of the whole skin's frame with 0 or 15 readers asleep on the futex, woken by the writer or by its ringer: period start to visible, start jitter, missed periods, reader latency, CPU.
     Wake(Common),
     /// The paper's skin at 1 kHz alone, then with 15 applications, both services at 1 kHz, the viewer with 3 browsers and the recorder; then the viewer with 1 and 10 browsers: missed periods, publish times, CPU per component, latency from acquisition.
@@ -179,6 +181,7 @@ pub fn run(which: &Which) -> Result<()> {
             let python = std::env::var("SKINWARE_PYTHON").unwrap_or_else(|_| "python3".into());
             python::run(&python::PythonBenchOptions { run: common.run_options()?, python }).map(drop)
         }
+        Which::C(common) => c::run(&common.run_options()?).map(drop),
         Which::Wake(common) => wake::run(&common.run_options()?).map(drop),
         Which::Kilohertz(args) => kilohertz::bench(&args.options()?),
         Which::Follow(FollowArgs { common, rounds }) => {
