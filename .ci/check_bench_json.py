@@ -215,6 +215,15 @@ need(soak.get("leaked_files") == [] and soak.get("leaked_channels") == 0 and soa
 need(soak.get("browser", {}).get("updates", 0) > 0, "soak.json: the viewer's browser got no update")
 need(isinstance(soak.get("recorder"), dict) and soak["recorder"].get("frames", 0) > 0, "soak.json: the recorder's summary")
 
+c_api = json.loads((out / "c.json").read_text())
+for key in ("rust_latest", "c_latest", "rust_periodic_lateness", "cpp_periodic_lateness"):
+    stats = c_api.get(key, {})
+    need(stats.get("samples", 0) > 0 and is_count(stats.get("p50")) and stats.get("p50", 0) <= stats.get("p99", 0) <= stats.get("max", 0),
+         f"c.json: {key} missing or out of order")
+need(c_api.get("latest_ratio_p50", 0) > 0 and c_api.get("latest_ratio_mean", 0) > 0, "c.json: the latest() ratios")
+need(all(c_api.get("sizes", {}).get(k, 0) > 0 for k in ("header", "cpp_header", "shared_library", "static_library")),
+     "c.json: the installed files' sizes")
+
 if problems:
     print("benchmark JSON problems:\n  " + "\n  ".join(problems))
     sys.exit(1)

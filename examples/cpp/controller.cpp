@@ -4,7 +4,7 @@
 // late its wake-ups were and how many frames were fresh.
 //
 //   skin run examples/demo.toml &
-//   ./controller default virtual 5 1000     # skin, layer, seconds, Hz
+//   ./controller default virtual-0 5 1000   # skin, layer, seconds, Hz
 //
 // Build: c++ -std=c++17 controller.cpp $(pkg-config --cflags --libs skinware) -o controller
 #include <algorithm>
@@ -18,7 +18,7 @@
 
 int main(int argc, char** argv) try {
   const std::string skin = argc > 1 ? argv[1] : "default";
-  const std::string layer = argc > 2 ? argv[2] : "virtual";
+  const std::string layer = argc > 2 ? argv[2] : "virtual-0";
   const double seconds = argc > 3 ? std::stod(argv[3]) : 5.0;
   const double hz = argc > 4 ? std::stod(argv[4]) : 1000.0;
   const auto period = std::chrono::nanoseconds(static_cast<std::int64_t>(1e9 / hz));

@@ -42,6 +42,40 @@ fn latest_returns_newest_with_metadata_and_skips() {
 }
 
 #[test]
+fn reads_into_a_callers_buffer_copy_the_frame_once_at_any_alignment() {
+    let dir = SegmentDir::new("into");
+    // 13 responses: 26 bytes, a ragged last word.
+    let mut writer = Writer::create("skin", "layer", 26, b"", &dir.writer()).unwrap();
+    let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+    let mut storage = vec![0xEEu8; 26 + 3 + 1];
+    assert!(matches!(reader.latest_into(&mut storage[3..29]), Err(Error::NoFrameYet { .. })));
+    let values: Vec<u16> = (0..13).map(|i| 1000 + i * 3).collect();
+    let mut frame = writer.begin();
+    frame.write_responses(0, &values).unwrap();
+    frame.publish();
+    // An odd start: the caller's buffer need not be aligned.
+    let info = reader.latest_into(&mut storage[3..29]).unwrap();
+    assert_eq!((info.seq, info.skipped, info.fresh), (1, 0, true));
+    let read: Vec<u16> = storage[3..29].chunks_exact(2).map(|b| u16::from_ne_bytes([b[0], b[1]])).collect();
+    assert_eq!(read, values);
+    assert_eq!(&storage[..3], &[0xEE; 3], "nothing written before the buffer");
+    assert_eq!(storage[29], 0xEE, "nothing written past the frame");
+    assert!(reader.last_frame().is_none(), "the reader's own copy is not the one refreshed");
+    let again = reader.latest_into(&mut storage[3..29]).unwrap();
+    assert!(!again.fresh);
+    match reader.latest_into(&mut storage[..25]) {
+        Err(Error::BufferTooSmall { needed: 26, given: 25, .. }) => {}
+        other => panic!("a short buffer: {other:?}"),
+    }
+    let mut frame = writer.begin();
+    frame.write_responses(0, &[9; 13]).unwrap();
+    frame.publish();
+    let info = reader.wait_newer_into(Duration::from_secs(1), &mut storage[..26]).unwrap();
+    assert_eq!((info.seq, info.fresh), (2, true));
+    assert_eq!(&storage[..26], &[9, 0].repeat(13)[..]);
+}
+
+#[test]
 fn the_last_frame_copied_is_there_again_until_a_read_fails() {
     let dir = SegmentDir::new("last-frame");
     let mut writer = Writer::create("skin", "layer", 16, b"", &dir.writer()).unwrap();
