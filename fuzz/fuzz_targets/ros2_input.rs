@@ -5,7 +5,7 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use skinware_dds::driver::{Ros2Input, decode};
+use skinware_ros2::input::{Ros2Input, decode};
 
 fuzz_target!(|bytes: &[u8]| {
     let Some((&pick, message)) = bytes.split_first() else { return };

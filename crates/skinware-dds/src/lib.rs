@@ -48,6 +48,9 @@ pub enum DdsError {
     /// The skin's topics could not be set up.
     #[error(transparent)]
     View(#[from] skinware_ros2::view::ViewError),
+    /// A `ros2` layer's message or field that cannot be read.
+    #[error(transparent)]
+    Input(#[from] skinware_ros2::input::UnknownInput),
     /// A thread could not be started.
     #[error("cannot start {thread}: {source}")]
     Thread {

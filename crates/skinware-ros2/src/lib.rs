@@ -60,6 +60,7 @@ pub mod clock;
 pub mod cloud;
 pub mod diagnostics;
 pub mod heatmap;
+pub mod input;
 pub mod markers;
 pub mod messages;
 pub mod qos;

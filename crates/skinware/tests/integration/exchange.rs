@@ -47,7 +47,7 @@ fn reads_into_a_callers_buffer_copy_the_frame_once_at_any_alignment() {
     // 13 responses: 26 bytes, a ragged last word.
     let mut writer = Writer::create("skin", "layer", 26, b"", &dir.writer()).unwrap();
     let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
-    let mut storage = vec![0xEEu8; 26 + 3 + 1];
+    let mut storage = [0xEEu8; 26 + 3 + 1];
     assert!(matches!(reader.latest_into(&mut storage[3..29]), Err(Error::NoFrameYet { .. })));
     let values: Vec<u16> = (0..13).map(|i| 1000 + i * 3).collect();
     let mut frame = writer.begin();
