@@ -308,6 +308,7 @@ typedef struct {
   // As-soon-as-available reads of a periodic writer wake this many ns
   // before the next frame is due and spin until it is published, instead
   // of sleeping until the writer wakes them; 0 (the default) never spins.
+  // At most 1 s (1000000000); tens of microseconds is usual.
   uint64_t anticipate_ns;
 } skinware_reader_options;
 

@@ -422,8 +422,9 @@ pub(crate) fn slots(slots: usize) -> Result<usize, Failure> {
 }
 
 /// The sensors of a uniform topology, checked.
-pub(crate) fn uniform_sensors(patches: u32, modules: u32, sensors: u32) -> Result<u64, Failure> {
-    let total = u64::from(patches) * u64::from(modules) * u64::from(sensors);
+pub(crate) fn uniform_sensors(patches: u32, modules: u32, sensors: u32) -> Result<u128, Failure> {
+    // u128: three u32 factors cannot overflow it.
+    let total = u128::from(patches) * u128::from(modules) * u128::from(sensors);
     if total == 0 || total > 1 << 24 {
         return Err(Failure::invalid(
             "skinware_topology_uniform",

@@ -101,6 +101,29 @@ mod tests {
         assert_eq!(registry.get(second).as_deref(), Some(&"b"));
     }
 
+    proptest::proptest! {
+        /// Any number C passes finds an object only if it is a handle that
+        /// was issued and not closed.
+        #[test]
+        #[cfg_attr(miri, ignore = "256 random cases are slow under Miri, and no pointer is involved")]
+        fn only_issued_live_handles_find_objects(made_up in proptest::prelude::any::<usize>(), opened in 1usize..20, closed in 0usize..20) {
+            let registry: Registry<usize> = Registry::new(9);
+            let handles: Vec<usize> = (0..opened).map(|i| registry.insert(i).unwrap()).collect();
+            for handle in handles.iter().take(closed) {
+                registry.remove(*handle);
+            }
+            let live = &handles[closed.min(opened)..];
+            match registry.get(made_up) {
+                Some(found) => proptest::prop_assert_eq!(live.iter().position(|h| *h == made_up), Some(*found - closed.min(opened))),
+                None => proptest::prop_assert!(!live.contains(&made_up)),
+            }
+            for (i, handle) in live.iter().enumerate() {
+                let found = registry.get(*handle).map(|value| *value);
+                proptest::prop_assert_eq!(found, Some(closed.min(opened) + i));
+            }
+        }
+    }
+
     #[test]
     fn made_up_and_foreign_handles_find_nothing() {
         let readers: Registry<u32> = Registry::new(1);

@@ -290,3 +290,124 @@ pub extern "C" fn skinware_monotonic_ns() -> u64 {
 fn entry(body: impl FnOnce() -> Result<(), Failure>) -> skinware_status {
     guard(body)
 }
+
+/// The entry points called as C calls them, on what needs no running skin
+/// (topologies, tickers, statuses, bad arguments): also run under Miri,
+/// which checks the pointer conversions above.
+#[cfg(test)]
+mod tests {
+    use std::ffi::CStr;
+    use std::ptr::{null, null_mut};
+
+    use super::*;
+    use crate::status::skinware_status::*;
+
+    fn last_error() -> String {
+        // SAFETY: skinware_last_error returns a valid NUL-terminated string.
+        unsafe { CStr::from_ptr(skinware_last_error()) }.to_string_lossy().into_owned()
+    }
+
+    #[test]
+    fn a_uniform_topology_describes_itself_and_finds_uids() {
+        let mut topology = null_mut();
+        // SAFETY: valid C strings and a valid out-pointer.
+        let made = unsafe { skinware_topology_uniform(c"hand".as_ptr(), c"pressure".as_ptr(), 50.0, 2, 3, 4, &mut topology) };
+        assert_eq!(made, SKINWARE_OK, "{}", last_error());
+        let mut summary = std::mem::MaybeUninit::<skinware_topology_summary>::uninit();
+        // SAFETY: a live handle and a writable summary.
+        assert_eq!(unsafe { skinware_topology_describe(topology, summary.as_mut_ptr()) }, SKINWARE_OK);
+        // SAFETY: written on success.
+        let summary = unsafe { summary.assume_init() };
+        assert_eq!((summary.sensors, summary.modules, summary.patches), (24, 6, 2));
+        // SAFETY: the name lives as long as the topology.
+        assert_eq!(unsafe { CStr::from_ptr(summary.name) }, c"hand");
+        let mut uids = [0u32; 24];
+        // SAFETY: room for 24 uids.
+        assert_eq!(unsafe { skinware_topology_uids(topology, uids.as_mut_ptr(), 24) }, SKINWARE_OK);
+        assert_eq!(uids[23], 23);
+        let mut index = 0;
+        // SAFETY: a live handle and a writable index.
+        assert_eq!(unsafe { skinware_topology_index_of(topology, 17, &mut index) }, SKINWARE_OK);
+        assert_eq!(index, 17);
+        let mut sensor = skinware_sensor::default();
+        // SAFETY: as above.
+        assert_eq!(unsafe { skinware_topology_sensor(topology, 17, &mut sensor) }, SKINWARE_OK);
+        assert_eq!((sensor.module_index, sensor.patch_index, sensor.patch_id), (4, 1, 1));
+        // SAFETY: index 24 is past the end: refused, `sensor` untouched.
+        assert_eq!(unsafe { skinware_topology_sensor(topology, 24, &mut sensor) }, SKINWARE_E_NOT_FOUND);
+        // SAFETY: closing a live handle, then the same handle again.
+        assert_eq!(unsafe { skinware_topology_free(topology) }, SKINWARE_OK);
+        // SAFETY: a closed handle is refused, never dereferenced.
+        assert_eq!(unsafe { skinware_topology_free(topology) }, SKINWARE_E_INVALID_ARGUMENT);
+        assert!(last_error().contains("closed"), "{}", last_error());
+    }
+
+    #[test]
+    fn a_builder_checks_what_a_driver_builds() {
+        let mut builder = null_mut();
+        // SAFETY: valid C strings and out-pointer.
+        let made = unsafe { skinware_topology_builder_new(c"finger".as_ptr(), c"pressure".as_ptr(), 0.0, &mut builder) };
+        assert_eq!(made, SKINWARE_OK);
+        let uids = [7u32, 8, 9];
+        // SAFETY: three readable uids.
+        assert_eq!(unsafe { skinware_topology_builder_add_module(builder, 1, 1, uids.as_ptr(), 3) }, SKINWARE_OK);
+        // SAFETY: NULL uids with a count: refused.
+        let null_uids = unsafe { skinware_topology_builder_add_module(builder, 1, 2, null(), 3) };
+        assert_eq!(null_uids, SKINWARE_E_INVALID_ARGUMENT);
+        assert!(last_error().contains("uids is NULL"), "{}", last_error());
+        // SAFETY: a duplicate uid: the build refuses it.
+        assert_eq!(unsafe { skinware_topology_builder_add_module(builder, 1, 2, uids.as_ptr(), 1) }, SKINWARE_OK);
+        let mut topology = null_mut();
+        // SAFETY: a live builder and a writable out-pointer.
+        assert_eq!(unsafe { skinware_topology_builder_build(builder, &mut topology) }, SKINWARE_E_INVALID_ARGUMENT);
+        assert!(topology.is_null(), "nothing written on failure");
+        // SAFETY: freeing a live builder, then NULL.
+        assert_eq!(unsafe { skinware_topology_builder_free(builder) }, SKINWARE_OK);
+        // SAFETY: NULL is accepted by every free.
+        assert_eq!(unsafe { skinware_topology_builder_free(null_mut()) }, SKINWARE_OK);
+    }
+
+    #[test]
+    fn bad_arguments_are_codes_with_messages() {
+        let mut reader = null_mut();
+        // SAFETY: NULL names are refused before anything is read.
+        assert_eq!(unsafe { skinware_reader_open(null(), c"x".as_ptr(), null(), &mut reader) }, SKINWARE_E_INVALID_ARGUMENT);
+        assert!(last_error().contains("skin is NULL"), "{}", last_error());
+        let not_utf8 = [0xffu8, 0xfe, 0];
+        // SAFETY: a NUL-terminated string that is not UTF-8.
+        let refused = unsafe { skinware_reader_open(not_utf8.as_ptr().cast(), c"x".as_ptr(), null(), &mut reader) };
+        assert_eq!(refused, SKINWARE_E_INVALID_ARGUMENT);
+        assert!(last_error().contains("not UTF-8"), "{}", last_error());
+        let mut buffer = [0u8; 8];
+        let made_up = std::ptr::without_provenance_mut::<skinware_reader>(0xdead_beef);
+        // SAFETY: a made-up handle is looked up, never dereferenced.
+        let latest = unsafe { skinware_reader_latest(made_up, buffer.as_mut_ptr().cast(), 8, null_mut()) };
+        assert_eq!(latest, SKINWARE_E_INVALID_ARGUMENT);
+        let mut ticker = null_mut();
+        // SAFETY: a period of 0 is refused.
+        assert_eq!(unsafe { skinware_ticker_new(0, &mut ticker) }, SKINWARE_E_INVALID_ARGUMENT);
+        assert!(last_error().contains("1000000 for 1 kHz"), "{}", last_error());
+        // SAFETY: a NULL out-pointer is refused.
+        assert_eq!(unsafe { skinware_ticker_new(1_000_000, null_mut()) }, SKINWARE_E_INVALID_ARGUMENT);
+        // SAFETY: the status names are static strings.
+        assert_eq!(unsafe { CStr::from_ptr(skinware_status_name(5)) }, c"SKINWARE_E_TIMEOUT");
+        assert_eq!(skinware_abi_version(), crate::SKINWARE_ABI_VERSION);
+    }
+
+    #[test]
+    #[cfg_attr(miri, ignore = "sleeps through rustix's raw futex system call, which Miri cannot run")]
+    fn a_stopped_ticker_returns_at_once() {
+        let mut ticker = null_mut();
+        // SAFETY: a valid period and out-pointer.
+        assert_eq!(unsafe { skinware_ticker_new(1_000_000, &mut ticker) }, SKINWARE_OK);
+        let mut tick = std::mem::MaybeUninit::<skinware_tick>::uninit();
+        // SAFETY: a live ticker and a writable tick.
+        assert_eq!(unsafe { skinware_ticker_wait(ticker, tick.as_mut_ptr()) }, SKINWARE_OK);
+        // SAFETY: stopping, then waiting on, a live ticker.
+        assert_eq!(unsafe { skinware_ticker_stop(ticker) }, SKINWARE_OK);
+        // SAFETY: as above; NULL tick is optional.
+        assert_eq!(unsafe { skinware_ticker_wait(ticker, null_mut()) }, SKINWARE_E_STOPPED);
+        // SAFETY: freeing a live ticker.
+        assert_eq!(unsafe { skinware_ticker_free(ticker) }, SKINWARE_OK);
+    }
+}

@@ -80,6 +80,7 @@ pub struct skinware_reader_options {
     /// As-soon-as-available reads of a periodic writer wake this many ns
     /// before the next frame is due and spin until it is published, instead
     /// of sleeping until the writer wakes them; 0 (the default) never spins.
+    /// At most 1 s (1000000000); tens of microseconds is usual.
     pub anticipate_ns: u64,
 }
 
@@ -225,13 +226,25 @@ impl From<skinware::WriterStats> for skinware_writer_stats {
     }
 }
 
-fn reader_options(options: Option<&skinware_reader_options>) -> ReaderOptions {
+/// The longest anticipation a reader takes: it spins up to three times it per frame.
+const MAX_ANTICIPATE_NS: u64 = 1_000_000_000;
+
+fn reader_options(options: Option<&skinware_reader_options>, function: &str) -> Result<ReaderOptions, Failure> {
     let options = options.copied().unwrap_or_default();
-    ReaderOptions {
+    if options.anticipate_ns > MAX_ANTICIPATE_NS {
+        return Err(Failure::invalid(
+            function,
+            format_args!(
+                "anticipate_ns {}: give 0 (no spinning) or at most {MAX_ANTICIPATE_NS} ns; a reader spins up to three times it per frame (tens of microseconds is usual)",
+                options.anticipate_ns
+            ),
+        ));
+    }
+    Ok(ReaderOptions {
         allow_gone: options.allow_gone != 0,
         anticipate: (options.anticipate_ns > 0).then(|| handles::timeout(options.anticipate_ns)),
         ..ReaderOptions::default()
-    }
+    })
 }
 
 /// Opens a reader and hands it to C.
@@ -246,7 +259,7 @@ fn open_reader(
         let out = Out::new(reader, function, "reader")?;
         let skin = text(skin, function, "skin")?;
         let channel = text(channel, function, "channel")?;
-        let options = reader_options(input(options, function, "options")?);
+        let options = reader_options(input(options, function, "options")?, function)?;
         let opened = ReaderHandle::open(skin, channel, &options, service)?;
         out.put(register(&READERS, opened, "reader")?);
         Ok(())
