@@ -311,7 +311,8 @@ mod tests {
     fn a_uniform_topology_describes_itself_and_finds_uids() {
         let mut topology = null_mut();
         // SAFETY: valid C strings and a valid out-pointer.
-        let made = unsafe { skinware_topology_uniform(c"hand".as_ptr(), c"pressure".as_ptr(), 50.0, 2, 3, 4, &mut topology) };
+        let made =
+            unsafe { skinware_topology_uniform(c"hand".as_ptr(), c"pressure".as_ptr(), 50.0, 2, 3, 4, &mut topology) };
         assert_eq!(made, SKINWARE_OK, "{}", last_error());
         let mut summary = std::mem::MaybeUninit::<skinware_topology_summary>::uninit();
         // SAFETY: a live handle and a writable summary.
@@ -346,7 +347,8 @@ mod tests {
     fn a_builder_checks_what_a_driver_builds() {
         let mut builder = null_mut();
         // SAFETY: valid C strings and out-pointer.
-        let made = unsafe { skinware_topology_builder_new(c"finger".as_ptr(), c"pressure".as_ptr(), 0.0, &mut builder) };
+        let made =
+            unsafe { skinware_topology_builder_new(c"finger".as_ptr(), c"pressure".as_ptr(), 0.0, &mut builder) };
         assert_eq!(made, SKINWARE_OK);
         let uids = [7u32, 8, 9];
         // SAFETY: three readable uids.
@@ -371,7 +373,10 @@ mod tests {
     fn bad_arguments_are_codes_with_messages() {
         let mut reader = null_mut();
         // SAFETY: NULL names are refused before anything is read.
-        assert_eq!(unsafe { skinware_reader_open(null(), c"x".as_ptr(), null(), &mut reader) }, SKINWARE_E_INVALID_ARGUMENT);
+        assert_eq!(
+            unsafe { skinware_reader_open(null(), c"x".as_ptr(), null(), &mut reader) },
+            SKINWARE_E_INVALID_ARGUMENT
+        );
         assert!(last_error().contains("skin is NULL"), "{}", last_error());
         let not_utf8 = [0xffu8, 0xfe, 0];
         // SAFETY: a NUL-terminated string that is not UTF-8.
