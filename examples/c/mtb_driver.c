@@ -166,16 +166,19 @@ int main(int argc, char **argv) {
         if (used < sizeof line) line[used++] = chunk[i];
         continue;
       }
-      unsigned id, len;
-      uint8_t data[8];
+      unsigned id = 0, len = 0;
+      uint8_t data[8] = {0};
       int is_frame = parse_frame(line, used, &id, data, &len) == 0;
       used = 0;
+      if (!is_frame) continue;
       unsigned class = id >> 8, board = (id >> 4) & 0xF, triangle = id & 0xF;
-      if (!is_frame || (class != 3 && class != 4) || len < 7) continue;
+      /* A head carries 7 taxels (8 bytes); a tail 5 and its mask and error (at least 7). */
+      int head = (data[0] & 0x80) == 0;
+      if ((class != 3 && class != 4) || len < (head ? 8u : 7u)) continue;
       if (board < 1 || board > (unsigned)boards || triangle >= (unsigned)triangles) continue;
       size_t first = ((size_t)(board - 1) * (size_t)triangles + triangle) * TAXELS;
       if (cycle_start == 0) cycle_start = skinware_monotonic_ns();
-      if ((data[0] & 0x80) == 0) {
+      if (head) {
         for (int k = 0; k < 7; ++k) responses[first + (size_t)k] = (uint16_t)(255 - data[1 + k]);
         continue;
       }

@@ -29,8 +29,7 @@ if(NOT TARGET skinware::skinware)
     IMPORTED_LOCATION "${SKINWARE_LIBRARY}"
     INTERFACE_INCLUDE_DIRECTORIES "${SKINWARE_INCLUDE_DIR}"
     # The library is Rust: it needs the system's threads, dl, m and rt.
-    INTERFACE_LINK_LIBRARIES "pthread;dl;m;rt"
-    INTERFACE_COMPILE_FEATURES "cxx_std_17")
+    INTERFACE_LINK_LIBRARIES "pthread;dl;m;rt")
 endif()
 set(skinware_FOUND TRUE)
 unset(_skinware_prefix)

@@ -63,7 +63,7 @@
 // A frame's status bit (services): one of the service's inputs is faulted.
 #define SKINWARE_FRAME_INPUT_FAULTED 4
 
-// The default time a blocking call of the C++ wrapper waits: 1 s.
+// A reasonable timeout for blocking calls, 1 s (the examples use it).
 #define SKINWARE_DEFAULT_TIMEOUT_NS 1000000000
 
 // What a call of the C API did: `SKINWARE_OK` (0) or why it failed.
@@ -651,7 +651,8 @@ skinware_status skinware_motion_open(const char *skin,
                                      skinware_reader **reader);
 
 // Stops `reader` from any thread: a wait blocked in another thread returns
-// `SKINWARE_E_STOPPED` at once, and so does every later wait. Then close it.
+// `SKINWARE_E_STOPPED` at once, and so does every later wait. A periodic
+// read in progress is woken by stopping its ticker too. Then close it.
 skinware_status skinware_reader_stop(const skinware_reader *reader);
 
 // Detaches and frees `reader` (NULL is ignored). A call blocked on it in
@@ -662,9 +663,12 @@ skinware_status skinware_reader_close(skinware_reader *reader);
 
 // On request, now: copies the newest complete frame into `buffer` (at
 // least `payload_bytes` bytes; a layer's frame is one `uint16_t` per
-// sensor) and describes it in `*info` (NULL if not wanted). Lock-free: never
-// blocks, never waits for the writer. `SKINWARE_E_NO_FRAME_YET` before the
-// first frame. After an error `buffer` may hold a partial copy.
+// sensor) and describes it in `*info` (NULL if not wanted). Lock-free
+// towards the writer: it never waits for it, and the writer never waits for
+// it (calls on one handle from several threads take turns). The buffer is
+// not to be touched by another thread during the call.
+// `SKINWARE_E_NO_FRAME_YET` before the first frame. After an error `buffer`
+// may hold a partial copy.
 skinware_status skinware_reader_latest(skinware_reader *reader,
                                        void *buffer,
                                        size_t buffer_bytes,
@@ -673,9 +677,12 @@ skinware_status skinware_reader_latest(skinware_reader *reader,
 // As soon as available: sleeps (on a futex, no spinning unless the reader
 // anticipates) until a frame newer than this reader's last one is
 // published, at most `timeout_ns`, then copies it as `skinware_reader_latest`
-// does. `SKINWARE_E_TIMEOUT` if the writer lives but published nothing,
-// `SKINWARE_E_WRITER_GONE` if it is gone, `SKINWARE_E_STOPPED` after
-// `skinware_reader_stop`. Waits longer than a day are cut to a day.
+// does. At the timeout: `SKINWARE_E_TIMEOUT` if the writer lives but
+// published nothing, `SKINWARE_E_WRITER_GONE` if it is gone (a successor
+// that appears meanwhile is followed, and its frame returned).
+// `SKINWARE_E_STOPPED` at once after `skinware_reader_stop`. A buffer
+// smaller than a frame is refused before the wait. Waits longer than a day
+// are cut to a day.
 skinware_status skinware_reader_wait_newer(skinware_reader *reader,
                                            uint64_t timeout_ns,
                                            void *buffer,
@@ -740,11 +747,13 @@ skinware_status skinware_ticker_new(uint64_t period_ns, skinware_ticker **ticker
 // counted in `tick->missed`. `*tick` may be NULL.
 skinware_status skinware_ticker_wait(skinware_ticker *ticker, skinware_tick *tick);
 
-// Stops `skinware_ticker_wait` on `ticker` from any thread: a blocked wait
-// and every later one return `SKINWARE_E_STOPPED`.
+// Stops `ticker` from any thread: a `skinware_ticker_wait` or
+// `skinware_reader_next_periodic` blocked on it, and every later one, returns
+// `SKINWARE_E_STOPPED`.
 skinware_status skinware_ticker_stop(const skinware_ticker *ticker);
 
-// Frees `ticker` (NULL is ignored); a wait blocked on it is stopped.
+// Frees `ticker` (NULL is ignored); a wait blocked on it (either kind) is
+// stopped and returns `SKINWARE_E_STOPPED`.
 skinware_status skinware_ticker_free(skinware_ticker *ticker);
 
 // Lists the channels of skin `skin`, or of every skin if `skin` is NULL,

@@ -12,9 +12,11 @@
 #ifndef SKINWARE_HPP
 #define SKINWARE_HPP
 
+#include <algorithm>
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
+#include <iterator>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -141,6 +143,7 @@ class owned {
 class ticker {
  public:
   explicit ticker(std::chrono::nanoseconds period) {
+    require_abi();
     skinware_ticker* handle = nullptr;
     check(skinware_ticker_new(to_ns(period), &handle));
     handle_ = owned_t(handle);
@@ -169,6 +172,7 @@ class topology {
   static topology uniform(const std::string& name, const std::string& sensor_type, double rate_hz,
                           std::uint32_t patches, std::uint32_t modules_per_patch,
                           std::uint32_t sensors_per_module) {
+    require_abi();
     skinware_topology* handle = nullptr;
     check(skinware_topology_uniform(name.c_str(), sensor_type.c_str(), rate_hz, patches,
                                     modules_per_patch, sensors_per_module, &handle));
@@ -218,6 +222,7 @@ class topology {
 class topology_builder {
  public:
   topology_builder(const std::string& name, const std::string& sensor_type, double rate_hz) {
+    require_abi();
     skinware_topology_builder* handle = nullptr;
     check(skinware_topology_builder_new(name.c_str(), sensor_type.c_str(), rate_hz, &handle));
     handle_ = owned_t(handle);
@@ -266,8 +271,9 @@ class reader {
     skinware_reader* handle = nullptr;
     check(skinware_reader_open(skin.c_str(), channel.c_str(), &options, &handle));
     handle_ = owned_t(handle);
+    frame_bytes_ = payload_bytes();
   }
-  explicit reader(skinware_reader* adopted) : handle_(adopted) {}
+  explicit reader(skinware_reader* adopted) : handle_(adopted) { frame_bytes_ = payload_bytes(); }
   // A contact service's reader: records are skinware_region_contacts.
   static reader contacts(const std::string& skin, const std::string& name = "contact") {
     require_abi();
@@ -316,7 +322,7 @@ class reader {
   frame<T> latest(std::vector<T>& out) {
     frame<T> read;
     check(skinware_reader_latest(handle_.get(), out.data(), out.size() * sizeof(T), &read.info));
-    read.values = span<const T>(out.data(), out.size());
+    read.values = span<const T>(out.data(), values_in<T>(out.size()));
     return read;
   }
   // The next new frame, waiting at most `timeout` (throws timeout_error, writer_gone).
@@ -325,7 +331,7 @@ class reader {
     frame<T> read;
     check(skinware_reader_wait_newer(handle_.get(), to_ns(timeout), out.data(), out.size() * sizeof(T),
                                      &read.info));
-    read.values = span<const T>(out.data(), out.size());
+    read.values = span<const T>(out.data(), values_in<T>(out.size()));
     return read;
   }
   // Asks the writer for a fresh frame and waits for it.
@@ -334,7 +340,7 @@ class reader {
     frame<T> read;
     check(skinware_reader_request(handle_.get(), to_ns(timeout), out.data(), out.size() * sizeof(T),
                                   &read.info));
-    read.values = span<const T>(out.data(), out.size());
+    read.values = span<const T>(out.data(), values_in<T>(out.size()));
     return read;
   }
   // Sleeps until `clock`'s next deadline, then reads the newest frame.
@@ -343,15 +349,17 @@ class reader {
     frame<T> read;
     check(skinware_reader_next_periodic(handle_.get(), clock.get(), out.data(), out.size() * sizeof(T),
                                         &read.info, &read.tick));
-    read.values = span<const T>(out.data(), out.size());
+    read.values = span<const T>(out.data(), values_in<T>(out.size()));
     return read;
   }
   // Every `period`, the newest frame: `for (auto& read : r.periodic<uint16_t>(1ms))`.
-  // The range ends when the reader is stopped.
+  // The range ends when the reader (or the range) is stopped. The range refers
+  // to this reader: the reader must outlive it and stay where it is meanwhile.
   template <class T>
   periodic_frames<T> periodic(std::chrono::nanoseconds period);
   // Every new frame as soon as it is published; throws writer_gone after
   // `gone_timeout` without a writer. The range ends when the reader is stopped.
+  // As with periodic(), the reader must outlive the range and stay put.
   template <class T>
   new_frames<T> frames(std::chrono::nanoseconds gone_timeout = std::chrono::seconds(2));
 
@@ -370,8 +378,14 @@ class reader {
   skinware_reader* get() const noexcept { return handle_.get(); }
 
  private:
+  // The frame's values within a buffer of `size` T: no stale tail of a larger buffer.
+  template <class T>
+  std::size_t values_in(std::size_t size) const noexcept {
+    return std::min(size, frame_bytes_ / sizeof(T));
+  }
   using owned_t = owned<skinware_reader, skinware_reader_close>;
   owned_t handle_;
+  std::size_t frame_bytes_ = 0;
 };
 
 // An input iterator over a frame source: `Source::advance()` returns false at the end.
@@ -408,7 +422,7 @@ class periodic_frames {
       : reader_(&source), clock_(period), buffer_(source.buffer<T>()) {}
   frame_iterator<periodic_frames, T> begin() { return frame_iterator<periodic_frames, T>(this); }
   frame_iterator<periodic_frames, T> end() { return {}; }
-  // Stops the ticks (from another thread too): the range ends.
+  // Stops the ticks (from another thread too): the range ends at once.
   void stop() { clock_.stop(); }
 
   const frame<T>& current() const { return current_; }
@@ -549,6 +563,20 @@ class geometry {
     check(skinware_geometry_describe(handle_.get(), &summary_));
     check(skinware_geometry_get_arrays(handle_.get(), &arrays_));
   }
+  // Moved: the moved-from geometry is empty (its spans are empty, not dangling).
+  geometry(geometry&& other) noexcept
+      : handle_(std::move(other.handle_)), summary_(other.summary_), arrays_(other.arrays_) {
+    other.summary_ = skinware_geometry_summary{};
+    other.arrays_ = skinware_geometry_arrays{};
+  }
+  geometry& operator=(geometry&& other) noexcept {
+    if (this != &other) {
+      handle_ = std::move(other.handle_);
+      summary_ = std::exchange(other.summary_, skinware_geometry_summary{});
+      arrays_ = std::exchange(other.arrays_, skinware_geometry_arrays{});
+    }
+    return *this;
+  }
   const skinware_geometry_summary& summary() const noexcept { return summary_; }
   std::size_t sensors() const noexcept { return summary_.sensors; }
   // x, y, z per sensor, metres.
@@ -617,6 +645,7 @@ struct channel {
 
 // The channels of `skin` (every skin if empty), sorted by skin and name.
 inline std::vector<channel> list_channels(const std::string& skin = "") {
+  require_abi();
   skinware_channel_list* list = nullptr;
   check(skinware_list_channels(skin.empty() ? nullptr : skin.c_str(), &list));
   owned<skinware_channel_list, skinware_channel_list_free> owner(list);

@@ -48,6 +48,9 @@ pub(crate) struct ReaderHandle {
     /// When the kernel was last asked whether the writer lives (CLOCK_MONOTONIC
     /// ns), and what it said: asked at most once a millisecond.
     liveness: Mutex<(u64, WriterState)>,
+    /// The stop of the ticker a periodic read is waiting on, if one is: a
+    /// stop of the reader stops it too, so that either wakes that wait.
+    periodic_wait: Mutex<Option<Stop>>,
 }
 
 /// How often a reader re-reading a stale frame asks the kernel whether its
@@ -121,6 +124,7 @@ impl ReaderHandle {
             name: c_string(channel),
             kind,
             liveness: Mutex::new((0, WriterState::Running)),
+            periodic_wait: Mutex::new(None),
         })
     }
 
@@ -130,6 +134,9 @@ impl ReaderHandle {
 
     /// Reads in `mode` into `out` (at least the payload's bytes).
     pub(crate) fn read(&self, mode: ReadMode, out: &mut [u8]) -> Result<Read, Failure> {
+        if !matches!(mode, ReadMode::Latest) {
+            self.check_buffer(out)?;
+        }
         let mut reader = skinware::lock(&self.core);
         let info = match mode {
             ReadMode::Latest => reader.latest_into(out)?,
@@ -141,13 +148,47 @@ impl ReaderHandle {
 
     /// Waits for `ticker`'s next tick, then reads the newest frame into `out`.
     pub(crate) fn read_periodic(&self, ticker: &TickerHandle, out: &mut [u8]) -> Result<(Read, Tick), Failure> {
-        let mut ticker = skinware::lock(&ticker.core);
-        let tick = ticker
-            .wait(&self.stop)
-            .ok_or_else(|| Failure::new(SKINWARE_E_STOPPED, format!("the reader of {} was stopped", self.label())))?;
+        self.check_buffer(out)?;
+        let mut clock = skinware::lock(&ticker.core);
+        // The wait watches the ticker's stop; `stop` below stops it too while
+        // the wait lasts, so the reader's stop and the ticker's both end it.
+        *skinware::lock(&self.periodic_wait) = Some(ticker.stop.clone());
+        if self.stop.is_stopped() {
+            ticker.stop.stop();
+        }
+        let tick = clock.wait(&ticker.stop);
+        *skinware::lock(&self.periodic_wait) = None;
+        let tick = tick.ok_or_else(|| {
+            Failure::new(
+                SKINWARE_E_STOPPED,
+                format!("the periodic read of {} was stopped (its reader or its ticker)", self.label()),
+            )
+        })?;
+        if self.stop.is_stopped() {
+            return Err(Failure::new(SKINWARE_E_STOPPED, format!("the reader of {} was stopped", self.label())));
+        }
         let mut reader = skinware::lock(&self.core);
         let info = reader.latest_into(out)?;
         Ok((Read { info, state: self.state_after(&reader, &info) }, Tick::from(tick)))
+    }
+
+    /// Stops every wait of this reader, now and later, and the ticker of a
+    /// periodic read in progress.
+    pub(crate) fn stop_all(&self) {
+        self.stop.stop();
+        if let Some(ticker) = skinware::lock(&self.periodic_wait).as_ref() {
+            ticker.stop();
+        }
+    }
+
+    /// Refuses a buffer smaller than a frame before any wait (a request
+    /// would otherwise make a sporadic writer acquire for nothing).
+    fn check_buffer(&self, out: &[u8]) -> Result<(), Failure> {
+        let needed = self.payload_bytes();
+        if out.len() < needed {
+            return Err(skinware::Error::BufferTooSmall { channel: self.label(), needed, given: out.len() }.into());
+        }
+        Ok(())
     }
 
     pub(crate) fn payload_bytes(&self) -> usize {
@@ -322,6 +363,9 @@ impl WriterHandle {
     ) -> Result<WriterHandle, Failure> {
         let mut layout = topology.clone();
         layout.name = layer.to_owned();
+        // A topology copied from another writer's channel carries whatever
+        // rate that channel says: checked again here.
+        layout.rate_hz = rate(layout.rate_hz, "skinware_writer_create")?;
         let period = (layout.rate_hz > 0.0).then(|| Duration::from_secs_f64(1.0 / layout.rate_hz));
         let options =
             WriterOptions { slots: choices.slots, period, access: choices.access, ..WriterOptions::default() };

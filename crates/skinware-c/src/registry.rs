@@ -24,7 +24,11 @@ pub(crate) struct Registry<T> {
 }
 
 /// Slots per registry: handles are refused beyond it (a leak in the caller).
-const MAX_SLOTS: usize = 1 << 24;
+/// Slot i is number i + 1 in a handle's 24 bits, so the last is 2^24 - 2.
+const MAX_SLOTS: usize = (1 << 24) - 1;
+
+// Handles pack a tag, a generation and a slot into 64 bits.
+const _: () = assert!(usize::BITS == 64, "the C API's handles need a 64-bit target");
 
 impl<T> Registry<T> {
     /// An empty registry whose handles carry `tag` (1 to 255).
@@ -78,7 +82,7 @@ impl<T> Registry<T> {
         if handle >> 56 != self.tag as usize {
             return None;
         }
-        let index = (handle & (MAX_SLOTS - 1)).checked_sub(1)?;
+        let index = (handle & ((1 << 24) - 1)).checked_sub(1)?;
         Some((index, ((handle >> 24) & 0xffff_ffff) as u32))
     }
 }

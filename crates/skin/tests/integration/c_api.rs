@@ -58,19 +58,25 @@ struct Programs {
     wrapper_asan: PathBuf,
 }
 
-/// The directory holding the cdylib cargo built for this test run.
+/// The directory holding the cdylib cargo built for this test run: in
+/// `deps/` (skinware-c built as skin's dev-dependency) or beside it (built as
+/// a workspace member); the newer, if both are there (a build of one kind
+/// does not refresh the other's copy).
 fn library_dir() -> PathBuf {
     let exe = std::env::current_exe().expect("the test's path");
     let deps = exe.parent().expect("target/<profile>/deps").to_owned();
-    for dir in [deps.clone(), deps.parent().unwrap().to_owned()] {
-        if dir.join("libskinware_c.so").exists() {
-            return dir;
-        }
-    }
-    panic!(
-        "libskinware_c.so is neither in {} nor beside it: build skinware-c (a dev-dependency of skin)",
-        deps.display()
-    );
+    let modified = |dir: &Path| std::fs::metadata(dir.join("libskinware_c.so")).and_then(|m| m.modified()).ok();
+    [deps.clone(), deps.parent().unwrap().to_owned()]
+        .into_iter()
+        .filter_map(|dir| modified(&dir).map(|when| (when, dir)))
+        .max_by_key(|(when, _)| *when)
+        .map(|(_, dir)| dir)
+        .unwrap_or_else(|| {
+            panic!(
+                "libskinware_c.so is neither in {} nor beside it: build skinware-c (a dev-dependency of skin)",
+                deps.display()
+            )
+        })
 }
 
 fn compile(compiler: &str, source: &Path, out: &Path, extra: &[&str]) -> PathBuf {
@@ -127,6 +133,9 @@ impl Skin {
     fn command(&self, program: &Path) -> Command {
         let mut command = Command::new(program);
         command.env("SKINWARE_SHM_DIR", &self.dir).env("SKINWARE_CACHE_DIR", self.dir.join("cache"));
+        // cargo's LD_LIBRARY_PATH (target/<profile> first) would win over the
+        // programs' rpath and could load another build's copy of the library.
+        command.env_remove("LD_LIBRARY_PATH");
         command
     }
 

@@ -373,10 +373,8 @@ mod tests {
     fn bad_arguments_are_codes_with_messages() {
         let mut reader = null_mut();
         // SAFETY: NULL names are refused before anything is read.
-        assert_eq!(
-            unsafe { skinware_reader_open(null(), c"x".as_ptr(), null(), &mut reader) },
-            SKINWARE_E_INVALID_ARGUMENT
-        );
+        let null_skin = unsafe { skinware_reader_open(null(), c"x".as_ptr(), null(), &mut reader) };
+        assert_eq!(null_skin, SKINWARE_E_INVALID_ARGUMENT);
         assert!(last_error().contains("skin is NULL"), "{}", last_error());
         let not_utf8 = [0xffu8, 0xfe, 0];
         // SAFETY: a NUL-terminated string that is not UTF-8.

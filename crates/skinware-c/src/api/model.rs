@@ -188,10 +188,21 @@ pub unsafe extern "C" fn skinware_topology_uids(
     let function = "skinware_topology_uids";
     entry(|| {
         let t = &live(&TOPOLOGIES, topology, function, "topology")?.inner;
-        if count != t.sensors.len() {
+        if count < t.sensors.len() {
             return Err(Failure::new(
                 skinware_status::SKINWARE_E_BUFFER_TOO_SMALL,
                 format!("{function}: layer {} has {} sensors, room for {count} uids given", t.name, t.sensors.len()),
+            ));
+        }
+        if count > t.sensors.len() {
+            return Err(Failure::invalid(
+                function,
+                format_args!(
+                    "layer {} has {} sensors; give count = {}, not {count}",
+                    t.name,
+                    t.sensors.len(),
+                    t.sensors.len()
+                ),
             ));
         }
         let out = array_mut(uids, count, function, "uids")?;
@@ -349,7 +360,7 @@ pub unsafe extern "C" fn skinware_geometry_get_arrays(
     geometry: *const skinware_geometry,
     arrays: *mut skinware_geometry_arrays,
 ) -> skinware_status {
-    let function = "skinware_geometry_arrays";
+    let function = "skinware_geometry_get_arrays";
     entry(|| {
         let out = Out::new(arrays, function, "arrays")?;
         let g = live(&GEOMETRIES, geometry, function, "geometry")?;
@@ -378,7 +389,7 @@ pub unsafe extern "C" fn skinware_geometry_get_layer(
     index: usize,
     layer: *mut skinware_geometry_layer,
 ) -> skinware_status {
-    let function = "skinware_geometry_layer";
+    let function = "skinware_geometry_get_layer";
     entry(|| {
         let out = Out::new(layer, function, "layer")?;
         let g = live(&GEOMETRIES, geometry, function, "geometry")?;

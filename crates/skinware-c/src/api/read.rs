@@ -344,11 +344,12 @@ pub unsafe extern "C" fn skinware_motion_open(
 }
 
 /// Stops `reader` from any thread: a wait blocked in another thread returns
-/// `SKINWARE_E_STOPPED` at once, and so does every later wait. Then close it.
+/// `SKINWARE_E_STOPPED` at once, and so does every later wait. A periodic
+/// read in progress is woken by stopping its ticker too. Then close it.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn skinware_reader_stop(reader: *const skinware_reader) -> skinware_status {
     entry(|| {
-        live(&READERS, reader, "skinware_reader_stop", "reader")?.stop.stop();
+        live(&READERS, reader, "skinware_reader_stop", "reader")?.stop_all();
         Ok(())
     })
 }
@@ -361,7 +362,7 @@ pub unsafe extern "C" fn skinware_reader_stop(reader: *const skinware_reader) ->
 pub unsafe extern "C" fn skinware_reader_close(reader: *mut skinware_reader) -> skinware_status {
     entry(|| {
         if let Some(reader) = release(&READERS, reader, "skinware_reader_close", "reader")? {
-            reader.stop.stop();
+            reader.stop_all();
         }
         Ok(())
     })
@@ -401,9 +402,12 @@ fn frame_info(info: &skinware::FrameInfo, state: WriterState) -> skinware_frame_
 
 /// On request, now: copies the newest complete frame into `buffer` (at
 /// least `payload_bytes` bytes; a layer's frame is one `uint16_t` per
-/// sensor) and describes it in `*info` (NULL if not wanted). Lock-free: never
-/// blocks, never waits for the writer. `SKINWARE_E_NO_FRAME_YET` before the
-/// first frame. After an error `buffer` may hold a partial copy.
+/// sensor) and describes it in `*info` (NULL if not wanted). Lock-free
+/// towards the writer: it never waits for it, and the writer never waits for
+/// it (calls on one handle from several threads take turns). The buffer is
+/// not to be touched by another thread during the call.
+/// `SKINWARE_E_NO_FRAME_YET` before the first frame. After an error `buffer`
+/// may hold a partial copy.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn skinware_reader_latest(
     reader: *mut skinware_reader,
@@ -417,9 +421,12 @@ pub unsafe extern "C" fn skinware_reader_latest(
 /// As soon as available: sleeps (on a futex, no spinning unless the reader
 /// anticipates) until a frame newer than this reader's last one is
 /// published, at most `timeout_ns`, then copies it as `skinware_reader_latest`
-/// does. `SKINWARE_E_TIMEOUT` if the writer lives but published nothing,
-/// `SKINWARE_E_WRITER_GONE` if it is gone, `SKINWARE_E_STOPPED` after
-/// `skinware_reader_stop`. Waits longer than a day are cut to a day.
+/// does. At the timeout: `SKINWARE_E_TIMEOUT` if the writer lives but
+/// published nothing, `SKINWARE_E_WRITER_GONE` if it is gone (a successor
+/// that appears meanwhile is followed, and its frame returned).
+/// `SKINWARE_E_STOPPED` at once after `skinware_reader_stop`. A buffer
+/// smaller than a frame is refused before the wait. Waits longer than a day
+/// are cut to a day.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn skinware_reader_wait_newer(
     reader: *mut skinware_reader,
@@ -595,7 +602,7 @@ pub unsafe extern "C" fn skinware_reader_get_stats(
     reader: *const skinware_reader,
     stats: *mut skinware_reader_stats,
 ) -> skinware_status {
-    let function = "skinware_reader_stats";
+    let function = "skinware_reader_get_stats";
     entry(|| {
         let out = Out::new(stats, function, "stats")?;
         let reader = live(&READERS, reader, function, "reader")?;
@@ -618,7 +625,7 @@ pub unsafe extern "C" fn skinware_reader_get_writer_stats(
     reader: *const skinware_reader,
     stats: *mut skinware_writer_stats,
 ) -> skinware_status {
-    let function = "skinware_reader_writer_stats";
+    let function = "skinware_reader_get_writer_stats";
     entry(|| {
         let out = Out::new(stats, function, "stats")?;
         let reader = live(&READERS, reader, function, "reader")?;
@@ -658,8 +665,9 @@ pub unsafe extern "C" fn skinware_ticker_wait(
     })
 }
 
-/// Stops `skinware_ticker_wait` on `ticker` from any thread: a blocked wait
-/// and every later one return `SKINWARE_E_STOPPED`.
+/// Stops `ticker` from any thread: a `skinware_ticker_wait` or
+/// `skinware_reader_next_periodic` blocked on it, and every later one, returns
+/// `SKINWARE_E_STOPPED`.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn skinware_ticker_stop(ticker: *const skinware_ticker) -> skinware_status {
     entry(|| {
@@ -668,7 +676,8 @@ pub unsafe extern "C" fn skinware_ticker_stop(ticker: *const skinware_ticker) ->
     })
 }
 
-/// Frees `ticker` (NULL is ignored); a wait blocked on it is stopped.
+/// Frees `ticker` (NULL is ignored); a wait blocked on it (either kind) is
+/// stopped and returns `SKINWARE_E_STOPPED`.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn skinware_ticker_free(ticker: *mut skinware_ticker) -> skinware_status {
     entry(|| {
@@ -774,5 +783,5 @@ pub unsafe extern "C" fn skinware_channel_list_free(list: *mut skinware_channel_
     entry(|| release(&LISTS, list, "skinware_channel_list_free", "channel list").map(drop))
 }
 
-/// The default time a blocking call of the C++ wrapper waits: 1 s.
+/// A reasonable timeout for blocking calls, 1 s (the examples use it).
 pub const SKINWARE_DEFAULT_TIMEOUT_NS: u64 = 1_000_000_000;

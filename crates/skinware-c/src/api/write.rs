@@ -174,6 +174,14 @@ pub unsafe extern "C" fn skinware_writer_publish(
     entry(|| {
         let seq = Out::optional(seq, function, "seq")?;
         let writer = live(&WRITERS, writer, function, "writer")?;
+        // The count is checked before C's array is looked at.
+        let sensors = writer.topology.sensors.len();
+        if count != sensors {
+            return Err(Failure::invalid(
+                function,
+                format_args!("layer {} has {sensors} sensors, {count} responses given", writer.label),
+            ));
+        }
         let responses = array(responses, count, function, "responses")?;
         let published = writer.publish(responses, status, acquired_ns)?;
         if let Some(seq) = seq {
@@ -262,7 +270,7 @@ pub unsafe extern "C" fn skinware_writer_get_stats(
     writer: *const skinware_writer,
     stats: *mut skinware_writer_stats,
 ) -> skinware_status {
-    let function = "skinware_writer_stats";
+    let function = "skinware_writer_get_stats";
     entry(|| {
         let out = Out::new(stats, function, "stats")?;
         out.put(skinware::lock(&live(&WRITERS, writer, function, "writer")?.core).stats().into());

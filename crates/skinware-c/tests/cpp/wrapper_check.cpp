@@ -95,6 +95,31 @@ static void exceptions(const std::string& skin, const std::string& layer) {
   EXPECT(std::chrono::steady_clock::now() - started < 2s, "stop() ended the range at once");
   EXPECT(throws<skinware::stopped>([&] { reader.wait_newer(frame, 1s); }), "a stopped reader");
 
+  // A periodic range ends at once when it, or its reader, is stopped from
+  // another thread: with 1 s ticks, the wait for the second tick is woken.
+  for (bool through_reader : {false, true}) {
+    skinware::reader slow(skin, layer);
+    auto ticks = slow.periodic<std::uint16_t>(1s);
+    std::thread stopper([&] {
+      std::this_thread::sleep_for(300ms);
+      if (through_reader) {
+        slow.stop();
+      } else {
+        ticks.stop();
+      }
+    });
+    auto began = std::chrono::steady_clock::now();
+    long ticked = 0;
+    for (const auto& next : ticks) {
+      (void)next;
+      ticked++;
+    }
+    stopper.join();
+    EXPECT(ticked == 1, "one tick (the first is due at once) before the stop");
+    EXPECT(std::chrono::steady_clock::now() - began < 800ms,
+           through_reader ? "reader.stop() woke the periodic wait" : "the range's stop() woke the periodic wait");
+  }
+
   // A move-only handle: the moved-from one is empty, the moved-to one works.
   skinware::reader first(skin, layer);
   skinware::reader second = std::move(first);
