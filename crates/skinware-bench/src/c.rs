@@ -19,7 +19,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use serde::Serialize;
@@ -194,20 +194,9 @@ impl Installed {
 }
 
 fn start_skin(options: &RunOptions, dir: &Path) -> Result<RunningSkin> {
-    let config = dir.join("skin.toml");
-    std::fs::write(&config, CONFIG)?;
-    let skin = RunningSkin::start(&options.exe, &config, dir)?;
-    let started = Instant::now();
-    loop {
-        let channels = skinware::list_channels(dir).unwrap_or_default();
-        if channels.iter().any(|c| c.channel == LAYER && c.state == WriterState::Running && c.stats.frames > 5) {
-            return Ok(skin);
-        }
-        if started.elapsed() > Duration::from_secs(120) {
-            bail!("the one-layer skin did not come up within 120 s");
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    RunningSkin::start_until(&options.exe, CONFIG, dir, "the one-layer skin", |channels| {
+        channels.iter().any(|c| c.channel == LAYER && c.state == WriterState::Running && c.stats.frames > 5)
+    })
 }
 
 /// Runs `program args` and parses its one-number-per-line output.

@@ -154,6 +154,32 @@ impl RunningSkin {
         Ok(RunningSkin(child))
     }
 
+    /// Writes `config_text` to `dir/skin.toml`, starts `exe run` on it with
+    /// its channels in `dir`, and waits (up to 120 s) until `ready` says the
+    /// channels listed are what the bench needs; `what` names the skin in
+    /// the error if they never are.
+    pub fn start_until(
+        exe: &Path,
+        config_text: &str,
+        dir: &Path,
+        what: &str,
+        ready: impl Fn(&[skinware::ChannelInfo]) -> bool,
+    ) -> Result<RunningSkin> {
+        let config = dir.join("skin.toml");
+        std::fs::write(&config, config_text)?;
+        let skin = RunningSkin::start(exe, &config, dir)?;
+        let started = std::time::Instant::now();
+        loop {
+            if ready(&skinware::list_channels(dir).unwrap_or_default()) {
+                return Ok(skin);
+            }
+            if started.elapsed() > Duration::from_secs(120) {
+                anyhow::bail!("{what} did not come up within 120 s");
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
     /// Starts `exe run config` with its channels in `dir`, in a process
     /// group of its own (Ctrl-C reaches only its starter, which stops it),
     /// its standard error appended to `log`.

@@ -12,7 +12,7 @@
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
@@ -133,20 +133,9 @@ pub fn run(options: &PythonBenchOptions) -> Result<PythonReport> {
 }
 
 fn start_skin(options: &PythonBenchOptions, dir: &Path) -> Result<RunningSkin> {
-    let config = dir.join("skin.toml");
-    std::fs::write(&config, CONFIG)?;
-    let skin = RunningSkin::start(&options.run.exe, &config, dir)?;
-    let started = Instant::now();
-    loop {
-        let channels = skinware::list_channels(dir).unwrap_or_default();
-        if channels.iter().any(|c| c.channel == LAYER && c.state == WriterState::Running && c.stats.frames > 5) {
-            return Ok(skin);
-        }
-        if started.elapsed() > Duration::from_secs(120) {
-            bail!("the one-layer skin did not come up within 120 s");
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    RunningSkin::start_until(&options.run.exe, CONFIG, dir, "the one-layer skin", |channels| {
+        channels.iter().any(|c| c.channel == LAYER && c.state == WriterState::Running && c.stats.frames > 5)
+    })
 }
 
 fn measure(dir: &Path, reads: usize, frames: usize, options: &PythonBenchOptions) -> Result<PythonReport> {

@@ -20,7 +20,7 @@
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use serde::Serialize;
@@ -133,21 +133,9 @@ pub fn bench(options: &Ros2BenchOptions) -> Result<Ros2Report> {
 }
 
 fn start_skin(options: &Ros2BenchOptions, dir: &Path) -> Result<RunningSkin> {
-    let config = dir.join("skin.toml");
-    std::fs::write(&config, CONFIG)?;
-    let skin = RunningSkin::start(&options.run.exe, &config, dir)?;
-    let started = Instant::now();
-    loop {
-        let channels = skinware::list_channels(dir).unwrap_or_default();
-        let running = channels.iter().filter(|c| c.state == skinware::WriterState::Running && c.stats.frames > 5);
-        if running.count() >= 6 {
-            return Ok(skin);
-        }
-        if started.elapsed() > Duration::from_secs(120) {
-            bail!("the paper's skin did not come up within 120 s");
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    RunningSkin::start_until(&options.run.exe, CONFIG, dir, "the paper's skin", |channels| {
+        channels.iter().filter(|c| c.state == skinware::WriterState::Running && c.stats.frames > 5).count() >= 6
+    })
 }
 
 fn measure(options: &Ros2BenchOptions, dir: &Path, window: f64) -> Result<Ros2Report> {

@@ -202,9 +202,12 @@ impl ReaderHandle {
     /// for an older frame, what the kernel says about its process, asked at
     /// most once a millisecond.
     fn state_after(&self, reader: &skinware::Reader, info: &FrameInfo) -> WriterState {
+        if info.fresh {
+            return reader.stored_writer_state();
+        }
         let now = skinware::os::monotonic_ns();
         let period = reader.writer_period().map_or(0, |p| p.as_nanos().min(u128::from(u64::MAX)) as u64);
-        if info.fresh || now.saturating_sub(info.published_ns) <= period.saturating_mul(2) {
+        if now.saturating_sub(info.published_ns) <= period.saturating_mul(2) {
             return reader.stored_writer_state();
         }
         let mut liveness = skinware::lock(&self.liveness);
