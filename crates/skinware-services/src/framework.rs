@@ -284,6 +284,9 @@ pub fn create_service_channel(
         schema_name: schema.0.to_owned(),
         schema_version: schema.1,
         period,
+        // A fast service keeps 20 ms of its records readable, as a fast
+        // layer does, so that a reader held up that long (a recorder) misses none.
+        slots: options.slots.max(skinware::slots_for_history(period)),
         ..options.clone()
     };
     let description = spec.description(schema.0, schema.1, record_bytes);

@@ -105,7 +105,9 @@ pub enum HandlerError {
 /// How the handler runs a driver.
 #[derive(Clone, Debug)]
 pub struct HandlerOptions {
-    /// Frame buffers per layer channel.
+    /// Frame buffers per layer channel; 0: enough to keep
+    /// [`READABLE_HISTORY`](crate::READABLE_HISTORY) of each layer's frames
+    /// ([`slots_for_history`](crate::slots_for_history) of its period).
     pub slots: usize,
     /// An acquisition running longer than this many periods marks its layer
     /// faulted (it cannot be interrupted, but readers learn of it).
@@ -121,13 +123,7 @@ pub struct HandlerOptions {
 
 impl Default for HandlerOptions {
     fn default() -> Self {
-        HandlerOptions {
-            slots: crate::writer::DEFAULT_SLOTS,
-            timeout_periods: 10,
-            dir: None,
-            access: crate::Access::Owner,
-            unlink_on_stop: true,
-        }
+        HandlerOptions { slots: 0, timeout_periods: 10, dir: None, access: crate::Access::Owner, unlink_on_stop: true }
     }
 }
 
@@ -260,9 +256,10 @@ fn create_layer_writer(
     options: &HandlerOptions,
 ) -> Result<Writer, HandlerError> {
     let topology = &spec.topology;
+    let period = layer_period(driver, spec)?;
     let writer_options = WriterOptions {
-        slots: options.slots,
-        period: layer_period(driver, spec)?,
+        slots: if options.slots == 0 { crate::slots_for_history(period) } else { options.slots },
+        period,
         access: options.access,
         // Until every layer has started, a failure must not remove a
         // channel name that readers of a restarted layer wait on.

@@ -107,4 +107,7 @@ pub use stats::{ReaderStats, UnknownWriterState, WriterState, WriterStats, histo
 #[cfg(not(loom))]
 pub use topology::{LayerTopology, TopologyBuilder, TopologyError};
 #[cfg(not(loom))]
-pub use writer::{Access, DEFAULT_SLOTS, FrameWriter, WakeCounts, Writer, WriterOptions, WriterStateHandle};
+pub use writer::{
+    Access, DEFAULT_SLOTS, FrameWriter, READABLE_HISTORY, WakeCounts, Writer, WriterOptions, WriterStateHandle,
+    slots_for_history,
+};

@@ -11,7 +11,7 @@ use skinware_bench::kilohertz::{self, KilohertzOptions, Part, Wake};
 use skinware_bench::run_options::{RunOptions, parse_bench_seconds};
 use skinware_bench::soak::{self, SoakBenchOptions};
 use skinware_bench::table1::{self, Table1Options, Transport};
-use skinware_bench::{bridge, c, can, contact, ethercat, follow, netns, paper, peers, python, record, wake};
+use skinware_bench::{bridge, c, can, contact, ethercat, follow, netns, paper, peers, python, record, recorder, wake};
 
 /// Which benchmark.
 #[derive(clap::Subcommand)]
@@ -28,6 +28,8 @@ pub enum Which {
     Peers(Common),
     /// The recorder (zstd, lz4, none) and the replay on the paper's skin: throughput, CPU, file size, timing error.
     Record(Common),
+    /// `skin record --services` of the paper's skin at 1 kHz (about 100 MB/s of messages), with each compression: frames written and lost, MB/s, CPU and memory over time, against a plain write of the same bytes to the same disk.
+    Recorder(Common),
     /// The contact service's cost per frame on the paper's skin with scripted contacts: the detector alone, and the service beside the skin's writers.
     Contact(Common),
     /// The Python bindings beside the Rust reader on a 30,848-sensor layer of `skin run`: latest(), read_into(), wait_newer() latency ($SKINWARE_PYTHON).
@@ -176,6 +178,7 @@ pub fn run(which: &Which) -> Result<()> {
         Which::Can(common) => can::run(&common.run_options()?).map(drop),
         Which::Peers(common) => peers::run(&common.run_options()?).map(drop),
         Which::Record(common) => record::run(&common.run_options()?).map(drop),
+        Which::Recorder(common) => recorder::run(&common.run_options()?).map(drop),
         Which::Contact(common) => contact::run(&common.run_options()?).map(drop),
         Which::Python(common) => {
             let python = std::env::var("SKINWARE_PYTHON").unwrap_or_else(|_| "python3".into());

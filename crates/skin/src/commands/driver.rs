@@ -12,7 +12,11 @@ pub fn run(config_path: &Path, name: &str) -> Result<()> {
     super::run::watch_supervisor()?;
     let config = skin::config::Config::load(config_path)?;
     let driver_config = config.driver(name)?;
-    let options = HandlerOptions { slots: driver_config.slots, access: config.access(), ..HandlerOptions::default() };
+    let options = HandlerOptions {
+        slots: driver_config.slots.unwrap_or(0),
+        access: config.access(),
+        ..HandlerOptions::default()
+    };
     let stop = skinware::Stop::new();
     let stop_on_signal = stop.clone();
     stop_on_signals(move || stop_on_signal.stop())?;

@@ -45,6 +45,12 @@ pub struct Args {
     /// Chunk compression.
     #[arg(long, value_enum, default_value = "zstd")]
     compression: CompressionArg,
+    /// SCHED_FIFO priority of the threads that read the frames (0: the
+    /// normal scheduler). Above applications and below drivers, they cannot
+    /// be kept waiting by the compression, which stays in the normal scheduler.
+    /// Needs root or an rtprio limit; refused, they read in the normal scheduler.
+    #[arg(long, default_value_t = skinware_record::recorder::DEFAULT_READER_PRIORITY)]
+    fifo_priority: u8,
     /// Wait up to this many seconds for the skin to come up before recording.
     #[arg(long)]
     wait: Option<f64>,
@@ -134,6 +140,9 @@ fn record_options(args: &Args) -> Result<RecordOptions> {
     if args.root_frame.is_empty() || args.root_frame.chars().any(char::is_whitespace) {
         bail!("--root-frame {:?} must be one word, the name of a TF frame (such as base_link)", args.root_frame);
     }
+    if args.fifo_priority > 99 {
+        bail!("--fifo-priority {} must be 0 (the normal scheduler) or 1 to 99", args.fifo_priority);
+    }
     let services = match &args.services {
         None => ServiceChoice::None,
         Some(names) if names.iter().any(|n| n == "*") => ServiceChoice::All,
@@ -148,6 +157,7 @@ fn record_options(args: &Args) -> Result<RecordOptions> {
         ros2_hz: args.ros2_hz,
         root_frame: args.root_frame.clone(),
         compression: args.compression.library(),
+        reader_priority: args.fifo_priority,
         command: std::env::args().collect::<Vec<_>>().join(" "),
         ..RecordOptions::default()
     })
@@ -215,10 +225,22 @@ fn print_summary(summary: &RecordSummary, json: bool) -> Result<()> {
         summary.lost
     )?;
     for (name, channel) in &summary.channels {
+        let waits = match channel.file_waits {
+            0 => String::new(),
+            n => format!(", waited {n} times for the file (the disk or the compression was behind)"),
+        };
         writeln!(
             stdout,
-            "  {name} ({}): {} frames, lost {} in {} gaps, {} faulted",
+            "  {name} ({}): {} frames, lost {} in {} gaps, {} faulted{waits}",
             channel.kind, channel.frames, channel.lost, channel.gaps, channel.faulted
+        )?;
+    }
+    if summary.reader_priority > 0 && !summary.readers_realtime {
+        writeln!(
+            stdout,
+            "  the readers ran in the normal scheduler (SCHED_FIFO {} refused: run as root or raise the user's \
+             rtprio limit)",
+            summary.reader_priority
         )?;
     }
     Ok(())

@@ -130,9 +130,10 @@ pub struct DriverConfig {
     /// How its process is restarted (`[driver.restart]`).
     #[serde(default)]
     pub restart: RestartConfig,
-    /// Frame buffers per layer channel.
-    #[serde(default = "default_slots")]
-    pub slots: usize,
+    /// Frame buffers per layer channel; if not given, enough for each layer
+    /// to keep 20 ms of frames readable ([`skinware::slots_for_history`]:
+    /// 3 up to 100 Hz, 21 at 1 kHz).
+    pub slots: Option<usize>,
     /// Generated skin: total sensors, split equally over `layers`.
     pub sensors: Option<usize>,
     /// Generated skin: number of layers.
@@ -408,10 +409,6 @@ fn replay_calibration(replay: &ReplayDriver) -> Calibration {
     calibration
 }
 
-fn default_slots() -> usize {
-    skinware::DEFAULT_SLOTS
-}
-
 /// The file whose existence pulls the cable of `layer` (see `skin pull`).
 pub fn pull_file(skin: &str, layer: &str) -> PathBuf {
     pull_file_in(&skinware::shm::segment_dir(), skin, layer)
@@ -427,8 +424,10 @@ impl DriverConfig {
     /// Checks what building the driver does not: its restart policy and slots.
     pub(super) fn check(&self) -> Result<()> {
         self.restart.check()?;
-        if !(skinware::MIN_SLOTS..=skinware::MAX_SLOTS).contains(&self.slots) {
-            bail!("slots = {} must be from {} to {}", self.slots, skinware::MIN_SLOTS, skinware::MAX_SLOTS);
+        if let Some(slots) = self.slots
+            && !(skinware::MIN_SLOTS..=skinware::MAX_SLOTS).contains(&slots)
+        {
+            bail!("slots = {slots} must be from {} to {}", skinware::MIN_SLOTS, skinware::MAX_SLOTS);
         }
         Ok(())
     }

@@ -3,7 +3,7 @@
 
 use std::collections::BTreeMap;
 
-pub(super) fn clock_ticks_per_s() -> f64 {
+pub(crate) fn clock_ticks_per_s() -> f64 {
     rustix::param::clock_ticks_per_second() as f64
 }
 
@@ -12,7 +12,7 @@ pub(super) fn clock_ticks_per_s() -> f64 {
 /// `/proc/PID/task/TID/schedstat`): exact, where utime + stime count whole
 /// clock ticks, each charged to whoever ran when it struck. Empty if the
 /// process is gone.
-pub(super) fn thread_cpu_ns(pid: u32, named: Option<&str>) -> BTreeMap<u32, u64> {
+pub(crate) fn thread_cpu_ns(pid: u32, named: Option<&str>) -> BTreeMap<u32, u64> {
     let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else { return BTreeMap::new() };
     tasks
         .flatten()
@@ -34,13 +34,13 @@ pub(super) fn thread_cpu_ns(pid: u32, named: Option<&str>) -> BTreeMap<u32, u64>
 /// threads ended in between (whose time since `before` is lost: schedstat
 /// dies with its thread, where utime + stime keep it). A thread that both
 /// started and ended in between is neither counted nor reported.
-pub(super) fn cpu_ns_between(before: &BTreeMap<u32, u64>, after: &BTreeMap<u32, u64>) -> (u64, usize) {
+pub(crate) fn cpu_ns_between(before: &BTreeMap<u32, u64>, after: &BTreeMap<u32, u64>) -> (u64, usize) {
     let ran = after.iter().map(|(tid, ns)| ns.saturating_sub(before.get(tid).copied().unwrap_or(0))).sum();
     (ran, before.keys().filter(|tid| !after.contains_key(tid)).count())
 }
 
 /// utime + stime of each process, in clock ticks (0 for one that is gone).
-pub(super) fn cpu_ticks(pids: &[(String, u32)]) -> Vec<u64> {
+pub(crate) fn cpu_ticks(pids: &[(String, u32)]) -> Vec<u64> {
     pids.iter()
         .map(|(_, pid)| {
             let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();

@@ -17,7 +17,7 @@
 //! rendering competing for the same two cores.
 
 mod browser;
-mod cpu;
+pub(crate) mod cpu;
 pub mod floor;
 mod phase;
 mod report;
@@ -32,7 +32,6 @@ use phase::run_phase;
 use report::{BrowserCost, FloorRun, KilohertzReport, PhaseReport, ViewerRun};
 use viewer::{Floor, viewer_scaling};
 
-const PAPER_SKIN: &str = include_str!("../../../../examples/paper-virtual-skin.toml");
 const LAYERS: usize = 5;
 /// Taxels of the paper's skin, over its layers.
 const TAXELS: usize = 30_848;

@@ -16,31 +16,15 @@ use skinware::{Reader, ReaderOptions, WriterStats, histogram_quantile};
 use super::browser::{SeqClock, WindowMarks, browse};
 use super::cpu::{clock_ticks_per_s, cpu_ticks};
 use super::report::{BrowserFigures, PhaseReport, WriterFigures};
-use super::{APPS, ASAP_APPS, BROWSERS, DISPLAY_HZ, LAYERS, PAPER_SKIN, Wake};
+use super::{APPS, ASAP_APPS, BROWSERS, DISPLAY_HZ, LAYERS, Wake};
 use crate::app::AppSamples;
 use crate::measure::{Percentiles, RunningSkin};
 use crate::procs::{Guarded, start_viewer, supervised_pids};
+use crate::skin_config::PaperSkin;
 
 /// The paper's skin at 1 kHz; with its services (also at 1 kHz) or none.
 fn config(with_services: bool, wake: Option<Wake>) -> Result<String> {
-    let layers_at = "rate_hz = { random = [30, 50] }";
-    let rt = "[driver.rt]\n";
-    if !PAPER_SKIN.contains(layers_at) || PAPER_SKIN.matches(rt).count() != 1 {
-        bail!(
-            "examples/paper-virtual-skin.toml no longer sets {layers_at:?} and one {rt:?}; update the kilohertz bench"
-        );
-    }
-    let mut text = PAPER_SKIN.replace(layers_at, "rate_hz = 1000");
-    if let Some(wake) = wake {
-        text = text.replace(rt, &format!("{rt}reader_wake = \"{}\"\n", wake.name()));
-    }
-    Ok(match text.split_once("[[service]]") {
-        Some((skin, services)) if with_services => {
-            format!("{skin}[[service]]{}", services.replace("rate_hz = 50", "rate_hz = 1000"))
-        }
-        Some((skin, _)) => skin.to_owned(),
-        None => bail!("examples/paper-virtual-skin.toml has no services; update the kilohertz bench"),
-    })
+    PaperSkin { services: with_services, reader_wake: wake.map(Wake::name), ..PaperSkin::at(1000.0) }.config()
 }
 
 /// Starts the paper's skin at 1 kHz in segment directory `dir` (with its

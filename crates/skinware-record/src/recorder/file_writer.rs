@@ -1,13 +1,15 @@
 //! The file's thread: the only owner of the file. It writes what the other
-//! threads send, finishes a chunk and syncs it every flush interval, and
-//! finishes the file with the summary when they are done.
+//! threads send, finishes a chunk every flush interval and has a thread of
+//! its own sync it to disk, and finishes the file with the summary when they
+//! are done.
 
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
-use std::sync::mpsc::{Receiver, RecvTimeoutError};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError, sync_channel};
+use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use mcap::records::{MessageHeader, Metadata};
@@ -47,6 +49,13 @@ impl FileJob {
     }
 
     fn write_all(&mut self) -> Result<(), RecordError> {
+        let syncer = Syncer::start(&self.sync, &self.path, &self.shared)?;
+        let written = self.write_until_done(&syncer);
+        let synced = syncer.finish();
+        written.and(synced)
+    }
+
+    fn write_until_done(&mut self, syncer: &Syncer) -> Result<(), RecordError> {
         let mut next_flush = Instant::now() + self.flush_interval;
         loop {
             let wait = next_flush.saturating_duration_since(Instant::now());
@@ -67,15 +76,11 @@ impl FileJob {
                 Err(RecvTimeoutError::Disconnected) => return Ok(()),
             }
             if Instant::now() >= next_flush {
-                // A finished chunk, on disk: what a killed recorder (or a
-                // machine that loses power) leaves is readable up to here.
+                // A finished chunk, written: what a killed recorder leaves is
+                // readable up to here, and once synced, what a machine that
+                // loses power leaves.
                 self.writer.flush().map_err(|e| mcap_write_error(&self.path, e))?;
-                self.sync.sync_data().map_err(|source| RecordError::Io {
-                    op: "sync",
-                    path: self.path.clone(),
-                    hint: write_hint(&source),
-                    source,
-                })?;
+                syncer.request();
                 next_flush = Instant::now() + self.flush_interval;
             }
         }
@@ -95,5 +100,55 @@ impl FileJob {
         self.writer.finish().map_err(write)?;
         let path = self.path.clone();
         crate::file::close(self.writer.into_inner(), &path)
+    }
+}
+
+/// A thread that syncs the file to disk when asked. Syncing a second's worth
+/// of an uncompressed recording (100 MB at the paper's skin at 1 kHz) takes
+/// the disk a while; on the file's thread it stopped the writing for that
+/// long, and the readers' queue filled.
+struct Syncer {
+    requests: SyncSender<()>,
+    thread: JoinHandle<Result<(), RecordError>>,
+}
+
+impl Syncer {
+    fn start(file: &File, path: &std::path::Path, shared: &Arc<Shared>) -> Result<Syncer, RecordError> {
+        let file = file.try_clone().map_err(|source| RecordError::Io {
+            op: "open a second handle to",
+            path: path.to_owned(),
+            hint: String::new(),
+            source,
+        })?;
+        let (requests, received) = sync_channel::<()>(1);
+        let (path, shared) = (path.to_owned(), shared.clone());
+        let thread = std::thread::Builder::new()
+            .name("rec-sync".into())
+            .spawn(move || {
+                while received.recv().is_ok() {
+                    if let Err(source) = file.sync_data() {
+                        // Everyone stops now; the file's thread reports the error.
+                        shared.stop.stop();
+                        return Err(RecordError::Io { op: "sync", hint: write_hint(&source), path, source });
+                    }
+                }
+                Ok(())
+            })
+            .map_err(|source| RecordError::Thread { thread: "the file-syncing thread".into(), source })?;
+        Ok(Syncer { requests, thread })
+    }
+
+    /// Asks for a sync of everything written so far; a sync still under way
+    /// (or one asked for and not begun) covers it.
+    fn request(&self) {
+        match self.requests.try_send(()) {
+            Ok(()) | Err(TrySendError::Full(())) | Err(TrySendError::Disconnected(())) => {}
+        }
+    }
+
+    /// Waits for the last sync asked for; the error of one that failed.
+    fn finish(self) -> Result<(), RecordError> {
+        drop(self.requests);
+        self.thread.join().unwrap_or(Err(RecordError::Panicked { thread: "the file-syncing thread" }))
     }
 }

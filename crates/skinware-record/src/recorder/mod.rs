@@ -13,7 +13,7 @@
 //! they count.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::sync_channel;
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
@@ -39,8 +39,16 @@ use summary::Recorded;
 pub use summary::{ChannelReport, Progress, RecordSummary};
 use watcher::Watcher;
 
-/// Frames queued between the reader threads and the file before a reader waits.
-const QUEUE: usize = 512;
+/// Bytes of messages the queue between the reader threads and the file may
+/// hold before a reader waits: at the paper's skin at 1 kHz (about 100 MB/s
+/// of messages) a third of a second of the disk or the compression falling
+/// behind, and a bound on the recorder's memory whatever the skin.
+const QUEUE_BYTES: usize = 32 << 20;
+/// The queue's length in frames, whatever their size.
+const QUEUE_FRAMES: std::ops::RangeInclusive<usize> = 256..=8192;
+/// The reader threads' SCHED_FIFO priority unless told otherwise: above
+/// every normal thread (the file's, applications), below the drivers' 80.
+pub const DEFAULT_READER_PRIORITY: u8 = 20;
 /// Uncompressed bytes per chunk. Smaller chunks compress a little worse, but
 /// each is written with shorter system calls, which matters to real-time
 /// threads on a kernel without full preemption.
@@ -113,6 +121,10 @@ pub struct RecordOptions {
     pub dir: Option<PathBuf>,
     /// The command line, kept in the file's metadata.
     pub command: String,
+    /// SCHED_FIFO priority of the reader threads (1 to 99; 0: the normal
+    /// scheduler). Without the privilege they stay in the normal scheduler,
+    /// with a warning. The file's thread and the compression never take it.
+    pub reader_priority: u8,
 }
 
 impl Default for RecordOptions {
@@ -129,6 +141,7 @@ impl Default for RecordOptions {
             flush_interval: Duration::from_secs(1),
             dir: None,
             command: String::new(),
+            reader_priority: DEFAULT_READER_PRIORITY,
         }
     }
 }
@@ -158,6 +171,8 @@ struct Shared {
     failure: Mutex<Option<RecordError>>,
     message_bytes: AtomicU64,
     images: AtomicU64,
+    /// Set by the first reader thread refused its real-time priority (one warning).
+    priority_refused: AtomicBool,
 }
 
 impl Shared {
@@ -175,6 +190,8 @@ pub struct Recorder {
     path: PathBuf,
     skin: String,
     compression: Compression,
+    reader_priority: u8,
+    queue_frames: usize,
     started: Instant,
     shared: Arc<Shared>,
     channels: Vec<Recorded>,
@@ -206,10 +223,13 @@ impl Recorder {
             failure: Mutex::new(None),
             message_bytes: AtomicU64::new(0),
             images: AtomicU64::new(0),
+            priority_refused: AtomicBool::new(false),
         });
         let channels: Vec<Recorded> = sources.readers.iter().map(Recorded::of).collect();
-        let (sender, receiver) = sync_channel::<Item>(QUEUE);
-        let mut threads = reading::start_readers(sources.readers, &channels, &started, &sender, &shared)?;
+        let queue_frames = queue_frames(sources.readers.iter().map(skinware::Reader::payload_bytes));
+        let (sender, receiver) = sync_channel::<Item>(queue_frames);
+        let mut threads =
+            reading::start_readers(sources.readers, &channels, &started, &sender, &shared, options.reader_priority)?;
         let Started { writer, stats_channels, map, ros, clock_offset_ns, .. } = started;
         let watcher = Watcher {
             skin: options.skin.clone(),
@@ -243,6 +263,8 @@ impl Recorder {
             path: path.to_owned(),
             skin: options.skin,
             compression: options.compression,
+            reader_priority: options.reader_priority,
+            queue_frames,
             started: Instant::now(),
             shared,
             channels,
@@ -305,6 +327,9 @@ impl Recorder {
             images: self.shared.images.load(Ordering::Relaxed),
             channels: self.channels.iter().map(|c| (c.name.clone(), c.report())).collect(),
             compression: format!("{:?}", self.compression).to_lowercase(),
+            reader_priority: self.reader_priority,
+            readers_realtime: self.channels.iter().all(|c| c.counters.realtime.load(Ordering::Relaxed)),
+            queue_frames: self.queue_frames,
         })
     }
 
@@ -328,6 +353,14 @@ impl Drop for Recorder {
     fn drop(&mut self) {
         let _ = self.shutdown();
     }
+}
+
+/// The queue's length for channels whose frames have these sizes: what
+/// [`QUEUE_BYTES`] holds of their average frame, within [`QUEUE_FRAMES`].
+fn queue_frames(frame_bytes: impl Iterator<Item = usize>) -> usize {
+    let (count, total) = frame_bytes.fold((0usize, 0usize), |(n, sum), bytes| (n + 1, sum.saturating_add(bytes)));
+    let average = (total / count.max(1)).max(1);
+    (QUEUE_BYTES / average).clamp(*QUEUE_FRAMES.start(), *QUEUE_FRAMES.end())
 }
 
 fn spawn(name: &str, job: impl FnOnce() + Send + 'static) -> Result<JoinHandle<()>, RecordError> {

@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 
 use serde::Serialize;
 use skinware::{ChannelKind, Reader};
@@ -19,6 +19,10 @@ pub(super) struct Counters {
     pub(super) latency_ns: AtomicU64,
     /// The writer's state, by its number ([`WriterState::code`]; 0 until read).
     pub(super) state: AtomicU32,
+    /// Times the reader found the file's queue full and waited.
+    pub(super) file_waits: AtomicU64,
+    /// Whether the reader thread runs in SCHED_FIFO.
+    pub(super) realtime: AtomicBool,
 }
 
 /// One recorded channel and its counters.
@@ -42,6 +46,8 @@ impl Recorded {
             lost: counters.lost.load(Ordering::Relaxed),
             gaps: counters.gaps.load(Ordering::Relaxed),
             faulted: counters.faulted.load(Ordering::Relaxed),
+            file_waits: counters.file_waits.load(Ordering::Relaxed),
+            realtime: counters.realtime.load(Ordering::Relaxed),
         }
     }
 }
@@ -79,6 +85,11 @@ pub struct ChannelReport {
     pub gaps: u64,
     /// Frames with a fault status.
     pub faulted: u64,
+    /// Times its reader found the file's queue full and waited for the
+    /// disk or the compression (frames it missed meanwhile are in `lost`).
+    pub file_waits: u64,
+    /// Whether its reader thread ran in SCHED_FIFO.
+    pub realtime: bool,
 }
 
 /// What a finished recording holds.
@@ -108,4 +119,10 @@ pub struct RecordSummary {
     pub channels: BTreeMap<String, ChannelReport>,
     /// The compression.
     pub compression: String,
+    /// The SCHED_FIFO priority the reader threads asked for (0: none).
+    pub reader_priority: u8,
+    /// Whether every reader thread got it.
+    pub readers_realtime: bool,
+    /// Frames the queue between the readers and the file holds at most.
+    pub queue_frames: usize,
 }

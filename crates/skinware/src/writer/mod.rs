@@ -123,6 +123,24 @@ impl Access {
 /// written; more only costs memory.
 pub const DEFAULT_SLOTS: usize = 3;
 
+/// How long a fast periodic writer's frames stay readable when its slots
+/// are chosen by [`slots_for_history`]: a reader kept off its CPU for less
+/// (a hypervisor's stall, a burst of interrupts; 1–20 ms on a virtual
+/// machine) still finds every frame it missed, so a recorder loses none.
+pub const READABLE_HISTORY: Duration = Duration::from_millis(20);
+
+/// Frame buffers that keep [`READABLE_HISTORY`] of a writer's frames at
+/// `period`: at least [`DEFAULT_SLOTS`], at most [`MAX_SLOTS`](crate::MAX_SLOTS).
+/// 3 up to 100 Hz, 21 at 1 kHz, 41 at 2 kHz; a sporadic writer (`None`)
+/// gets [`DEFAULT_SLOTS`]. More slots cost memory only: a frame's size
+/// each, and nothing per read or publish.
+pub fn slots_for_history(period: Option<Duration>) -> usize {
+    let Some(period) = period.filter(|period| !period.is_zero()) else { return DEFAULT_SLOTS };
+    // The frames of the history, plus the one being written.
+    let frames = READABLE_HISTORY.as_nanos().div_ceil(period.as_nanos()).saturating_add(1);
+    usize::try_from(frames).unwrap_or(usize::MAX).clamp(DEFAULT_SLOTS, crate::MAX_SLOTS)
+}
+
 /// The single writer of a channel.
 ///
 /// Publishing is wait-free: it never takes a lock, never waits for a reader and
@@ -717,5 +735,25 @@ impl FrameWriter<'_> {
         let header = self.shared.header();
         stats::record_write(&header.stats, os::monotonic_ns() - self.started_ns, self.status.is_fault());
         seq
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn slots_for_history_keep_twenty_milliseconds_within_the_channels_range() {
+        let at_hz = |hz: u64| slots_for_history(Some(Duration::from_nanos(1_000_000_000 / hz)));
+        assert_eq!(slots_for_history(None), DEFAULT_SLOTS);
+        assert_eq!(slots_for_history(Some(Duration::ZERO)), DEFAULT_SLOTS);
+        assert_eq!(at_hz(30), DEFAULT_SLOTS);
+        assert_eq!(at_hz(100), 3);
+        assert_eq!(at_hz(500), 11);
+        assert_eq!(at_hz(1_000), 21);
+        assert_eq!(at_hz(2_000), 41);
+        assert_eq!(at_hz(1_000_000), crate::MAX_SLOTS);
+        assert_eq!(slots_for_history(Some(Duration::from_nanos(1))), crate::MAX_SLOTS);
+        assert_eq!(slots_for_history(Some(Duration::MAX)), DEFAULT_SLOTS);
     }
 }
