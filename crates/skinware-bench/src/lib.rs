@@ -76,6 +76,7 @@ pub mod roles;
 pub mod ros2;
 pub mod run_options;
 mod rwlock_peer;
+pub mod scale;
 pub mod skin_config;
 pub mod soak;
 pub mod table1;

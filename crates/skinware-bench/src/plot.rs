@@ -86,3 +86,83 @@ pub fn fig6(records: &[PaperRecord], path: &Path) -> Result<()> {
     root.present().map_err(|e| anyhow!("plot: {e}"))?;
     Ok(())
 }
+
+/// `skin bench scale`: what one frame costs and the CPU it takes, against
+/// the skin's taxels, on log-log axes, at 1 kHz (or the sweep's first rate)
+/// with the most readers of the sweep.
+pub fn scale(points: &[crate::scale::ScalePoint], path: &Path) -> Result<()> {
+    let text = register_font();
+    let rate =
+        if points.iter().any(|p| p.rate_hz == 1000.0) { 1000.0 } else { points.first().map_or(0.0, |p| p.rate_hz) };
+    let readers = points.iter().map(|p| p.readers).max().unwrap_or(0);
+    let at = |readers: usize| -> Vec<&crate::scale::ScalePoint> {
+        points.iter().filter(|p| p.rate_hz == rate && p.readers == readers).collect()
+    };
+    let loaded = at(readers);
+    let root = BitMapBackend::new(path, (1400, 560)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| anyhow!("plot: {e}"))?;
+    let halves = root.split_evenly((1, 2));
+    type Pick = fn(&crate::scale::ScalePoint) -> f64;
+    let time_series: Vec<(&str, Pick)> = vec![
+        ("publish p50", |p| (p.publish_ns.p50 as f64 / 1e3).max(0.01)),
+        ("publish p99", |p| (p.publish_ns.p99 as f64 / 1e3).max(0.01)),
+        ("memcpy p50", |p| (p.memcpy_ns.p50 as f64 / 1e3).max(0.01)),
+        ("waiting reader's copy p50", |p| (p.waiting_copy_ns.p50 as f64 / 1e3).max(0.01)),
+        ("acquisition to waiting reader p50", |p| (p.waiting_latency_ns.p50 as f64 / 1e3).max(0.01)),
+    ];
+    let cpu_series: Vec<(&str, Pick)> = vec![
+        ("writer thread", |p| p.writer_thread_cpu_percent.max(0.01)),
+        ("writer's ringer", |p| p.writer_helpers_cpu_percent.max(0.01)),
+        ("all readers", |p| p.readers_cpu_percent.max(0.01)),
+    ];
+    let panels = [
+        (format!("{rate} Hz, {readers} readers: microseconds per frame"), "microseconds", time_series),
+        (format!("{rate} Hz, {readers} readers: CPU, % of one core"), "% of one core", cpu_series),
+    ];
+    for (area, (title, unit, series)) in halves.iter().zip(panels) {
+        let values: Vec<f64> = series.iter().flat_map(|(_, pick)| loaded.iter().map(|p| pick(p))).collect();
+        let top = values.iter().copied().fold(1.0, f64::max) * 2.0;
+        let bottom = values.iter().copied().fold(f64::INFINITY, f64::min).min(top / 10.0) / 2.0;
+        let mut builder = ChartBuilder::on(area);
+        builder.margin(20).x_label_area_size(40).y_label_area_size(60);
+        if text {
+            builder.caption(&title, ("sans-serif", 20));
+        }
+        let mut chart = builder
+            .build_cartesian_2d((5_000f64..500_000f64).log_scale(), (bottom.max(1e-3)..top).log_scale())
+            .map_err(|e| anyhow!("plot: {e}"))?;
+        let mut mesh = chart.configure_mesh();
+        if text {
+            mesh.x_desc("taxels").y_desc(unit);
+        } else {
+            mesh.x_labels(0).y_labels(0);
+        }
+        mesh.draw().map_err(|e| anyhow!("plot: {e}"))?;
+        for (i, (name, pick)) in series.iter().enumerate() {
+            let color = Palette99::pick(i).to_rgba();
+            let line: Vec<(f64, f64)> = loaded.iter().map(|p| (p.taxels as f64, pick(p))).collect();
+            let drawn = chart
+                .draw_series(LineSeries::new(line.clone(), color.stroke_width(2)))
+                .map_err(|e| anyhow!("plot: {e}"))?;
+            if text {
+                drawn
+                    .label(*name)
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+            }
+            chart
+                .draw_series(line.iter().map(|&p| Circle::new(p, 3, color.filled())))
+                .map_err(|e| anyhow!("plot: {e}"))?;
+        }
+        if text {
+            chart
+                .configure_series_labels()
+                .position(SeriesLabelPosition::UpperLeft)
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .draw()
+                .map_err(|e| anyhow!("plot: {e}"))?;
+        }
+    }
+    root.present().map_err(|e| anyhow!("plot: {e}"))?;
+    Ok(())
+}

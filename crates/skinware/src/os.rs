@@ -164,6 +164,13 @@ pub fn set_fifo_priority(priority: u8) -> io::Result<()> {
     if rc == 0 { Ok(()) } else { Err(io::Error::last_os_error()) }
 }
 
+/// Sets the calling thread's nice value (-20 to 19): its weight among the
+/// threads of the normal scheduler. Going below 0 needs root, CAP_SYS_NICE
+/// or an RLIMIT_NICE that allows it.
+pub fn set_thread_nice(nice: i32) -> io::Result<()> {
+    rustix::process::setpriority_process(Some(rustix::thread::gettid()), nice).map_err(Into::into)
+}
+
 /// Whether thread or process `pid` (0: the calling thread) is in a real-time
 /// scheduling class (SCHED_FIFO or SCHED_RR).
 pub fn is_realtime(pid: u32) -> io::Result<bool> {

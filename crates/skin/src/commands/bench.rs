@@ -11,7 +11,9 @@ use skinware_bench::kilohertz::{self, KilohertzOptions, Part, Wake};
 use skinware_bench::run_options::{RunOptions, parse_bench_seconds};
 use skinware_bench::soak::{self, SoakBenchOptions};
 use skinware_bench::table1::{self, Table1Options, Transport};
-use skinware_bench::{bridge, c, can, contact, ethercat, follow, netns, paper, peers, python, record, recorder, wake};
+use skinware_bench::{
+    bridge, c, can, contact, ethercat, follow, netns, paper, peers, python, record, recorder, scale, wake,
+};
 
 /// Which benchmark.
 #[derive(clap::Subcommand)]
@@ -30,6 +32,8 @@ pub enum Which {
     Record(Common),
     /// `skin record --services` of the paper's skin at 1 kHz (about 100 MB/s of messages), with each compression: frames written and lost, MB/s, CPU and memory over time, against a plain write of the same bytes to the same disk.
     Recorder(Common),
+    /// How every cost grows with the skin: 10k, 30,848, 100k and 300k taxels at 100, 500, 1,000 and 2,000 Hz, with 0, 1 and 15 readers: publish against memcpy, missed periods against the control, reader copy, CPU, latency; the frontier, a JSON and a plot.
+    Scale(Common),
     /// The contact service's cost per frame on the paper's skin with scripted contacts: the detector alone, and the service beside the skin's writers.
     Contact(Common),
     /// The Python bindings beside the Rust reader on a 30,848-sensor layer of `skin run`: latest(), read_into(), wait_newer() latency ($SKINWARE_PYTHON).
@@ -115,6 +119,10 @@ pub struct KilohertzArgs {
     /// --floor-bytes).
     #[arg(long)]
     floor_reads_skin: bool,
+    /// Taxels of the skin over its 5 layers (default: the paper's 30,848),
+    /// for the control and loaded runs (`--only runs`).
+    #[arg(long)]
+    taxels: Option<usize>,
 }
 
 /// Options of `skin bench table1`.
@@ -179,6 +187,7 @@ pub fn run(which: &Which) -> Result<()> {
         Which::Peers(common) => peers::run(&common.run_options()?).map(drop),
         Which::Record(common) => record::run(&common.run_options()?).map(drop),
         Which::Recorder(common) => recorder::run(&common.run_options()?).map(drop),
+        Which::Scale(common) => scale::run(&common.run_options()?).map(drop),
         Which::Contact(common) => contact::run(&common.run_options()?).map(drop),
         Which::Python(common) => {
             let python = std::env::var("SKINWARE_PYTHON").unwrap_or_else(|_| "python3".into());
@@ -231,6 +240,7 @@ impl KilohertzArgs {
             wake: self.reader_wake,
             floor_bytes: self.floor_bytes,
             floor_reads_skin: self.floor_reads_skin,
+            taxels: self.taxels,
         })
     }
 }

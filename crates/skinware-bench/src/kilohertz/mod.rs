@@ -28,7 +28,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 
 use crate::run_options::RunOptions;
-use phase::run_phase;
+use phase::{SkinChoice, run_phase};
 use report::{BrowserCost, FloorRun, KilohertzReport, PhaseReport, ViewerRun};
 use viewer::{Floor, viewer_scaling};
 
@@ -107,11 +107,14 @@ pub struct KilohertzOptions {
     pub floor_bytes: Option<usize>,
     /// The floor server reads the skin's layers as the viewer does.
     pub floor_reads_skin: bool,
+    /// Taxels of the skin over its 5 layers (the control and loaded runs
+    /// only); the paper's 30,848 if `None`.
+    pub taxels: Option<usize>,
 }
 
 /// Runs `skin bench kilohertz`: prints its tables and writes its JSON.
 pub fn bench(options: &KilohertzOptions) -> Result<()> {
-    let KilohertzOptions { run, viewer_exe, only, wake, floor_bytes, floor_reads_skin } = options;
+    let KilohertzOptions { run, viewer_exe, only, wake, floor_bytes, floor_reads_skin, taxels } = options;
     let (only, wake, floor_reads_skin) = (*only, *wake, *floor_reads_skin);
     if floor_bytes.is_some() && floor_reads_skin {
         bail!("--floor-reads-skin sends the skin's frames, whose size is the skin's: drop --floor-bytes");
@@ -121,6 +124,17 @@ pub fn bench(options: &KilohertzOptions) -> Result<()> {
             "--floor-bytes and --floor-reads-skin set the floor server of the viewer part, which --only runs \
              leaves out: drop one of them"
         );
+    }
+    if taxels.is_some() && only != Some(Part::Runs) {
+        bail!(
+            "--taxels sets the skin of the control and loaded runs; the viewer part measures the paper's skin: \
+             add --only runs"
+        );
+    }
+    if let Some(taxels) = *taxels
+        && !(LAYERS..=1_000_000).contains(&taxels)
+    {
+        bail!("--taxels {taxels}: give from {LAYERS} (one per layer) to 1,000,000");
     }
     let seconds = run.seconds_or(3.0, 15.0);
     if !(seconds.is_finite() && seconds > 0.0) {
@@ -140,6 +154,7 @@ pub fn bench(options: &KilohertzOptions) -> Result<()> {
         out: &run.out,
         only,
         wake,
+        taxels: *taxels,
     };
     let result = measure(&plan);
     let _ = std::fs::remove_dir_all(&dir);
@@ -175,6 +190,8 @@ struct Plan<'a> {
     only: Option<Part>,
     /// `reader_wake` of the layers' writers.
     wake: Option<Wake>,
+    /// Taxels of the skin; the paper's if `None`.
+    taxels: Option<usize>,
 }
 
 /// Runs the parts of the bench `plan` asks for, and sums them up.
@@ -183,8 +200,8 @@ fn measure(plan: &Plan) -> Result<KilohertzReport> {
     let phases = match plan.only {
         Some(Part::Viewer) => Vec::new(),
         _ => vec![
-            run_phase(exe, viewer_exe, (dir, wake), seconds, false, out)?,
-            run_phase(exe, viewer_exe, (dir, wake), seconds, true, out)?,
+            run_phase(exe, viewer_exe, SkinChoice { dir, wake, taxels: plan.taxels }, seconds, false, out)?,
+            run_phase(exe, viewer_exe, SkinChoice { dir, wake, taxels: plan.taxels }, seconds, true, out)?,
         ],
     };
     let (viewer, floor) = if plan.only == Some(Part::Runs) {
@@ -238,7 +255,7 @@ fn summarize(plan: &Plan, phases: Vec<PhaseReport>, viewer: Vec<ViewerRun>, floo
     let reader_wake = wake.map_or("default", Wake::name).to_owned();
     KilohertzReport {
         rate_hz: 1000.0,
-        taxels: TAXELS,
+        taxels: plan.taxels.unwrap_or(TAXELS),
         reader_wake,
         viewer_exe: viewer_exe.display().to_string(),
         phases,

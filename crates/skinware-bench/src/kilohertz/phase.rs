@@ -22,21 +22,35 @@ use crate::measure::{Percentiles, RunningSkin};
 use crate::procs::{Guarded, start_viewer, supervised_pids};
 use crate::skin_config::PaperSkin;
 
+/// The skin a run starts: the paper's at 1 kHz, at its size or another.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct SkinChoice<'a> {
+    /// The bench's segment directory.
+    pub(super) dir: &'a Path,
+    /// `reader_wake` of the layers' writers.
+    pub(super) wake: Option<Wake>,
+    /// Taxels over the 5 layers; the paper's if `None`.
+    pub(super) taxels: Option<usize>,
+}
+
 /// The paper's skin at 1 kHz; with its services (also at 1 kHz) or none.
-fn config(with_services: bool, wake: Option<Wake>) -> Result<String> {
-    PaperSkin { services: with_services, reader_wake: wake.map(Wake::name), ..PaperSkin::at(1000.0) }.config()
+fn config(with_services: bool, choice: SkinChoice) -> Result<String> {
+    PaperSkin {
+        services: with_services,
+        reader_wake: choice.wake.map(Wake::name),
+        taxels: choice.taxels,
+        ..PaperSkin::at(1000.0)
+    }
+    .config()
 }
 
 /// Starts the paper's skin at 1 kHz in segment directory `dir` (with its
 /// services, or none), and waits for its layers' (and services') channels;
 /// returns it and a reader of each layer.
-pub(super) fn start_skin(
-    exe: &Path,
-    (dir, wake): (&Path, Option<Wake>),
-    with_services: bool,
-) -> Result<(RunningSkin, Vec<Reader>)> {
+pub(super) fn start_skin(exe: &Path, choice: SkinChoice, with_services: bool) -> Result<(RunningSkin, Vec<Reader>)> {
+    let dir = choice.dir;
     let path = dir.join(if with_services { "loaded.toml" } else { "control.toml" });
-    std::fs::write(&path, config(with_services, wake)?)?;
+    std::fs::write(&path, config(with_services, choice)?)?;
     let skin = RunningSkin::start(exe, &path, dir)?;
     let options = ReaderOptions { dir: Some(dir.to_owned()), ..ReaderOptions::default() };
     let deadline = Instant::now() + Duration::from_secs(30);
@@ -70,14 +84,15 @@ pub(super) fn start_skin(
 pub(super) fn run_phase(
     exe: &Path,
     viewer_exe: &Path,
-    (dir, wake): (&Path, Option<Wake>),
+    choice: SkinChoice,
     seconds: f64,
     loaded: bool,
     out: &Path,
 ) -> Result<PhaseReport> {
+    let dir = choice.dir;
     let phase = if loaded { "loaded" } else { "control" };
     eprintln!("kilohertz: {phase} run, {seconds} s");
-    let (skin, readers) = start_skin(exe, (dir, wake), loaded)?;
+    let (skin, readers) = start_skin(exe, choice, loaded)?;
     let stop = Arc::new(AtomicBool::new(false));
     let marks = Arc::new(WindowMarks::default());
     let clock = SeqClock::start(dir, stop.clone());

@@ -16,7 +16,7 @@ use anyhow::{Context, Result, bail};
 use super::browser::{SeqClock, WindowMarks, browse};
 use super::cpu::{clock_ticks_per_s, cpu_ns_between, cpu_ticks, thread_cpu_ns};
 use super::floor;
-use super::phase::start_skin;
+use super::phase::{SkinChoice, start_skin};
 use super::report::{BrowserFigures, FloorRun, ViewerRun};
 use super::{DISPLAY_HZ, SLOW_BROWSER_HZ};
 use crate::procs::{Guarded, start_viewer};
@@ -131,7 +131,7 @@ pub(super) fn viewer_scaling(
     rounds: usize,
     floor_options: Floor,
 ) -> Result<(Vec<ViewerRun>, Vec<FloorRun>)> {
-    let (skin, _readers) = start_skin(exe, (dir, None), false)?;
+    let (skin, _readers) = start_skin(exe, SkinChoice { dir, wake: None, taxels: None }, false)?;
     let (mut viewer, address) = start_viewer(viewer_exe, dir, &[], None)?;
     let (mut floor_server, floor_address) = start_floor(exe, floor_options, dir)?;
     let (mut runs, mut floor_runs) = (Vec::new(), Vec::new());

@@ -30,10 +30,22 @@ pub(super) struct FileJob {
     pub(super) flush_interval: Duration,
     pub(super) shared: Arc<Shared>,
     pub(super) channels: Vec<Recorded>,
+    /// The nice value the thread asks for, if any.
+    pub(super) nice: Option<i32>,
 }
 
 impl FileJob {
     pub(super) fn run(mut self) -> Result<(), RecordError> {
+        if let Some(nice) = self.nice
+            && let Err(e) = skinware::os::set_thread_nice(nice)
+        {
+            tracing::warn!(
+                nice,
+                error = %e,
+                "the recorder's file thread keeps the normal weight (run as root, or allow a lower nice in \
+                 /etc/security/limits.conf); beside other busy programs it may fall behind at high rates"
+            );
+        }
         let result = self.write_all();
         if let Err(e) = result {
             // Unblock the readers: they stop on the signal, and their sends fail once the receiver is gone.
