@@ -224,6 +224,33 @@ need(c_api.get("latest_ratio_p50", 0) > 0 and c_api.get("latest_ratio_mean", 0) 
 need(all(c_api.get("sizes", {}).get(k, 0) > 0 for k in ("header", "cpp_header", "shared_library", "static_library")),
      "c.json: the installed files' sizes")
 
+recorder = json.loads((out / "recorder.json").read_text())
+runs = {r.get("compression"): r for r in recorder.get("runs", [])}
+need(set(runs) == {"zstd", "lz4", "none"}, f"recorder.json: compressions {sorted(runs)}")
+for name, r in runs.items():
+    need(r.get("frames", 0) > 0 and is_count(r.get("lost")) and is_count(r.get("file_waits")), f"recorder.json: {name}: frames or losses")
+    need(r.get("message_mb_per_s", 0) > 0 and r.get("file_mb_per_s", 0) > 0 and r.get("cpu_percent", 0) > 0, f"recorder.json: {name}: MB/s or CPU")
+    need(len(r.get("rss_kib", [])) >= 1 and all(is_count(k) and k > 0 for k in r["rss_kib"]), f"recorder.json: {name}: memory samples")
+plain = recorder.get("plain_write", {})
+need(plain.get("bytes", 0) > 0 and plain.get("paced_mb_per_s", 0) > 0 and plain.get("fastest_mb_per_s", 0) > 0, "recorder.json: the plain write")
+
+scale = json.loads((out / "scale.json").read_text())
+points = scale.get("points", [])
+need(len(points) == 16, f"scale.json: expected 16 points (4 sizes x 2 rates x 0/15 readers), got {len(points)}")
+for p in points:
+    where = f"scale.json: {p.get('taxels')} taxels at {p.get('rate_hz')} Hz with {p.get('readers')} readers"
+    need(p.get("frame_bytes") == 2 * p.get("taxels", -1), f"{where}: frame bytes")
+    for key in ("publish_ns", "memcpy_ns"):
+        stats = p.get(key, {})
+        need(stats.get("samples", 0) > 0 and 0 < stats.get("p50", 0) <= stats.get("p99", 0) <= stats.get("max", 0), f"{where}: {key}")
+    need(is_count(p.get("missed_periods")) and is_count(p.get("overrun_missed")) and p["overrun_missed"] <= p["missed_periods"], f"{where}: missed periods")
+    need(p.get("periods", 0) > 0 and p.get("writer_thread_cpu_percent", 0) > 0, f"{where}: periods or writer CPU")
+    if p.get("readers", 0) > 0:
+        need(p.get("waiting_copy_ns", {}).get("samples", 0) > 0 and p.get("waiting_latency_ns", {}).get("samples", 0) > 0, f"{where}: readers' samples")
+        need(p.get("readers_cpu_percent", 0) > 0, f"{where}: readers' CPU")
+need(len(scale.get("frontier", [])) == 2, "scale.json: a frontier per rate")
+need((out / "scale.png").stat().st_size > 1000, "scale.png missing or empty")
+
 if problems:
     print("benchmark JSON problems:\n  " + "\n  ".join(problems))
     sys.exit(1)

@@ -48,6 +48,12 @@ pub struct ContactReport {
     pub service_ns_max: u64,
     /// The same service, with the skin and the service at 1 kHz.
     pub service_at_1khz: ServiceRun,
+    /// The service as users run it: `skin run` of `skin demo`'s skin (its
+    /// random contacts all over the body, its 7 regions, layers at 30–50 Hz
+    /// and the service at 50 Hz), in the service's own process, read from
+    /// its channel's statistics as `skin services` prints them, over the
+    /// measured window only.
+    pub service_in_demo: ServiceRun,
 }
 
 /// One run of the contact service beside the skin's writers.
@@ -124,6 +130,7 @@ pub fn run(options: &RunOptions) -> Result<ContactReport> {
     let (mut detector_ns, digest) = time_detector(&config, &geometry, seconds);
     let at_paper_rate = time_service(&skin, driver, &geometry, 1.0 / FRAME_PERIOD_S, seconds)?;
     let at_1khz = time_service(&format!("{skin}-khz"), driver_1khz, &geometry, KILOHERTZ, seconds)?;
+    let in_demo = time_demo(&options.exe, seconds)?;
     let report = ContactReport {
         taxels,
         detector_ns: Percentiles::of(&mut detector_ns),
@@ -132,6 +139,7 @@ pub fn run(options: &RunOptions) -> Result<ContactReport> {
         service_ns_mean: at_paper_rate.ns_mean,
         service_ns_max: at_paper_rate.ns_max,
         service_at_1khz: at_1khz,
+        service_in_demo: in_demo,
     };
     let us = |ns: f64| ns / 1e3;
     println!(
@@ -150,10 +158,10 @@ pub fn run(options: &RunOptions) -> Result<ContactReport> {
         us(d.p99 as f64),
         us(d.max as f64)
     );
-    for run in [at_paper_rate, at_1khz] {
+    for (name, run) in [("service 50 Hz", at_paper_rate), ("service 1 kHz", at_1khz), ("skin demo", in_demo)] {
         println!(
             "  {:<14} {:>7} {:>9.1} {:>9} {:>9} {:>9.1}",
-            format!("service {}", if run.rate_hz >= KILOHERTZ { "1 kHz" } else { "50 Hz" }),
+            name,
             run.frames,
             us(run.ns_mean as f64),
             "-",
@@ -166,6 +174,35 @@ pub fn run(options: &RunOptions) -> Result<ContactReport> {
     std::fs::write(&json, serde_json::to_vec_pretty(&report)?)?;
     println!("wrote {}", json.display());
     Ok(report)
+}
+
+/// `skin demo`'s skin, which `skin run` starts as users start it.
+const DEMO_SKIN: &str = include_str!("../../../examples/demo.toml");
+
+/// Runs `skin run` of the demo's skin in its own processes, waits until its
+/// contact service has published for a while, and reads the service's
+/// statistics over `seconds`: what `skin services` reports, for the
+/// frames of that window (the mean from the statistics' running mean and
+/// frame count at both ends).
+fn time_demo(exe: &std::path::Path, seconds: f64) -> Result<ServiceRun> {
+    let dir = skinware::shm::segment_dir().join(format!("skcd{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir)?;
+    let result = (|| {
+        let skin = crate::measure::RunningSkin::start_until(exe, DEMO_SKIN, &dir, "skin demo's skin", |channels| {
+            channels.iter().any(|c| c.channel == "contact" && c.stats.frames > 100)
+        })?;
+        let options = skinware::ReaderOptions { dir: Some(dir.clone()), ..Default::default() };
+        let reader = skinware::Reader::open_with("default", "contact", &options)?;
+        let before = reader.writer_stats();
+        std::thread::sleep(Duration::from_secs_f64(seconds));
+        let after = reader.writer_stats();
+        drop(skin);
+        let (frames, ns_mean) = crate::measure::write_ns_between(&before, &after);
+        Ok(ServiceRun { rate_hz: 50.0, frames, ns_mean, ns_max: after.write_ns_max })
+    })();
+    let _ = std::fs::remove_dir_all(&dir);
+    result
 }
 
 /// Times `ContactDetector::update` on `seconds` of frames of the scripted

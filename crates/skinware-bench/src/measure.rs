@@ -50,6 +50,16 @@ impl Percentiles {
     }
 }
 
+/// The frames a writer published between two readings of its statistics,
+/// and their mean write time, ns: from the statistics' running mean (over
+/// every frame so far) and frame count at both ends.
+pub fn write_ns_between(before: &skinware::WriterStats, after: &skinware::WriterStats) -> (u64, u64) {
+    let frames = after.frames.saturating_sub(before.frames);
+    let total = |s: &skinware::WriterStats| u128::from(s.write_ns_mean) * u128::from(s.frames);
+    let mean = total(after).saturating_sub(total(before)) / u128::from(frames.max(1));
+    (frames, u64::try_from(mean).unwrap_or(u64::MAX))
+}
+
 /// One timed frame of a writer.
 #[derive(Clone, Copy, Debug)]
 pub struct WriterSample {

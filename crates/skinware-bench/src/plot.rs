@@ -129,7 +129,7 @@ pub fn scale(points: &[crate::scale::ScalePoint], path: &Path) -> Result<()> {
             builder.caption(&title, ("sans-serif", 20));
         }
         let mut chart = builder
-            .build_cartesian_2d((5_000f64..500_000f64).log_scale(), (bottom.max(1e-3)..top).log_scale())
+            .build_cartesian_2d((5_000f64..2_000_000f64).log_scale(), (bottom.max(1e-3)..top).log_scale())
             .map_err(|e| anyhow!("plot: {e}"))?;
         let mut mesh = chart.configure_mesh();
         if text {

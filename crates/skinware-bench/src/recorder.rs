@@ -32,6 +32,8 @@ use crate::skin_config::PaperSkin;
 const RATE_HZ: f64 = 1000.0;
 /// Bytes per write of the plain write, as the recorder's chunks.
 const WRITE_BYTES: usize = 1 << 20;
+/// Bytes of the uncompressed recording the plain write holds in memory and writes over and over.
+const PLAIN_WRITE_BUFFER: usize = 64 << 20;
 
 /// One recording by `skin record`.
 #[derive(Clone, Debug, Serialize)]
@@ -95,7 +97,7 @@ pub fn run(options: &RunOptions) -> Result<RecorderReport> {
         bail!("--seconds must be at least 2 (the memory is sampled once a second)");
     }
     std::fs::create_dir_all(&options.out).with_context(|| format!("cannot create {}", options.out.display()))?;
-    let dir = skinware::shm::segment_dir().join(format!("skinware-bench-recorder-{}", std::process::id()));
+    let dir = skinware::shm::segment_dir().join(format!("skrc{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir)?;
     // The files go to the disk the user records to, not to the tmpfs of the channels.
@@ -208,17 +210,35 @@ fn process_cpu_ns(pid: u32) -> Option<u64> {
     (!threads.is_empty()).then(|| threads.values().sum())
 }
 
-/// Writes `source`'s bytes to `target`, at `mb_per_s` and then as fast as
-/// it can, one thread, as the recorder's file thread writes them.
+/// Writes as many bytes as `source` holds to `target`, at `mb_per_s` and
+/// then as fast as it can, one thread, as the recorder's file thread writes
+/// them: `source`'s first [`PLAIN_WRITE_BUFFER`] bytes over and over, read
+/// beforehand, so that reading them costs the writing thread nothing.
 fn plain_write(source: &Path, target: &Path, mb_per_s: f64) -> Result<PlainWrite> {
-    let bytes = std::fs::read(source).with_context(|| format!("cannot read {}", source.display()))?;
+    let total = std::fs::metadata(source).with_context(|| format!("cannot read {}", source.display()))?.len();
+    let mut buffer = Vec::new();
+    std::fs::File::open(source)?.take(PLAIN_WRITE_BUFFER as u64).read_to_end(&mut buffer)?;
+    if buffer.is_empty() {
+        bail!("{} is empty: the uncompressed recording wrote nothing", source.display());
+    }
+    // Whole writes: every chunk then starts at a multiple of a write and ends within the buffer.
+    if buffer.len() >= WRITE_BYTES {
+        buffer.truncate(buffer.len() / WRITE_BYTES * WRITE_BYTES);
+    }
+    let chunks = (0..total).step_by(WRITE_BYTES).map(|at| {
+        let from = (at as usize) % buffer.len();
+        let len = (total - at).min(WRITE_BYTES as u64) as usize;
+        &buffer[from..(from + len).min(buffer.len())]
+    });
+    let chunks: Vec<&[u8]> = chunks.collect();
+    let bytes_written: u64 = chunks.iter().map(|c| c.len() as u64).sum();
     let write = |pace: Option<f64>| -> Result<(f64, f64)> {
         let _ = std::fs::remove_file(target);
         let mut file = std::fs::File::create(target).with_context(|| format!("cannot create {}", target.display()))?;
         let cpu_before = thread_cpu_s();
         let started = Instant::now();
         let mut next_sync = started + Duration::from_secs(1);
-        for (index, chunk) in bytes.chunks(WRITE_BYTES).enumerate() {
+        for (index, chunk) in chunks.iter().enumerate() {
             if let Some(mb_per_s) = pace {
                 let due = started + Duration::from_secs_f64((index * WRITE_BYTES) as f64 / 1e6 / mb_per_s);
                 std::thread::sleep(due.saturating_duration_since(Instant::now()));
@@ -231,12 +251,12 @@ fn plain_write(source: &Path, target: &Path, mb_per_s: f64) -> Result<PlainWrite
         }
         file.sync_data()?;
         let elapsed = started.elapsed().as_secs_f64();
-        Ok((bytes.len() as f64 / 1e6 / elapsed, 100.0 * (thread_cpu_s() - cpu_before) / elapsed))
+        Ok((bytes_written as f64 / 1e6 / elapsed, 100.0 * (thread_cpu_s() - cpu_before) / elapsed))
     };
     let (paced_mb_per_s, paced_cpu_percent) = write(Some(mb_per_s.max(1e-3)))?;
     let (fastest_mb_per_s, _) = write(None)?;
     let _ = std::fs::remove_file(target);
-    Ok(PlainWrite { bytes: bytes.len() as u64, paced_mb_per_s, paced_cpu_percent, fastest_mb_per_s })
+    Ok(PlainWrite { bytes: bytes_written, paced_mb_per_s, paced_cpu_percent, fastest_mb_per_s })
 }
 
 /// This thread's CPU time, s.

@@ -32,9 +32,12 @@ use crate::kilohertz::cpu::{cpu_ns_between, thread_cpu_ns};
 use crate::measure::{self, Percentiles};
 use crate::run_options::RunOptions;
 
-/// Taxels of the full sweep: the paper's skin, a third of it, and 3.2 and
+/// Taxels of the quick sweep: the paper's skin, a third of it, and 3.2 and
 /// 9.7 times it (whole-body skins being built have 10^5).
 pub const TAXELS: [usize; 4] = [10_000, 30_848, 100_000, 300_000];
+/// Taxels of the full sweep: also a million (a 2 MB frame), to find where
+/// the frontier lies when the smaller skins all keep up.
+pub const TAXELS_FULL: [usize; 5] = [10_000, 30_848, 100_000, 300_000, 1_000_000];
 /// Rates of the full sweep, Hz.
 pub const RATES_HZ: [f64; 4] = [100.0, 500.0, 1000.0, 2000.0];
 /// Readers of the full sweep (0 is each point's control).
@@ -125,12 +128,13 @@ pub fn run(options: &RunOptions) -> Result<ScaleReport> {
     }
     let rates: &[f64] = if options.quick { &[100.0, 1000.0] } else { &RATES_HZ };
     let readers: &[usize] = if options.quick { &[0, 15] } else { &READERS };
+    let sizes: &[usize] = if options.quick { &TAXELS } else { &TAXELS_FULL };
     std::fs::create_dir_all(&options.out).with_context(|| format!("cannot create {}", options.out.display()))?;
     let work = options.out.join("scale-work");
     std::fs::create_dir_all(&work)?;
     let mut points = Vec::new();
     for &rate_hz in rates {
-        for &taxels in &TAXELS {
+        for &taxels in sizes {
             let mut control: Option<(u64, u64)> = None; // (overrun misses, periods)
             for &count in readers {
                 let mut point = run_point(options, &work, taxels, rate_hz, count, seconds)
@@ -149,7 +153,7 @@ pub fn run(options: &RunOptions) -> Result<ScaleReport> {
         }
     }
     let _ = std::fs::remove_dir_all(&work);
-    let frontier = frontier(&points, rates);
+    let frontier = frontier(&points, rates, sizes);
     let report = ScaleReport { seconds, points, frontier };
     print_frontier(&report.frontier);
     let json = options.out.join("scale.json");
@@ -162,12 +166,12 @@ pub fn run(options: &RunOptions) -> Result<ScaleReport> {
 
 /// Per rate, the largest skin up to which no run with readers missed a
 /// period its control did not.
-fn frontier(points: &[ScalePoint], rates: &[f64]) -> Vec<Frontier> {
+fn frontier(points: &[ScalePoint], rates: &[f64], sizes: &[usize]) -> Vec<Frontier> {
     rates
         .iter()
         .map(|&rate_hz| {
             let mut largest = None;
-            for &taxels in &TAXELS {
+            for &taxels in sizes {
                 let clean = points
                     .iter()
                     .filter(|p| p.rate_hz == rate_hz && p.taxels == taxels && p.readers > 0)

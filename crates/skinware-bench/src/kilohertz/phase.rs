@@ -15,7 +15,7 @@ use skinware::{Reader, ReaderOptions, WriterStats, histogram_quantile};
 
 use super::browser::{SeqClock, WindowMarks, browse};
 use super::cpu::{clock_ticks_per_s, cpu_ticks};
-use super::report::{BrowserFigures, PhaseReport, WriterFigures};
+use super::report::{BrowserFigures, PhaseReport, ServiceCost, WriterFigures};
 use super::{APPS, ASAP_APPS, BROWSERS, DISPLAY_HZ, LAYERS, Wake};
 use crate::app::AppSamples;
 use crate::measure::{Percentiles, RunningSkin};
@@ -107,6 +107,9 @@ pub(super) fn run_phase(
     std::thread::sleep(Duration::from_secs(1));
     let pids = load.pids(skin.pid());
     let before_stats: Vec<WriterStats> = readers.iter().map(Reader::writer_stats).collect();
+    let reader_options = ReaderOptions { dir: Some(dir.to_owned()), ..ReaderOptions::default() };
+    let contact = if loaded { Reader::open_with("default", "contact", &reader_options).ok() } else { None };
+    let contact_before = contact.as_ref().map(Reader::writer_stats);
     let before_cpu = cpu_ticks(&pids);
     let started = Instant::now();
     let _ = marks.start.set(started);
@@ -115,6 +118,11 @@ pub(super) fn run_phase(
     let elapsed = started.elapsed().as_secs_f64();
     let after_cpu = cpu_ticks(&pids);
     let after_stats: Vec<WriterStats> = readers.iter().map(Reader::writer_stats).collect();
+    let taxels: usize = readers.iter().map(|r| r.payload_bytes() / 2).sum();
+    let contact_service = contact
+        .as_ref()
+        .zip(contact_before)
+        .map(|(reader, before)| service_cost(&before, &reader.writer_stats(), taxels));
     stop.store(true, Ordering::Relaxed);
     let writers = before_stats
         .iter()
@@ -133,7 +141,23 @@ pub(super) fn run_phase(
     drop(clock);
     drop(skin);
     let _ = std::fs::remove_dir_all(&work);
-    Ok(PhaseReport { phase: phase.into(), seconds: elapsed, writers, cpu_percent, latency_us, recorder, browsers })
+    Ok(PhaseReport {
+        phase: phase.into(),
+        seconds: elapsed,
+        writers,
+        cpu_percent,
+        latency_us,
+        recorder,
+        browsers,
+        contact_service,
+    })
+}
+
+/// A service's mean write time between two readings of its statistics
+/// (each a running mean over every frame so far).
+fn service_cost(before: &WriterStats, after: &WriterStats, taxels: usize) -> ServiceCost {
+    let (frames, mean_ns) = crate::measure::write_ns_between(before, after);
+    ServiceCost { frames, mean_ns, mean_ns_per_taxel: mean_ns as f64 / taxels.max(1) as f64 }
 }
 
 /// What reads the skin in the loaded run: started before the measured

@@ -36,6 +36,19 @@ pub(super) struct PhaseReport {
     pub(super) recorder: Option<serde_json::Value>,
     /// What the browsers received.
     pub(super) browsers: Vec<BrowserFigures>,
+    /// The contact service's cost over the window, as `skin services`
+    /// reports it (its channel's write time), if it ran.
+    pub(super) contact_service: Option<ServiceCost>,
+}
+
+/// A service's write time per frame over the measured window.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub(super) struct ServiceCost {
+    pub(super) frames: u64,
+    /// Mean, ns (from its statistics' running mean and frame count at both ends).
+    pub(super) mean_ns: u64,
+    /// Per taxel of the skin, ns.
+    pub(super) mean_ns_per_taxel: f64,
 }
 
 #[derive(Clone, Debug, Default, Serialize)]
@@ -198,6 +211,14 @@ fn print_phases(report: &KilohertzReport) {
                 browser.kb_per_update,
                 browser.latency_us.p50,
                 browser.latency_us.p99
+            );
+        }
+        if let Some(cost) = &phase.contact_service {
+            println!(
+                "  contact service (as `skin services` reports it): {:.1} µs mean per frame over {} frames, {:.2} ns per taxel",
+                cost.mean_ns as f64 / 1e3,
+                cost.frames,
+                cost.mean_ns_per_taxel
             );
         }
         if let Some(recorder) = &phase.recorder {
