@@ -7,13 +7,16 @@
 
 const KIND_GEOMETRY = 1;
 const KIND_UPDATE = 2;
-const PROTOCOL_VERSION = 2;
+const PROTOCOL_VERSION = 3;
 // Indexed by WriterState::code (1 running ... 4 gone), the one numbering;
 // 0: connecting, the server has not read the layer yet.
 const STATES = ['connecting', 'running', 'paused', 'faulted', 'gone'];
 const MODES = ['periodic', 'asap', 'request'];
 const FLAG_RESPONSES = 1;
 const LAYER_RECORD_BYTES = 32;
+// The compact responses (docs/viewer.md): blocks of this many taxels, each
+// a head word (minimum, bit width) and the values' bits.
+const BLOCK = 256;
 // Updates the page lets the server send ahead of its draws.
 const INITIAL_CREDIT = 2;
 // Full colour at this response above baseline until the server has learnt
@@ -32,6 +35,9 @@ const layerRows = document.querySelector('#layers tbody');
 const stats = window.skinStats = {
   updates: 0, draws: 0, updateBytes: 0, lastUpdateBytes: 0, geometryBytes: 0,
   lastUpdateNumber: -1, mode: null, fps: 0, updatesPerSecond: 0, animationFrames: 0, renderMs: 0,
+  // What the updates received would have been with raw 16-bit responses
+  // (protocol 2), to compare with updateBytes; and the decoding's cost.
+  rawUpdateBytes: 0, decodeMs: 0,
   // Per layer, the sequence number of the newest frame received.
   seqs: [],
   // Per layer, the writer states updates reported, each change once, in order.
@@ -117,7 +123,7 @@ function colourTable(fullScale) {
   return table;
 }
 
-// The geometry message, version 2 (docs/viewer.md). A server of another
+// The geometry message, version 3 (docs/viewer.md). A server of another
 // version gets the page's message instead of a map.
 function decodeGeometry(buffer) {
   const view = new DataView(buffer);
@@ -156,6 +162,36 @@ function decodeGeometry(buffer) {
   return { name: lines[0], sensors, bounds, layers, labels, places, positions, uid, module, patch, place, layerOf };
 }
 
+// Decodes one layer's compact responses (count values, from word `word` of
+// `words`) into responses[first ...]; returns the word after them. Per
+// block: a head word (bits 0-15 the minimum, 16-23 the bit width), then the
+// values minus the minimum, `width` bits each, LSB-first, a value possibly
+// running on into the next word.
+function decodeResponses(words, word, first, count) {
+  for (let start = 0; start < count; start += BLOCK) {
+    const n = Math.min(BLOCK, count - start), at = first + start;
+    if (word >= words.length) throw new Error(`update cut short in the responses of taxel ${at}`);
+    const head = words[word++];
+    const min = head & 0xffff, width = head >>> 16;
+    if (width === 0) {
+      responses.fill(min, at, at + n);
+      continue;
+    }
+    if (width > 16) throw new Error(`update: block head ${head} has no width of 0 to 16`);
+    const end = word + ((n * width + 31) >>> 5);
+    if (end > words.length) throw new Error(`update cut short in the responses of taxel ${at}`);
+    const mask = (1 << width) - 1;
+    for (let i = 0, bit = 0; i < n; i++, bit += width) {
+      const w = word + (bit >>> 5), shift = bit & 31;
+      let delta = words[w] >>> shift;
+      if (shift + width > 32) delta |= words[w + 1] << (32 - shift);
+      responses[at + i] = min + (delta & mask);
+    }
+    word = end;
+  }
+  return word;
+}
+
 function applyUpdate(buffer) {
   const view = new DataView(buffer);
   const layerCount = view.getUint16(2, true);
@@ -189,16 +225,24 @@ function applyUpdate(buffer) {
   setOverlays(next);
   if (next.markers.length) stats.updatesWithMarkers++;
   if (next.arrows.length) stats.updatesWithArrows++;
+  stats.rawUpdateBytes += at;
+  const started = performance.now();
+  // The responses are whole 32-bit words from here (the head is a multiple of 4 bytes).
+  const words = new Uint32Array(buffer, at, (buffer.byteLength - at) >> 2);
+  let word = 0;
   for (const l of included) {
     const { first, count } = skin.layers[l];
-    const fresh = new Uint16Array(buffer, at, count);
-    responses.set(fresh, first);
+    word = decodeResponses(words, word, first, count);
     for (let i = first, end = first + count; i < end; i++) {
       const r = responses[i], b = baseline[i];
       baseline[i] = r < b ? r : b + (r - b) * BASELINE_RISE;
     }
-    at += 2 * count;
+    stats.rawUpdateBytes += 2 * count;
   }
+  if (word !== words.length) throw new Error(`update: ${4 * (words.length - word)} bytes after the responses`);
+  stats.decodeMs += (performance.now() - started - stats.decodeMs) * 0.05;
+  // For the browser test, which decodes the same bytes with the server's decoder and compares.
+  window.skinLastUpdate = buffer;
   // Stopped: some layer's writer is gone and none is there (the others not
   // found yet by a reader that just started: their channels went with the skin).
   const stopped = layerStatus.some(status => status.state === 'gone') &&
