@@ -355,9 +355,9 @@ mod tests {
         encode_update(&mut out, 9, ReadMode::Periodic { rate_hz: 30.0 }, &layers, &overlays);
         let overlays_at = UPDATE_HEADER_BYTES + 4 * LAYER_RECORD_BYTES;
         let responses_at = overlays_at + 3 * OVERLAY_RECORD_BYTES;
-        // Two layers' responses, one block each: a head and the words.
-        // 10, 20, 30: minimum 10, width 5 (20 fits), one word.
-        // 65535, 1: minimum 1, width 16, one word.
+        // Two layers' responses, one block each: a head and one word.
+        // 10, 20, 30: first 10, differences 0, 10, 10, zigzag 0, 20, 20: 5 bits.
+        // 65535, 1: first 65535, differences 0, 2 (modulo 2^16), zigzag 0, 4: 3 bits.
         assert_eq!(out.len(), responses_at + 8 + 8, "only the responses of changed layers are sent");
         assert_eq!(&out[..4], &[KIND_UPDATE, 0, 4, 0]);
         assert_eq!(u32_at(&out, 4), 9);
@@ -379,10 +379,10 @@ mod tests {
         assert_eq!(arrow, [0.1, 0.2, 0.3, -0.4]);
         let second_marker: Vec<f32> = (0..4).map(|i| f32_at(&out, overlays_at + 32 + 4 * i)).collect();
         assert_eq!(second_marker, [-1.0, 2.0, 0.05, 7.5]);
-        assert_eq!(u32_at(&out, responses_at), 10 | 5 << 16, "the first block's minimum and width");
-        assert_eq!(u32_at(&out, responses_at + 4), 10 << 5 | 20 << 10, "0, 10, 20 above it, 5 bits each");
-        assert_eq!(u32_at(&out, responses_at + 8), 1 | 16 << 16);
-        assert_eq!(u32_at(&out, responses_at + 12), 65534);
+        assert_eq!(u32_at(&out, responses_at), 10 | 5 << 16, "the first block's first value and width");
+        assert_eq!(u32_at(&out, responses_at + 4), 20 << 5 | 20 << 10, "0, 20, 20 in 5 bits each");
+        assert_eq!(u32_at(&out, responses_at + 8), 65535 | 3 << 16);
+        assert_eq!(u32_at(&out, responses_at + 12), 4 << 3);
         let decoded = decode_update_responses(&out, &[3, 2, 2, 1]).unwrap();
         assert_eq!(decoded, [Some(vec![10, 20, 30]), None, Some(vec![65535, 1]), None]);
         assert_eq!(responses_at % 4, 0, "the responses' words must be viewable as a Uint32Array in place");
