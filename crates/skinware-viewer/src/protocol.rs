@@ -19,7 +19,7 @@ use crate::sampler::LayerSlot;
 /// versions, and the server refuses pages that do not ask for this one
 /// ([`WEBSOCKET_PATH`]). 2: connecting state, colour ranges, piece labels
 /// and places. 3: the responses in updates in the compact encoding of
-/// [`crate::compact`] (44 % of the raw bytes on the paper's skin).
+/// [`crate::compact`] (43 % of the raw bytes on `skin demo`'s skin).
 pub const PROTOCOL_VERSION: u8 = 3;
 /// Where a page of this version opens its WebSocket: the version it speaks
 /// is in the query, so that a page of another version (open in a tab from
