@@ -167,8 +167,12 @@ pub fn encode_geometry(geometry: &SkinGeometry) -> Vec<u8> {
 /// multiple of 4 bytes long, so that their words start aligned.
 pub fn encode_update(out: &mut Vec<u8>, number: u32, mode: ReadMode, layers: &[LayerUpdate], overlays: &Overlays) {
     encode_update_head(out, number, mode, layers, overlays);
-    let values: usize = layers.iter().filter_map(LayerUpdate::responses).map(<[u16]>::len).sum();
-    out.reserve(compact::max_encoded_bytes(values) + 4 * layers.len());
+    let most: usize = layers
+        .iter()
+        .filter_map(LayerUpdate::responses)
+        .map(|responses| compact::max_encoded_bytes(responses.len()))
+        .sum();
+    out.reserve(most);
     for responses in layers.iter().take(usize::from(u16::MAX)).filter_map(LayerUpdate::responses) {
         compact::encode(responses, out);
     }
@@ -393,6 +397,28 @@ mod tests {
         longer.extend_from_slice(&[0; 4]);
         assert_eq!(decode_update_responses(&longer, &[3, 2, 2, 1]), Err(UpdateError::Trailing { left: 4 }));
         assert!(matches!(decode_update_responses(&out[..40], &[3, 2, 2, 1]), Err(UpdateError::NotAnUpdate { .. })));
+    }
+
+    /// A session's buffer, once grown to an update's size, is reused: the
+    /// next updates (of any responses) encode into it without allocating.
+    #[test]
+    fn updates_encode_into_the_reused_buffer_without_allocating() {
+        let layer = |values: Vec<u16>| LayerUpdate {
+            slot: slot(Some(WriterState::Running), [0.0; 3], 1, false, &values),
+            with_responses: true,
+        };
+        let quiet: Vec<LayerUpdate> = (0..5).map(|_| layer(vec![1000; 6_170])).collect();
+        let noisy: Vec<LayerUpdate> = (0..5)
+            .map(|l| layer((0..6_170u32).map(|i| ((i + l).wrapping_mul(2_654_435_761) >> 16) as u16).collect()))
+            .collect();
+        let mut out = Vec::new();
+        encode_update(&mut out, 0, ReadMode::Asap, &quiet, &Overlays::default());
+        let (capacity, address) = (out.capacity(), out.as_ptr());
+        for (number, layers) in [&noisy, &quiet, &noisy].into_iter().enumerate() {
+            encode_update(&mut out, number as u32, ReadMode::Asap, layers, &Overlays::default());
+            assert_eq!((out.capacity(), out.as_ptr()), (capacity, address), "update {number} allocated");
+        }
+        assert!(out.len() > 5 * 2 * 6_170, "the noisy responses do not pack: {} bytes", out.len());
     }
 
     #[test]
