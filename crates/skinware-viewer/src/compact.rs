@@ -22,21 +22,27 @@
 //!
 //! - a block's head: bits 0–15 its first value, bits 16–23 the width (0
 //!   to 16), bits 24–31 zero;
-//! - then `ceil(n × width / 32)` words holding the block's `n` differences
-//!   (256, fewer in a layer's last block; the first is from the first value
-//!   to itself, 0): difference `i`'s bits start at bit `i × width` of those
-//!   words, counted from bit 0 of the first, and may run on into the next
-//!   word. Value `i` is value `i - 1` plus difference `i`, modulo 2^16.
-//!   Width 0: every value equals the first, no words follow. Width 16 holds
-//!   any block (4 bytes more than its raw values), which is what a block
-//!   that does not pack gets: no separate raw form.
+//! - then the block's `n` differences (256, fewer in a layer's last block;
+//!   the first is from the first value to itself, 0), `width` bits each,
+//!   in 4 lanes: difference `i` is in lane `i % 4`, at position `i / 4`;
+//!   each lane's differences are packed LSB-first into its own words (a
+//!   position's bits start at bit `position × width` of the lane's words
+//!   and may run on into its next word), and the lanes' words are
+//!   interleaved: word `k` of lane `l` is the block's word `4k + l`, so
+//!   `4 × ceil(ceil(n / 4) × width / 32)` words. Value `i` is value
+//!   `i - 1` plus difference `i`, modulo 2^16. Width 0: every value equals
+//!   the first, no words follow. Width 16 holds any block (4 bytes more
+//!   than its raw values), which is what a block that does not pack gets:
+//!   no separate raw form.
 //!
-//! Our own packer, not the `bitpacking` crate's: its SIMD layouts
-//! interleave the values of 4 or 8 lanes across words, which the page
-//! would have to undo in JavaScript; this layout is one shift, mask and
-//! add per value there. Packing 32 values at a time with the width a
-//! constant (one function per width, unrolled) is what makes it cheap
-//! enough (measured by `packing_cost_against_a_copy`).
+//! Our own packer, not the `bitpacking` crate's (whose lanes hold
+//! 32-bit values and whose layouts take more undoing in JavaScript): the
+//! page decodes a value with one shift, mask and add, at the lane's word
+//! `4 × (bit >> 5) + lane`. The lanes are for the encoder: it packs 128
+//! values at a time, the four lanes at once with vector instructions, with
+//! the width a constant (one function per width, unrolled): 6–10 µs per
+//! board of the paper's skin, against 15–23 µs for one lane and 45 µs for
+//! its first, rolled-up loop (`packing_cost_against_a_copy`).
 
 #![forbid(unsafe_code)]
 
@@ -50,7 +56,8 @@ pub const MAX_WIDTH: u32 = 16;
 /// Bytes of the encoding of `values` at most (every block 16 bits wide),
 /// for a buffer reserved once.
 pub fn max_encoded_bytes(values: usize) -> usize {
-    values.div_ceil(BLOCK) * BLOCK_HEAD_BYTES + 4 * (values * MAX_WIDTH as usize).div_ceil(32)
+    let block_bytes = |values: usize| BLOCK_HEAD_BYTES + 4 * block_words(values, MAX_WIDTH as usize);
+    values / BLOCK * block_bytes(BLOCK) + if values.is_multiple_of(BLOCK) { 0 } else { block_bytes(values % BLOCK) }
 }
 
 /// A difference of two responses as a small unsigned number: 0, -1, 1, -2,
@@ -113,44 +120,59 @@ pub fn encode(values: &[u16], out: &mut Vec<u8>) {
     }
 }
 
-/// Packs one block's `bits` (each under 2^W) into `words` in groups of 32
-/// (W words each); a last group of fewer is padded with zeros and cut to
-/// the words its values need. Returns the words written.
+/// Lanes of the packing: value `i` of a block is in lane `i % LANES`.
+pub const LANES: usize = 4;
+/// Values of one group: 32 per lane.
+const GROUP: usize = 32 * LANES;
+
+/// The words a block of `values` values of `width` bits takes after its head.
+pub fn block_words(values: usize, width: usize) -> usize {
+    LANES * (values.div_ceil(LANES) * width).div_ceil(32)
+}
+
+/// Packs one block's `bits` (each under 2^W) into `words` in groups of
+/// 128 (4·W words each); a last group of fewer is padded with zeros and cut
+/// to the words its values need. Returns the words written.
 fn pack_block<const W: usize>(bits: &[u16], words: &mut [u32]) -> usize {
-    let mut groups = bits.chunks_exact(32);
+    let mut groups = bits.chunks_exact(GROUP);
     let mut at = 0;
     for group in &mut groups {
-        let group: &[u16; 32] = group.try_into().unwrap_or(&[0; 32]);
-        words[at..at + W].copy_from_slice(&pack_group::<W>(group));
-        at += W;
+        let group: &[u16; GROUP] = group.try_into().unwrap_or(&[0; GROUP]);
+        let packed: [[u32; LANES]; W] = pack_group::<W>(group);
+        words[at..at + LANES * W].copy_from_slice(packed.as_flattened());
+        at += LANES * W;
     }
     let rest = groups.remainder();
     if !rest.is_empty() {
-        let mut group = [0; 32];
+        let mut group = [0; GROUP];
         group[..rest.len()].copy_from_slice(rest);
-        let used = (rest.len() * W).div_ceil(32);
-        words[at..at + used].copy_from_slice(&pack_group::<W>(&group)[..used]);
+        let used = block_words(rest.len(), W);
+        let packed: [[u32; LANES]; W] = pack_group::<W>(&group);
+        words[at..at + used].copy_from_slice(&packed.as_flattened()[..used]);
         at += used;
     }
     at
 }
 
-/// 32 values of W bits in W words, LSB-first: one statement per value,
-/// each with constant word indices and shifts once W is known (LLVM did
-/// not unroll the loop over 32 values that this was first, which cost 45
-/// µs per board of the paper's skin instead of 17).
+/// 128 values of W bits in 4·W words: value `i` in lane `i % 4`, each
+/// lane's 32 values LSB-first in its W words, which are interleaved (word
+/// `k` of lane `l` at `4k + l`), so that the four lanes are packed at once
+/// with vector instructions. One statement per lane position, each with
+/// constant word indices and shifts once W is known.
 #[inline(always)]
-fn pack_group<const W: usize>(group: &[u16; 32]) -> [u32; W] {
-    let mut words = [0u32; W];
+fn pack_group<const W: usize>(group: &[u16; GROUP]) -> [[u32; LANES]; W] {
+    let mut words = [[0u32; LANES]; W];
     macro_rules! pack {
-        ($($index:literal)*) => {$({
-            let bits = u32::from(group[$index]);
-            let (word, shift) = ($index * W / 32, $index * W % 32);
-            words[word] |= bits << shift;
-            // A value that runs on into the next word (shift > 16 then,
-            // so the shift below is by less than 16).
-            if shift + W > 32 {
-                words[word + 1] |= bits >> (32 - shift);
+        ($($position:literal)*) => {$({
+            let (word, shift) = ($position * W / 32, $position * W % 32);
+            for lane in 0..LANES {
+                let bits = u32::from(group[LANES * $position + lane]);
+                words[word][lane] |= bits << shift;
+                // A value that runs on into the lane's next word (shift > 16
+                // then, so the shift below is by less than 16).
+                if shift + W > 32 {
+                    words[word + 1][lane] |= bits >> (32 - shift);
+                }
             }
         })*};
     }
@@ -201,7 +223,7 @@ pub fn decode(bytes: &[u8], out: &mut [u16]) -> Result<usize, CompactError> {
         if width > MAX_WIDTH {
             return Err(CompactError::BadHead { block, head });
         }
-        let words = (values.len() * width as usize).div_ceil(32);
+        let words = block_words(values.len(), width as usize);
         let needed = BLOCK_HEAD_BYTES + 4 * words;
         if bytes.len() - at < needed {
             return Err(truncated(needed));
@@ -211,11 +233,11 @@ pub fn decode(bytes: &[u8], out: &mut [u16]) -> Result<usize, CompactError> {
         let mask = ((1u64 << width) - 1) as u32;
         let mut previous = first;
         for (index, value) in values.iter_mut().enumerate() {
-            let bit = index * width as usize;
-            let (at_word, shift) = (bit / 32, bit % 32);
+            let (lane, bit) = (index % LANES, index / LANES * width as usize);
+            let (at_word, shift) = (LANES * (bit / 32) + lane, bit % 32);
             let mut bits = if width == 0 { 0 } else { word(at_word) >> shift };
             if shift + width as usize > 32 {
-                bits |= word(at_word + 1) << (32 - shift);
+                bits |= word(at_word + LANES) << (32 - shift);
             }
             // Masked to at most 16 bits.
             previous = previous.wrapping_add(unzigzag((bits & mask) as u16));
@@ -286,8 +308,11 @@ mod tests {
                 for values in [zigzag, ramp] {
                     let encoded = round_trip(&values);
                     widths.extend(values.chunks(BLOCK).map(width_of));
-                    let expected: usize =
-                        values.chunks(BLOCK).map(|block| 4 + 4 * (block.len() * width_of(block)).div_ceil(32)).sum();
+                    // Per block a head, then 4 lanes of ceil(n / 4) values, each lane in whole words.
+                    let expected: usize = values
+                        .chunks(BLOCK)
+                        .map(|block| 4 + 4 * 4 * (block.len().div_ceil(4) * width_of(block)).div_ceil(32))
+                        .sum();
                     assert_eq!(encoded.len(), expected, "step {step}, {length} values");
                 }
             }
@@ -298,20 +323,28 @@ mod tests {
         round_trip(&(0..=u16::MAX).rev().step_by(7).collect::<Vec<_>>());
     }
 
+    fn words(encoded: &[u8]) -> Vec<u32> {
+        encoded.chunks(4).map(|word| u32::from_le_bytes(word.try_into().unwrap())).collect()
+    }
+
     #[test]
-    fn differences_are_packed_lsb_first_after_each_block_head() {
+    fn differences_are_packed_lsb_first_in_four_lanes_after_each_block_head() {
         // Differences 0, 1, -2, 3, 0, 1, 0, 1, -4, 0, 3: zigzag 0, 2, 3, 6,
-        // 0, 2, 0, 2, 7, 0, 6, which need 3 bits.
+        // 0, 2, 0, 2, 7, 0, 6, which need 3 bits. Lane l holds values l,
+        // l + 4, l + 8: lane 0 0, 0, 7; lane 1 2, 2, 0; lane 2 3, 0, 6;
+        // lane 3 6, 2; one word each.
         let values = [10, 11, 9, 12, 12, 13, 13, 14, 10, 10, 13];
-        let encoded = round_trip(&values);
-        assert_eq!(u32::from_le_bytes(encoded[..4].try_into().unwrap()), 10 | 3 << 16, "first value, width");
-        let word = u32::from_le_bytes(encoded[4..8].try_into().unwrap());
-        let zigzags: Vec<u32> = (0..10).map(|i| word >> (3 * i) & 7).collect();
-        assert_eq!(zigzags, [0, 2, 3, 6, 0, 2, 0, 2, 7, 0]);
-        // The 11th (6, 0b110) straddles the words: 0b10 in bits 30-31, 1 in the next.
-        assert_eq!(word >> 30, 0b10);
-        assert_eq!(encoded[8..], [1, 0, 0, 0]);
-        assert_eq!(encoded.len(), 12);
+        let encoded = words(&round_trip(&values));
+        assert_eq!(encoded, [10 | 3 << 16, 7 << 6, 2 | 2 << 3, 3 | 6 << 6, 6 | 2 << 3]);
+        // Steps of 2 (zigzag 4, 3 bits): a lane's 11th value (values 40
+        // and 41) runs on from bits 30-31 of the lane's first word (00)
+        // into bit 0 of its second (1), 4 words on.
+        let ramp: Vec<u16> = (0..44).map(|i| 2 * i).collect();
+        let encoded = words(&round_trip(&ramp));
+        assert_eq!(encoded.len(), 1 + 8);
+        assert_eq!(encoded[1], (1..10).fold(0, |word, position| word | 4 << (3 * position)), "lane 0: 0, then 4s");
+        assert_eq!(encoded[2], (0..10).fold(0, |word, position| word | 4 << (3 * position)), "lane 1: 4s");
+        assert_eq!((encoded[1] >> 30, encoded[5], encoded[6]), (0, 1, 1));
     }
 
     #[test]

@@ -166,8 +166,11 @@ function decodeGeometry(buffer) {
 // `words`) into responses[first ...]; returns the word after them. Per
 // block: a head word (bits 0-15 the first value, 16-23 the bit width), then
 // the differences from the value before, zigzagged (0, -1, 1, -2 as 0, 1,
-// 2, 3), `width` bits each, LSB-first, one possibly running on into the
-// next word. The Uint16Array keeps the sums modulo 2^16, as encoded.
+// 2, 3), `width` bits each, in 4 lanes (difference i in lane i % 4, at
+// position i >> 2), each lane LSB-first in its own words, which are
+// interleaved (word k of lane l at 4k + l); a difference may run on into
+// its lane's next word, 4 words on. The Uint16Array keeps the sums modulo
+// 2^16, as encoded.
 function decodeResponses(words, word, first, count) {
   // A local: the hot loop below then does not look the page's binding up.
   const out = responses;
@@ -182,13 +185,14 @@ function decodeResponses(words, word, first, count) {
       continue;
     }
     if (width > 16) throw new Error(`update: block head ${head} has no width of 0 to 16`);
-    const end = word + ((n * width + 31) >>> 5);
+    const end = word + 4 * (((((n + 3) >>> 2) * width) + 31) >>> 5);
     if (end > words.length) throw new Error(`update cut short in the responses of taxel ${at}`);
     const mask = (1 << width) - 1;
-    for (let i = 0, bit = 0; i < n; i++, bit += width) {
-      const w = word + (bit >>> 5), shift = bit & 31;
+    for (let i = 0; i < n; i++) {
+      const bit = (i >>> 2) * width, shift = bit & 31;
+      const w = word + ((bit >>> 5) << 2) + (i & 3);
       let zigzag = words[w] >>> shift;
-      if (shift + width > 32) zigzag |= words[w + 1] << (32 - shift);
+      if (shift + width > 32) zigzag |= words[w + 4] << (32 - shift);
       zigzag &= mask;
       value = (value + ((zigzag >>> 1) ^ -(zigzag & 1))) & 0xffff;
       out[at + i] = value;

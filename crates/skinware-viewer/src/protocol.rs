@@ -359,10 +359,10 @@ mod tests {
         encode_update(&mut out, 9, ReadMode::Periodic { rate_hz: 30.0 }, &layers, &overlays);
         let overlays_at = UPDATE_HEADER_BYTES + 4 * LAYER_RECORD_BYTES;
         let responses_at = overlays_at + 3 * OVERLAY_RECORD_BYTES;
-        // Two layers' responses, one block each: a head and one word.
+        // Two layers' responses, one block each: a head and a word per lane.
         // 10, 20, 30: first 10, differences 0, 10, 10, zigzag 0, 20, 20: 5 bits.
         // 65535, 1: first 65535, differences 0, 2 (modulo 2^16), zigzag 0, 4: 3 bits.
-        assert_eq!(out.len(), responses_at + 8 + 8, "only the responses of changed layers are sent");
+        assert_eq!(out.len(), responses_at + 20 + 20, "only the responses of changed layers are sent");
         assert_eq!(&out[..4], &[KIND_UPDATE, 0, 4, 0]);
         assert_eq!(u32_at(&out, 4), 9);
         assert_eq!((u16_at(&out, 8), u16_at(&out, 10)), (1, 2));
@@ -384,9 +384,10 @@ mod tests {
         let second_marker: Vec<f32> = (0..4).map(|i| f32_at(&out, overlays_at + 32 + 4 * i)).collect();
         assert_eq!(second_marker, [-1.0, 2.0, 0.05, 7.5]);
         assert_eq!(u32_at(&out, responses_at), 10 | 5 << 16, "the first block's first value and width");
-        assert_eq!(u32_at(&out, responses_at + 4), 20 << 5 | 20 << 10, "0, 20, 20 in 5 bits each");
-        assert_eq!(u32_at(&out, responses_at + 8), 65535 | 3 << 16);
-        assert_eq!(u32_at(&out, responses_at + 12), 4 << 3);
+        let words = |at: usize| [0, 4, 8, 12].map(|offset| u32_at(&out, at + offset));
+        assert_eq!(words(responses_at + 4), [0, 20, 20, 0], "one lane each");
+        assert_eq!(u32_at(&out, responses_at + 20), 65535 | 3 << 16);
+        assert_eq!(words(responses_at + 24), [0, 4, 0, 0]);
         let decoded = decode_update_responses(&out, &[3, 2, 2, 1]).unwrap();
         assert_eq!(decoded, [Some(vec![10, 20, 30]), None, Some(vec![65535, 1]), None]);
         assert_eq!(responses_at % 4, 0, "the responses' words must be viewable as a Uint32Array in place");
