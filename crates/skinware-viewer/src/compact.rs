@@ -12,9 +12,10 @@
 //! wide), not a few outliers, so smaller blocks did not help either (49.5 %
 //! at 32 taxels); the differences between neighbouring taxels (one module's
 //! taxels are next to each other) packed the same frames into 43 %, and
-//! choosing the better of the two per block gained nothing more. A block
-//! at rest needs 6 bits per taxel (the virtual skin's noise is ±8), one
-//! under a contact 10 to 13 instead of 16.
+//! choosing the better of the two per block gained nothing more. Of
+//! those frames' 2,400 blocks, 1,923 needed 6 bits per taxel (the virtual
+//! skin's noise is ±8: at rest), 104 5 bits, and those under a contact 7
+//! to 16, mostly 12 to 14.
 //!
 //! Everything is a 32-bit word, so that the page reads a layer's responses
 //! with one `Uint32Array` over the message (every array of the protocol
