@@ -13,6 +13,8 @@
 //! - [`labels`]: what each map piece is (its link, the regions holding it)
 //!   and each taxel's place;
 //! - [`protocol`]: the binary messages from the server to the page;
+//! - [`compact`]: the compact encoding of the responses in an update, and
+//!   its decoder (for tests and the bench's browsers);
 //! - [`message`]: the JSON text messages from the page to the server,
 //!   decoded by [`message::decode`] (built without the server too, for the
 //!   fuzz target).
@@ -51,6 +53,8 @@
 // The overview above links to the server's modules, which exist only with it.
 #![cfg_attr(not(feature = "server"), allow(rustdoc::broken_intra_doc_links))]
 
+#[cfg(feature = "server")]
+pub mod compact;
 #[cfg(feature = "server")]
 pub mod labels;
 pub mod message;

@@ -7,13 +7,16 @@
 
 const KIND_GEOMETRY = 1;
 const KIND_UPDATE = 2;
-const PROTOCOL_VERSION = 2;
+const PROTOCOL_VERSION = 3;
 // Indexed by WriterState::code (1 running ... 4 gone), the one numbering;
 // 0: connecting, the server has not read the layer yet.
 const STATES = ['connecting', 'running', 'paused', 'faulted', 'gone'];
 const MODES = ['periodic', 'asap', 'request'];
 const FLAG_RESPONSES = 1;
 const LAYER_RECORD_BYTES = 32;
+// The compact responses (docs/viewer.md): blocks of this many taxels, each
+// a head word (minimum, bit width) and the values' bits.
+const BLOCK = 256;
 // Updates the page lets the server send ahead of its draws.
 const INITIAL_CREDIT = 2;
 // Full colour at this response above baseline until the server has learnt
@@ -32,6 +35,9 @@ const layerRows = document.querySelector('#layers tbody');
 const stats = window.skinStats = {
   updates: 0, draws: 0, updateBytes: 0, lastUpdateBytes: 0, geometryBytes: 0,
   lastUpdateNumber: -1, mode: null, fps: 0, updatesPerSecond: 0, animationFrames: 0, renderMs: 0,
+  // What the updates received would have been with raw 16-bit responses
+  // (protocol 2), to compare with updateBytes; and the decoding's cost per update.
+  rawUpdateBytes: 0, decodeMs: 0,
   // Per layer, the sequence number of the newest frame received.
   seqs: [],
   // Per layer, the writer states updates reported, each change once, in order.
@@ -117,7 +123,7 @@ function colourTable(fullScale) {
   return table;
 }
 
-// The geometry message, version 2 (docs/viewer.md). A server of another
+// The geometry message, version 3 (docs/viewer.md). A server of another
 // version gets the page's message instead of a map.
 function decodeGeometry(buffer) {
   const view = new DataView(buffer);
@@ -156,7 +162,48 @@ function decodeGeometry(buffer) {
   return { name: lines[0], sensors, bounds, layers, labels, places, positions, uid, module, patch, place, layerOf };
 }
 
+// Decodes one layer's compact responses (count values, from word `word` of
+// `words`) into responses[first ...]; returns the word after them. Per
+// block: a head word (bits 0-15 the first value, 16-23 the bit width), then
+// the differences from the value before, zigzagged (0, -1, 1, -2 as 0, 1,
+// 2, 3), `width` bits each, in 4 lanes (difference i in lane i % 4, at
+// position i >> 2), each lane LSB-first in its own words, which are
+// interleaved (word k of lane l at 4k + l); a difference may run on into
+// its lane's next word, 4 words on. The Uint16Array keeps the sums modulo
+// 2^16, as encoded.
+function decodeResponses(words, word, first, count) {
+  // A local: the hot loop below then does not look the page's binding up.
+  const out = responses;
+  for (let start = 0; start < count; start += BLOCK) {
+    const n = Math.min(BLOCK, count - start), at = first + start;
+    if (word >= words.length) throw new Error(`update cut short in the responses of taxel ${at}`);
+    const head = words[word++];
+    const width = head >>> 16;
+    let value = head & 0xffff;
+    if (width === 0) {
+      out.fill(value, at, at + n);
+      continue;
+    }
+    if (width > 16) throw new Error(`update: block head ${head} has no width of 0 to 16`);
+    const end = word + 4 * (((((n + 3) >>> 2) * width) + 31) >>> 5);
+    if (end > words.length) throw new Error(`update cut short in the responses of taxel ${at}`);
+    const mask = (1 << width) - 1;
+    for (let i = 0; i < n; i++) {
+      const bit = (i >>> 2) * width, shift = bit & 31;
+      const w = word + ((bit >>> 5) << 2) + (i & 3);
+      let zigzag = words[w] >>> shift;
+      if (shift + width > 32) zigzag |= words[w + 4] << (32 - shift);
+      zigzag &= mask;
+      value = (value + ((zigzag >>> 1) ^ -(zigzag & 1))) & 0xffff;
+      out[at + i] = value;
+    }
+    word = end;
+  }
+  return word;
+}
+
 function applyUpdate(buffer) {
+  let decodeMs = 0;
   const view = new DataView(buffer);
   const layerCount = view.getUint16(2, true);
   if (layerCount !== skin.layers.length) throw new Error(`update for ${layerCount} layers, geometry has ${skin.layers.length}`);
@@ -189,16 +236,26 @@ function applyUpdate(buffer) {
   setOverlays(next);
   if (next.markers.length) stats.updatesWithMarkers++;
   if (next.arrows.length) stats.updatesWithArrows++;
+  stats.rawUpdateBytes += at;
+  // The responses are whole 32-bit words from here (the head is a multiple of 4 bytes).
+  const words = new Uint32Array(buffer, at, (buffer.byteLength - at) >> 2);
+  let word = 0;
   for (const l of included) {
     const { first, count } = skin.layers[l];
-    const fresh = new Uint16Array(buffer, at, count);
-    responses.set(fresh, first);
+    const started = performance.now();
+    word = decodeResponses(words, word, first, count);
+    decodeMs += performance.now() - started;
     for (let i = first, end = first + count; i < end; i++) {
       const r = responses[i], b = baseline[i];
       baseline[i] = r < b ? r : b + (r - b) * BASELINE_RISE;
     }
-    at += 2 * count;
+    stats.rawUpdateBytes += 2 * count;
   }
+  if (word !== words.length) throw new Error(`update: ${4 * (words.length - word)} bytes after the responses`);
+  // A moving average of the decoding's cost per update (performance.now() is coarse: averaged over many).
+  stats.decodeMs += (decodeMs - stats.decodeMs) * 0.05;
+  // For the browser test, which decodes the same bytes with the server's decoder and compares.
+  window.skinLastUpdate = buffer;
   // Stopped: some layer's writer is gone and none is there (the others not
   // found yet by a reader that just started: their channels went with the skin).
   const stopped = layerStatus.some(status => status.state === 'gone') &&

@@ -294,11 +294,17 @@ mod tests {
 
     #[test]
     fn pages_of_another_protocol_version_are_told_to_reload() {
-        assert_eq!(refusal_of_version("protocol=2"), None);
+        assert_eq!(refusal_of_version("protocol=3"), None);
         assert_eq!(crate::protocol::WEBSOCKET_PATH.split_once('?').map(|(_, q)| refusal_of_version(q)), Some(None));
         let old_page = refusal_of_version("").unwrap();
         assert!(old_page.contains("older viewer") && old_page.contains("reload the page"), "{old_page}");
-        let other = refusal_of_version("x=1&protocol=3").unwrap();
-        assert!(other.contains("protocol 3, the server speaks 2") && other.contains("reload"), "{other}");
+        // A page of protocol 2 (raw responses), open from before the compact encoding.
+        let protocol_2 = refusal_of_version("protocol=2").unwrap();
+        assert_eq!(
+            protocol_2,
+            "this page speaks the viewer's protocol 2, the server speaks 3: reload the page (Ctrl-R) to get its new version"
+        );
+        let other = refusal_of_version("x=1&protocol=4").unwrap();
+        assert!(other.contains("protocol 4, the server speaks 3") && other.contains("reload"), "{other}");
     }
 }

@@ -366,12 +366,11 @@ struct Session<'a> {
     updates_sent: u32,
     /// The update being sent: per layer, the slot taken from the board
     /// (whose responses it shares) and whether its responses go along;
-    /// emptied once sent, so that the layers' readers write in place again.
+    /// emptied once encoded, so that the layers' readers write in place again.
     update: Vec<LayerUpdate>,
-    /// The head of the update being sent, reused between updates.
-    head: Vec<u8>,
-    /// Responses converted to little-endian, on a big-endian machine only.
-    scratch: Vec<Vec<u8>>,
+    /// The update being sent, encoded: reused between updates, so that
+    /// encoding one allocates nothing once it has grown to an update's size.
+    message: Vec<u8>,
     /// The read timeout the socket has now, to set it only when it changes.
     poll: Option<Duration>,
     /// The overlays its updates carry, polled with new frames only.
@@ -402,8 +401,7 @@ impl<'a> Session<'a> {
             sent_seq: vec![0u64; layers.len()],
             updates_sent: 0,
             update: Vec::with_capacity(layers.len()),
-            head: Vec::new(),
-            scratch: vec![Vec::new(); layers.len()],
+            message: Vec::new(),
             poll: None,
             overlays: HeldOverlays::default(),
             type_of: types_of(&layers),
@@ -509,22 +507,19 @@ impl<'a> Session<'a> {
         let any_running = self.update.iter().any(|layer| layer.slot.state == Some(skinware::WriterState::Running));
         let shared = &self.site.overlays;
         let overlays = self.overlays.for_update(fresh_frames, any_running, || shared.poll());
-        protocol::encode_update_head(&mut self.head, self.updates_sent, self.mode, &self.update, overlays);
+        // Encoded for this browser at send time (the responses in the
+        // compact encoding, less than half their raw bytes): 6-10 µs per
+        // board of the paper's skin in a release build, about what the
+        // kernel's copy of the bytes saved cost (docs/viewer.md).
+        protocol::encode_update(&mut self.message, self.updates_sent, self.mode, &self.update, overlays);
+        // Let go of the board's buffers before the write, which may block
+        // on a slow browser: the layers' readers then write in place again.
+        self.update.clear();
         self.updates_sent = self.updates_sent.wrapping_add(1);
         self.credit -= 1;
-        let length = protocol::update_bytes(self.head.len(), &self.update);
-        let header = WebSocketHeader::binary(length);
-        let mut parts = Vec::with_capacity(2 + self.update.len());
-        parts.push(IoSlice::new(header.bytes()));
-        parts.push(IoSlice::new(&self.head));
-        for (layer, scratch) in self.update.iter().zip(&mut self.scratch) {
-            if let Some(responses) = layer.responses() {
-                parts.push(IoSlice::new(protocol::responses_le(responses, scratch)));
-            }
-        }
+        let header = WebSocketHeader::binary(self.message.len());
+        let mut parts = [IoSlice::new(header.bytes()), IoSlice::new(&self.message)];
         let sent = send_message(&mut self.socket, &mut parts);
-        drop(parts);
-        self.update.clear();
         match sent {
             Ok(()) => Ok(ControlFlow::Continue(())),
             Err(e) if is_closed(&e) => Ok(ControlFlow::Break(())),

@@ -11,6 +11,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Result, bail};
 use skinware::{Reader, ReaderOptions};
+use skinware_viewer::protocol::{KIND_GEOMETRY, KIND_UPDATE, LAYER_SEQ_OFFSET, UPDATE_HEADER_BYTES};
 use skinware_viewer::session::{BrowserStream, Reads};
 use tungstenite::{Message, WebSocket};
 
@@ -113,11 +114,11 @@ pub(super) fn browse(
     let mut next_ack = started + period;
     while !stop.load(Ordering::Relaxed) {
         match socket.read() {
-            Ok(Message::Binary(data)) if data.first() == Some(&1) && !geometry => {
+            Ok(Message::Binary(data)) if data.first() == Some(&KIND_GEOMETRY) && !geometry => {
                 geometry = true;
                 socket.send(Message::text(r#"{"ack":2}"#))?;
             }
-            Ok(Message::Binary(data)) if data.first() == Some(&2) => tally.update(&data, marks, clock),
+            Ok(Message::Binary(data)) if data.first() == Some(&KIND_UPDATE) => tally.update(&data, marks, clock),
             Ok(Message::Text(text)) => bail!("the viewer refused the browser: {text}"),
             Ok(_) => {}
             Err(tungstenite::Error::Io(e)) if e.kind() == std::io::ErrorKind::WouldBlock => {
@@ -172,7 +173,12 @@ impl Tally {
         }
         self.bytes += data.len() as u64;
         self.unacked += 1;
-        if let Some(seq) = data.get(32..40).map(|b| u64::from_le_bytes(b.try_into().unwrap_or_default()))
+        // Layer 0's sequence number, in its record after the header (the
+        // same offset in protocols 2 and 3: only the responses, after the
+        // records, changed). The responses are not decoded: the page's
+        // work, not the viewer's, which is what the bench measures.
+        let seq_at = UPDATE_HEADER_BYTES + LAYER_SEQ_OFFSET;
+        if let Some(seq) = data.get(seq_at..seq_at + 8).map(|b| u64::from_le_bytes(b.try_into().unwrap_or_default()))
             && seq != self.last_seq
         {
             self.last_seq = seq;

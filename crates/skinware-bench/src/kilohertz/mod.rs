@@ -81,10 +81,13 @@ impl Wake {
     }
 }
 
-/// Bytes of the viewer's update of the paper's skin at 1 kHz (every layer's
-/// responses, no overlays): the floor server's message unless told
-/// otherwise. 61,872 since the viewer's protocol 2 (61,832 before: its
-/// layer records grew from 24 to 32 bytes).
+/// Bytes of the viewer's update of the paper's skin at 1 kHz with raw
+/// responses (every layer's, no overlays): the floor server's message
+/// unless told otherwise. 61,872 in the viewer's protocol 2 (61,832 before:
+/// its layer records grew from 24 to 32 bytes). Protocol 3's compact
+/// responses make the viewer's own update about 27.5 KB at rest; the floor
+/// still sends the raw size (and `--floor-reads-skin` the raw board), so it
+/// is now a floor for a viewer that does not encode.
 const UPDATE_BYTES: usize = skinware_viewer::protocol::UPDATE_HEADER_BYTES
     + LAYERS * skinware_viewer::protocol::LAYER_RECORD_BYTES
     + 2 * TAXELS;
