@@ -77,6 +77,7 @@ pub mod ros2;
 pub mod run_options;
 mod rwlock_peer;
 pub mod scale;
+mod scale_record;
 pub mod skin_config;
 pub mod soak;
 pub mod table1;

@@ -90,19 +90,19 @@ pub fn fig6(records: &[PaperRecord], path: &Path) -> Result<()> {
 /// `skin bench scale`: what one frame costs and the CPU it takes, against
 /// the skin's taxels, on log-log axes, at 1 kHz (or the sweep's first rate)
 /// with the most readers of the sweep.
-pub fn scale(points: &[crate::scale::ScalePoint], path: &Path) -> Result<()> {
+pub fn scale(points: &[crate::scale_record::ScalePoint], path: &Path) -> Result<()> {
     let text = register_font();
     let rate =
         if points.iter().any(|p| p.rate_hz == 1000.0) { 1000.0 } else { points.first().map_or(0.0, |p| p.rate_hz) };
     let readers = points.iter().map(|p| p.readers).max().unwrap_or(0);
-    let at = |readers: usize| -> Vec<&crate::scale::ScalePoint> {
+    let at = |readers: usize| -> Vec<&crate::scale_record::ScalePoint> {
         points.iter().filter(|p| p.rate_hz == rate && p.readers == readers).collect()
     };
     let loaded = at(readers);
     let root = BitMapBackend::new(path, (1400, 560)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| anyhow!("plot: {e}"))?;
     let halves = root.split_evenly((1, 2));
-    type Pick = fn(&crate::scale::ScalePoint) -> f64;
+    type Pick = fn(&crate::scale_record::ScalePoint) -> f64;
     let time_series: Vec<(&str, Pick)> = vec![
         ("publish p50", |p| (p.publish_ns.p50 as f64 / 1e3).max(0.01)),
         ("publish p99", |p| (p.publish_ns.p99 as f64 / 1e3).max(0.01)),
