@@ -59,28 +59,12 @@ pub fn fig6(records: &[PaperRecord], path: &Path) -> Result<()> {
         }
         mesh.draw().map_err(|e| anyhow!("plot: {e}"))?;
         for (i, &layers) in layer_counts.iter().enumerate() {
-            let color = Palette99::pick(i).to_rgba();
             let points: Vec<(f64, f64)> =
                 records.iter().filter(|r| r.layers == layers).map(|r| (r.apps as f64, pick(r) as f64 / 1e3)).collect();
-            let series = chart
-                .draw_series(LineSeries::new(points.clone(), color.stroke_width(2)))
-                .map_err(|e| anyhow!("plot: {e}"))?;
-            if text {
-                series
-                    .label(format!("{layers} layer(s)"))
-                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
-            }
-            chart
-                .draw_series(points.iter().map(|&p| Circle::new(p, 3, color.filled())))
-                .map_err(|e| anyhow!("plot: {e}"))?;
+            draw_line(&mut chart, i, text.then(|| format!("{layers} layer(s)")), points)?;
         }
         if text {
-            chart
-                .configure_series_labels()
-                .background_style(WHITE.mix(0.8))
-                .border_style(BLACK)
-                .draw()
-                .map_err(|e| anyhow!("plot: {e}"))?;
+            draw_legend(&mut chart, SeriesLabelPosition::MiddleRight)?;
         }
     }
     root.present().map_err(|e| anyhow!("plot: {e}"))?;
@@ -139,30 +123,46 @@ pub fn scale(points: &[crate::scale_record::ScalePoint], path: &Path) -> Result<
         }
         mesh.draw().map_err(|e| anyhow!("plot: {e}"))?;
         for (i, (name, pick)) in series.iter().enumerate() {
-            let color = Palette99::pick(i).to_rgba();
             let line: Vec<(f64, f64)> = loaded.iter().map(|p| (p.taxels as f64, pick(p))).collect();
-            let drawn = chart
-                .draw_series(LineSeries::new(line.clone(), color.stroke_width(2)))
-                .map_err(|e| anyhow!("plot: {e}"))?;
-            if text {
-                drawn
-                    .label(*name)
-                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
-            }
-            chart
-                .draw_series(line.iter().map(|&p| Circle::new(p, 3, color.filled())))
-                .map_err(|e| anyhow!("plot: {e}"))?;
+            draw_line(&mut chart, i, text.then(|| (*name).to_owned()), line)?;
         }
         if text {
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperLeft)
-                .background_style(WHITE.mix(0.8))
-                .border_style(BLACK)
-                .draw()
-                .map_err(|e| anyhow!("plot: {e}"))?;
+            draw_legend(&mut chart, SeriesLabelPosition::UpperLeft)?;
         }
     }
     root.present().map_err(|e| anyhow!("plot: {e}"))?;
     Ok(())
+}
+
+/// Draws `points` as a line with a dot at each, in the palette's `index`th
+/// colour, with `label` in the legend if given.
+fn draw_line<'a, DB: DrawingBackend + 'a, X: Ranged<ValueType = f64>, Y: Ranged<ValueType = f64>>(
+    chart: &mut ChartContext<'a, DB, Cartesian2d<X, Y>>,
+    index: usize,
+    label: Option<String>,
+    points: Vec<(f64, f64)>,
+) -> Result<()> {
+    let color = Palette99::pick(index).to_rgba();
+    let drawn = chart
+        .draw_series(LineSeries::new(points.clone(), color.stroke_width(2)))
+        .map_err(|e| anyhow!("plot: {e:?}"))?;
+    if let Some(label) = label {
+        drawn.label(label).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+    }
+    chart.draw_series(points.iter().map(|&p| Circle::new(p, 3, color.filled()))).map_err(|e| anyhow!("plot: {e:?}"))?;
+    Ok(())
+}
+
+/// Draws the legend of `chart`'s labelled lines at `position`.
+fn draw_legend<'a, DB: DrawingBackend + 'a, X: Ranged<ValueType = f64>, Y: Ranged<ValueType = f64>>(
+    chart: &mut ChartContext<'a, DB, Cartesian2d<X, Y>>,
+    position: SeriesLabelPosition,
+) -> Result<()> {
+    chart
+        .configure_series_labels()
+        .position(position)
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| anyhow!("plot: {e:?}"))
 }

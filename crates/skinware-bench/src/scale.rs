@@ -88,7 +88,8 @@ pub fn run(options: &RunOptions) -> Result<ScaleReport> {
         for &taxels in sizes {
             let mut control: Option<(u64, u64)> = None; // (overrun misses, periods)
             for &count in readers {
-                let mut point = run_point(options, &work, taxels, rate_hz, count, seconds)
+                let spec = PointSpec { taxels, rate_hz, readers: count, seconds };
+                let mut point = run_point(options, &work, spec)
                     .with_context(|| format!("{taxels} taxels at {rate_hz} Hz with {count} readers"))?;
                 match control {
                     None if count == 0 => control = Some((point.overrun_missed, point.periods.max(1))),
@@ -181,27 +182,24 @@ struct RawPoint {
     helpers_ns: u64,
 }
 
-/// One point: runs the writer and its readers, and sums up what they measured.
-fn run_point(
-    options: &RunOptions,
-    work: &Path,
+/// What one point of the sweep runs.
+#[derive(Clone, Copy, Debug)]
+struct PointSpec {
     taxels: usize,
     rate_hz: f64,
     readers: usize,
+    /// Seconds the readers read.
     seconds: f64,
-) -> Result<ScalePoint> {
-    let raw = measure_point(options, work, taxels, rate_hz, readers, seconds)?;
-    summarize(raw, taxels, rate_hz, readers, seconds)
 }
 
-fn measure_point(
-    options: &RunOptions,
-    work: &Path,
-    taxels: usize,
-    rate_hz: f64,
-    readers: usize,
-    seconds: f64,
-) -> Result<RawPoint> {
+/// One point: runs the writer and its readers, and sums up what they measured.
+fn run_point(options: &RunOptions, work: &Path, spec: PointSpec) -> Result<ScalePoint> {
+    let raw = measure_point(options, work, spec)?;
+    summarize(raw, spec)
+}
+
+fn measure_point(options: &RunOptions, work: &Path, spec: PointSpec) -> Result<RawPoint> {
+    let PointSpec { taxels, rate_hz, readers, seconds } = spec;
     let skin = format!("scale{}", std::process::id());
     let layer = format!("t{taxels}r{}n{readers}", rate_hz as u64);
     let topology = topology(&layer, taxels, rate_hz)?;
@@ -255,8 +253,9 @@ fn measure_point(
 }
 
 /// Sums up one point's run over its window.
-fn summarize(raw: RawPoint, taxels: usize, rate_hz: f64, readers: usize, seconds: f64) -> Result<ScalePoint> {
+fn summarize(raw: RawPoint, spec: PointSpec) -> Result<ScalePoint> {
     let RawPoint { record, apps, helpers_ns } = raw;
+    let PointSpec { taxels, rate_hz, readers, seconds } = spec;
     let period = Duration::from_secs_f64(1.0 / rate_hz);
     let window = window(&record, &apps, readers, seconds)?;
     let inside = |at: u64| (window[0]..window[1]).contains(&at);
@@ -295,7 +294,8 @@ fn summarize(raw: RawPoint, taxels: usize, rate_hz: f64, readers: usize, seconds
     let waiting_missed_share =
         if waiting.is_empty() { 0.0 } else { skipped as f64 / (skipped as f64 + received as f64) };
     let readers_cpu_ns: u64 = apps.iter().map(|(a, _)| a.cpu_ns).sum();
-    let readers_seconds = apps.iter().map(|(a, _)| (a.window_ns[1] - a.window_ns[0]) as f64 / 1e9).fold(0.0, f64::max);
+    let readers_seconds =
+        apps.iter().map(|(a, _)| a.window_ns[1].saturating_sub(a.window_ns[0]) as f64 / 1e9).fold(0.0, f64::max);
     let publish_ns = Percentiles::of(&mut publish);
     let memcpy_ns = Percentiles::of(&mut memcpy);
     let waiting_copy_ns = Percentiles::of(&mut waiting_copy);

@@ -376,3 +376,21 @@ fn spawn(name: &str, job: impl FnOnce() + Send + 'static) -> Result<JoinHandle<(
         .spawn(job)
         .map_err(|source| RecordError::Thread { thread: format!("thread {name}"), source })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_queue_holds_its_bytes_within_its_frame_bounds_whatever_the_sizes() {
+        // The paper's skin at 1 kHz: 5 layers of about 12 KB, 3 service channels.
+        let paper = [12_338, 12_340, 12_338, 12_340, 12_340, 3_024, 30_848, 560];
+        let frames = queue_frames(paper.into_iter());
+        assert!(frames * paper.iter().sum::<usize>() / paper.len() <= QUEUE_BYTES, "{frames}");
+        assert!(frames > 2_000, "{frames}");
+        // Tiny frames, no frames, and sizes a hostile writer claims.
+        assert_eq!(queue_frames([8usize; 4].into_iter()), *QUEUE_FRAMES.end());
+        assert_eq!(queue_frames(std::iter::empty()), *QUEUE_FRAMES.end());
+        assert_eq!(queue_frames([usize::MAX, usize::MAX].into_iter()), *QUEUE_FRAMES.start());
+    }
+}

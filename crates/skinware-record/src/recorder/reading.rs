@@ -144,7 +144,11 @@ impl ChannelJob {
             let last_seq = self.last_seq;
             let (newest, skipped) = match self.reader.wait_newer(READ_SLICE) {
                 // The next frame, as it should be: encoded straight from the reader's copy.
-                Ok(frame) if frame.seq() == last_seq + 1 || (frame.seq() <= last_seq && frame.skipped() == 0) => {
+                // (The starting number was read from the writer's memory: checked, not trusted.)
+                Ok(frame)
+                    if last_seq.checked_add(1) == Some(frame.seq())
+                        || (frame.seq() <= last_seq && frame.skipped() == 0) =>
+                {
                     if !self.out.emit(&FrameParts::of(&frame), 0) {
                         return;
                     }
