@@ -846,11 +846,14 @@ fn copy_record<W: std::io::Write + std::io::Seek>(
 }
 
 /// Flushes and syncs a finished file, so that its end is on disk when we say it is.
-pub(crate) fn close(buffered: std::io::BufWriter<File>, path: &Path) -> Result<(), RecordError> {
+pub(crate) fn close<W: std::io::Write + std::borrow::Borrow<File>>(
+    buffered: std::io::BufWriter<W>,
+    path: &Path,
+) -> Result<(), RecordError> {
     let io =
         |op, source: std::io::Error| RecordError::Io { op, path: path.to_owned(), hint: write_hint(&source), source };
     let file = buffered.into_inner().map_err(|e| io("write", e.into_error()))?;
-    file.sync_all().map_err(|e| io("sync", e))
+    file.borrow().sync_all().map_err(|e| io("sync", e))
 }
 
 #[cfg(test)]

@@ -123,6 +123,11 @@ pub struct KilohertzArgs {
     /// for the control and loaded runs (`--only runs`).
     #[arg(long)]
     taxels: Option<usize>,
+    /// The recorder's compression in the loaded run (default: `skin
+    /// record`'s, zstd); at 100,000 taxels and 1 kHz, zstd cannot keep up on
+    /// 2 cores.
+    #[arg(long)]
+    record_compression: Option<super::record::CompressionArg>,
 }
 
 /// Options of `skin bench table1`.
@@ -241,6 +246,7 @@ impl KilohertzArgs {
             floor_bytes: self.floor_bytes,
             floor_reads_skin: self.floor_reads_skin,
             taxels: self.taxels,
+            record_compression: self.record_compression.map(super::record::CompressionArg::library),
         })
     }
 }

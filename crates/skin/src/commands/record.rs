@@ -65,16 +65,17 @@ pub struct Args {
     recover: Option<PathBuf>,
 }
 
-/// `--compression`.
+/// `--compression` (also `skin bench kilohertz --record-compression`).
 #[derive(Clone, Copy, clap::ValueEnum)]
-enum CompressionArg {
+pub(crate) enum CompressionArg {
     Zstd,
     Lz4,
     None,
 }
 
 impl CompressionArg {
-    fn library(self) -> Compression {
+    /// The library's compression.
+    pub(crate) fn library(self) -> Compression {
         match self {
             CompressionArg::Zstd => Compression::Zstd,
             CompressionArg::Lz4 => Compression::Lz4,

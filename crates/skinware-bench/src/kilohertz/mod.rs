@@ -28,7 +28,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 
 use crate::run_options::RunOptions;
-use phase::{SkinChoice, run_phase};
+use phase::{LoadOptions, SkinChoice, run_phase};
 use report::{BrowserCost, FloorRun, KilohertzReport, PhaseReport, ViewerRun};
 use viewer::{Floor, viewer_scaling};
 
@@ -113,11 +113,15 @@ pub struct KilohertzOptions {
     /// Taxels of the skin over its 5 layers (the control and loaded runs
     /// only); the paper's 30,848 if `None`.
     pub taxels: Option<usize>,
+    /// The recorder's `--compression` in the loaded run: `zstd` (`skin
+    /// record`'s default) if `None`.
+    pub record_compression: Option<skinware_record::Compression>,
 }
 
 /// Runs `skin bench kilohertz`: prints its tables and writes its JSON.
 pub fn bench(options: &KilohertzOptions) -> Result<()> {
-    let KilohertzOptions { run, viewer_exe, only, wake, floor_bytes, floor_reads_skin, taxels } = options;
+    let KilohertzOptions { run, viewer_exe, only, wake, floor_bytes, floor_reads_skin, taxels, record_compression } =
+        options;
     let (only, wake, floor_reads_skin) = (*only, *wake, *floor_reads_skin);
     if floor_bytes.is_some() && floor_reads_skin {
         bail!("--floor-reads-skin sends the skin's frames, whose size is the skin's: drop --floor-bytes");
@@ -158,6 +162,7 @@ pub fn bench(options: &KilohertzOptions) -> Result<()> {
         only,
         wake,
         taxels: *taxels,
+        record_compression: record_compression.unwrap_or_default(),
     };
     let result = measure(&plan);
     let _ = std::fs::remove_dir_all(&dir);
@@ -195,16 +200,19 @@ struct Plan<'a> {
     wake: Option<Wake>,
     /// Taxels of the skin; the paper's if `None`.
     taxels: Option<usize>,
+    /// The recorder's compression in the loaded run.
+    record_compression: skinware_record::Compression,
 }
 
 /// Runs the parts of the bench `plan` asks for, and sums them up.
 fn measure(plan: &Plan) -> Result<KilohertzReport> {
     let Plan { exe, viewer_exe, dir, seconds, out, wake, .. } = *plan;
+    let load = LoadOptions { record_compression: plan.record_compression };
     let phases = match plan.only {
         Some(Part::Viewer) => Vec::new(),
         _ => vec![
-            run_phase(exe, viewer_exe, SkinChoice { dir, wake, taxels: plan.taxels }, seconds, false, out)?,
-            run_phase(exe, viewer_exe, SkinChoice { dir, wake, taxels: plan.taxels }, seconds, true, out)?,
+            run_phase(exe, viewer_exe, SkinChoice { dir, wake, taxels: plan.taxels }, seconds, None, out)?,
+            run_phase(exe, viewer_exe, SkinChoice { dir, wake, taxels: plan.taxels }, seconds, Some(&load), out)?,
         ],
     };
     let (viewer, floor) = if plan.only == Some(Part::Runs) {

@@ -86,9 +86,10 @@ pub(super) fn run_phase(
     viewer_exe: &Path,
     choice: SkinChoice,
     seconds: f64,
-    loaded: bool,
+    load_options: Option<&LoadOptions>,
     out: &Path,
 ) -> Result<PhaseReport> {
+    let loaded = load_options.is_some();
     let dir = choice.dir;
     let phase = if loaded { "loaded" } else { "control" };
     eprintln!("kilohertz: {phase} run, {seconds} s");
@@ -98,8 +99,8 @@ pub(super) fn run_phase(
     let clock = SeqClock::start(dir, stop.clone());
     let work = out.join("kilohertz-work");
     std::fs::create_dir_all(&work)?;
-    let mut load = if loaded {
-        Load::start((exe, viewer_exe), (dir, &work), seconds, (&stop, &marks, &clock))?
+    let mut load = if let Some(options) = load_options {
+        Load::start((exe, viewer_exe), (dir, &work), (seconds, options), (&stop, &marks, &clock))?
     } else {
         Load::default()
     };
@@ -160,6 +161,12 @@ fn service_cost(before: &WriterStats, after: &WriterStats, taxels: usize) -> Ser
     ServiceCost { frames, mean_ns, mean_ns_per_taxel: mean_ns as f64 / taxels.max(1) as f64 }
 }
 
+/// How the loaded run loads the skin, beyond the paper's mix.
+pub(super) struct LoadOptions {
+    /// The recorder's compression.
+    pub(super) record_compression: skinware_record::Compression,
+}
+
 /// What reads the skin in the loaded run: started before the measured
 /// window, collected after it (none in the control run).
 #[derive(Default)]
@@ -183,7 +190,7 @@ impl Load {
     fn start(
         (exe, viewer_exe): (&Path, &Path),
         (dir, work): (&Path, &Path),
-        seconds: f64,
+        (seconds, options): (f64, &LoadOptions),
         (stop, marks, clock): (&Arc<AtomicBool>, &Arc<WindowMarks>, &SeqClock),
     ) -> Result<Load> {
         let mut load = Load::default();
@@ -214,6 +221,7 @@ impl Load {
             .arg("record")
             .arg(&file)
             .args(["--services", "--json", "--seconds", &(seconds + 2.0).to_string()])
+            .args(["--compression", options.record_compression.name()])
             .env("SKINWARE_SHM_DIR", dir)
             .env("RUST_LOG", "warn")
             .stdout(Stdio::piped())

@@ -11,7 +11,7 @@
 
 use std::collections::BTreeMap;
 use std::fs::File;
-use std::io::BufWriter;
+use std::io::{BufWriter, Seek, SeekFrom, Write};
 use std::path::Path;
 
 use mcap::records::Metadata;
@@ -33,7 +33,39 @@ use crate::{
 const ZSTD_LEVEL: u32 = 2;
 
 /// The file's writer.
-pub(super) type McapWriter = mcap::Writer<BufWriter<File>>;
+pub(super) type McapWriter = mcap::Writer<BufWriter<BoundedWrites>>;
+
+/// The largest write the file gets in one system call: a finished chunk is
+/// written in one `write_all`, and a chunk is up to `CHUNK_BYTES` (8 MiB)
+/// uncompressed. 1 MiB is the size the writes had when chunks were 1 MiB:
+/// a shorter system call keeps a real-time thread on a kernel without full
+/// preemption waiting less.
+const LARGEST_WRITE: usize = 1 << 20;
+
+/// The recording's file, written at most [`LARGEST_WRITE`] bytes per call.
+pub(super) struct BoundedWrites(pub(super) File);
+
+impl Write for BoundedWrites {
+    fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+        self.0.write(&bytes[..bytes.len().min(LARGEST_WRITE)])
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.0.flush()
+    }
+}
+
+impl Seek for BoundedWrites {
+    fn seek(&mut self, position: SeekFrom) -> std::io::Result<u64> {
+        self.0.seek(position)
+    }
+}
+
+impl std::borrow::Borrow<File> for BoundedWrites {
+    fn borrow(&self) -> &File {
+        &self.0
+    }
+}
 
 /// A recording's file, its start written: where each kind of message goes.
 pub(super) struct Started {
@@ -121,7 +153,7 @@ fn create_writer(path: &Path, file: &File, options: &RecordOptions) -> Result<Mc
         // larger (docs/bench/record.md). lz4 keeps its fast level, 0.
         .compression_threads(0)
         .compression_level(if options.compression == super::Compression::Zstd { ZSTD_LEVEL } else { 0 })
-        .create(BufWriter::with_capacity(256 << 10, second_handle))
+        .create(BufWriter::with_capacity(256 << 10, BoundedWrites(second_handle)))
         .map_err(|e| mcap_write_error(path, e))
 }
 
@@ -260,4 +292,21 @@ fn attach(writer: &mut McapWriter, started_unix_ns: u64, sources: &Sources) -> R
         )?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_chunk_reaches_the_file_in_writes_of_at_most_one_mebibyte() {
+        let path = std::env::temp_dir().join(format!("skinware-bounded-writes-{}", std::process::id()));
+        let mut file = BoundedWrites(File::create(&path).unwrap());
+        let chunk: Vec<u8> = (0..(CHUNK_BYTES as usize + 12_345)).map(|i| i as u8).collect();
+        assert_eq!(file.write(&chunk).unwrap(), LARGEST_WRITE);
+        file.write_all(&chunk[LARGEST_WRITE..]).unwrap();
+        drop(file);
+        assert!(std::fs::read(&path).unwrap() == chunk, "the file holds the chunk, in order");
+        let _ = std::fs::remove_file(&path);
+    }
 }
