@@ -291,6 +291,7 @@ impl Driver for VirtualSkin {
                 started,
                 noise: SplitMix(self.config.seed ^ (l as u64 + 1).wrapping_mul(0x5851_F42D)),
                 responses: vec![0; count],
+                noise_lanes: vec![0; count.div_ceil(4) * 4],
                 verify_pattern: self.config.verify_pattern,
             }));
         }
@@ -307,6 +308,9 @@ struct VirtualLayer {
     phases: Vec<[f64; 2]>,
     started: Instant,
     noise: SplitMix,
+    /// This frame's random 16-bit words, one per sensor (and up to 3 more:
+    /// a whole random word's worth), from which each sensor's noise comes.
+    noise_lanes: Vec<u16>,
     responses: Vec<u16>,
     /// Publish [`pattern`] frames instead of the simulation.
     verify_pattern: bool,
@@ -322,9 +326,29 @@ fn pressures(t: f64, places: &[SensorPlace], phases: &[[f64; 2]], contacts: &Con
     let (sin_t, cos_t) = (0.05 * t).sin_cos();
     for (response, [sin_phase, cos_phase]) in responses.iter_mut().zip(phases) {
         let drift = 40.0 * (sin_t * cos_phase + cos_t * sin_phase);
-        *response = (1000.0 + drift) as u16;
+        // 960 to 1040: through i32, whose conversion the compiler does with
+        // vector instructions, and which truncates alike in that range.
+        *response = (1000.0 + drift) as i32 as u16;
     }
     contacts.press(t, places, responses);
+}
+
+/// Fills `lanes` (a multiple of 4 long) with random 16-bit words, four
+/// from each of `noise`'s words, lowest bits first.
+fn draw_noise_lanes(noise: &mut SplitMix, lanes: &mut [u16]) {
+    for lanes in lanes.chunks_exact_mut(4) {
+        let word = noise.next();
+        lanes.copy_from_slice(&[word as u16, (word >> 16) as u16, (word >> 32) as u16, (word >> 48) as u16]);
+    }
+}
+
+/// Adds to each response its noise, from -8 to 8, drawn from its random
+/// 16-bit word in `lanes`.
+fn add_noise(responses: &mut [u16], lanes: &[u16]) {
+    for (response, &lane) in responses.iter_mut().zip(lanes) {
+        let noise = i32::from(lane % 17) - 8;
+        *response = (i32::from(*response) + noise).clamp(0, i32::from(u16::MAX)) as u16;
+    }
 }
 
 /// Each sensor's drift phase φ as (sin φ, cos φ), for [`pressures`].
@@ -409,15 +433,13 @@ impl LayerSource for VirtualLayer {
         }
         let places = &self.body.places[self.sensors.clone()];
         pressures(t, places, &self.phases, &self.contacts, &mut self.responses);
-        // ±8 of noise per sensor, four sensors' worth from each random word.
-        for chunk in self.responses.chunks_mut(4) {
-            let mut bits = self.noise.next();
-            for response in chunk {
-                let noise = ((bits & 0xFFFF) % 17) as i32 - 8;
-                bits >>= 16;
-                *response = (i32::from(*response) + noise).clamp(0, i32::from(u16::MAX)) as u16;
-            }
-        }
+        // ±8 of noise per sensor, four sensors' worth from each random word:
+        // the words drawn first (the generator is sequential), then added in
+        // a pass of its own, which the compiler does with vector
+        // instructions. In one scalar loop, the noise took about half of a
+        // 100,000-taxel skin's 57 % of a core at 1 kHz.
+        draw_noise_lanes(&mut self.noise, &mut self.noise_lanes);
+        add_noise(&mut self.responses, &self.noise_lanes);
         self.faults.apply_to(&mut self.responses);
         frame.write_responses(0, &self.responses)?;
         Ok(())
@@ -427,6 +449,33 @@ impl LayerSource for VirtualLayer {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_noise_drawn_ahead_is_the_noise_drawn_four_sensors_at_a_time() {
+        // What the noise was, one random word per four sensors in one loop.
+        fn noise_one_loop(noise: &mut SplitMix, responses: &mut [u16]) {
+            for chunk in responses.chunks_mut(4) {
+                let mut bits = noise.next();
+                for response in chunk {
+                    let noise = ((bits & 0xFFFF) % 17) as i32 - 8;
+                    bits >>= 16;
+                    *response = (i32::from(*response) + noise).clamp(0, i32::from(u16::MAX)) as u16;
+                }
+            }
+        }
+        for len in [0, 1, 3, 4, 5, 7, 12, 1001] {
+            let start: Vec<u16> = (0..len).map(|i| [0, 3, 1000, 65_530, u16::MAX][i % 5]).collect();
+            let (mut old_noise, mut new_noise) = (SplitMix(len as u64), SplitMix(len as u64));
+            let mut expected = start.clone();
+            noise_one_loop(&mut old_noise, &mut expected);
+            let mut lanes = vec![0u16; len.div_ceil(4) * 4];
+            draw_noise_lanes(&mut new_noise, &mut lanes);
+            let mut responses = start;
+            add_noise(&mut responses, &lanes);
+            assert_eq!(responses, expected, "{len} sensors");
+            assert_eq!(old_noise.next(), new_noise.next(), "as many words drawn for {len} sensors");
+        }
+    }
 
     #[test]
     fn default_skin_matches_the_paper() {
