@@ -326,9 +326,7 @@ fn pressures(t: f64, places: &[SensorPlace], phases: &[[f64; 2]], contacts: &Con
     let (sin_t, cos_t) = (0.05 * t).sin_cos();
     for (response, [sin_phase, cos_phase]) in responses.iter_mut().zip(phases) {
         let drift = 40.0 * (sin_t * cos_phase + cos_t * sin_phase);
-        // 960 to 1040: through i32, whose conversion the compiler does with
-        // vector instructions, and which truncates alike in that range.
-        *response = (1000.0 + drift) as i32 as u16;
+        *response = (1000.0 + drift) as u16;
     }
     contacts.press(t, places, responses);
 }
