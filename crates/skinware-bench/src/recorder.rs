@@ -90,8 +90,15 @@ pub struct RecorderReport {
     pub plain_write: PlainWrite,
 }
 
-/// Runs the measurement, prints it and writes `recorder.json`.
-pub fn run(options: &RunOptions) -> Result<RecorderReport> {
+/// Runs the measurement on the paper's skin, or on one of `taxels` over
+/// the same 5 layers, prints it and writes `recorder.json` (or
+/// `recorder-TAXELS.json`).
+pub fn run(options: &RunOptions, taxels: Option<usize>) -> Result<RecorderReport> {
+    if let Some(taxels) = taxels
+        && !(5..=1_000_000).contains(&taxels)
+    {
+        bail!("--taxels {taxels}: give from 5 (one per layer) to 1,000,000");
+    }
     let seconds = options.seconds_or(5.0, 60.0);
     if !(seconds.is_finite() && seconds >= 2.0) {
         bail!("--seconds must be at least 2 (the memory is sampled once a second)");
@@ -104,21 +111,29 @@ pub fn run(options: &RunOptions) -> Result<RecorderReport> {
     let files = options.out.join("recorder-work");
     let _ = std::fs::remove_dir_all(&files);
     std::fs::create_dir_all(&files).with_context(|| format!("cannot create {}", files.display()))?;
-    let result = measure(options, seconds, &dir, &files);
+    let result = measure(options, (seconds, taxels), &dir, &files);
     let _ = std::fs::remove_dir_all(&dir);
     let _ = std::fs::remove_dir_all(&files);
     let report = result?;
     print(&report);
-    let path = options.out.join("recorder.json");
+    let path = options.out.join(match taxels {
+        Some(taxels) => format!("recorder-{taxels}.json"),
+        None => "recorder.json".to_owned(),
+    });
     std::fs::write(&path, serde_json::to_vec_pretty(&report)?)?;
     println!("  written: {}", path.display());
     Ok(report)
 }
 
-fn measure(options: &RunOptions, seconds: f64, dir: &Path, files: &Path) -> Result<RecorderReport> {
+fn measure(
+    options: &RunOptions,
+    (seconds, taxels): (f64, Option<usize>),
+    dir: &Path,
+    files: &Path,
+) -> Result<RecorderReport> {
     let skin = RunningSkin::start_until(
         &options.exe,
-        &PaperSkin::at(RATE_HZ).config()?,
+        &PaperSkin { taxels, ..PaperSkin::at(RATE_HZ) }.config()?,
         dir,
         "the paper's skin at 1 kHz",
         |channels| {

@@ -31,7 +31,7 @@ pub enum Which {
     /// The recorder (zstd, lz4, none) and the replay on the paper's skin: throughput, CPU, file size, timing error.
     Record(Common),
     /// `skin record --services` of the paper's skin at 1 kHz (about 100 MB/s of messages), with each compression: frames written and lost, MB/s, CPU and memory over time, against a plain write of the same bytes to the same disk.
-    Recorder(Common),
+    Recorder(RecorderArgs),
     /// How every cost grows with the skin: 10k, 30,848, 100k and 300k taxels at 100, 500, 1,000 and 2,000 Hz, with 0, 1 and 15 readers: publish against memcpy, missed periods against the control, reader copy, CPU, latency; the frontier, a JSON and a plot.
     Scale(Common),
     /// The contact service's cost per frame on the paper's skin with scripted contacts: the detector alone, and the service beside the skin's writers.
@@ -89,6 +89,17 @@ pub struct PaperArgs {
     /// samples (default 1 with --quick, 3 for the full run).
     #[arg(long)]
     rounds: Option<u32>,
+}
+
+/// Options of `skin bench recorder`.
+#[derive(clap::Args)]
+pub struct RecorderArgs {
+    #[command(flatten)]
+    common: Common,
+    /// Taxels of the skin over its 5 layers (default: the paper's 30,848);
+    /// the JSON is then `recorder-TAXELS.json`.
+    #[arg(long)]
+    taxels: Option<usize>,
 }
 
 /// Options of `skin bench kilohertz`.
@@ -191,7 +202,7 @@ pub fn run(which: &Which) -> Result<()> {
         Which::Can(common) => can::run(&common.run_options()?).map(drop),
         Which::Peers(common) => peers::run(&common.run_options()?).map(drop),
         Which::Record(common) => record::run(&common.run_options()?).map(drop),
-        Which::Recorder(common) => recorder::run(&common.run_options()?).map(drop),
+        Which::Recorder(args) => recorder::run(&args.common.run_options()?, args.taxels).map(drop),
         Which::Scale(common) => scale::run(&common.run_options()?).map(drop),
         Which::Contact(common) => contact::run(&common.run_options()?).map(drop),
         Which::Python(common) => {
