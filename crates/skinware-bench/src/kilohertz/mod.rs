@@ -14,11 +14,15 @@
 //! are WebSocket clients that speak the page's protocol (`docs/viewer.md`)
 //! and acknowledge what they received at a display's 59.94 Hz (a slow one at
 //! 5 Hz), so that the viewer's cost is measured without a browser's
-//! rendering competing for the same two cores.
+//! rendering competing for the same two cores. With `--chromium`, one of
+//! the loaded run's three is the viewer's real page in headless Chromium
+//! ([`page`]), whose draws per second the run reports beside Chromium's
+//! own CPU, which then competes with the skin for the same cores.
 
 mod browser;
 pub(crate) mod cpu;
 pub mod floor;
+mod page;
 mod phase;
 mod report;
 mod viewer;
@@ -27,6 +31,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 
+use crate::chromium::Programs;
 use crate::run_options::RunOptions;
 use phase::{SkinChoice, run_phase};
 use report::{BrowserCost, FloorRun, KilohertzReport, PhaseReport, ViewerRun};
@@ -113,11 +118,14 @@ pub struct KilohertzOptions {
     /// Taxels of the skin over its 5 layers (the control and loaded runs
     /// only); the paper's 30,848 if `None`.
     pub taxels: Option<usize>,
+    /// In the loaded run, the viewer's page in headless Chromium (through
+    /// chromedriver) in place of one of the 3 emulated browsers.
+    pub chromium: bool,
 }
 
 /// Runs `skin bench kilohertz`: prints its tables and writes its JSON.
 pub fn bench(options: &KilohertzOptions) -> Result<()> {
-    let KilohertzOptions { run, viewer_exe, only, wake, floor_bytes, floor_reads_skin, taxels } = options;
+    let KilohertzOptions { run, viewer_exe, only, wake, floor_bytes, floor_reads_skin, taxels, chromium } = options;
     let (only, wake, floor_reads_skin) = (*only, *wake, *floor_reads_skin);
     if floor_bytes.is_some() && floor_reads_skin {
         bail!("--floor-reads-skin sends the skin's frames, whose size is the skin's: drop --floor-bytes");
@@ -139,6 +147,13 @@ pub fn bench(options: &KilohertzOptions) -> Result<()> {
     {
         bail!("--taxels {taxels}: give from {LAYERS} (one per layer) to 1,000,000");
     }
+    if *chromium && only == Some(Part::Viewer) {
+        bail!(
+            "--chromium opens the viewer's page during the loaded run, which --only viewer leaves out: drop one of them"
+        );
+    }
+    // Before any run, so that a missing browser is said at once.
+    let chromium = if *chromium { Some(Programs::find().context("--chromium")?) } else { None };
     let seconds = run.seconds_or(3.0, 15.0);
     if !(seconds.is_finite() && seconds > 0.0) {
         bail!("--seconds must be a positive number of seconds");
@@ -158,6 +173,7 @@ pub fn bench(options: &KilohertzOptions) -> Result<()> {
         only,
         wake,
         taxels: *taxels,
+        chromium: chromium.as_ref(),
     };
     let result = measure(&plan);
     let _ = std::fs::remove_dir_all(&dir);
@@ -195,6 +211,8 @@ struct Plan<'a> {
     wake: Option<Wake>,
     /// Taxels of the skin; the paper's if `None`.
     taxels: Option<usize>,
+    /// chromedriver and Chromium, for the page in the loaded run (`--chromium`).
+    chromium: Option<&'a Programs>,
 }
 
 /// Runs the parts of the bench `plan` asks for, and sums them up.
@@ -203,8 +221,15 @@ fn measure(plan: &Plan) -> Result<KilohertzReport> {
     let phases = match plan.only {
         Some(Part::Viewer) => Vec::new(),
         _ => vec![
-            run_phase(exe, viewer_exe, SkinChoice { dir, wake, taxels: plan.taxels }, seconds, false, out)?,
-            run_phase(exe, viewer_exe, SkinChoice { dir, wake, taxels: plan.taxels }, seconds, true, out)?,
+            run_phase(exe, viewer_exe, SkinChoice { dir, wake, taxels: plan.taxels }, seconds, (false, None), out)?,
+            run_phase(
+                exe,
+                viewer_exe,
+                SkinChoice { dir, wake, taxels: plan.taxels },
+                seconds,
+                (true, plan.chromium),
+                out,
+            )?,
         ],
     };
     let (viewer, floor) = if plan.only == Some(Part::Runs) {
