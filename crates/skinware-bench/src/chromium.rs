@@ -373,6 +373,13 @@ mod tests {
     }
 
     #[test]
+    fn a_missing_program_is_named_with_the_packages_to_install() {
+        let said = Error::NotInstalled { missing: "chromedriver" }.to_string();
+        assert!(said.starts_with("chromedriver is not installed"), "{said}");
+        assert!(said.contains("apt-get install chromium chromium-driver"), "{said}");
+    }
+
+    #[test]
     fn a_page_without_counters_gives_zeros_not_a_panic() {
         let rates = PageRates::between(&Value::Null, &json!({}));
         assert_eq!((rates.fps, rates.updates_per_s, rates.bytes_per_update), (0.0, 0.0, 0.0));

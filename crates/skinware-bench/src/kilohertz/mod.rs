@@ -314,3 +314,34 @@ fn median(values: &[f64]) -> f64 {
         n => (sorted[n / 2 - 1] + sorted[n / 2]) / 2.0,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Options that would run `only`, with `--chromium`; nothing runs if
+    /// they are refused, which is all these tests reach.
+    fn chromium_with(only: Option<Part>) -> KilohertzOptions {
+        KilohertzOptions {
+            run: RunOptions {
+                quick: true,
+                out: std::env::temp_dir().join("kilohertz-chromium-test"),
+                seconds: None,
+                exe: PathBuf::from("/nonexistent/skin"),
+            },
+            viewer_exe: None,
+            only,
+            wake: None,
+            floor_bytes: None,
+            floor_reads_skin: false,
+            taxels: None,
+            chromium: true,
+        }
+    }
+
+    #[test]
+    fn chromium_without_the_loaded_run_is_refused_naming_the_fix() {
+        let error = bench(&chromium_with(Some(Part::Viewer))).unwrap_err().to_string();
+        assert!(error.contains("--chromium") && error.contains("--only viewer"), "{error}");
+    }
+}
