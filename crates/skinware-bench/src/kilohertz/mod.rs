@@ -16,7 +16,7 @@
 //! 5 Hz), so that the viewer's cost is measured without a browser's
 //! rendering competing for the same two cores. With `--chromium`, one of
 //! the loaded run's three is the viewer's real page in headless Chromium
-//! ([`page`]), whose draws per second the run reports beside Chromium's
+//! (module `page`), whose draws per second the run reports beside Chromium's
 //! own CPU, which then competes with the skin for the same cores.
 
 mod browser;
