@@ -110,9 +110,9 @@ pub(super) fn run_phase(
     // Every consumer attached and running before the window opens.
     std::thread::sleep(Duration::from_secs(1));
     let pids = load.pids(skin.pid());
-    // The page's counters (a WebDriver round trip of tens of ms) outside
-    // the writers' window, which they would lengthen; the page's rates
-    // come from its own clock.
+    // The page's counters (a WebDriver round trip: tens of ms, over a
+    // second when the page is starved) outside the writers' window, which
+    // they would lengthen; the page's rates come from its own clock.
     let page_before = load.chromium.as_ref().map(ChromiumPage::counters).transpose()?;
     let before_stats: Vec<WriterStats> = readers.iter().map(Reader::writer_stats).collect();
     let reader_options = ReaderOptions { dir: Some(dir.to_owned()), ..ReaderOptions::default() };
