@@ -38,6 +38,10 @@
 //!   DDS (feature `dds`) and rmw_zenoh (feature `zenoh`), beside rclpy to
 //!   rclpy.
 //!
+//! * [`chromium`]: the viewer's page in headless Chromium through
+//!   chromedriver, for `kilohertz --chromium` and the `skin` crate's
+//!   browser tests.
+//!
 //! Every bench takes a [`RunOptions`] (quick or full, where its files go,
 //! seconds per configuration, the `skin` executable), alone or inside its
 //! own options. Helper processes (application processes, readers, the floor
@@ -56,6 +60,7 @@ pub mod app;
 pub mod bridge;
 pub mod c;
 pub mod can;
+pub mod chromium;
 pub mod contact;
 pub mod ethercat;
 pub mod follow;

@@ -139,6 +139,15 @@ pub struct KilohertzArgs {
     /// 2 cores.
     #[arg(long)]
     record_compression: Option<super::record::CompressionArg>,
+    /// In the loaded run, open the viewer's page in a real headless
+    /// Chromium (through chromedriver) in place of one of the 3 emulated
+    /// browsers, and report how many new updates it draws a second (fps),
+    /// its updates/s and bytes per update, and Chromium's own CPU, which
+    /// runs on the same cores as the skin. Not with `--only viewer`. Needs
+    /// chromium and chromedriver (Debian: apt-get install chromium
+    /// chromium-driver).
+    #[arg(long)]
+    chromium: bool,
 }
 
 /// Options of `skin bench table1`.
@@ -258,6 +267,7 @@ impl KilohertzArgs {
             floor_reads_skin: self.floor_reads_skin,
             taxels: self.taxels,
             record_compression: self.record_compression.map(super::record::CompressionArg::library),
+            chromium: self.chromium,
         })
     }
 }

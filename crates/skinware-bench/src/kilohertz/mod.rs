@@ -14,11 +14,15 @@
 //! are WebSocket clients that speak the page's protocol (`docs/viewer.md`)
 //! and acknowledge what they received at a display's 59.94 Hz (a slow one at
 //! 5 Hz), so that the viewer's cost is measured without a browser's
-//! rendering competing for the same two cores.
+//! rendering competing for the same two cores. With `--chromium`, one of
+//! the loaded run's three is the viewer's real page in headless Chromium
+//! (module `page`), whose draws per second the run reports beside Chromium's
+//! own CPU, which then competes with the skin for the same cores.
 
 mod browser;
 pub(crate) mod cpu;
 pub mod floor;
+mod page;
 mod phase;
 mod report;
 mod viewer;
@@ -27,6 +31,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 
+use crate::chromium::Programs;
 use crate::run_options::RunOptions;
 use phase::{LoadOptions, SkinChoice, run_phase};
 use report::{BrowserCost, FloorRun, KilohertzReport, PhaseReport, ViewerRun};
@@ -116,12 +121,24 @@ pub struct KilohertzOptions {
     /// The recorder's `--compression` in the loaded run: `zstd` (`skin
     /// record`'s default) if `None`.
     pub record_compression: Option<skinware_record::Compression>,
+    /// In the loaded run, the viewer's page in headless Chromium (through
+    /// chromedriver) in place of one of the 3 emulated browsers.
+    pub chromium: bool,
 }
 
 /// Runs `skin bench kilohertz`: prints its tables and writes its JSON.
 pub fn bench(options: &KilohertzOptions) -> Result<()> {
-    let KilohertzOptions { run, viewer_exe, only, wake, floor_bytes, floor_reads_skin, taxels, record_compression } =
-        options;
+    let KilohertzOptions {
+        run,
+        viewer_exe,
+        only,
+        wake,
+        floor_bytes,
+        floor_reads_skin,
+        taxels,
+        record_compression,
+        chromium,
+    } = options;
     let (only, wake, floor_reads_skin) = (*only, *wake, *floor_reads_skin);
     if floor_bytes.is_some() && floor_reads_skin {
         bail!("--floor-reads-skin sends the skin's frames, whose size is the skin's: drop --floor-bytes");
@@ -143,6 +160,13 @@ pub fn bench(options: &KilohertzOptions) -> Result<()> {
     {
         bail!("--taxels {taxels}: give from {LAYERS} (one per layer) to 1,000,000");
     }
+    if *chromium && only == Some(Part::Viewer) {
+        bail!(
+            "--chromium opens the viewer's page during the loaded run, which --only viewer leaves out: drop one of them"
+        );
+    }
+    // Before any run, so that a missing browser is said at once.
+    let chromium = if *chromium { Some(Programs::find().context("--chromium")?) } else { None };
     let seconds = run.seconds_or(3.0, 15.0);
     if !(seconds.is_finite() && seconds > 0.0) {
         bail!("--seconds must be a positive number of seconds");
@@ -163,6 +187,7 @@ pub fn bench(options: &KilohertzOptions) -> Result<()> {
         wake,
         taxels: *taxels,
         record_compression: record_compression.unwrap_or_default(),
+        chromium: chromium.as_ref(),
     };
     let result = measure(&plan);
     let _ = std::fs::remove_dir_all(&dir);
@@ -202,12 +227,14 @@ struct Plan<'a> {
     taxels: Option<usize>,
     /// The recorder's compression in the loaded run.
     record_compression: skinware_record::Compression,
+    /// chromedriver and Chromium, for the page in the loaded run (`--chromium`).
+    chromium: Option<&'a Programs>,
 }
 
 /// Runs the parts of the bench `plan` asks for, and sums them up.
 fn measure(plan: &Plan) -> Result<KilohertzReport> {
     let Plan { exe, viewer_exe, dir, seconds, out, wake, .. } = *plan;
-    let load = LoadOptions { record_compression: plan.record_compression };
+    let load = LoadOptions { record_compression: plan.record_compression, chromium: plan.chromium };
     let phases = match plan.only {
         Some(Part::Viewer) => Vec::new(),
         _ => vec![
@@ -295,5 +322,36 @@ fn median(values: &[f64]) -> f64 {
         0 => 0.0,
         n if n % 2 == 1 => sorted[n / 2],
         n => (sorted[n / 2 - 1] + sorted[n / 2]) / 2.0,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Options that would run `only`, with `--chromium`; nothing runs if
+    /// they are refused, which is all these tests reach.
+    fn chromium_with(only: Option<Part>) -> KilohertzOptions {
+        KilohertzOptions {
+            run: RunOptions {
+                quick: true,
+                out: std::env::temp_dir().join("kilohertz-chromium-test"),
+                seconds: None,
+                exe: PathBuf::from("/nonexistent/skin"),
+            },
+            viewer_exe: None,
+            only,
+            wake: None,
+            floor_bytes: None,
+            floor_reads_skin: false,
+            taxels: None,
+            chromium: true,
+        }
+    }
+
+    #[test]
+    fn chromium_without_the_loaded_run_is_refused_naming_the_fix() {
+        let error = bench(&chromium_with(Some(Part::Viewer))).unwrap_err().to_string();
+        assert!(error.contains("--chromium") && error.contains("--only viewer"), "{error}");
     }
 }

@@ -1,6 +1,7 @@
 //! The control and the loaded run: the paper's skin at 1 kHz alone, then
 //! with 15 applications, both services at 1 kHz, the viewer with 3
-//! browsers and the recorder.
+//! browsers (with `--chromium`, one of them the page in headless Chromium)
+//! and the recorder.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -15,9 +16,11 @@ use skinware::{Reader, ReaderOptions, WriterStats, histogram_quantile};
 
 use super::browser::{SeqClock, WindowMarks, browse};
 use super::cpu::{clock_ticks_per_s, cpu_ticks};
+use super::page::{ChromiumFigures, ChromiumPage};
 use super::report::{BrowserFigures, PhaseReport, ServiceCost, WriterFigures};
 use super::{APPS, ASAP_APPS, BROWSERS, DISPLAY_HZ, LAYERS, Wake};
 use crate::app::AppSamples;
+use crate::chromium::Programs;
 use crate::measure::{Percentiles, RunningSkin};
 use crate::procs::{Guarded, start_viewer, supervised_pids};
 use crate::skin_config::PaperSkin;
@@ -79,8 +82,10 @@ pub(super) fn start_skin(exe: &Path, choice: SkinChoice, with_services: bool) ->
     Ok((skin, readers))
 }
 
-/// One run of the paper's skin at 1 kHz: the control (`loaded` false, the
-/// skin alone) or the loaded run (with everything that reads it).
+/// One run of the paper's skin at 1 kHz: the control (no `load_options`,
+/// the skin alone) or the loaded run (with everything that reads it, as
+/// `load_options` say: the recorder's compression, and with `chromium`, the
+/// viewer's page in it in place of one emulated browser).
 pub(super) fn run_phase(
     exe: &Path,
     viewer_exe: &Path,
@@ -107,6 +112,10 @@ pub(super) fn run_phase(
     // Every consumer attached and running before the window opens.
     std::thread::sleep(Duration::from_secs(1));
     let pids = load.pids(skin.pid());
+    // The page's counters (a WebDriver round trip: tens of ms, over a
+    // second when the page is starved) outside the writers' window, which
+    // they would lengthen; the page's rates come from its own clock.
+    let page_before = load.chromium.as_ref().map(ChromiumPage::counters).transpose()?;
     let before_stats: Vec<WriterStats> = readers.iter().map(Reader::writer_stats).collect();
     let reader_options = ReaderOptions { dir: Some(dir.to_owned()), ..ReaderOptions::default() };
     let contact = if loaded { Reader::open_with("default", "contact", &reader_options).ok() } else { None };
@@ -119,6 +128,7 @@ pub(super) fn run_phase(
     let elapsed = started.elapsed().as_secs_f64();
     let after_cpu = cpu_ticks(&pids);
     let after_stats: Vec<WriterStats> = readers.iter().map(Reader::writer_stats).collect();
+    let page_after = load.chromium.as_ref().map(ChromiumPage::counters).transpose()?;
     let taxels: usize = readers.iter().map(|r| r.payload_bytes() / 2).sum();
     let contact_service = contact
         .as_ref()
@@ -136,6 +146,9 @@ pub(super) fn run_phase(
         let ticks = after.saturating_sub(*before) as f64;
         *cpu_percent.entry(name.clone()).or_insert(0.0) += 100.0 * ticks / clock_ticks_per_s() / elapsed;
     }
+    let chromium = page_before.zip(page_after).map(|(before, after)| {
+        ChromiumFigures::new(&before, &after, cpu_percent.get(CHROMIUM).copied().unwrap_or(0.0))
+    });
     let (latency_us, browsers) = load.latencies()?;
     let recorder = load.recorder_said()?;
     drop(load);
@@ -150,9 +163,13 @@ pub(super) fn run_phase(
         latency_us,
         recorder,
         browsers,
+        chromium,
         contact_service,
     })
 }
+
+/// Chromium's processes, by name in a phase's CPU.
+const CHROMIUM: &str = "Chromium (headless, the viewer's page, with chromedriver)";
 
 /// A service's mean write time between two readings of its statistics
 /// (each a running mean over every frame so far).
@@ -162,9 +179,12 @@ fn service_cost(before: &WriterStats, after: &WriterStats, taxels: usize) -> Ser
 }
 
 /// How the loaded run loads the skin, beyond the paper's mix.
-pub(super) struct LoadOptions {
+pub(super) struct LoadOptions<'a> {
     /// The recorder's compression.
     pub(super) record_compression: skinware_record::Compression,
+    /// chromedriver and Chromium, for the viewer's page in place of one
+    /// emulated browser (`--chromium`).
+    pub(super) chromium: Option<&'a Programs>,
 }
 
 /// What reads the skin in the loaded run: started before the measured
@@ -177,23 +197,41 @@ struct Load {
     viewer: Option<Guarded>,
     /// The recorder (`skin record`).
     recorder: Option<Guarded>,
-    /// The viewer's browsers.
+    /// The viewer's emulated browsers.
     browsers: Vec<JoinHandle<Result<BrowserFigures>>>,
+    /// The viewer's page in headless Chromium (`--chromium`).
+    chromium: Option<ChromiumPage>,
     /// The services' probe.
     services: Option<ServiceProbe>,
 }
 
 impl Load {
-    /// Starts the applications, the viewer (of `viewer_exe`) and its
-    /// browsers, the recorder and the services' probe on the skin in `dir`,
-    /// for `seconds` (and a margin); their files go to `work`.
+    /// Starts the viewer (of `viewer_exe`) and its browsers (one of them
+    /// the page in Chromium, with `chromium`), the applications, the
+    /// recorder and the services' probe on the skin in `dir`, for `seconds`
+    /// (and a margin); their files go to `work`. The viewer and Chromium
+    /// come first: the page may take seconds to load, which the
+    /// applications' and the recorder's time must not include.
     fn start(
         (exe, viewer_exe): (&Path, &Path),
         (dir, work): (&Path, &Path),
         (seconds, options): (f64, &LoadOptions),
         (stop, marks, clock): (&Arc<AtomicBool>, &Arc<WindowMarks>, &SeqClock),
     ) -> Result<Load> {
+        let chromium = options.chromium;
         let mut load = Load::default();
+        let (child, address) = start_viewer(viewer_exe, dir, &[], None)?;
+        load.viewer = Some(child);
+        if let Some(programs) = chromium {
+            load.chromium = Some(ChromiumPage::open(programs, &address)?);
+        }
+        // Chromium is one of the viewer's 3 browsers, so that the viewer
+        // serves as many as without it and its figures stay comparable.
+        let emulated = if chromium.is_some() { BROWSERS - 1 } else { BROWSERS };
+        for _ in 0..emulated {
+            let (stop, marks, clock, address) = (stop.clone(), marks.clone(), clock.clone(), address.clone());
+            load.browsers.push(std::thread::spawn(move || browse(&address, DISPLAY_HZ, (&stop, &marks), &clock)));
+        }
         for app in 0..APPS {
             let mode = if app < ASAP_APPS { "asap" } else { "periodic" };
             let samples = work.join(format!("app-{app}.json"));
@@ -208,12 +246,6 @@ impl Load {
                 .spawn()
                 .context("cannot start an application process")?;
             load.apps.push((Guarded(child), samples));
-        }
-        let (child, address) = start_viewer(viewer_exe, dir, &[], None)?;
-        load.viewer = Some(child);
-        for _ in 0..BROWSERS {
-            let (stop, marks, clock, address) = (stop.clone(), marks.clone(), clock.clone(), address.clone());
-            load.browsers.push(std::thread::spawn(move || browse(&address, DISPLAY_HZ, (&stop, &marks), &clock)));
         }
         let file = work.join("kilohertz.mcap");
         let _ = std::fs::remove_file(&file);
@@ -242,7 +274,11 @@ impl Load {
             pids.push((kind.into(), app.0.id()));
         }
         if let Some(viewer) = &self.viewer {
-            pids.push(("viewer (3 browsers)".into(), viewer.0.id()));
+            let name = if self.chromium.is_some() { "viewer (2 browsers + Chromium)" } else { "viewer (3 browsers)" };
+            pids.push((name.into(), viewer.0.id()));
+        }
+        if let Some(page) = &self.chromium {
+            pids.extend(page.process_ids().into_iter().map(|pid| (CHROMIUM.to_owned(), pid)));
         }
         if let Some(recorder) = &self.recorder {
             pids.push(("recorder".into(), recorder.0.id()));

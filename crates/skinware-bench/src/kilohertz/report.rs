@@ -5,6 +5,7 @@ use std::collections::BTreeMap;
 use serde::Serialize;
 
 use super::DISPLAY_HZ;
+use super::page::{ChromiumFigures, MIN_FPS};
 use crate::measure::Percentiles;
 
 /// One writer's figures over the measured window.
@@ -34,8 +35,10 @@ pub(super) struct PhaseReport {
     pub(super) latency_us: BTreeMap<String, Percentiles>,
     /// What the recorder said at the end (frames, lost, ...), if it ran.
     pub(super) recorder: Option<serde_json::Value>,
-    /// What the browsers received.
+    /// What the emulated browsers received.
     pub(super) browsers: Vec<BrowserFigures>,
+    /// What the page in headless Chromium drew (`--chromium`, loaded run only).
+    pub(super) chromium: Option<ChromiumFigures>,
     /// The contact service's cost over the window, as `skin services`
     /// reports it (its channel's write time), if it ran.
     pub(super) contact_service: Option<ServiceCost>,
@@ -213,6 +216,9 @@ fn print_phases(report: &KilohertzReport) {
                 browser.latency_us.p99
             );
         }
+        if let Some(page) = &phase.chromium {
+            print_chromium(page);
+        }
         if let Some(cost) = &phase.contact_service {
             println!(
                 "  contact service (as `skin services` reports it): {:.1} µs mean per frame over {} frames, {:.2} ns per taxel",
@@ -229,6 +235,26 @@ fn print_phases(report: &KilohertzReport) {
             );
         }
     }
+}
+
+/// What the page in Chromium drew, against issue #41's 30 fps.
+fn print_chromium(page: &ChromiumFigures) {
+    let rates = &page.page;
+    println!(
+        "  Chromium (the viewer's page, headless): {:.1} fps (draws of new updates; ≥ {MIN_FPS} asked: {}), \
+         {:.1} updates/s, {:.1} kB per update ({:.1} kB with raw responses), render {:.2} ms/draw, decode {:.3} ms/update",
+        rates.fps,
+        if page.meets_30_fps { "met" } else { "NOT met" },
+        rates.updates_per_s,
+        rates.bytes_per_update / 1e3,
+        rates.raw_bytes_per_update / 1e3,
+        rates.render_ms,
+        rates.decode_ms
+    );
+    println!(
+        "  Chromium's own CPU (with chromedriver): {:.1} % of one core, on the same cores as the skin",
+        page.cpu_percent
+    );
 }
 
 /// The viewer's runs with 1 and 10 browsers, and the 10/1 ratio.

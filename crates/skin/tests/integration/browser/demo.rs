@@ -13,8 +13,8 @@ use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use serde_json::json;
 use skinware::{Reader, ReaderOptions};
+use skinware_bench::chromium::PageRates;
 
 use super::*;
 use crate::util::{interrupt_and_wait, one_skin_at_a_time};
@@ -125,13 +125,13 @@ impl Drop for Demo {
     ignore = "needs chromium and chromedriver (Debian: apt-get install chromium chromium-driver)"
 )]
 fn demo_in_headless_chromium() {
-    let Some((chromedriver, chromium)) = browser_programs("demo_in_headless_chromium") else {
+    let Some(programs) = browser_programs("demo_in_headless_chromium") else {
         return;
     };
     let _alone = one_skin_at_a_time();
     let mut demo = Demo::start(free_port());
-    let browser = Browser::start(&chromedriver, &chromium);
-    browser.command("POST", "/url", Some(&json!({ "url": demo.url })));
+    let browser = Browser::start(&programs);
+    browser.open(&demo.url);
 
     the_heatmap_is_drawn_and_changes(&browser);
     the_pieces_are_labelled_with_their_body_parts(&browser);
@@ -275,15 +275,11 @@ fn the_page_keeps_up(browser: &Browser, demo: &Demo) {
     std::thread::sleep(Duration::from_secs(5));
     let after = browser.run(STATS_PROBE);
     let (process_after, sessions_after) = (process_cpu_ns(demo_pid), session_cpu_ns(demo_pid));
-    let delta = |key: &str| after[key].as_f64().unwrap() - before[key].as_f64().unwrap();
-    let seconds = delta("now") / 1e3;
-    let fps = delta("draws") / seconds;
-    let updates_per_second = delta("updates") / seconds;
-    let bytes_per_update = delta("updateBytes") / delta("updates").max(1.0);
-    let raw_per_update = delta("rawUpdateBytes") / delta("updates").max(1.0);
+    let PageRates { seconds, fps, updates_per_s, bytes_per_update, raw_bytes_per_update: raw_per_update, .. } =
+        PageRates::between(&before, &after);
     let percent = |ns: u64| ns as f64 / 1e9 / seconds * 100.0;
     println!(
-        "browser: {fps:.1} fps (draws of new updates), {updates_per_second:.1} updates/s, {bytes_per_update:.0} bytes/update \
+        "browser: {fps:.1} fps (draws of new updates), {updates_per_s:.1} updates/s, {bytes_per_update:.0} bytes/update \
          ({raw_per_update:.0} with raw responses: {:.1} %), decoding {:.3} ms/update, \
          geometry {} bytes, render {:.2} ms/draw, over {seconds:.1} s, 30,848 sensors",
         100.0 * bytes_per_update / raw_per_update,

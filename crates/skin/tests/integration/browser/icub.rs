@@ -8,11 +8,11 @@
 //! 16-bit one), the colour range control changes the scale, and the page
 //! says so plainly when the skin stops and when the viewer does.
 
+use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use serde_json::json;
 use skinware_geometry::{Calibration, SkinGeometry};
 
 use super::*;
@@ -123,14 +123,14 @@ impl Drop for Icub {
 
 #[test]
 fn icub_skin_in_headless_chromium() {
-    let Some((chromedriver, chromium)) = browser_programs("icub_skin_in_headless_chromium") else {
+    let Some(programs) = browser_programs("icub_skin_in_headless_chromium") else {
         return;
     };
     let _alone = one_skin_at_a_time();
     let mut icub = Icub::prepare();
     let url = icub.start_view();
-    let browser = Browser::start(&chromedriver, &chromium);
-    browser.command("POST", "/url", Some(&json!({ "url": url })));
+    let browser = Browser::start(&programs);
+    browser.open(&url);
 
     before_the_skin_runs_its_layers_are_connecting(&browser);
     let started = Instant::now();

@@ -16,35 +16,28 @@
 mod demo;
 mod icub;
 
-use std::io::{Read, Write};
-use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::Child;
 use std::time::{Duration, Instant};
 
-use serde_json::{Value, json};
+use serde_json::Value;
+use skinware_bench::chromium::{self, Programs, STATS_PROBE};
 
 /// chromedriver and Chromium, if both are installed; `None` (the test
 /// then skips, saying why) if not, except under `CI=true`, which fails.
-fn browser_programs(test: &str) -> Option<(PathBuf, PathBuf)> {
-    let chromedriver = find_program(&["chromedriver"]);
-    let chromium = find_program(&["chromium", "chromium-browser", "google-chrome"]);
-    if let (Some(chromedriver), Some(chromium)) = (chromedriver, chromium) {
-        return Some((chromedriver, chromium));
+fn browser_programs(test: &str) -> Option<Programs> {
+    match Programs::find() {
+        Ok(programs) => Some(programs),
+        Err(reason) => {
+            assert!(std::env::var("CI").as_deref() != Ok("true"), "CI must run the browser test, but {reason}");
+            println!("SKIPPED: {test}: {reason}");
+            None
+        }
     }
-    let reason = "chromium and chromedriver are not installed (Debian: apt-get install chromium chromium-driver)";
-    assert!(std::env::var("CI").as_deref() != Ok("true"), "CI must run the browser test, but {reason}");
-    println!("SKIPPED: {test}: {reason}");
-    None
-}
-
-fn find_program(names: &[&str]) -> Option<PathBuf> {
-    let path = std::env::var_os("PATH")?;
-    names.iter().flat_map(|name| std::env::split_paths(&path).map(move |dir| dir.join(name))).find(|p| p.is_file())
 }
 
 fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
 }
 
 /// Where screenshots go: `target/browser/`, wherever the target directory is.
@@ -72,152 +65,40 @@ fn wait_for_exit(child: &mut Child, within: Duration) -> Option<std::process::Ex
 }
 
 /// Polls `probe` until it returns something, or fails the test naming `what`.
-fn wait_for<T>(what: &str, within: Duration, mut probe: impl FnMut() -> Option<T>) -> T {
-    let started = Instant::now();
-    loop {
-        if let Some(value) = probe() {
-            return value;
-        }
-        assert!(started.elapsed() < within, "timed out after {within:?} waiting for {what}");
-        std::thread::sleep(Duration::from_millis(100));
-    }
+fn wait_for<T>(what: &str, within: Duration, probe: impl FnMut() -> Option<T>) -> T {
+    chromium::wait_for(what, within, probe).unwrap_or_else(|e| panic!("{e}"))
 }
 
-/// One HTTP/1.1 exchange with chromedriver, which answers with a
-/// Content-Length (and may keep the connection open regardless).
-fn http(port: u16, method: &str, path: &str, body: Option<&Value>) -> Result<Value, String> {
-    let address = ([127, 0, 0, 1], port).into();
-    let mut stream = TcpStream::connect_timeout(&address, Duration::from_secs(5)).map_err(|e| e.to_string())?;
-    stream.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
-    let body = body.map(Value::to_string).unwrap_or_default();
-    write!(
-        stream,
-        "{method} {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nConnection: close\r\n\
-         Content-Type: application/json; charset=utf-8\r\nContent-Length: {}\r\n\r\n{body}",
-        body.len()
-    )
-    .map_err(|e| e.to_string())?;
-    let mut reply = Vec::new();
-    let mut chunk = [0u8; 64 * 1024];
-    let (head_end, length) = loop {
-        let n = stream.read(&mut chunk).map_err(|e| format!("{method} {path}: {e}"))?;
-        if n == 0 {
-            return Err(format!("{method} {path}: connection closed after {} bytes", reply.len()));
-        }
-        reply.extend_from_slice(&chunk[..n]);
-        if let Some(at) = reply.windows(4).position(|w| w == b"\r\n\r\n") {
-            let head = String::from_utf8_lossy(&reply[..at]).to_ascii_lowercase();
-            let length = head
-                .lines()
-                .find_map(|l| l.strip_prefix("content-length:"))
-                .and_then(|v| v.trim().parse::<usize>().ok());
-            break (at + 4, length.ok_or_else(|| format!("{method} {path}: no Content-Length in {head:?}"))?);
-        }
-    };
-    while reply.len() < head_end + length {
-        let n = stream.read(&mut chunk).map_err(|e| format!("{method} {path}: {e}"))?;
-        if n == 0 {
-            return Err(format!("{method} {path}: reply cut short"));
-        }
-        reply.extend_from_slice(&chunk[..n]);
-    }
-    let head = String::from_utf8_lossy(&reply[..head_end]);
-    let status: u16 = head.split_whitespace().nth(1).and_then(|s| s.parse().ok()).unwrap_or(0);
-    let body = &reply[head_end..head_end + length];
-    let value: Value = serde_json::from_slice(body)
-        .map_err(|e| format!("{method} {path}: not JSON ({e}): {}", String::from_utf8_lossy(body)))?;
-    if status != 200 {
-        return Err(format!("{method} {path}: HTTP {status}: {}", value["value"]["message"]));
-    }
-    Ok(value["value"].clone())
-}
-
-/// chromedriver and one headless Chromium session; both ended when dropped.
-struct Browser {
-    driver: Child,
-    port: u16,
-    session: String,
-}
+/// The bench's WebDriver client ([`chromium::Browser`]), whose failures
+/// fail the test.
+struct Browser(chromium::Browser);
 
 impl Browser {
-    fn start(chromedriver: &Path, chromium: &Path) -> Browser {
-        let port = free_port();
-        let driver = Command::new(chromedriver)
-            .arg(format!("--port={port}"))
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("start chromedriver");
-        let mut browser = Browser { driver, port, session: String::new() };
-        wait_for("chromedriver to be ready", Duration::from_secs(60), || {
-            http(port, "GET", "/status", None).ok().filter(|v| v["ready"] == true)
-        });
-        let capabilities = json!({ "capabilities": { "alwaysMatch": {
-            "browserName": "chrome",
-            "goog:chromeOptions": {
-                "binary": chromium,
-                "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-                         "--window-size=1400,900", "--hide-scrollbars"],
-            },
-        }}});
-        let session = http(port, "POST", "/session", Some(&capabilities)).expect("start a Chromium session");
-        browser.session = session["sessionId"].as_str().expect("a session id").to_owned();
-        browser
+    fn start(programs: &Programs) -> Browser {
+        Browser(chromium::Browser::start(programs).unwrap_or_else(|e| panic!("start a Chromium session: {e}")))
     }
 
-    fn command(&self, method: &str, path: &str, body: Option<&Value>) -> Value {
-        let path = format!("/session/{}{path}", self.session);
-        http(self.port, method, &path, body).unwrap_or_else(|e| panic!("WebDriver: {e}"))
+    fn open(&self, url: &str) {
+        self.0.open(url).unwrap_or_else(|e| panic!("open {url}: {e}"));
     }
 
     fn run(&self, script: &str) -> Value {
-        self.command("POST", "/execute/sync", Some(&json!({ "script": script, "args": [] })))
+        self.0.run(script).unwrap_or_else(|e| panic!("{e}"))
     }
 
     /// Runs `script`, which calls `done(value)` (its last argument) when
     /// it has the answer; returns the value.
     fn run_async(&self, script: &str) -> Value {
-        let script = format!("const done = arguments[arguments.length - 1];\n{script}");
-        self.command("POST", "/execute/async", Some(&json!({ "script": script, "args": [] })))
+        self.0.run_async(script).unwrap_or_else(|e| panic!("{e}"))
     }
 
     fn screenshot(&self, name: &str) -> PathBuf {
-        let encoded = self.command("GET", "/screenshot", None);
-        let png = base64_decode(encoded.as_str().expect("base64 screenshot"));
-        assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n", "the screenshot is not a PNG");
+        let png = self.0.screenshot_png().unwrap_or_else(|e| panic!("{e}"));
         let path = artifact_dir().join(name);
         std::fs::write(&path, &png).unwrap();
         println!("browser: screenshot {} ({} bytes)", path.display(), png.len());
         path
     }
-}
-
-impl Drop for Browser {
-    fn drop(&mut self) {
-        if !self.session.is_empty() {
-            let _ = http(self.port, "DELETE", &format!("/session/{}", self.session), None);
-        }
-        let _ = self.driver.kill();
-        let _ = self.driver.wait();
-    }
-}
-
-fn base64_decode(text: &str) -> Vec<u8> {
-    let value = |c: u8| match c {
-        b'A'..=b'Z' => c - b'A',
-        b'a'..=b'z' => c - b'a' + 26,
-        b'0'..=b'9' => c - b'0' + 52,
-        b'+' => 62,
-        b'/' => 63,
-        _ => panic!("not base64: {c:?}"),
-    };
-    let digits: Vec<u8> = text.bytes().filter(|c| !c.is_ascii_whitespace() && *c != b'=').map(value).collect();
-    let mut out = Vec::with_capacity(digits.len() * 3 / 4);
-    for chunk in digits.chunks(4) {
-        let bits = chunk.iter().enumerate().fold(0u32, |acc, (i, &d)| acc | u32::from(d) << (18 - 6 * i));
-        out.extend_from_slice(&bits.to_be_bytes()[1..chunk.len()]);
-    }
-    out
 }
 
 /// The canvas: how many distinct colours (up to 1000), a hash of its
@@ -234,8 +115,6 @@ const CANVAS_PROBE: &str = r#"
     }
     return { width: c.width, height: c.height, distinct: colours.size, hash, lit };
 "#;
-
-const STATS_PROBE: &str = "return Object.assign({ now: performance.now() }, window.skinStats);";
 
 fn layer_state(browser: &Browser, layer: &str) -> (String, String) {
     let script = format!(
