@@ -345,6 +345,7 @@ mod tests {
             floor_bytes: None,
             floor_reads_skin: false,
             taxels: None,
+            record_compression: None,
             chromium: true,
         }
     }
