@@ -111,7 +111,8 @@ pub struct KilohertzOptions {
     pub only: Option<Part>,
     /// `reader_wake` of the layers' writers; the library's default if `None`.
     pub wake: Option<Wake>,
-    /// Bytes of the floor server's message; [`UPDATE_BYTES`] if `None`.
+    /// Bytes of the floor server's message; the viewer's update for the
+    /// paper's skin (`UPDATE_BYTES`, 61,872) if `None`.
     pub floor_bytes: Option<usize>,
     /// The floor server reads the skin's layers as the viewer does.
     pub floor_reads_skin: bool,

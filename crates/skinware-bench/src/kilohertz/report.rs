@@ -166,7 +166,10 @@ pub(super) struct KilohertzReport {
 /// Prints the report's tables.
 pub(super) fn print(report: &KilohertzReport) {
     print_phases(report);
-    print_viewer(report);
+    // `--only runs` has no viewer part to print.
+    if !report.viewer.is_empty() {
+        print_viewer(report);
+    }
     if !report.floor.is_empty() {
         print_floor(report);
     }
@@ -208,7 +211,7 @@ fn print_phases(report: &KilohertzReport) {
         }
         for browser in &phase.browsers {
             println!(
-                "  browser at {} Hz: {:.1} updates/s, {:.1} kB per update, latency p50 {} µs p99 {} µs",
+                "  browser at {:.2} Hz: {:.1} updates/s, {:.1} kB per update, latency p50 {} µs p99 {} µs",
                 browser.ack_hz,
                 browser.updates_per_s,
                 browser.kb_per_update,
