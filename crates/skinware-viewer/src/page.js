@@ -323,6 +323,10 @@ function computeLayout() {
   }
   image = context.createImageData(width, height);
   layout = { width, height, scale, minX, minY, margin, size, offset, hatch, pick, pixels: new Uint32Array(image.data.buffer) };
+  // Once per layout, not per draw: a draw writes the taxels' squares only,
+  // always the same pixels in the same order, and the overlays go on the
+  // canvas, not here: filling the whole canvas every draw was work for nothing.
+  layout.pixels.fill(BACKGROUND);
   placeLabels();
   dirty = true;
 }
@@ -371,7 +375,6 @@ function typicalSpacing() {
 
 function render() {
   const { width, size, offset, hatch, pixels } = layout;
-  pixels.fill(BACKGROUND);
   skin.layers.forEach((layer, l) => {
     const state = (layerStatus[l] || { state: 'connecting' }).state;
     const stripes = HATCH[state];
