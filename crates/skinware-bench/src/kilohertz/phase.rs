@@ -15,9 +15,9 @@ use anyhow::{Context, Result, bail};
 use skinware::{Reader, ReaderOptions, WriterStats, histogram_quantile};
 
 use super::browser::{SeqClock, WindowMarks, browse};
-use super::cpu::{clock_ticks_per_s, cpu_ticks};
+use super::cpu::{MachineTicks, clock_ticks_per_s, cpu_ticks};
 use super::page::{ChromiumFigures, ChromiumPage};
-use super::report::{BrowserFigures, PhaseReport, ServiceCost, WriterFigures};
+use super::report::{BrowserFigures, MachineFigures, PhaseReport, ServiceCost, WriterFigures};
 use super::{APPS, ASAP_APPS, BROWSERS, DISPLAY_HZ, LAYERS, Wake};
 use crate::app::AppSamples;
 use crate::chromium::Programs;
@@ -121,12 +121,15 @@ pub(super) fn run_phase(
     let contact = if loaded { Reader::open_with("default", "contact", &reader_options).ok() } else { None };
     let contact_before = contact.as_ref().map(Reader::writer_stats);
     let before_cpu = cpu_ticks(&pids);
+    let machine_before = MachineTicks::now();
     let started = Instant::now();
     let _ = marks.start.set(started);
     std::thread::sleep(Duration::from_secs_f64(seconds));
     let _ = marks.end.set(Instant::now());
     let elapsed = started.elapsed().as_secs_f64();
     let after_cpu = cpu_ticks(&pids);
+    let machine =
+        MachineTicks::now().zip(machine_before).map(|(after, before)| machine_figures(after.since(before), elapsed));
     let after_stats: Vec<WriterStats> = readers.iter().map(Reader::writer_stats).collect();
     let page_after = load.chromium.as_ref().map(ChromiumPage::counters).transpose()?;
     let taxels: usize = readers.iter().map(|r| r.payload_bytes() / 2).sum();
@@ -165,7 +168,18 @@ pub(super) fn run_phase(
         browsers,
         chromium,
         contact_service,
+        machine,
     })
+}
+
+/// The machine's CPU over a window of `seconds`, from its ticks.
+fn machine_figures(ticks: MachineTicks, seconds: f64) -> MachineFigures {
+    let percent = |ticks: u64| 100.0 * ticks as f64 / clock_ticks_per_s() / seconds.max(1e-9);
+    MachineFigures {
+        busy_percent: percent(ticks.busy),
+        idle_percent: percent(ticks.idle),
+        steal_ms: 1e3 * ticks.steal as f64 / clock_ticks_per_s(),
+    }
 }
 
 /// Chromium's processes, by name in a phase's CPU.

@@ -42,6 +42,21 @@ pub(super) struct PhaseReport {
     /// The contact service's cost over the window, as `skin services`
     /// reports it (its channel's write time), if it ran.
     pub(super) contact_service: Option<ServiceCost>,
+    /// The whole machine's CPU over the window (`/proc/stat`), if readable.
+    pub(super) machine: Option<MachineFigures>,
+}
+
+/// The whole machine's CPU over a run's window: everything on it, the
+/// bench's processes and anything else.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub(super) struct MachineFigures {
+    /// Busy, % of one CPU (200 is both of 2 cores).
+    pub(super) busy_percent: f64,
+    /// Idle, % of one CPU.
+    pub(super) idle_percent: f64,
+    /// Time the hypervisor took from vCPUs that had work (steal), ms summed
+    /// over the CPUs: no thread of the guest ran then, whatever its priority.
+    pub(super) steal_ms: f64,
 }
 
 /// A service's write time per frame over the measured window.
@@ -202,6 +217,12 @@ fn print_phases(report: &KilohertzReport) {
         println!("{} run, CPU (% of one core):", phase.phase);
         for (name, percent) in &phase.cpu_percent {
             println!("  {name}: {percent:.1} %");
+        }
+        if let Some(machine) = &phase.machine {
+            println!(
+                "  the whole machine: busy {:.1} %, idle {:.1} % (of 200); the hypervisor took {:.0} ms from vCPUs with work (steal)",
+                machine.busy_percent, machine.idle_percent, machine.steal_ms
+            );
         }
         for (name, latency) in &phase.latency_us {
             println!(
