@@ -290,6 +290,9 @@ impl SkinGeometry {
     }
 
     /// The neighbours of global sensor `global`.
+    // Inline across crates: the contact service's component search calls it
+    // for every touched taxel, and the call cost more than the lookup.
+    #[inline]
     pub fn neighbours_of(&self, global: usize) -> &[u32] {
         self.neighbours.of(global)
     }

@@ -35,6 +35,7 @@ pub struct NeighbourGraph {
 
 impl NeighbourGraph {
     /// The neighbours of sensor `i`.
+    #[inline]
     pub fn of(&self, i: usize) -> &[u32] {
         &self.list[self.offsets[i] as usize..self.offsets[i + 1] as usize]
     }

@@ -172,9 +172,11 @@ pub struct ContactDetector {
     residuals: Vec<f32>,
     /// The dead and stuck taxels of the last frame, for the regions' counts.
     dead_or_stuck: Vec<u32>,
-    /// One bit per taxel: already in a component this frame. A bit set
-    /// rather than a label per taxel, so that clearing it costs 4 KB, not 120.
-    visited: Vec<u64>,
+    /// One bit per taxel: touched this frame and not yet in a component.
+    /// Set from `touched` before the search, cleared as the search reaches
+    /// each taxel. The search tests one bit of 4 KB per neighbour, rather
+    /// than the neighbour's state (30 KB of states) and a visited bit.
+    pending: Vec<u64>,
     queue: Vec<u32>,
     accumulators: Vec<Accumulator>,
     touched_regions: Vec<u32>,
@@ -252,7 +254,7 @@ impl ContactDetector {
             touched: Vec::new(),
             residuals: vec![0.0; n],
             dead_or_stuck: Vec::new(),
-            visited: vec![0; n.div_ceil(64)],
+            pending: vec![0; n.div_ceil(64)],
             queue: Vec::new(),
             accumulators: vec![Accumulator::default(); regions],
             touched_regions: Vec::new(),
@@ -364,11 +366,16 @@ impl ContactDetector {
         for found in &mut self.found {
             found.clear();
         }
-        self.visited.fill(0);
+        // The search leaves every bit clear; cleared anyway (4 KB), so that a
+        // search cut short by a panic cannot leave phantom taxels behind.
+        self.pending.fill(0);
+        for &i in &self.touched {
+            set(&mut self.pending, i as usize);
+        }
         self.load_contact_data(geometry);
         for k in 0..self.touched.len() {
             let start = self.touched[k] as usize;
-            if is_set(&self.visited, start) {
+            if !is_set(&self.pending, start) {
                 continue;
             }
             self.collect_component(geometry, start);
@@ -397,18 +404,18 @@ impl ContactDetector {
         std::hint::black_box(bits);
     }
 
-    /// Breadth-first search from `start` over touched taxels not yet
-    /// visited, marking them visited and leaving them in `queue`.
+    /// Breadth-first search from `start` over pending taxels (touched, not
+    /// yet in a component), clearing their bits and leaving them in `queue`.
     fn collect_component(&mut self, geometry: &SkinGeometry, start: usize) {
         self.queue.clear();
         self.queue.push(start as u32);
-        set(&mut self.visited, start);
+        clear(&mut self.pending, start);
         let mut k = 0;
         while k < self.queue.len() {
             let i = self.queue[k] as usize;
             for &j in geometry.neighbours_of(i) {
-                if self.states[j as usize] == TaxelState::TOUCHED && !is_set(&self.visited, j as usize) {
-                    set(&mut self.visited, j as usize);
+                if is_set(&self.pending, j as usize) {
+                    clear(&mut self.pending, j as usize);
                     self.queue.push(j);
                 }
             }
@@ -552,6 +559,10 @@ fn is_set(bits: &[u64], i: usize) -> bool {
 
 fn set(bits: &mut [u64], i: usize) {
     bits[i / 64] |= 1 << (i % 64);
+}
+
+fn clear(bits: &mut [u64], i: usize) {
+    bits[i / 64] &= !(1 << (i % 64));
 }
 
 #[cfg(test)]
