@@ -175,9 +175,10 @@ pub(super) fn run_phase(
 /// The machine's CPU over a window of `seconds`, from its ticks.
 fn machine_figures(ticks: MachineTicks, seconds: f64) -> MachineFigures {
     let percent = |ticks: u64| 100.0 * ticks as f64 / clock_ticks_per_s() / seconds.max(1e-9);
+    let (idle_percent, steal_percent) = (percent(ticks.idle), percent(ticks.steal));
     MachineFigures {
-        busy_percent: percent(ticks.busy),
-        idle_percent: percent(ticks.idle),
+        busy_percent: (100.0 * ticks.cpus as f64 - idle_percent - steal_percent).max(0.0),
+        idle_percent,
         steal_ms: 1e3 * ticks.steal as f64 / clock_ticks_per_s(),
     }
 }

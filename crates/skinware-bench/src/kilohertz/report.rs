@@ -50,7 +50,7 @@ pub(super) struct PhaseReport {
 /// bench's processes and anything else.
 #[derive(Clone, Copy, Debug, Serialize)]
 pub(super) struct MachineFigures {
-    /// Busy, % of one CPU (200 is both of 2 cores).
+    /// Busy, % of one CPU (200 is both of 2 cores): neither idle nor stolen.
     pub(super) busy_percent: f64,
     /// Idle, % of one CPU.
     pub(super) idle_percent: f64,
