@@ -270,7 +270,9 @@ fn read_reply(stream: &mut TcpStream) -> Result<(u16, Vec<u8>), String> {
             break (at + 4, length.ok_or_else(|| format!("no Content-Length in {head:?}"))?);
         }
     };
-    while reply.len() < head_end + length {
+    // A reply is never near that size; a length that is cannot be read.
+    let end = head_end.checked_add(length).filter(|&end| end <= 1 << 30).ok_or("a reply longer than 1 GiB")?;
+    while reply.len() < end {
         let n = stream.read(&mut chunk).map_err(|e| e.to_string())?;
         if n == 0 {
             return Err("reply cut short".into());
@@ -279,7 +281,7 @@ fn read_reply(stream: &mut TcpStream) -> Result<(u16, Vec<u8>), String> {
     }
     let head = String::from_utf8_lossy(&reply[..head_end]);
     let status = head.split_whitespace().nth(1).and_then(|s| s.parse().ok()).unwrap_or(0);
-    Ok((status, reply[head_end..head_end + length].to_vec()))
+    Ok((status, reply[head_end..end].to_vec()))
 }
 
 /// Standard base64 (what WebDriver's screenshots are), or `None` if `text`

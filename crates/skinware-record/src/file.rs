@@ -22,7 +22,7 @@ use crate::{
 /// make the reader allocate more than the file holds.
 const READ_STEP: usize = 1 << 20;
 /// The longest record accepted, and the most a chunk may hold uncompressed.
-/// skinware writes 1 MiB chunks; ROS 2 bags write a few MiB.
+/// skinware writes chunks of up to 8 MiB; ROS 2 bags write a few MiB.
 const RECORD_LIMIT: usize = 256 << 20;
 
 /// How a record stream ended.

@@ -99,6 +99,14 @@ fn load(file: &str) -> Result<(SkinGeometry, Vec<Frame>)> {
         SkinGeometry::decode(cursor.take(geometry_bytes)?).map_err(|e| format!("{file}: its geometry: {e}"))?;
     let count = cursor.length()?;
     let (layers, n) = (geometry.layers.len(), geometry.sensor_count());
+    // A frame of no bytes (a skin of no layers), or more frames than the
+    // file holds: refused before any is read.
+    let frame_bytes = 2 * layers + 2 * n;
+    if frame_bytes == 0 || count > cursor.rest.len() / frame_bytes {
+        return Err(
+            format!("{file} says {count} frames of {frame_bytes} bytes; it holds fewer: not a recording").into()
+        );
+    }
     let mut frames = Vec::new();
     for _ in 0..count {
         let flags = cursor.take(2 * layers)?;
@@ -125,6 +133,9 @@ fn replay(file: &str, rounds: usize) -> Result<()> {
     // detector's stays in the caches.
     let mut sweep = vec![1u64; 64 << 17];
     for mode in modes.split_whitespace() {
+        if mode != "hot" && mode != "cold" {
+            return Err(format!("MODES: {mode:?} is neither hot nor cold").into());
+        }
         let (mut times, mut digest, mut touched) = (Vec::new(), 0xcbf2_9ce4_8422_2325u64, 0usize);
         for _ in 0..rounds {
             let mut detector = ContactDetector::new(&geometry, ContactParams::default());

@@ -35,13 +35,15 @@ const ZSTD_LEVEL: u32 = 2;
 /// The file's writer.
 pub(super) type McapWriter = mcap::Writer<BufWriter<BoundedWrites>>;
 
-/// The largest write the file gets in one system call: a finished chunk is
-/// written in one `write_all`, and a chunk is up to `CHUNK_BYTES` (8 MiB)
-/// uncompressed. On a kernel without full preemption (`preempt=none`, as
-/// here) a writer thread woken during a `write` into the page cache waits
-/// for it to end: `perf sched` of the 100,000-taxel skin at 1 kHz found the
-/// file thread's 1 MiB writes holding woken writers for 0.5-0.6 ms. 128 KiB
-/// is an eighth of that, for 2,400 calls a second at 312 MB/s.
+/// The largest write the file gets in one system call. The MCAP writer
+/// streams each chunk through the file's 256 KiB buffer, which writes
+/// itself out in one call when full, and a message larger than the buffer
+/// goes straight through. On a kernel without full preemption
+/// (`preempt=none`, as here) a writer thread woken during a `write` into
+/// the page cache waits for it to end: `perf sched` of the 100,000-taxel
+/// skin at 1 kHz found the file thread holding woken writers for
+/// 0.44-0.60 ms in its writes. 128 KiB halves the buffer's write, for
+/// about 2,400 calls a second at 312 MB/s.
 const LARGEST_WRITE: usize = 128 << 10;
 
 /// The recording's file, written at most [`LARGEST_WRITE`] bytes per call.

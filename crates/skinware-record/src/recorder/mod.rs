@@ -58,9 +58,9 @@ const FILE_THREAD_NICE: i32 = -10;
 /// flush interval). The MCAP writer keeps an index entry per chunk in memory
 /// until the file's summary, about 650 bytes each: with 1 MiB chunks the
 /// recorder grew 0.06 MiB/s (230 MB an hour) at the paper's skin at 1 kHz,
-/// with 8 MiB chunks an eighth of that. The chunk is held in memory while
-/// it fills; its write is cut into system calls of 1 MiB
-/// (`file_start::BoundedWrites`).
+/// with 8 MiB chunks about 10 KB/s. The chunk is not held in memory: the
+/// writer streams it to the file as it fills (it seeks back to its head at
+/// the end), so its size costs no memory.
 const CHUNK_BYTES: u64 = 8 << 20;
 /// How often the statistics messages are written.
 const STATS_INTERVAL: Duration = Duration::from_secs(1);
