@@ -117,6 +117,14 @@ impl Browser {
     /// Chromium session of 1400 × 900 pixels (without GPU or sandbox: it
     /// runs as root in containers, and on machines without a GPU).
     pub fn start(programs: &Programs) -> Result<Browser, Error> {
+        // WebDriver's JSON holds text: a path that is not UTF-8 cannot go in it.
+        let binary = programs.chromium.to_str().ok_or_else(|| Error::Start {
+            program: programs.chromium.display().to_string(),
+            source: std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                "its path is not UTF-8, which WebDriver needs: install it or link it under a UTF-8 path",
+            ),
+        })?;
         let port = TcpListener::bind("127.0.0.1:0")
             .and_then(|listener| listener.local_addr())
             .map_err(|source| Error::Start { program: "a port for chromedriver".into(), source })?
@@ -135,7 +143,7 @@ impl Browser {
         let capabilities = json!({ "capabilities": { "alwaysMatch": {
             "browserName": "chrome",
             "goog:chromeOptions": {
-                "binary": programs.chromium,
+                "binary": binary,
                 "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
                          "--window-size=1400,900", "--hide-scrollbars"],
             },
