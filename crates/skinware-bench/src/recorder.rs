@@ -94,11 +94,7 @@ pub struct RecorderReport {
 /// the same 5 layers, prints it and writes `recorder.json` (or
 /// `recorder-TAXELS.json`).
 pub fn run(options: &RunOptions, taxels: Option<usize>) -> Result<RecorderReport> {
-    if let Some(taxels) = taxels
-        && !(5..=1_000_000).contains(&taxels)
-    {
-        bail!("--taxels {taxels}: give from 5 (one per layer) to 1,000,000");
-    }
+    crate::skin_config::check_taxels(taxels)?;
     let seconds = options.seconds_or(5.0, 60.0);
     if !(seconds.is_finite() && seconds >= 2.0) {
         bail!("--seconds must be at least 2 (the memory is sampled once a second)");

@@ -9,6 +9,19 @@ use anyhow::{Result, bail};
 pub const PAPER_SKIN: &str = include_str!("../../../examples/paper-virtual-skin.toml");
 /// Taxels of the paper's skin.
 pub const PAPER_TAXELS: usize = 30_848;
+/// Layers of the paper's skin.
+pub const PAPER_LAYERS: usize = 5;
+
+/// Refuses a `--taxels` the paper's 5 layers cannot be given: at least one
+/// taxel per layer, at most 1,000,000.
+pub fn check_taxels(taxels: Option<usize>) -> Result<()> {
+    if let Some(taxels) = taxels
+        && !(PAPER_LAYERS..=1_000_000).contains(&taxels)
+    {
+        bail!("--taxels {taxels}: give from {PAPER_LAYERS} (one per layer) to 1,000,000");
+    }
+    Ok(())
+}
 
 /// How the paper's skin is changed for a bench.
 #[derive(Clone, Debug)]

@@ -37,7 +37,7 @@ use phase::{LoadOptions, SkinChoice, run_phase};
 use report::{BrowserCost, FloorRun, KilohertzReport, PhaseReport, ViewerRun};
 use viewer::{Floor, viewer_scaling};
 
-const LAYERS: usize = 5;
+const LAYERS: usize = crate::skin_config::PAPER_LAYERS;
 /// Taxels of the paper's skin, over its layers.
 const TAXELS: usize = 30_848;
 const APPS: usize = 15;
@@ -156,11 +156,7 @@ pub fn bench(options: &KilohertzOptions) -> Result<()> {
              add --only runs"
         );
     }
-    if let Some(taxels) = *taxels
-        && !(LAYERS..=1_000_000).contains(&taxels)
-    {
-        bail!("--taxels {taxels}: give from {LAYERS} (one per layer) to 1,000,000");
-    }
+    crate::skin_config::check_taxels(*taxels)?;
     if *chromium && only == Some(Part::Viewer) {
         bail!(
             "--chromium opens the viewer's page during the loaded run, which --only viewer leaves out: drop one of them"
