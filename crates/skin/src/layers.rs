@@ -21,6 +21,12 @@ pub struct LayerReport {
     pub nominal_rate_hz: f64,
     pub frames: u64,
     pub overruns: u64,
+    /// Deadlines skipped because a period's work ran past the next one.
+    pub missed_periods: u64,
+    /// Mean and worst lateness of the writer's wake-ups after their
+    /// deadlines: how well the machine keeps the writer's time.
+    pub lateness_ns_mean: u64,
+    pub lateness_ns_max: u64,
     pub faults: u64,
     pub restarts: u64,
     pub writer_pid: u32,
@@ -134,6 +140,9 @@ pub fn reports(sampled: Vec<Sampled>) -> Vec<LayerReport> {
             nominal_rate_hz: topology.as_ref().map_or(0.0, |t| t.rate_hz),
             frames: stats.frames,
             overruns: stats.overruns,
+            missed_periods: stats.missed_periods,
+            lateness_ns_mean: stats.lateness_ns_mean,
+            lateness_ns_max: stats.lateness_ns_max,
             faults: stats.faults,
             restarts: reader.writer_generation().saturating_sub(1),
             writer_pid: reader.writer_pid(),

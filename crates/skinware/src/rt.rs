@@ -118,6 +118,21 @@ impl Ticker {
         Ticker { period_ns, next_ns: start_ns }
     }
 
+    /// A schedule on the grid `origin_ns + k * period` (CLOCK_MONOTONIC)
+    /// whose first deadline is the first point of the grid not yet passed.
+    /// Threads given origins a fraction of a period apart keep their
+    /// deadlines that far apart, however late each one starts.
+    pub fn on_grid(period: Duration, origin_ns: u64) -> Ticker {
+        let mut ticker = Ticker::starting_at(period, origin_ns);
+        let now = os::monotonic_ns();
+        if ticker.next_ns < now {
+            let behind = now - ticker.next_ns;
+            ticker.next_ns =
+                ticker.next_ns.saturating_add(behind.div_ceil(ticker.period_ns).saturating_mul(ticker.period_ns));
+        }
+        ticker
+    }
+
     /// A schedule at `hz` frames per second (at least one per ~584 years).
     pub fn from_hz(hz: f64) -> Ticker {
         Ticker::new(Duration::from_secs_f64(1.0 / hz.max(1e-9)))
@@ -311,6 +326,23 @@ mod tests {
         assert_eq!((late.deadline_ns - start) % 2_000_000, 0, "left the grid: {late:?}");
         let next = ticker.wait(&stop).unwrap();
         assert_eq!(next.deadline_ns, late.deadline_ns + 2_000_000);
+    }
+
+    #[test]
+    fn a_ticker_on_a_grid_starts_at_its_next_point_not_in_the_past() {
+        let period = Duration::from_millis(10);
+        let now = os::monotonic_ns();
+        // An origin 3.5 periods ago: the first deadline is the grid's next point.
+        let past = Ticker::on_grid(period, now - 35_000_000);
+        assert!(past.next_ns >= now, "a deadline in the past would count as missed periods");
+        assert_eq!((past.next_ns - (now - 35_000_000)) % 10_000_000, 0, "left the grid");
+        assert!(past.next_ns - now <= 10_000_000);
+        // An origin ahead is kept as it is.
+        let ahead = Ticker::on_grid(period, now + 5_000_000_000);
+        assert_eq!(ahead.next_ns, now + 5_000_000_000);
+        // An origin at the clock's start with a period near the clock's range does not overflow.
+        let far = Ticker::on_grid(Duration::from_secs(u64::MAX / 2_000_000_000), 0);
+        assert!(far.next_ns > 0);
     }
 
     #[test]
