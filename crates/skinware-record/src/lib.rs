@@ -28,7 +28,7 @@ pub use error::RecordError;
 pub use file::{ChannelSummary, RecordingInfo, recover, scan};
 /// The MCAP crate this one writes with, for readers of its records.
 pub use mcap;
-pub use recorder::{Compression, Progress, RecordOptions, RecordSummary, Recorder, ServiceChoice};
+pub use recorder::{Compression, Progress, RecordOptions, RecordSummary, Recorder, ServiceChoice, Split, part_path};
 pub use replay::{AtEnd, Replay, ReplayOptions, ReplayReport};
 
 /// The recording format this crate writes (metadata `skinware.recording`,

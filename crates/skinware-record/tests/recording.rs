@@ -579,3 +579,80 @@ fn an_unwritable_path_or_an_existing_file_is_refused_before_recording() {
     .to_string();
     assert!(e.contains("no running layer \"tuch\"") && e.contains("touch"), "{e}");
 }
+
+/// Records `frames` layer frames, one every 4 ms, split by `split`; returns the summary.
+fn split_recording(
+    dir: &Path,
+    skin: &str,
+    frames: u64,
+    split: skinware_record::Split,
+) -> skinware_record::RecordSummary {
+    let (mut layer, _service) = channels_with_slots(dir, skin, 50, 32);
+    let options =
+        RecordOptions { split: Some(split), flush_interval: Duration::from_millis(100), ..options(dir, skin) };
+    let recorder = Recorder::start(&dir.join(format!("{skin}.mcap")), options).unwrap();
+    std::thread::sleep(Duration::from_millis(50));
+    for k in 1..=frames {
+        let mut frame = layer.begin();
+        frame.write_responses(0, &layer_frame(k, 50)).unwrap();
+        frame.publish();
+        std::thread::sleep(Duration::from_millis(4));
+    }
+    std::thread::sleep(Duration::from_millis(50));
+    recorder.finish().unwrap()
+}
+
+/// Every part of a split recording is a whole file, and together they hold
+/// each frame once, in order.
+fn check_parts(summary: &skinware_record::RecordSummary, skin: &str, frames_recorded: u64) {
+    assert!(summary.parts.len() >= 3, "{:?}", summary.parts);
+    assert_eq!(summary.path, summary.parts[0]);
+    let mut sequence = Vec::new();
+    let mut bytes = 0;
+    for (index, part) in summary.parts.iter().enumerate() {
+        assert_eq!(part, &skinware_record::part_path(&summary.path.with_file_name(format!("{skin}.mcap")), index));
+        let info = scan(part).unwrap();
+        assert_eq!(info.ending, Ending::Finished, "part {index} is finished: {info:?}");
+        assert_eq!(info.skin, skin);
+        assert!(info.channels.contains_key("touch") && info.channels.contains_key("events"), "{info:?}");
+        let touch = frames(part).remove("touch").unwrap_or_default();
+        for (bytes, _, seq, _) in &touch {
+            let responses: Vec<u16> = bytes.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect();
+            assert_eq!(responses, layer_frame(*seq, 50), "frame {seq} in part {index}");
+        }
+        sequence.extend(touch.iter().map(|(_, _, seq, _)| *seq));
+        bytes += std::fs::metadata(part).unwrap().len();
+    }
+    let expected: Vec<u64> = (1..=frames_recorded).collect();
+    assert_eq!(sequence, expected, "each frame once, in order, over the parts");
+    assert_eq!(summary.file_bytes, bytes, "the summary counts every part's bytes");
+    assert_eq!(summary.lost, 0);
+}
+
+#[test]
+fn a_split_recording_goes_on_in_whole_files_and_loses_no_frame_between_them() {
+    let dir = TempDir::new("split");
+    let by_time = skinware_record::Split { max_duration: Some(Duration::from_millis(300)), max_bytes: None };
+    let summary = split_recording(&dir.0, "spl", 300, by_time);
+    check_parts(&summary, "spl", 300);
+    // By size: a part closes once it holds 8 KB.
+    let by_size = skinware_record::Split { max_duration: None, max_bytes: Some(8_000) };
+    let summary = split_recording(&dir.0, "spb", 300, by_size);
+    check_parts(&summary, "spb", 300);
+    // A part that exists already is never overwritten: the recording stops with an error naming it.
+    let taken = skinware_record::part_path(&dir.0.join("spt.mcap"), 1);
+    std::fs::write(&taken, b"someone else's").unwrap();
+    let (mut layer, _service) = channels_with_slots(&dir.0, "spt", 50, 32);
+    let options =
+        RecordOptions { split: Some(by_time), flush_interval: Duration::from_millis(100), ..options(&dir.0, "spt") };
+    let recorder = Recorder::start(&dir.0.join("spt.mcap"), options).unwrap();
+    for k in 1..=150 {
+        let mut frame = layer.begin();
+        frame.write_responses(0, &layer_frame(k, 50)).unwrap();
+        frame.publish();
+        std::thread::sleep(Duration::from_millis(4));
+    }
+    let error = recorder.finish().unwrap_err().to_string();
+    assert!(error.contains("spt_001.mcap"), "{error}");
+    assert_eq!(std::fs::read(&taken).unwrap(), b"someone else's");
+}

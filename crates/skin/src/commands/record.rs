@@ -8,7 +8,7 @@ use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use skinware_record::{Compression, RecordOptions, RecordSummary, Recorder, ServiceChoice};
+use skinware_record::{Compression, RecordOptions, RecordSummary, Recorder, ServiceChoice, Split};
 
 /// Arguments of `skin record`.
 #[derive(clap::Args)]
@@ -51,6 +51,15 @@ pub struct Args {
     /// Needs root or an rtprio limit; refused, they read in the normal scheduler.
     #[arg(long, default_value_t = skinware_record::recorder::DEFAULT_READER_PRIORITY)]
     fifo_priority: u8,
+    /// Go on in a new file every this many seconds (at least 1): OUT.mcap
+    /// is written as OUT_000.mcap, OUT_001.mcap, ..., each a whole MCAP
+    /// file. A long recording needs it to keep the recorder's memory flat.
+    #[arg(long, value_name = "SECONDS")]
+    split_seconds: Option<f64>,
+    /// Go on in a new file once one holds this many MB (at least 1), as
+    /// --split-seconds does.
+    #[arg(long, value_name = "MB")]
+    split_mb: Option<f64>,
     /// Wait up to this many seconds for the skin to come up before recording.
     #[arg(long)]
     wait: Option<f64>,
@@ -113,11 +122,12 @@ pub fn run(args: &Args) -> Result<()> {
         Err(e) => return Err(e).with_context(|| format!("cannot record skin {}", args.skin)),
     };
     let channels = recorder.channels();
+    let first = recorder.parts().first().map_or_else(|| out.display().to_string(), |p| p.display().to_string());
+    let then = if args.split_seconds.is_some() || args.split_mb.is_some() { " and the parts after it" } else { "" };
     eprintln!(
-        "recording {} channel(s) of skin {} into {}: {}",
+        "recording {} channel(s) of skin {} into {first}{then}: {}",
         channels.len(),
         args.skin,
-        out.display(),
         channels.join(", ")
     );
     record_until_done(&recorder, args, &shutdown);
@@ -144,6 +154,7 @@ fn record_options(args: &Args) -> Result<RecordOptions> {
     if args.fifo_priority > 99 {
         bail!("--fifo-priority {} must be 0 (the normal scheduler) or 1 to 99", args.fifo_priority);
     }
+    let split = split(args.split_seconds, args.split_mb)?;
     let services = match &args.services {
         None => ServiceChoice::None,
         Some(names) if names.iter().any(|n| n == "*") => ServiceChoice::All,
@@ -160,8 +171,29 @@ fn record_options(args: &Args) -> Result<RecordOptions> {
         compression: args.compression.library(),
         reader_priority: args.fifo_priority,
         command: std::env::args().collect::<Vec<_>>().join(" "),
+        split,
         ..RecordOptions::default()
     })
+}
+
+/// The split asked for by `--split-seconds` and `--split-mb`, checked.
+fn split(seconds: Option<f64>, mb: Option<f64>) -> Result<Option<Split>> {
+    if let Some(seconds) = seconds
+        && !(seconds.is_finite() && (1.0..1e9).contains(&seconds))
+    {
+        bail!(
+            "--split-seconds {seconds} must be a number of seconds, 1 or more (a part is closed at a flush, once a second)"
+        );
+    }
+    if let Some(mb) = mb
+        && !(mb.is_finite() && (1.0..1e12).contains(&mb))
+    {
+        bail!("--split-mb {mb} must be a number of megabytes, 1 or more");
+    }
+    if seconds.is_none() && mb.is_none() {
+        return Ok(None);
+    }
+    Ok(Some(Split { max_bytes: mb.map(|mb| (mb * 1e6) as u64), max_duration: seconds.map(Duration::from_secs_f64) }))
 }
 
 /// Records until Ctrl-C, `--seconds`, `--until-gone` or a failure, showing
@@ -225,6 +257,10 @@ fn print_summary(summary: &RecordSummary, json: bool) -> Result<()> {
         summary.images,
         summary.lost
     )?;
+    if summary.parts.len() > 1 {
+        let names: Vec<String> = summary.parts.iter().map(|p| p.display().to_string()).collect();
+        writeln!(stdout, "  in {} files: {}", summary.parts.len(), names.join(", "))?;
+    }
     for (name, channel) in &summary.channels {
         let waits = match channel.file_waits {
             0 => String::new(),

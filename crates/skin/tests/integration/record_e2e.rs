@@ -109,6 +109,7 @@ fn the_paper_skin_is_recorded_replayed_and_read_by_an_independent_reader() {
     assert!(summary["images"].as_u64().unwrap() >= 30, "{summary}");
 
     the_recording_holds_what_ros_tools_draw(&a);
+    let parts = a_split_recording_is_whole_files(d);
     killed_recorder_leaves_a_readable_file(d);
     a_stopped_recorder_writes_its_gaps(d);
     interrupt(&mut supervisor.0);
@@ -118,6 +119,42 @@ fn the_paper_skin_is_recorded_replayed_and_read_by_an_independent_reader() {
     the_python_oracle_reads_what_was_written(&a);
     rosbags_reads_the_offered_qos(&a);
     the_python_oracle_reads_what_was_written(&d.join("recovered.mcap"));
+    for part in &parts {
+        the_python_oracle_reads_what_was_written(part);
+    }
+}
+
+/// `skin record --split-seconds 1` for 3.5 s: at least three files, each
+/// finished and whole (`skin info` reads its channels and geometry), which
+/// hold every recorded frame once, in order. Returns them for the Python
+/// oracle.
+fn a_split_recording_is_whole_files(d: &Path) -> Vec<PathBuf> {
+    let split = d.join("split.mcap");
+    let summary = json(
+        d,
+        &["record", split.to_str().unwrap(), "--services", "--seconds", "3.5", "--split-seconds", "1", "--json"],
+    );
+    let parts: Vec<PathBuf> =
+        summary["parts"].as_array().unwrap().iter().map(|p| PathBuf::from(p.as_str().unwrap())).collect();
+    assert!(parts.len() >= 3, "{summary}");
+    assert!(!split.exists(), "the parts are named split_000.mcap, ...: {summary}");
+    let mut seqs: BTreeMap<String, Vec<u64>> = BTreeMap::new();
+    for (index, part) in parts.iter().enumerate() {
+        assert_eq!(part, &d.join(format!("split_{index:03}.mcap")));
+        let info = json(d, &["info", part.to_str().unwrap(), "--json"]);
+        assert_eq!(info["ending"], "finished", "{info}");
+        assert!(info["has_geometry"].as_bool().unwrap(), "{info}");
+        assert_eq!(info["channels"].as_object().unwrap().len(), 8, "{info}");
+        for (channel, frames) in frames(part) {
+            seqs.entry(channel).or_default().extend(frames.iter().map(|f| f.2));
+        }
+    }
+    let total: usize = seqs.values().map(Vec::len).sum();
+    assert_eq!(total as u64, summary["frames"].as_u64().unwrap(), "{summary}");
+    for (channel, seq) in &seqs {
+        assert!(seq.windows(2).all(|w| w[0] < w[1]), "{channel}: each frame once, in order, over the parts");
+    }
+    parts
 }
 
 fn killed_recorder_leaves_a_readable_file(d: &Path) {

@@ -15,18 +15,16 @@ use std::io::{BufWriter, Seek, SeekFrom, Write};
 use std::path::Path;
 
 use mcap::records::Metadata;
-use skinware::{ChannelKind, Reader};
 use skinware_geometry::SkinGeometry;
 use skinware_ros2::{GAP, HeatMap, IMAGE, LAYER_STATS, SKIN_FRAME, clock_offset_ns, unix_ns};
 
-use super::discovery::Sources;
+use super::discovery::{ChannelFacts, Sources};
 use super::ros_view::{RosView, add_view};
-use super::summary::channel_name;
 use super::{CHUNK_BYTES, RecordOptions, add_schema};
 use crate::error::mcap_write_error;
 use crate::{
     DESCRIPTION_ATTACHMENT_PREFIX, FORMAT_VERSION, GEOMETRY_ATTACHMENT, LAYOUT_METADATA, MESSAGE_ENCODING,
-    RECORDING_METADATA, RecordError, channel_keys,
+    RECORDING_METADATA, RecordError,
 };
 
 /// zstd's level: 2 (see `create_writer`).
@@ -87,6 +85,30 @@ pub(super) struct Started {
     pub(super) clock_offset_ns: i64,
 }
 
+/// The MCAP channel ids a file's start gave the messages the recording's
+/// threads send. Every part of a split recording must give the same: the
+/// threads keep sending to these.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub(super) struct ChannelIds {
+    frames: Vec<u16>,
+    stats: Vec<u16>,
+    gaps: u16,
+    map: Option<u16>,
+    ros: Option<Vec<u16>>,
+}
+
+impl ChannelIds {
+    pub(super) fn of(started: &Started) -> ChannelIds {
+        ChannelIds {
+            frames: started.frame_channels.clone(),
+            stats: started.stats_channels.clone(),
+            gaps: started.gap_channel,
+            map: started.map.as_ref().map(|(id, _)| *id),
+            ros: started.ros.as_ref().map(RosView::channel_ids),
+        }
+    }
+}
+
 /// Per reader, its topics' MCAP channels and its line in the layout outline.
 struct Topics {
     frame_channels: Vec<u16>,
@@ -114,7 +136,7 @@ pub(super) fn write_start(
     writer.write_metadata(&Metadata { name: RECORDING_METADATA.into(), metadata: recording }).map_err(write_error)?;
 
     let topics =
-        add_topics(&mut writer, &options.skin, &sources.readers, frame_schema, stats_schema).map_err(write_error)?;
+        add_topics(&mut writer, &options.skin, &sources.facts, frame_schema, stats_schema).map_err(write_error)?;
     let gap_channel = writer
         .add_channel(gap_schema, &skinware_ros2::gaps_topic(&options.skin), MESSAGE_ENCODING, &BTreeMap::new())
         .map_err(write_error)?;
@@ -179,74 +201,29 @@ fn hostname() -> String {
     std::fs::read_to_string("/proc/sys/kernel/hostname").map(|h| h.trim().to_owned()).unwrap_or_default()
 }
 
-/// Each reader's frame topic (its channel's metadata says what it records)
-/// and statistics topic, added in turn.
+/// Each recorded channel's frame topic (its channel's metadata says what
+/// it records) and statistics topic, added in turn.
 fn add_topics(
     writer: &mut McapWriter,
     skin: &str,
-    readers: &[Reader],
+    facts: &[ChannelFacts],
     frame_schema: u16,
     stats_schema: u16,
 ) -> Result<Topics, mcap::McapError> {
     let mut topics = Topics { frame_channels: Vec::new(), stats_channels: Vec::new(), layout: BTreeMap::new() };
-    for reader in readers {
-        let name = channel_name(reader);
-        let topic = skinware_ros2::frame_topic(skin, &name);
-        topics.frame_channels.push(writer.add_channel(
-            frame_schema,
-            &topic,
-            MESSAGE_ENCODING,
-            &channel_metadata(reader),
-        )?);
-        let stats_topic = skinware_ros2::stats_topic(skin, &name);
+    for channel in facts {
+        let topic = skinware_ros2::frame_topic(skin, &channel.name);
+        topics.frame_channels.push(writer.add_channel(frame_schema, &topic, MESSAGE_ENCODING, &channel.metadata)?);
+        let stats_topic = skinware_ros2::stats_topic(skin, &channel.name);
         topics.stats_channels.push(writer.add_channel(
             stats_schema,
             &stats_topic,
             MESSAGE_ENCODING,
             &BTreeMap::new(),
         )?);
-        topics.layout.insert(name, describe(reader, &topic));
+        topics.layout.insert(channel.name.clone(), channel.outline.clone());
     }
     Ok(topics)
-}
-
-/// A frame topic's channel metadata: enough to recreate the channel on replay.
-fn channel_metadata(reader: &Reader) -> BTreeMap<String, String> {
-    let (schema_name, schema_version) = reader.schema();
-    let mut metadata = BTreeMap::new();
-    metadata.insert(channel_keys::CHANNEL.to_owned(), channel_name(reader));
-    metadata.insert(channel_keys::KIND.to_owned(), reader.kind().as_str().to_owned());
-    metadata.insert(channel_keys::PAYLOAD_BYTES.to_owned(), reader.payload_bytes().to_string());
-    metadata.insert(channel_keys::SLOTS.to_owned(), reader.slots().to_string());
-    let period = reader.writer_period().map_or(0, |p| p.as_nanos() as u64);
-    metadata.insert(channel_keys::PERIOD_NS.to_owned(), period.to_string());
-    metadata.insert(channel_keys::SCHEMA_NAME.to_owned(), schema_name);
-    metadata.insert(channel_keys::SCHEMA_VERSION.to_owned(), schema_version.to_string());
-    metadata
-}
-
-/// The `skin.layout` entry of a channel: a readable outline.
-fn describe(reader: &Reader, topic: &str) -> String {
-    match (reader.kind(), reader.topology()) {
-        (ChannelKind::Layer, Ok(t)) => format!(
-            "layer {}: topic {topic}, {} sensors of type {} in {} modules on {} patches, {} Hz",
-            t.name,
-            t.sensors.len(),
-            t.sensor_type,
-            t.modules.len(),
-            t.patches.len(),
-            t.rate_hz
-        ),
-        (kind, _) => {
-            let (schema, version) = reader.schema();
-            format!(
-                "{} {}: topic {topic}, {} bytes per frame, schema {schema} v{version}",
-                kind.as_str(),
-                reader.label(),
-                reader.payload_bytes()
-            )
-        }
-    }
 }
 
 /// The map image's schema and channel, if images are wanted and the skin
@@ -286,13 +263,11 @@ fn attach(writer: &mut McapWriter, started_unix_ns: u64, sources: &Sources) -> R
     if let Some(bytes) = &sources.geometry_bytes {
         attach_one(GEOMETRY_ATTACHMENT.to_owned(), "application/x-skinware-geometry", bytes)?;
     }
-    for reader in &sources.readers {
-        let name = channel_name(reader);
-        let description = reader.description();
+    for channel in &sources.facts {
         attach_one(
-            format!("{DESCRIPTION_ATTACHMENT_PREFIX}{name}"),
+            format!("{DESCRIPTION_ATTACHMENT_PREFIX}{}", channel.name),
             "application/x-skinware-description",
-            &description,
+            &channel.description,
         )?;
     }
     Ok(())

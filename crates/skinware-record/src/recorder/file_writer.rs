@@ -1,11 +1,12 @@
 //! The file's thread: the only owner of the file. It writes what the other
 //! threads send, finishes a chunk every flush interval and has a thread of
 //! its own sync it to disk, and finishes the file with the summary when they
-//! are done.
+//! are done. A split recording's file thread also closes each part when
+//! it is complete and goes on in the next.
 
 use std::collections::BTreeMap;
 use std::fs::File;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError, sync_channel};
@@ -14,15 +15,19 @@ use std::time::{Duration, Instant};
 
 use mcap::records::{MessageHeader, Metadata};
 
-use super::file_start::McapWriter;
+use super::discovery::Sources;
+use super::file_start::{ChannelIds, McapWriter, write_start};
 use super::summary::Recorded;
-use super::{Item, Shared};
+use super::{Item, RecordOptions, Shared, Split, part_path};
 use crate::error::{mcap_write_error, write_hint};
 use crate::{RecordError, SUMMARY_METADATA};
 
 /// The writer thread's job: owns the file.
 pub(super) struct FileJob {
+    /// The file being written.
     pub(super) path: PathBuf,
+    /// How to go on in a new file, if the recording is split.
+    pub(super) parts: Option<Parts>,
     pub(super) writer: McapWriter,
     /// The same file, to sync what was flushed.
     pub(super) sync: File,
@@ -32,6 +37,32 @@ pub(super) struct FileJob {
     pub(super) channels: Vec<Recorded>,
     /// The nice value the thread asks for, if any.
     pub(super) nice: Option<i32>,
+}
+
+/// A split recording's parts: when to start the next, and what starts it.
+pub(super) struct Parts {
+    pub(super) split: Split,
+    /// The recording's path, which the parts are named after.
+    pub(super) base: PathBuf,
+    /// The number of the part being written.
+    pub(super) index: usize,
+    /// When it started.
+    pub(super) started: Instant,
+    /// What starts every part (no readers).
+    pub(super) sources: Sources,
+    pub(super) options: RecordOptions,
+    /// The skin's segment directory.
+    pub(super) dir: PathBuf,
+    /// The first part's channel ids, which every part must give.
+    pub(super) ids: ChannelIds,
+}
+
+/// Why [`FileJob::write_until_done`] returned.
+enum Written {
+    /// The readers are done.
+    All,
+    /// The part is complete: the next one goes on.
+    Part,
 }
 
 impl FileJob {
@@ -61,13 +92,57 @@ impl FileJob {
     }
 
     fn write_all(&mut self) -> Result<(), RecordError> {
-        let syncer = Syncer::start(&self.sync, &self.path, &self.shared)?;
-        let written = self.write_until_done(&syncer);
-        let synced = syncer.finish();
-        written.and(synced)
+        loop {
+            let syncer = Syncer::start(&self.sync, &self.path, &self.shared)?;
+            let written = self.write_until_done(&syncer);
+            let synced = syncer.finish();
+            match written? {
+                Written::All => return synced,
+                Written::Part => {
+                    synced?;
+                    self.next_part()?;
+                }
+            }
+        }
     }
 
-    fn write_until_done(&mut self, syncer: &Syncer) -> Result<(), RecordError> {
+    /// Whether the part being written is complete (never, unsplit).
+    fn part_is_complete(&self) -> bool {
+        self.parts.as_ref().is_some_and(|parts| {
+            let bytes = self.sync.metadata().map_or(0, |m| m.len());
+            parts.split.is_reached(bytes, parts.started.elapsed())
+        })
+    }
+
+    /// Starts the next part and finishes the one being written. What the
+    /// other threads send meanwhile waits in their queue: no frame is lost
+    /// between two parts, and each frame is in one part only.
+    fn next_part(&mut self) -> Result<(), RecordError> {
+        let Some(parts) = &mut self.parts else { return Ok(()) };
+        let path = part_path(&parts.base, parts.index + 1);
+        let file = crate::error::create_new(&path)?;
+        let started = write_start(&path, &file, &parts.options, &parts.sources, &parts.dir)?;
+        if ChannelIds::of(&started) != parts.ids {
+            // The same start gives the same ids; this would be a bug here.
+            return Err(RecordError::Io {
+                op: "start the next part",
+                path,
+                hint: "its channels were numbered differently from the first part's".into(),
+                source: std::io::Error::other("channel ids differ between parts"),
+            });
+        }
+        parts.index += 1;
+        parts.started = Instant::now();
+        let finished_path = std::mem::replace(&mut self.path, path.clone());
+        let finished = std::mem::replace(&mut self.writer, started.writer);
+        self.sync = file;
+        skinware::lock(&self.shared.parts).push(path);
+        let bytes = finish_file(finished, &finished_path, &self.channels)?;
+        self.shared.finished_part_bytes.fetch_add(bytes, Ordering::Relaxed);
+        Ok(())
+    }
+
+    fn write_until_done(&mut self, syncer: &Syncer) -> Result<Written, RecordError> {
         let mut next_flush = Instant::now() + self.flush_interval;
         loop {
             let wait = next_flush.saturating_duration_since(Instant::now());
@@ -85,7 +160,7 @@ impl FileJob {
                     self.shared.message_bytes.fetch_add(item.data.len() as u64, Ordering::Relaxed);
                 }
                 Err(RecvTimeoutError::Timeout) => {}
-                Err(RecvTimeoutError::Disconnected) => return Ok(()),
+                Err(RecvTimeoutError::Disconnected) => return Ok(Written::All),
             }
             if Instant::now() >= next_flush {
                 // A finished chunk, written: what a killed recorder leaves is
@@ -94,25 +169,36 @@ impl FileJob {
                 self.writer.flush().map_err(|e| mcap_write_error(&self.path, e))?;
                 syncer.request();
                 next_flush = Instant::now() + self.flush_interval;
+                if self.part_is_complete() {
+                    return Ok(Written::Part);
+                }
             }
         }
     }
 
-    fn finish(mut self) -> Result<(), RecordError> {
-        let mut summary = BTreeMap::new();
-        for channel in &self.channels {
-            let r = channel.report();
-            summary.insert(
-                channel.name.clone(),
-                format!("kind={} frames={} lost={} gaps={} faulted={}", r.kind, r.frames, r.lost, r.gaps, r.faulted),
-            );
-        }
-        let write = |e| mcap_write_error(&self.path, e);
-        self.writer.write_metadata(&Metadata { name: SUMMARY_METADATA.into(), metadata: summary }).map_err(write)?;
-        self.writer.finish().map_err(write)?;
-        let path = self.path.clone();
-        crate::file::close(self.writer.into_inner(), &path)
+    /// Finishes the last file. Its size is not added to the finished
+    /// parts': the recorder's progress reads the last part's own.
+    fn finish(self) -> Result<(), RecordError> {
+        finish_file(self.writer, &self.path, &self.channels).map(drop)
     }
+}
+
+/// Finishes a file: what each channel counted so far, the summary, the
+/// index, and the file closed and synced. Its size.
+fn finish_file(mut writer: McapWriter, path: &Path, channels: &[Recorded]) -> Result<u64, RecordError> {
+    let mut summary = BTreeMap::new();
+    for channel in channels {
+        let r = channel.report();
+        summary.insert(
+            channel.name.clone(),
+            format!("kind={} frames={} lost={} gaps={} faulted={}", r.kind, r.frames, r.lost, r.gaps, r.faulted),
+        );
+    }
+    let write = |e| mcap_write_error(path, e);
+    writer.write_metadata(&Metadata { name: SUMMARY_METADATA.into(), metadata: summary }).map_err(write)?;
+    writer.finish().map_err(write)?;
+    crate::file::close(writer.into_inner(), path)?;
+    Ok(std::fs::metadata(path).map_or(0, |m| m.len()))
 }
 
 /// A thread that syncs the file to disk when asked. Syncing a second's worth

@@ -144,6 +144,47 @@ pub struct RecordOptions {
     /// with a warning. The file's thread, which compresses, never takes it:
     /// with real-time readers it runs at nice -10 instead (if allowed).
     pub reader_priority: u8,
+    /// When to go on in a new file (`None`: one file).
+    pub split: Option<Split>,
+}
+
+/// When a recording goes on in a new file. Each part is a whole MCAP file
+/// of its own (schemas, channels, metadata, geometry, `/tf_static`,
+/// summary and index), named after the recording's path with its number:
+/// `run.mcap` is written as `run_000.mcap`, `run_001.mcap`, ... ([`part_path`]).
+///
+/// The MCAP writer keeps an index entry for every chunk in memory until it
+/// writes the file's summary, at the file's end: about 650 bytes per chunk,
+/// 10 KB/s at the paper's skin at 1 kHz. Parts bound that, and so the
+/// recorder's memory, however long it records. A part is closed at the
+/// first flush (every [`RecordOptions::flush_interval`]) after it reaches
+/// either limit, so it may be up to a flush interval longer.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Split {
+    /// Close a part once it holds this many bytes.
+    pub max_bytes: Option<u64>,
+    /// Close a part once it has recorded this long.
+    pub max_duration: Option<Duration>,
+}
+
+impl Split {
+    /// Whether a part of `bytes` bytes started `elapsed` ago is complete.
+    fn is_reached(&self, bytes: u64, elapsed: Duration) -> bool {
+        self.max_bytes.is_some_and(|max| bytes >= max) || self.max_duration.is_some_and(|max| elapsed >= max)
+    }
+}
+
+/// The path of part `index` of a split recording at `path`: `_` and the
+/// number, three digits at least, before the extension (`run.mcap`, 2:
+/// `run_002.mcap`), so that the parts sort in order.
+pub fn part_path(path: &Path, index: usize) -> PathBuf {
+    let mut name = path.file_stem().map(std::ffi::OsStr::to_os_string).unwrap_or_default();
+    name.push(format!("_{index:03}"));
+    if let Some(extension) = path.extension() {
+        name.push(".");
+        name.push(extension);
+    }
+    path.with_file_name(name)
 }
 
 impl Default for RecordOptions {
@@ -161,6 +202,7 @@ impl Default for RecordOptions {
             dir: None,
             command: String::new(),
             reader_priority: DEFAULT_READER_PRIORITY,
+            split: None,
         }
     }
 }
@@ -190,6 +232,10 @@ struct Shared {
     failure: Mutex<Option<RecordError>>,
     message_bytes: AtomicU64,
     images: AtomicU64,
+    /// The files written so far, the one being written last.
+    parts: Mutex<Vec<PathBuf>>,
+    /// The bytes of the parts already finished.
+    finished_part_bytes: AtomicU64,
     /// Set by the first reader thread refused its real-time priority (one warning).
     priority_refused: AtomicBool,
 }
@@ -206,6 +252,7 @@ impl Shared {
 
 /// A recording under way.
 pub struct Recorder {
+    /// Its first file.
     path: PathBuf,
     skin: String,
     compression: Compression,
@@ -223,8 +270,9 @@ impl Recorder {
     pub fn start(path: &Path, options: RecordOptions) -> Result<Recorder, RecordError> {
         let dir = options.dir.clone().unwrap_or_else(skinware::shm::segment_dir);
         let sources = discovery::open_sources(&dir, &options)?;
-        let file = crate::error::create_new(path)?;
-        let started = file_start::write_start(path, &file, &options, &sources, &dir)?;
+        let first = if options.split.is_some() { part_path(path, 0) } else { path.to_owned() };
+        let file = crate::error::create_new(&first)?;
+        let started = file_start::write_start(&first, &file, &options, &sources, &dir)?;
         Recorder::run(path, options, dir, sources, file, started)
     }
 
@@ -242,7 +290,21 @@ impl Recorder {
             failure: Mutex::new(None),
             message_bytes: AtomicU64::new(0),
             images: AtomicU64::new(0),
+            parts: Mutex::new(Vec::new()),
+            finished_part_bytes: AtomicU64::new(0),
             priority_refused: AtomicBool::new(false),
+        });
+        let first = if options.split.is_some() { part_path(path, 0) } else { path.to_owned() };
+        skinware::lock(&shared.parts).push(first.clone());
+        let parts = options.split.map(|split| file_writer::Parts {
+            split,
+            base: path.to_owned(),
+            index: 0,
+            started: Instant::now(),
+            sources: sources.without_readers(),
+            options: options.clone(),
+            dir: dir.clone(),
+            ids: file_start::ChannelIds::of(&started),
         });
         let channels: Vec<Recorded> = sources.readers.iter().map(Recorded::of).collect();
         let queue_frames = queue_frames(sources.readers.iter().map(skinware::Reader::payload_bytes));
@@ -266,7 +328,8 @@ impl Recorder {
         };
         threads.push(spawn("rec-map", move || watcher.run())?);
         let file_job = FileJob {
-            path: path.to_owned(),
+            path: first.clone(),
+            parts,
             writer,
             sync: file,
             receiver,
@@ -280,7 +343,7 @@ impl Recorder {
             .spawn(move || file_job.run())
             .map_err(|source| RecordError::Thread { thread: "the file-writing thread".into(), source })?;
         Ok(Recorder {
-            path: path.to_owned(),
+            path: first,
             skin: options.skin,
             compression: options.compression,
             reader_priority: options.reader_priority,
@@ -320,8 +383,18 @@ impl Recorder {
             frames: self.channels.iter().map(|c| c.counters.frames.load(Ordering::Relaxed)).sum(),
             lost: self.channels.iter().map(|c| c.counters.lost.load(Ordering::Relaxed)).sum(),
             message_bytes: self.shared.message_bytes.load(Ordering::Relaxed),
-            file_bytes: std::fs::metadata(&self.path).map(|m| m.len()).unwrap_or(0),
+            file_bytes: self.shared.finished_part_bytes.load(Ordering::Relaxed)
+                + skinware::lock(&self.shared.parts)
+                    .last()
+                    .and_then(|current| std::fs::metadata(current).ok())
+                    .map_or(0, |m| m.len()),
         }
+    }
+
+    /// The files written so far, the one being written last: one unless
+    /// the recording is split ([`RecordOptions::split`]).
+    pub fn parts(&self) -> Vec<PathBuf> {
+        skinware::lock(&self.shared.parts).clone()
     }
 
     /// Stops reading, writes what was read, finishes the file and says what it holds.
@@ -336,6 +409,7 @@ impl Recorder {
         let progress = self.progress();
         Ok(RecordSummary {
             path: self.path.clone(),
+            parts: self.parts(),
             skin: self.skin.clone(),
             seconds,
             frames: progress.frames,

@@ -34,10 +34,9 @@ use skinware_ros2::markers::ContactMarkers;
 use skinware_ros2::qos::QosClass;
 use skinware_ros2::standard::{DIAGNOSTIC_ARRAY, MARKER_ARRAY, POINT_CLOUD2, TF_MESSAGE};
 use skinware_ros2::{Time, unix_ns};
-use skinware_services::{RegionContacts, ServicePayload};
+use skinware_services::RegionContacts;
 
 use super::discovery::Sources;
-use super::summary::channel_name;
 use super::{Item, RecordOptions, add_schema};
 use crate::MESSAGE_ENCODING;
 
@@ -123,15 +122,13 @@ pub(super) fn add_view<W: Write + Seek>(
         }
     }
     let mut contacts = Vec::new();
-    let contact_schema =
-        (<RegionContacts as ServicePayload>::SCHEMA.to_owned(), <RegionContacts as ServicePayload>::VERSION);
     let mut marker_schema = None;
-    for reader in sources.readers.iter().filter(|r| r.schema() == contact_schema) {
+    for recorded in sources.facts.iter().filter(|c| c.is_contacts) {
         let schema_id = match marker_schema {
             Some(id) => id,
             None => *marker_schema.insert(add_schema(writer, MARKER_ARRAY)?),
         };
-        let name = channel_name(reader);
+        let name = recorded.name.clone();
         let channel_id = channel(writer, schema_id, &skinware_ros2::markers_topic(skin, &name), QosClass::Sensor)?;
         contacts.push(ContactSource { name, channel_id, reader: None, last_seq: 0 });
     }
@@ -143,7 +140,7 @@ pub(super) fn add_view<W: Write + Seek>(
         clouds,
         contacts,
         diagnostics_channel,
-        health: sources.readers.iter().map(|r| (channel_name(r), None)).collect(),
+        health: sources.facts.iter().map(|c| (c.name.clone(), None)).collect(),
         root_frame: options.root_frame.clone(),
         marker_lifetime: (period * 3).max(Duration::from_millis(200)),
         skin: skin.clone(),
@@ -152,6 +149,17 @@ pub(super) fn add_view<W: Write + Seek>(
 }
 
 impl RosView {
+    /// Every MCAP channel id the view sends to, in a fixed order.
+    pub(super) fn channel_ids(&self) -> Vec<u16> {
+        let mut ids: Vec<u16> = self.tf_static.iter().map(|(id, _)| *id).collect();
+        for layer in &self.clouds {
+            ids.extend_from_slice(&layer.channels);
+        }
+        ids.extend(self.contacts.iter().map(|c| c.channel_id));
+        ids.push(self.diagnostics_channel);
+        ids
+    }
+
     /// Writes `/tf_static`'s one message. Last in the file's start: readers
     /// of a recording's start (skinware's own) stop at its first message,
     /// and must have seen every channel, the metadata and the attachments.

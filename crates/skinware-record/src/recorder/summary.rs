@@ -95,8 +95,10 @@ pub struct ChannelReport {
 /// What a finished recording holds.
 #[derive(Clone, Debug, Serialize)]
 pub struct RecordSummary {
-    /// The file.
+    /// The file (the first part of a split recording).
     pub path: PathBuf,
+    /// Every file written, in order: `path` alone unless the recording was split.
+    pub parts: Vec<PathBuf>,
     /// The skin.
     pub skin: String,
     /// Recording time.
