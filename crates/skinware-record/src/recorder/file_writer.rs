@@ -92,17 +92,22 @@ impl FileJob {
     }
 
     fn write_all(&mut self) -> Result<(), RecordError> {
+        let mut syncer = Syncer::start(&self.sync, &self.path, &self.shared)?;
+        let mut closing: Option<JoinHandle<Result<(), RecordError>>> = None;
         loop {
-            let syncer = Syncer::start(&self.sync, &self.path, &self.shared)?;
             let written = self.write_until_done(&syncer);
-            let synced = syncer.finish();
-            match written? {
-                Written::All => return synced,
-                Written::Part => {
-                    synced?;
-                    self.next_part()?;
-                }
+            if let Ok(Written::Part) = written {
+                // The part before has long been closed; its error, if any, stops the recording.
+                join_closing(closing.take())?;
+                let (finished, path, summary) = self.next_part()?;
+                let finished_syncer =
+                    std::mem::replace(&mut syncer, Syncer::start(&self.sync, &self.path, &self.shared)?);
+                closing = Some(close_part(finished, path, summary, finished_syncer, &self.shared)?);
+                continue;
             }
+            let synced = syncer.finish();
+            let closed = join_closing(closing);
+            return written.and(closed).and(synced).map(drop);
         }
     }
 
@@ -114,11 +119,17 @@ impl FileJob {
         })
     }
 
-    /// Starts the next part and finishes the one being written. What the
-    /// other threads send meanwhile waits in their queue: no frame is lost
+    /// Starts the next part, and returns the one being written, with its
+    /// path and its summary's counts, for [`close_part`]. What the other
+    /// threads send meanwhile waits in their queue: no frame is lost
     /// between two parts, and each frame is in one part only.
-    fn next_part(&mut self) -> Result<(), RecordError> {
-        let Some(parts) = &mut self.parts else { return Ok(()) };
+    fn next_part(&mut self) -> Result<(McapWriter, PathBuf, BTreeMap<String, String>), RecordError> {
+        let parts = self.parts.as_mut().ok_or_else(|| RecordError::Io {
+            op: "start the next part of",
+            path: self.path.clone(),
+            hint: "the recording is not split".into(),
+            source: std::io::Error::other("no next part"),
+        })?;
         let path = part_path(&parts.base, parts.index + 1);
         let file = crate::error::create_new(&path)?;
         let started = write_start(&path, &file, &parts.options, &parts.sources, &parts.dir)?;
@@ -133,13 +144,12 @@ impl FileJob {
         }
         parts.index += 1;
         parts.started = Instant::now();
+        let summary = summary_metadata(&self.channels);
         let finished_path = std::mem::replace(&mut self.path, path.clone());
         let finished = std::mem::replace(&mut self.writer, started.writer);
         self.sync = file;
         skinware::lock(&self.shared.parts).push(path);
-        let bytes = finish_file(finished, &finished_path, &self.channels)?;
-        self.shared.finished_part_bytes.fetch_add(bytes, Ordering::Relaxed);
-        Ok(())
+        Ok((finished, finished_path, summary))
     }
 
     fn write_until_done(&mut self, syncer: &Syncer) -> Result<Written, RecordError> {
@@ -179,13 +189,12 @@ impl FileJob {
     /// Finishes the last file. Its size is not added to the finished
     /// parts': the recorder's progress reads the last part's own.
     fn finish(self) -> Result<(), RecordError> {
-        finish_file(self.writer, &self.path, &self.channels).map(drop)
+        finish_file(self.writer, &self.path, summary_metadata(&self.channels)).map(drop)
     }
 }
 
-/// Finishes a file: what each channel counted so far, the summary, the
-/// index, and the file closed and synced. Its size.
-fn finish_file(mut writer: McapWriter, path: &Path, channels: &[Recorded]) -> Result<u64, RecordError> {
+/// What each channel counted so far, as a file's summary metadata says it.
+fn summary_metadata(channels: &[Recorded]) -> BTreeMap<String, String> {
     let mut summary = BTreeMap::new();
     for channel in channels {
         let r = channel.report();
@@ -194,11 +203,58 @@ fn finish_file(mut writer: McapWriter, path: &Path, channels: &[Recorded]) -> Re
             format!("kind={} frames={} lost={} gaps={} faulted={}", r.kind, r.frames, r.lost, r.gaps, r.faulted),
         );
     }
+    summary
+}
+
+/// Finishes a file: `summary`, the MCAP summary and index, and the file
+/// closed and synced. Its size.
+fn finish_file(mut writer: McapWriter, path: &Path, summary: BTreeMap<String, String>) -> Result<u64, RecordError> {
     let write = |e| mcap_write_error(path, e);
     writer.write_metadata(&Metadata { name: SUMMARY_METADATA.into(), metadata: summary }).map_err(write)?;
     writer.finish().map_err(write)?;
     crate::file::close(writer.into_inner(), path)?;
     Ok(std::fs::metadata(path).map_or(0, |m| m.len()))
+}
+
+/// Closes a finished part in a thread of its own: the wait for its last
+/// sync, its summary and index, and the sync of those take the disk a
+/// while (a second or more for a part of a few GB), and on the file's
+/// thread they held up the next part while the readers' queue filled. An
+/// error stops the recording; [`join_closing`] reports it.
+fn close_part(
+    writer: McapWriter,
+    path: PathBuf,
+    summary: BTreeMap<String, String>,
+    syncer: Syncer,
+    shared: &Arc<Shared>,
+) -> Result<JoinHandle<Result<(), RecordError>>, RecordError> {
+    let shared = shared.clone();
+    std::thread::Builder::new()
+        .name("rec-close".into())
+        .spawn(move || {
+            let closed = syncer.finish().and_then(|()| finish_file(writer, &path, summary));
+            match closed {
+                Ok(bytes) => {
+                    shared.finished_part_bytes.fetch_add(bytes, Ordering::Relaxed);
+                    Ok(())
+                }
+                Err(e) => {
+                    // Everyone stops now; the file's thread reports the error.
+                    shared.stop.stop();
+                    Err(e)
+                }
+            }
+        })
+        .map_err(|source| RecordError::Thread { thread: "the part-closing thread".into(), source })
+}
+
+/// Waits for a part being closed, if any; its error.
+fn join_closing(closing: Option<JoinHandle<Result<(), RecordError>>>) -> Result<(), RecordError> {
+    match closing.map(JoinHandle::join) {
+        None | Some(Ok(Ok(()))) => Ok(()),
+        Some(Ok(Err(e))) => Err(e),
+        Some(Err(_)) => Err(RecordError::Panicked { thread: "the part-closing thread" }),
+    }
 }
 
 /// A thread that syncs the file to disk when asked. Syncing a second's worth
