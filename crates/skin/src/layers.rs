@@ -23,9 +23,10 @@ pub struct LayerReport {
     pub overruns: u64,
     /// Deadlines skipped because a period's work ran past the next one.
     pub missed_periods: u64,
-    /// Mean and worst lateness of the writer's wake-ups after their
-    /// deadlines: how well the machine keeps the writer's time.
+    /// Mean lateness of the writer's wake-ups after their deadlines: how
+    /// well the machine keeps the writer's time.
     pub lateness_ns_mean: u64,
+    /// Worst lateness of a wake-up.
     pub lateness_ns_max: u64,
     pub faults: u64,
     pub restarts: u64,

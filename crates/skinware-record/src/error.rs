@@ -11,6 +11,13 @@ pub enum RecordError {
         /// The file.
         path: PathBuf,
     },
+    /// A split recording's limits (`RecordOptions::split`) that cannot be
+    /// kept, or a part that could not be started like the first.
+    #[error("cannot split the recording: {reason}")]
+    Split {
+        /// What is wrong.
+        reason: String,
+    },
     /// A file could not be created, written, read or synced.
     #[error("cannot {op} {path}: {source}{hint}")]
     Io {

@@ -643,10 +643,13 @@ fn a_split_recording_goes_on_in_whole_files_and_loses_no_frame_between_them() {
     let taken = skinware_record::part_path(&dir.0.join("spt.mcap"), 1);
     std::fs::write(&taken, b"someone else's").unwrap();
     let (mut layer, _service) = channels_with_slots(&dir.0, "spt", 50, 32);
-    let options =
+    let split_options =
         RecordOptions { split: Some(by_time), flush_interval: Duration::from_millis(100), ..options(&dir.0, "spt") };
-    let recorder = Recorder::start(&dir.0.join("spt.mcap"), options).unwrap();
-    for k in 1..=150 {
+    let recorder = Recorder::start(&dir.0.join("spt.mcap"), split_options).unwrap();
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    let mut k = 0;
+    while !recorder.has_failed() && std::time::Instant::now() < deadline {
+        k += 1;
         let mut frame = layer.begin();
         frame.write_responses(0, &layer_frame(k, 50)).unwrap();
         frame.publish();
@@ -655,4 +658,17 @@ fn a_split_recording_goes_on_in_whole_files_and_loses_no_frame_between_them() {
     let error = recorder.finish().unwrap_err().to_string();
     assert!(error.contains("spt_001.mcap"), "{error}");
     assert_eq!(std::fs::read(&taken).unwrap(), b"someone else's");
+    // The part being written when the next could not start is finished, whole.
+    let first = skinware_record::part_path(&dir.0.join("spt.mcap"), 0);
+    assert_eq!(scan(&first).unwrap().ending, Ending::Finished);
+    // Limits that cannot be kept are refused before anything is recorded.
+    for split in [
+        skinware_record::Split::default(),
+        skinware_record::Split { max_bytes: Some(0), max_duration: None },
+        skinware_record::Split { max_bytes: None, max_duration: Some(Duration::ZERO) },
+    ] {
+        let refused = RecordOptions { split: Some(split), ..options(&dir.0, "spt") };
+        let error = Recorder::start(&dir.0.join("refused.mcap"), refused).err().unwrap().to_string();
+        assert!(error.contains("cannot split the recording"), "{error}");
+    }
 }

@@ -81,6 +81,12 @@ impl LayerUpdate {
     pub fn responses(&self) -> Option<&[u16]> {
         self.with_responses.then_some(self.slot.responses.as_slice())
     }
+
+    /// The same, in the compact encoding: encoded by the first session
+    /// that sends this frame, and shared with the others.
+    pub fn compact_responses(&self) -> Option<&[u8]> {
+        self.with_responses.then(|| self.slot.compact_responses())
+    }
 }
 
 fn pad_to_4(out: &mut Vec<u8>) {
@@ -163,18 +169,17 @@ pub fn encode_geometry(geometry: &SkinGeometry) -> Vec<u8> {
 /// allocation once it has grown to an update's size) a whole update: the
 /// header, the layer records, the overlays, then the responses of the
 /// layers sent `with_responses`, in layer order, each in the compact
-/// encoding ([`compact::encode`]). The part before the responses is a
-/// multiple of 4 bytes long, so that their words start aligned.
+/// encoding ([`compact::encode`]), which each frame gets once, shared by
+/// every session that sends it ([`LayerUpdate::compact_responses`]). The
+/// part before the responses is a multiple of 4 bytes long, and so is each
+/// layer's encoding, so that their words start aligned.
 pub fn encode_update(out: &mut Vec<u8>, number: u32, mode: ReadMode, layers: &[LayerUpdate], overlays: &Overlays) {
     encode_update_head(out, number, mode, layers, overlays);
-    let most: usize = layers
-        .iter()
-        .filter_map(LayerUpdate::responses)
-        .map(|responses| compact::max_encoded_bytes(responses.len()))
-        .sum();
-    out.reserve(most);
-    for responses in layers.iter().take(usize::from(u16::MAX)).filter_map(LayerUpdate::responses) {
-        compact::encode(responses, out);
+    let sent = || layers.iter().take(usize::from(u16::MAX));
+    // The most any responses can take: the buffer grows once, whatever comes.
+    out.reserve(sent().filter_map(LayerUpdate::responses).map(|r| compact::max_encoded_bytes(r.len())).sum());
+    for encoded in sent().filter_map(LayerUpdate::compact_responses) {
+        out.extend_from_slice(encoded);
     }
 }
 
@@ -335,6 +340,7 @@ mod tests {
             fault_frame,
             range: None,
             responses: std::sync::Arc::new(responses.to_vec()),
+            compact: std::sync::Arc::default(),
         }
     }
 

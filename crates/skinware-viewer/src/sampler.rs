@@ -7,7 +7,7 @@
 #![forbid(unsafe_code)]
 
 use std::path::PathBuf;
-use std::sync::{Arc, Condvar, Mutex, MutexGuard, Weak};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard, OnceLock, Weak};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -48,6 +48,12 @@ pub struct LayerSlot {
     /// writes in place when no session holds them, and into a new buffer
     /// when one does (the session keeps what it took).
     pub responses: Arc<Vec<u16>>,
+    /// The same responses in the compact encoding ([`crate::compact`]),
+    /// made by the first session that sends them and shared with every
+    /// other: one encoding per frame, however many browsers watch. Only
+    /// [`LayerSlot::store_responses`] changes the responses, and it starts
+    /// a new encoding each time; read it with [`LayerSlot::compact_responses`].
+    pub(crate) compact: Arc<OnceLock<Vec<u8>>>,
 }
 
 impl LayerSlot {
@@ -64,6 +70,22 @@ impl LayerSlot {
                 self.responses = Arc::new(fresh);
             }
         }
+        // New responses, not yet encoded: the old encoding stays with the
+        // sessions that took it.
+        match Arc::get_mut(&mut self.compact) {
+            Some(own) => drop(own.take()),
+            None => self.compact = Arc::new(OnceLock::new()),
+        }
+    }
+
+    /// Its responses in the compact encoding, encoded now by the first
+    /// caller since they changed and then shared.
+    pub fn compact_responses(&self) -> &[u8] {
+        self.compact.get_or_init(|| {
+            let mut out = Vec::with_capacity(crate::compact::max_encoded_bytes(self.responses.len()));
+            crate::compact::encode(&self.responses, &mut out);
+            out
+        })
     }
 }
 
@@ -209,6 +231,7 @@ impl Sampler {
                 fault_frame: false,
                 range: learnt.get(index).copied().flatten(),
                 responses: Arc::new(vec![0; layer.sensors]),
+                compact: Arc::default(),
             })
             .collect();
         let shared = Arc::new(Shared {
@@ -508,13 +531,24 @@ mod tests {
             fault_frame: false,
             range: None,
             responses: Arc::new(vec![0; 4]),
+            compact: Arc::default(),
         };
         slot.store_responses(&[1, 2, 3, 4]);
         let first_session = slot.clone();
         let second_session = slot.clone();
         assert!(Arc::ptr_eq(&first_session.responses, &second_session.responses), "one buffer for both");
+        // One encoding, by whichever session sends first, for both.
+        let encoded = first_session.compact_responses().as_ptr();
+        assert_eq!(second_session.compact_responses().as_ptr(), encoded, "encoded once, shared");
+        let mut expected = Vec::new();
+        crate::compact::encode(&[1, 2, 3, 4], &mut expected);
+        assert_eq!(second_session.compact_responses(), expected);
         slot.store_responses(&[5, 6]);
         assert_eq!(*first_session.responses, [1, 2, 3, 4], "a session keeps what it took");
+        assert_eq!(first_session.compact_responses(), expected, "and its encoding");
+        let mut newer = Vec::new();
+        crate::compact::encode(&[5, 6, 3, 4], &mut newer);
+        assert_eq!(slot.compact_responses(), newer, "a new frame is encoded anew");
         assert_eq!(*slot.responses, [5, 6, 3, 4], "a shorter frame leaves the other sensors as they were");
         assert!(!Arc::ptr_eq(&slot.responses, &first_session.responses));
         drop((first_session, second_session));

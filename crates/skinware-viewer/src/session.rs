@@ -507,10 +507,10 @@ impl<'a> Session<'a> {
         let any_running = self.update.iter().any(|layer| layer.slot.state == Some(skinware::WriterState::Running));
         let shared = &self.site.overlays;
         let overlays = self.overlays.for_update(fresh_frames, any_running, || shared.poll());
-        // Encoded for this browser at send time (the responses in the
-        // compact encoding, less than half their raw bytes): 6-10 µs per
-        // board of the paper's skin in a release build, about what the
-        // kernel's copy of the bytes saved cost (docs/viewer.md).
+        // The responses in the compact encoding, less than half their raw
+        // bytes: 6-10 µs per board of the paper's skin in a release build,
+        // paid once per frame by the first session that sends it; the
+        // others copy its bytes (docs/viewer.md).
         protocol::encode_update(&mut self.message, self.updates_sent, self.mode, &self.update, overlays);
         // Let go of the board's buffers before the write, which may block
         // on a slow browser: the layers' readers then write in place again.

@@ -162,7 +162,7 @@ impl Ticker {
             let grid = deadline + missed * self.period_ns;
             Tick { deadline_ns: grid, lateness_ns: called - grid, overrun: true, missed }
         };
-        self.next_ns = tick.deadline_ns + self.period_ns;
+        self.next_ns = tick.deadline_ns.saturating_add(self.period_ns);
         Some(tick)
     }
 }
@@ -331,15 +331,16 @@ mod tests {
     #[test]
     fn a_ticker_on_a_grid_starts_at_its_next_point_not_in_the_past() {
         let period = Duration::from_millis(10);
-        let now = os::monotonic_ns();
+        let before = os::monotonic_ns();
         // An origin 3.5 periods ago: the first deadline is the grid's next point.
-        let past = Ticker::on_grid(period, now - 35_000_000);
-        assert!(past.next_ns >= now, "a deadline in the past would count as missed periods");
-        assert_eq!((past.next_ns - (now - 35_000_000)) % 10_000_000, 0, "left the grid");
-        assert!(past.next_ns - now <= 10_000_000);
+        let past = Ticker::on_grid(period, before - 35_000_000);
+        let after = os::monotonic_ns();
+        assert!(past.next_ns >= before, "a deadline in the past would count as missed periods");
+        assert_eq!((past.next_ns - (before - 35_000_000)) % 10_000_000, 0, "left the grid");
+        assert!(past.next_ns <= after + 10_000_000, "the first point not passed, not a later one");
         // An origin ahead is kept as it is.
-        let ahead = Ticker::on_grid(period, now + 5_000_000_000);
-        assert_eq!(ahead.next_ns, now + 5_000_000_000);
+        let ahead = Ticker::on_grid(period, after + 5_000_000_000);
+        assert_eq!(ahead.next_ns, after + 5_000_000_000);
         // An origin at the clock's start with a period near the clock's range does not overflow.
         let far = Ticker::on_grid(Duration::from_secs(u64::MAX / 2_000_000_000), 0);
         assert!(far.next_ns > 0);

@@ -257,9 +257,8 @@ fn print_summary(summary: &RecordSummary, json: bool) -> Result<()> {
         summary.images,
         summary.lost
     )?;
-    if summary.parts.len() > 1 {
-        let names: Vec<String> = summary.parts.iter().map(|p| p.display().to_string()).collect();
-        writeln!(stdout, "  in {} files: {}", summary.parts.len(), names.join(", "))?;
+    if let [first, .., last] = summary.parts.as_slice() {
+        writeln!(stdout, "  in {} files, {} to {}", summary.parts.len(), first.display(), last.display())?;
     }
     for (name, channel) in &summary.channels {
         let waits = match channel.file_waits {

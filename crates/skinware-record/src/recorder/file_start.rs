@@ -77,8 +77,11 @@ pub(super) struct Started {
     /// The MCAP channel of each reader's statistics, in the readers' order.
     pub(super) stats_channels: Vec<u16>,
     pub(super) gap_channel: u16,
-    /// The map image's channel and its renderer, if the map is recorded.
+    /// The map image's channel and its renderer, if the map is recorded
+    /// (the renderer in the first part only: the recording's threads use it).
     pub(super) map: Option<(u16, HeatMap)>,
+    /// The map image's channel, in every part.
+    pub(super) map_channel: Option<u16>,
     /// The messages for ROS tools, if wanted.
     pub(super) ros: Option<RosView>,
     /// CLOCK_REALTIME minus CLOCK_MONOTONIC, as written in the metadata.
@@ -98,12 +101,13 @@ pub(super) struct ChannelIds {
 }
 
 impl ChannelIds {
+    /// The ids `started` gave.
     pub(super) fn of(started: &Started) -> ChannelIds {
         ChannelIds {
             frames: started.frame_channels.clone(),
             stats: started.stats_channels.clone(),
             gaps: started.gap_channel,
-            map: started.map.as_ref().map(|(id, _)| *id),
+            map: started.map_channel,
             ros: started.ros.as_ref().map(RosView::channel_ids),
         }
     }
@@ -116,13 +120,27 @@ struct Topics {
     layout: BTreeMap<String, String>,
 }
 
-/// Writes the start of a recording of `sources` into `file` (new and empty).
+/// Which part of a recording a file's start begins.
+#[derive(Clone, Copy, Debug)]
+pub(super) enum Part {
+    /// The first (or only) file: the clock offset is measured now, and the
+    /// map's renderer is built for the recording's threads.
+    First,
+    /// A later part of a split recording, whose messages keep being stamped
+    /// with the first part's clock offset: its metadata says that one.
+    Later {
+        /// CLOCK_REALTIME minus CLOCK_MONOTONIC, as the first part measured it.
+        clock_offset_ns: i64,
+    },
+}
+
+/// Writes the start of `part` of a recording of `sources` into `file` (new and empty).
 pub(super) fn write_start(
     path: &Path,
     file: &File,
     options: &RecordOptions,
     sources: &Sources,
-    dir: &Path,
+    (dir, part): (&Path, Part),
 ) -> Result<Started, RecordError> {
     let write_error = |e: mcap::McapError| mcap_write_error(path, e);
     let mut writer = create_writer(path, file, options)?;
@@ -130,7 +148,10 @@ pub(super) fn write_start(
     let gap_schema = add_schema(&mut writer, GAP).map_err(write_error)?;
     let stats_schema = add_schema(&mut writer, LAYER_STATS).map_err(write_error)?;
 
-    let clock_offset_ns = clock_offset_ns();
+    let clock_offset_ns = match part {
+        Part::First => clock_offset_ns(),
+        Part::Later { clock_offset_ns } => clock_offset_ns,
+    };
     let started_unix_ns = unix_ns(skinware::os::monotonic_ns(), clock_offset_ns);
     let recording = recording_metadata(options, clock_offset_ns, started_unix_ns);
     writer.write_metadata(&Metadata { name: RECORDING_METADATA.into(), metadata: recording }).map_err(write_error)?;
@@ -140,7 +161,8 @@ pub(super) fn write_start(
     let gap_channel = writer
         .add_channel(gap_schema, &skinware_ros2::gaps_topic(&options.skin), MESSAGE_ENCODING, &BTreeMap::new())
         .map_err(write_error)?;
-    let map = add_map(&mut writer, options, sources.geometry.as_ref()).map_err(write_error)?;
+    let (map_channel, map) =
+        add_map(&mut writer, options, sources.geometry.as_ref(), matches!(part, Part::First)).map_err(write_error)?;
     let mut ros = add_view(&mut writer, options, sources, dir.to_owned(), started_unix_ns).map_err(write_error)?;
     writer.write_metadata(&Metadata { name: LAYOUT_METADATA.into(), metadata: topics.layout }).map_err(write_error)?;
     attach(&mut writer, started_unix_ns, sources).map_err(write_error)?;
@@ -154,6 +176,7 @@ pub(super) fn write_start(
         stats_channels: topics.stats_channels,
         gap_channel,
         map,
+        map_channel,
         ros,
         clock_offset_ns,
     })
@@ -226,25 +249,33 @@ fn add_topics(
     Ok(topics)
 }
 
+/// The map image's channel and its renderer, where there is one.
+type MapRenderer = Option<(u16, HeatMap)>;
+
 /// The map image's schema and channel, if images are wanted and the skin
-/// publishes the geometry to draw them from.
+/// publishes the geometry to draw them from, and, for the `first` part,
+/// its renderer (the others' would go unused; and a missing geometry is
+/// said once).
 fn add_map(
     writer: &mut McapWriter,
     options: &RecordOptions,
     geometry: Option<&SkinGeometry>,
-) -> Result<Option<(u16, HeatMap)>, mcap::McapError> {
+    first: bool,
+) -> Result<(Option<u16>, MapRenderer), mcap::McapError> {
     match (geometry, options.map_hz > 0.0) {
         (Some(geometry), true) => {
             let image_schema = add_schema(writer, IMAGE)?;
             let topic = skinware_ros2::map_topic(&options.skin);
             let id = writer.add_channel(image_schema, &topic, MESSAGE_ENCODING, &BTreeMap::new())?;
-            Ok(Some((id, HeatMap::new(geometry, options.map_width))))
+            Ok((Some(id), first.then(|| (id, HeatMap::new(geometry, options.map_width)))))
         }
         (None, true) => {
-            tracing::warn!(skin = %options.skin, "no geometry is published for this skin: recording without the map image");
-            Ok(None)
+            if first {
+                tracing::warn!(skin = %options.skin, "no geometry is published for this skin: recording without the map image");
+            }
+            Ok((None, None))
         }
-        _ => Ok(None),
+        _ => Ok((None, None)),
     }
 }
 

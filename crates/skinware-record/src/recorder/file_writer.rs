@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 use mcap::records::{MessageHeader, Metadata};
 
 use super::discovery::Sources;
-use super::file_start::{ChannelIds, McapWriter, write_start};
+use super::file_start::{ChannelIds, McapWriter, Part, write_start};
 use super::summary::Recorded;
 use super::{Item, RecordOptions, Shared, Split, part_path};
 use crate::error::{mcap_write_error, write_hint};
@@ -41,6 +41,7 @@ pub(super) struct FileJob {
 
 /// A split recording's parts: when to start the next, and what starts it.
 pub(super) struct Parts {
+    /// When a part is complete.
     pub(super) split: Split,
     /// The recording's path, which the parts are named after.
     pub(super) base: PathBuf,
@@ -50,11 +51,38 @@ pub(super) struct Parts {
     pub(super) started: Instant,
     /// What starts every part (no readers).
     pub(super) sources: Sources,
+    /// The recording's options, which every part's start says.
     pub(super) options: RecordOptions,
     /// The skin's segment directory.
     pub(super) dir: PathBuf,
     /// The first part's channel ids, which every part must give.
     pub(super) ids: ChannelIds,
+    /// The first part's clock offset, with which every message is stamped.
+    pub(super) clock_offset_ns: i64,
+}
+
+/// Why the writing stopped short.
+struct Stopped {
+    error: RecordError,
+    /// The part being written is sound and should be finished: only the
+    /// next one could not be started.
+    finish_current: bool,
+}
+
+impl From<RecordError> for Stopped {
+    fn from(error: RecordError) -> Stopped {
+        Stopped { error, finish_current: false }
+    }
+}
+
+/// A finished part handed to [`close_part`].
+struct Finished {
+    writer: McapWriter,
+    path: PathBuf,
+    /// Its summary's counts.
+    summary: BTreeMap<String, String>,
+    /// Its size when handed over, already counted among the finished parts' bytes.
+    counted_bytes: u64,
 }
 
 /// Why [`FileJob::write_until_done`] returned.
@@ -78,10 +106,15 @@ impl FileJob {
             );
         }
         let result = self.write_all();
-        if let Err(e) = result {
+        if let Err(Stopped { error, finish_current }) = result {
             // Unblock the readers: they stop on the signal, and their sends fail once the receiver is gone.
-            self.shared.fail(e);
+            self.shared.fail(error);
             drop(self.receiver);
+            if finish_current {
+                // Only the next part failed to start: this one is whole.
+                let _ = finish_file(self.writer, &self.path, summary_metadata(&self.channels));
+                return Ok(());
+            }
             // A file that could not be written is not finished: that would
             // write more into a full or failing disk. What it holds is
             // readable up to its last complete chunk.
@@ -91,7 +124,7 @@ impl FileJob {
         self.finish()
     }
 
-    fn write_all(&mut self) -> Result<(), RecordError> {
+    fn write_all(&mut self) -> Result<(), Stopped> {
         let mut syncer = Syncer::start(&self.sync, &self.path, &self.shared)?;
         let mut closing: Option<JoinHandle<Result<(), RecordError>>> = None;
         loop {
@@ -99,15 +132,21 @@ impl FileJob {
             if let Ok(Written::Part) = written {
                 // The part before has long been closed; its error, if any, stops the recording.
                 join_closing(closing.take())?;
-                let (finished, path, summary) = self.next_part()?;
+                let finished = match self.next_part() {
+                    Ok(finished) => finished,
+                    Err(error) => {
+                        let _ = syncer.finish();
+                        return Err(Stopped { error, finish_current: true });
+                    }
+                };
                 let finished_syncer =
                     std::mem::replace(&mut syncer, Syncer::start(&self.sync, &self.path, &self.shared)?);
-                closing = Some(close_part(finished, path, summary, finished_syncer, &self.shared)?);
+                closing = Some(close_part(finished, finished_syncer, &self.shared)?);
                 continue;
             }
             let synced = syncer.finish();
             let closed = join_closing(closing);
-            return written.and(closed).and(synced).map(drop);
+            return Ok(written.and(closed).and(synced).map(drop)?);
         }
     }
 
@@ -119,37 +158,40 @@ impl FileJob {
         })
     }
 
-    /// Starts the next part, and returns the one being written, with its
-    /// path and its summary's counts, for [`close_part`]. What the other
-    /// threads send meanwhile waits in their queue: no frame is lost
-    /// between two parts, and each frame is in one part only.
-    fn next_part(&mut self) -> Result<(McapWriter, PathBuf, BTreeMap<String, String>), RecordError> {
-        let parts = self.parts.as_mut().ok_or_else(|| RecordError::Io {
-            op: "start the next part of",
-            path: self.path.clone(),
-            hint: "the recording is not split".into(),
-            source: std::io::Error::other("no next part"),
-        })?;
+    /// Starts the next part, and returns the one being written for
+    /// [`close_part`]. The frames the other threads send meanwhile wait in
+    /// their queue: each frame is in one part only, and none is dropped at
+    /// the switch (a queue that fills meanwhile makes readers miss frames,
+    /// counted as always).
+    fn next_part(&mut self) -> Result<Finished, RecordError> {
+        let Some(parts) = self.parts.as_mut() else {
+            return Err(RecordError::Split { reason: "the recording is not split".into() });
+        };
         let path = part_path(&parts.base, parts.index + 1);
         let file = crate::error::create_new(&path)?;
-        let started = write_start(&path, &file, &parts.options, &parts.sources, &parts.dir)?;
-        if ChannelIds::of(&started) != parts.ids {
-            // The same start gives the same ids; this would be a bug here.
-            return Err(RecordError::Io {
-                op: "start the next part",
-                path,
-                hint: "its channels were numbered differently from the first part's".into(),
-                source: std::io::Error::other("channel ids differ between parts"),
-            });
-        }
+        let part = Part::Later { clock_offset_ns: parts.clock_offset_ns };
+        let started = write_start(&path, &file, &parts.options, &parts.sources, (&parts.dir, part))
+            .and_then(|started| {
+                // The same start gives the same ids; anything else is a bug here.
+                (ChannelIds::of(&started) == parts.ids).then_some(started).ok_or_else(|| RecordError::Split {
+                    reason: format!("{} numbered its channels differently from the first part", path.display()),
+                })
+            })
+            .inspect_err(|_| {
+                // Half a start is no part: the recording ends with the one before.
+                let _ = std::fs::remove_file(&path);
+            })?;
         parts.index += 1;
         parts.started = Instant::now();
+        // Counted now, so that the progress never drops by a part while it closes.
+        let counted_bytes = self.sync.metadata().map_or(0, |m| m.len());
+        self.shared.finished_part_bytes.fetch_add(counted_bytes, Ordering::Relaxed);
         let summary = summary_metadata(&self.channels);
         let finished_path = std::mem::replace(&mut self.path, path.clone());
-        let finished = std::mem::replace(&mut self.writer, started.writer);
+        let writer = std::mem::replace(&mut self.writer, started.writer);
         self.sync = file;
         skinware::lock(&self.shared.parts).push(path);
-        Ok((finished, finished_path, summary))
+        Ok(Finished { writer, path: finished_path, summary, counted_bytes })
     }
 
     fn write_until_done(&mut self, syncer: &Syncer) -> Result<Written, RecordError> {
@@ -193,7 +235,8 @@ impl FileJob {
     }
 }
 
-/// What each channel counted so far, as a file's summary metadata says it.
+/// What each channel counted since the recording started, as a file's
+/// summary metadata says it (a part's: the running totals at its end).
 fn summary_metadata(channels: &[Recorded]) -> BTreeMap<String, String> {
     let mut summary = BTreeMap::new();
     for channel in channels {
@@ -222,9 +265,7 @@ fn finish_file(mut writer: McapWriter, path: &Path, summary: BTreeMap<String, St
 /// thread they held up the next part while the readers' queue filled. An
 /// error stops the recording; [`join_closing`] reports it.
 fn close_part(
-    writer: McapWriter,
-    path: PathBuf,
-    summary: BTreeMap<String, String>,
+    finished: Finished,
     syncer: Syncer,
     shared: &Arc<Shared>,
 ) -> Result<JoinHandle<Result<(), RecordError>>, RecordError> {
@@ -232,10 +273,11 @@ fn close_part(
     std::thread::Builder::new()
         .name("rec-close".into())
         .spawn(move || {
+            let Finished { writer, path, summary, counted_bytes } = finished;
             let closed = syncer.finish().and_then(|()| finish_file(writer, &path, summary));
             match closed {
                 Ok(bytes) => {
-                    shared.finished_part_bytes.fetch_add(bytes, Ordering::Relaxed);
+                    shared.finished_part_bytes.fetch_add(bytes.saturating_sub(counted_bytes), Ordering::Relaxed);
                     Ok(())
                 }
                 Err(e) => {

@@ -154,8 +154,9 @@ pub struct RecordOptions {
 /// `run.mcap` is written as `run_000.mcap`, `run_001.mcap`, ... ([`part_path`]).
 ///
 /// The MCAP writer keeps an index entry for every chunk in memory until it
-/// writes the file's summary, at the file's end: about 650 bytes per chunk,
-/// 10 KB/s at the paper's skin at 1 kHz. Parts bound that, and so the
+/// writes the file's summary, at the file's end: about 650 bytes per chunk;
+/// a single file's recorder grew 10-16 KB/s at the paper's skin at 1 kHz
+/// (`docs/bench/record.md`). Parts bound that, and so the
 /// recorder's memory, however long it records. A part is closed at the
 /// first flush (every [`RecordOptions::flush_interval`]) after it reaches
 /// either limit, so it may be up to a flush interval longer.
@@ -168,6 +169,17 @@ pub struct Split {
 }
 
 impl Split {
+    /// A limit to keep: at least one, and neither zero.
+    fn check(&self) -> Result<(), RecordError> {
+        let reason = match (self.max_bytes, self.max_duration) {
+            (None, None) => "no limit is set: give a part's largest size, its longest duration, or both",
+            (Some(0), _) => "a part of at most 0 bytes: give a size of 1 or more",
+            (_, Some(duration)) if duration.is_zero() => "a part of at most 0 s: give a duration of 1 s or more",
+            _ => return Ok(()),
+        };
+        Err(RecordError::Split { reason: reason.to_owned() })
+    }
+
     /// Whether a part of `bytes` bytes started `elapsed` ago is complete.
     fn is_reached(&self, bytes: u64, elapsed: Duration) -> bool {
         self.max_bytes.is_some_and(|max| bytes >= max) || self.max_duration.is_some_and(|max| elapsed >= max)
@@ -176,7 +188,8 @@ impl Split {
 
 /// The path of part `index` of a split recording at `path`: `_` and the
 /// number, three digits at least, before the extension (`run.mcap`, 2:
-/// `run_002.mcap`), so that the parts sort in order.
+/// `run_002.mcap`): the first 1,000 parts sort in order by name, and
+/// `ls -v` sorts any number.
 pub fn part_path(path: &Path, index: usize) -> PathBuf {
     let mut name = path.file_stem().map(std::ffi::OsStr::to_os_string).unwrap_or_default();
     name.push(format!("_{index:03}"));
@@ -266,13 +279,17 @@ pub struct Recorder {
 }
 
 impl Recorder {
-    /// Starts recording the chosen channels of `options.skin` into a new file `path`.
+    /// Starts recording the chosen channels of `options.skin` into a new
+    /// file `path`, or, split, into its parts ([`part_path`]).
     pub fn start(path: &Path, options: RecordOptions) -> Result<Recorder, RecordError> {
+        if let Some(split) = options.split {
+            split.check()?;
+        }
         let dir = options.dir.clone().unwrap_or_else(skinware::shm::segment_dir);
         let sources = discovery::open_sources(&dir, &options)?;
         let first = if options.split.is_some() { part_path(path, 0) } else { path.to_owned() };
         let file = crate::error::create_new(&first)?;
-        let started = file_start::write_start(&first, &file, &options, &sources, &dir)?;
+        let started = file_start::write_start(&first, &file, &options, &sources, (&dir, file_start::Part::First))?;
         Recorder::run(path, options, dir, sources, file, started)
     }
 
@@ -305,6 +322,7 @@ impl Recorder {
             options: options.clone(),
             dir: dir.clone(),
             ids: file_start::ChannelIds::of(&started),
+            clock_offset_ns: started.clock_offset_ns,
         });
         let channels: Vec<Recorded> = sources.readers.iter().map(Recorded::of).collect();
         let queue_frames = queue_frames(sources.readers.iter().map(skinware::Reader::payload_bytes));

@@ -68,7 +68,7 @@ pub struct Progress {
     pub lost: u64,
     /// Message bytes handed to the file (before compression).
     pub message_bytes: u64,
-    /// The file's size now.
+    /// The recording's size on disk now: every part's, if it is split.
     pub file_bytes: u64,
 }
 
@@ -109,7 +109,7 @@ pub struct RecordSummary {
     pub lost: u64,
     /// Message bytes (before compression).
     pub message_bytes: u64,
-    /// The finished file's size.
+    /// The finished recording's size: every part's, if it is split.
     pub file_bytes: u64,
     /// Frames per second.
     pub frames_per_s: f64,
