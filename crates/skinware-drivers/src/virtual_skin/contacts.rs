@@ -195,21 +195,45 @@ impl Contacts {
             let within = |place: &SensorPlace| (place.part, place.height) <= (blob.part, height + reach);
             let (from, to) = (places.partition_point(below), places.partition_point(within));
             let touched = responses.iter_mut().zip(places).take(to).skip(from);
+            // A response is a whole number and a press's pressure is added
+            // to it and truncated, so a pressure below 1 changes nothing.
+            // Beyond this squared distance it is below 1/e: such taxels are
+            // skipped before their angle and `exp` are computed (most of
+            // the band of heights that `reach` leaves, which goes all round
+            // the part). NaN (no finite logarithm) skips nothing.
+            let two_sigma2 = 2.0 * blob.sigma * blob.sigma;
+            let negligible_beyond = two_sigma2 * ((blob.peak * amplitude).ln() + 1.0);
             for (response, place) in touched {
                 if place.part != blob.part || (place.height - height).abs() > reach {
                     continue;
                 }
-                let mut dangle = (place.angle - angle).rem_euclid(std::f64::consts::TAU);
+                let height_d2 = (place.height - height).powi(2);
+                if height_d2 > negligible_beyond {
+                    continue;
+                }
+                let mut dangle = rem_tau(place.angle - angle);
                 if dangle > std::f64::consts::PI {
                     dangle -= std::f64::consts::TAU;
                 }
                 let arc = dangle * radius;
-                let d2 = arc * arc + (place.height - height).powi(2);
-                let pressure = blob.peak * amplitude * (-d2 / (2.0 * blob.sigma * blob.sigma)).exp();
+                let d2 = arc * arc + height_d2;
+                if d2 > negligible_beyond {
+                    continue;
+                }
+                let pressure = blob.peak * amplitude * (-d2 / two_sigma2).exp();
                 *response = (f64::from(*response) + pressure).min(f64::from(u16::MAX)) as u16;
             }
         }
     }
+}
+
+/// `x.rem_euclid(TAU)`, bit for bit, without the software `fmod` for the
+/// usual angle difference: below TAU in size, `x % TAU` is `x` itself.
+#[inline]
+fn rem_tau(x: f64) -> f64 {
+    use std::f64::consts::TAU;
+    let r = if x.abs() < TAU { x } else { x % TAU };
+    if r < 0.0 { r + TAU } else { r }
 }
 
 #[cfg(test)]
@@ -235,6 +259,30 @@ mod tests {
                 let pressure = blob.peak * amplitude * (-d2 / (2.0 * blob.sigma * blob.sigma)).exp();
                 *response = (f64::from(*response) + pressure).min(f64::from(u16::MAX)) as u16;
             }
+        }
+    }
+
+    #[test]
+    fn rem_tau_is_rem_euclid_bit_for_bit() {
+        use std::f64::consts::TAU;
+        let mut random = SplitMix(41);
+        let edges = [
+            0.0,
+            -0.0,
+            TAU,
+            -TAU,
+            TAU.next_down(),
+            (-TAU).next_up(),
+            3.0 * TAU,
+            -7.5 * TAU,
+            1e-300,
+            -1e-300,
+            1e9,
+            -1e9,
+        ];
+        let drawn = (0..100_000).map(|_| random.range(-40.0, 40.0));
+        for x in edges.into_iter().chain(drawn) {
+            assert_eq!(rem_tau(x).to_bits(), x.rem_euclid(TAU).to_bits(), "x = {x:e}");
         }
     }
 

@@ -305,7 +305,7 @@ struct VirtualLayer {
     body: Arc<VirtualBody>,
     contacts: Arc<Contacts>,
     sensors: std::ops::Range<usize>,
-    phases: Vec<[f64; 2]>,
+    phases: Vec<DriftPhase>,
     started: Instant,
     noise: SplitMix,
     /// This frame's random 16-bit words, one per sensor (and up to 3 more:
@@ -319,17 +319,35 @@ struct VirtualLayer {
 /// The responses of the sensors at `places` (whose [`drift_phases`] are
 /// `phases`) at `t` seconds, before noise: a baseline of about 1000 with a
 /// slow drift, plus the contacts' pressure.
-fn pressures(t: f64, places: &[SensorPlace], phases: &[[f64; 2]], contacts: &Contacts, responses: &mut [u16]) {
+fn pressures(t: f64, places: &[SensorPlace], phases: &[DriftPhase], contacts: &Contacts, responses: &mut [u16]) {
     // Baseline with a slow drift, different per sensor: 40 sin(0.05 t + φ),
     // expanded so that a frame costs a multiply-add per sensor instead of a
-    // sine (a 1 kHz skin of 30,848 taxels would spend most of a core on them).
+    // sine (a 1 kHz skin of 30,848 taxels would spend most of a core on
+    // them), in fixed point: integer lanes vectorise, where the compiler
+    // converts floating point to a saturated `u16` one sensor at a time
+    // (1.3 against 0.6 ns a sensor here). The sum is the drift times
+    // 2^DRIFT_SHIFT; shifting it down rounds towards minus infinity, as
+    // truncating 1000 + drift (always positive) does. Against the same
+    // sum in `f64` a response differs by 1 in about 0.2 % of samples.
     let (sin_t, cos_t) = (0.05 * t).sin_cos();
-    for (response, [sin_phase, cos_phase]) in responses.iter_mut().zip(phases) {
-        let drift = 40.0 * (sin_t * cos_phase + cos_t * sin_phase);
-        *response = (1000.0 + drift) as u16;
+    let scale = 40.0 * f64::from(1u32 << (DRIFT_SHIFT - PHASE_BITS));
+    let (sin_t, cos_t) = ((sin_t * scale).round() as i32, (cos_t * scale).round() as i32);
+    for (response, &[sin_phase, cos_phase]) in responses.iter_mut().zip(phases) {
+        let drift = sin_t * i32::from(cos_phase) + cos_t * i32::from(sin_phase);
+        *response = (i32::from(BASELINE) + (drift >> DRIFT_SHIFT)) as u16;
     }
     contacts.press(t, places, responses);
 }
+
+/// A sensor's drift phase φ as (sin φ, cos φ) in fixed point, times 2^PHASE_BITS.
+type DriftPhase = [i16; 2];
+
+/// The drift phases' fixed point: 2^14 fits a sine of 1 in an `i16`.
+const PHASE_BITS: u32 = 14;
+
+/// The drift sum's fixed point: 40 · 2^11 · 2^14 · (|sin| + |cos| ≤ √2)
+/// stays within an `i32`.
+const DRIFT_SHIFT: u32 = 25;
 
 /// Fills `lanes` (a multiple of 4 long) with random 16-bit words, four
 /// from each of `noise`'s words, lowest bits first.
@@ -349,13 +367,14 @@ fn add_noise(responses: &mut [u16], lanes: &[u16]) {
     }
 }
 
-/// Each sensor's drift phase φ as (sin φ, cos φ), for [`pressures`].
-fn drift_phases(places: &[SensorPlace]) -> Vec<[f64; 2]> {
+/// Each sensor's drift phase φ, for [`pressures`].
+fn drift_phases(places: &[SensorPlace]) -> Vec<DriftPhase> {
+    let one = f64::from(1u32 << PHASE_BITS);
     places
         .iter()
         .map(|place| {
             let (sin, cos) = (place.angle + place.height * 7.0).sin_cos();
-            [sin, cos]
+            [(sin * one).round() as i16, (cos * one).round() as i16]
         })
         .collect()
 }
@@ -366,7 +385,7 @@ fn drift_phases(places: &[SensorPlace]) -> Vec<[f64; 2]> {
 #[derive(Debug)]
 pub struct PressureField {
     body: VirtualBody,
-    phases: Vec<[f64; 2]>,
+    phases: Vec<DriftPhase>,
     contacts: Contacts,
 }
 
@@ -505,7 +524,10 @@ mod tests {
             pressures(t, &body.places, &phases, &none, &mut responses);
             for (response, place) in responses.iter().zip(&body.places) {
                 let sine = 1000.0 + 40.0 * (0.05 * t + place.angle + place.height * 7.0).sin();
-                assert!((f64::from(*response) - sine).abs() <= 1.0, "{response} against {sine} at t = {t}");
+                // Truncated (below by less than 1), give or take the fixed
+                // point's rounding, well under a hundredth.
+                let below = sine - f64::from(*response);
+                assert!((-0.01..1.01).contains(&below), "{response} against {sine} at t = {t}");
             }
         }
     }
