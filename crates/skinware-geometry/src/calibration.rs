@@ -96,7 +96,8 @@ impl Calibration {
 
     /// Reads a calibration file in either format.
     pub fn load(path: &Path) -> Result<Calibration, GeometryError> {
-        let text = std::fs::read_to_string(path).map_err(|e| GeometryError::Calibration {
+        // A line per taxel: 1 GiB is thousands of bytes for each of 300,000.
+        let text = skinware::shm::read_named_text(path, 1 << 30).map_err(|e| GeometryError::Calibration {
             source_name: path.display().to_string(),
             line: 0,
             message: format!("cannot read it: {e}"),

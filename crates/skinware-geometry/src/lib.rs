@@ -345,7 +345,7 @@ impl SkinGeometry {
     ) -> Result<(SkinGeometry, bool), GeometryError> {
         let hash = input_hash(skin, layers, calibration, regions);
         let path = cache_dir.join(format!("geometry-{hash:016x}.bin"));
-        if let Ok(bytes) = std::fs::read(&path) {
+        if let Ok(bytes) = skinware::shm::read_named_file(&path, SkinGeometry::MAX_PUBLISHED_BYTES) {
             match SkinGeometry::decode(&bytes) {
                 Ok(geometry) if geometry.input_hash == hash => return Ok((geometry, true)),
                 Ok(_) => {

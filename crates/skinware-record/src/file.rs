@@ -62,7 +62,7 @@ pub struct RecordStream<R = File> {
 impl RecordStream<File> {
     /// Opens `path`, checking that it is MCAP.
     pub fn open(path: &Path) -> Result<RecordStream<File>, RecordError> {
-        let file = File::open(path).map_err(|source| RecordError::Io {
+        let file = skinware::shm::open_named_file(path).map_err(|source| RecordError::Io {
             op: "open",
             path: path.to_owned(),
             source,

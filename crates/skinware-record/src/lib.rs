@@ -29,7 +29,7 @@ pub use file::{ChannelSummary, RecordingInfo, recover, scan};
 /// The MCAP crate this one writes with, for readers of its records.
 pub use mcap;
 pub use recorder::{Compression, Progress, RecordOptions, RecordSummary, Recorder, ServiceChoice, Split, part_path};
-pub use replay::{AtEnd, Replay, ReplayOptions, ReplayReport};
+pub use replay::{AtEnd, Replay, ReplayOptions, ReplayReport, recording_parts};
 
 /// The recording format this crate writes (metadata `skinware.recording`,
 /// key `format_version`). A file with a higher number was written by a newer

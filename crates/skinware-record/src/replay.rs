@@ -21,7 +21,7 @@ use skinware_geometry::SkinGeometry;
 use skinware_ros2::SkinFrame;
 
 use crate::RecordError;
-use crate::file::{RecordStream, RecordedChannel, RecordingHeader, read_header};
+use crate::file::{RawMessage, RecordStream, RecordedChannel, RecordingHeader, read_header};
 
 /// How far ahead of publication the file is read, to put frames from different
 /// channels (queued by different recorder threads) back in time order.
@@ -181,9 +181,22 @@ struct Target {
     published: u64,
 }
 
+/// The files of the recording at `path`, in order: `path` itself if
+/// something is there; otherwise, if `skin record --split-*` wrote it in
+/// parts, its parts from `_000` on ([`crate::part_path`]), as many as follow
+/// one another; otherwise `path` (whose open then says it is missing).
+pub fn recording_parts(path: &Path) -> Vec<PathBuf> {
+    let here = |path: &Path| std::fs::symlink_metadata(path).is_ok();
+    if here(path) || !here(&crate::part_path(path, 0)) {
+        return vec![path.to_owned()];
+    }
+    (0..).map(|index| crate::part_path(path, index)).take_while(|part| here(part)).collect()
+}
+
 /// A recording being replayed.
 pub struct Replay {
-    path: PathBuf,
+    /// Its files in order: one, or the parts of a split recording.
+    parts: Vec<PathBuf>,
     options: ReplayOptions,
     header: RecordingHeader,
     skin: String,
@@ -193,8 +206,24 @@ pub struct Replay {
 }
 
 impl Replay {
-    /// Reads the recording's header, creates its channels and publishes its geometry.
+    /// Reads the recording's header, creates its channels and publishes its
+    /// geometry. A recording split into parts (`run.mcap` written as
+    /// `run_000.mcap`, `run_001.mcap`, ...) is replayed whole when `path`
+    /// is the name it was recorded under ([`recording_parts`]).
     pub fn open(path: &Path, options: ReplayOptions) -> Result<Replay, RecordError> {
+        Replay::open_parts(&recording_parts(path), options)
+    }
+
+    /// [`open`](Self::open) of a recording in several files, `parts`, played
+    /// one after the other as one recording: the parts of a split
+    /// recording, in order. The first part's header (channels, geometry)
+    /// is the recording's; every later part must record the same channels,
+    /// which is checked as the replay reaches it.
+    pub fn open_parts(parts: &[PathBuf], options: ReplayOptions) -> Result<Replay, RecordError> {
+        let Some(path) = parts.first() else {
+            return Err(RecordError::Mismatch { context: "no recording to replay: give at least one file".into() });
+        };
+        let path = path.as_path();
         if !(options.speed.is_finite() && options.speed > 0.0) {
             return Err(RecordError::Mismatch {
                 context: format!("speed {} must be a positive number", options.speed),
@@ -257,7 +286,7 @@ impl Replay {
             let at = geometry.publish(&dir).map_err(RecordError::PublishGeometry)?;
             published = Some(at);
         }
-        Ok(Replay { path: path.to_owned(), options, header, skin, targets, geometry: published, stop: Stop::new() })
+        Ok(Replay { parts: parts.to_vec(), options, header, skin, targets, geometry: published, stop: Stop::new() })
     }
 
     /// The skin being replayed into.
@@ -334,7 +363,7 @@ impl Replay {
         recycled: std::sync::mpsc::Receiver<Vec<u8>>,
     ) -> Result<std::thread::JoinHandle<()>, RecordError> {
         let loader = Loader {
-            path: self.path.clone(),
+            parts: self.parts.clone(),
             sizes: self
                 .targets
                 .iter()
@@ -439,7 +468,7 @@ impl Replay {
             return Err(RecordError::Mismatch {
                 context: format!(
                     "reading {} failed (the loader thread panicked); replayed up to there",
-                    self.path.display()
+                    self.parts[0].display()
                 ),
             });
         }
@@ -467,7 +496,8 @@ struct Due {
 
 /// Reads one pass's frames in publication order.
 struct Loader {
-    path: PathBuf,
+    /// The recording's files, in order.
+    parts: Vec<PathBuf>,
     /// Channel name and frame size, by MCAP channel id, of the channels replayed.
     sizes: BTreeMap<u16, (String, usize)>,
     from_ns: Option<u64>,
@@ -490,20 +520,20 @@ impl Loader {
     }
 
     fn load(&self, sender: &std::sync::mpsc::SyncSender<Result<Due, RecordError>>) -> Result<(), RecordError> {
-        let mut stream = RecordStream::open(&self.path)?;
-        let (_, first) = read_header(&mut stream)?;
-        // Publication time, file order, channel id, acquisition time, CDR bytes.
-        type Pending = Reverse<(u64, u64, u16, u64, Vec<u8>)>;
+        // Publication time, file order, channel id, acquisition time, part, CDR bytes.
+        type Pending = Reverse<(u64, u64, u16, u64, usize, Vec<u8>)>;
         let mut pending: BinaryHeap<Pending> = BinaryHeap::new();
         let mut order = 0u64;
-        let mut push = |pending: &mut BinaryHeap<_>, header: mcap::records::MessageHeader, data: Vec<u8>| {
+        let mut push = |pending: &mut BinaryHeap<_>, part, header: mcap::records::MessageHeader, data: Vec<u8>| {
             order += 1;
-            pending.push(Reverse((header.publish_time, order, header.channel_id, header.log_time, data)));
+            pending.push(Reverse((header.publish_time, order, header.channel_id, header.log_time, part, data)));
         };
+        let mut part = 0;
+        let (mut stream, first) = self.open_part(part)?;
         if let Some((header, data)) = first
             && self.sizes.contains_key(&header.channel_id)
         {
-            push(&mut pending, header, data);
+            push(&mut pending, part, header, data);
         }
         let (mut newest_read, mut exhausted, mut sent) = (0u64, false, 0u64);
         let mut base: Option<u64> = None;
@@ -511,22 +541,39 @@ impl Loader {
             while !exhausted
                 && pending.peek().is_none_or(|Reverse(top)| newest_read < top.0.saturating_add(REORDER_WINDOW_NS))
             {
-                match stream.next_record() {
+                let end_of_part = match stream.next_record() {
                     Ok(Some(Record::Message { header, data })) if self.sizes.contains_key(&header.channel_id) => {
                         newest_read = newest_read.max(header.publish_time);
-                        push(&mut pending, header, data.into_owned());
+                        push(&mut pending, part, header, data.into_owned());
+                        false
                     }
-                    Ok(Some(_)) => {}
-                    Ok(None) => exhausted = true,
-                    // A damaged tail is where the recording ends.
-                    Err(e) if sent > 0 => {
+                    Ok(Some(_)) => false,
+                    Ok(None) => true,
+                    // A damaged tail is where the part ends (a recorder
+                    // killed while writing it): on to the next, if any.
+                    Err(e) if sent > 0 || part > 0 => {
                         tracing::warn!(error = %e, "the recording is damaged here; replaying what came before");
-                        exhausted = true;
+                        true
                     }
                     Err(e) => return Err(e),
+                };
+                if end_of_part {
+                    if part + 1 == self.parts.len() {
+                        exhausted = true;
+                    } else {
+                        part += 1;
+                        let first;
+                        (stream, first) = self.open_part(part)?;
+                        if let Some((header, data)) = first
+                            && self.sizes.contains_key(&header.channel_id)
+                        {
+                            newest_read = newest_read.max(header.publish_time);
+                            push(&mut pending, part, header, data);
+                        }
+                    }
                 }
             }
-            let Some(Reverse((publish_time, _, channel_id, log_time, data))) = pending.pop() else {
+            let Some(Reverse((publish_time, _, channel_id, log_time, from_part, data))) = pending.pop() else {
                 return Ok(());
             };
             let since_first = publish_time.saturating_sub(*base.get_or_insert(publish_time));
@@ -536,35 +583,70 @@ impl Loader {
             if self.to_ns.is_some_and(|to| since_first > to) {
                 return Ok(());
             }
-            let (channel, size) = &self.sizes[&channel_id];
-            let frame: SkinFrame = skinware_ros2::decode(&data, skinware_ros2::SKIN_FRAME).map_err(|source| {
-                RecordError::BadFrame { path: self.path.clone(), channel: channel.clone(), source }
-            })?;
-            let mut bytes = self.recycled.try_recv().unwrap_or_default();
-            frame.channel_bytes_into(&mut bytes);
-            if bytes.len() != *size {
-                return Err(RecordError::Mismatch {
-                    context: format!(
-                        "{}: a frame of channel {channel} holds {} bytes, but the channel's frames are {size} bytes: \
-                         the recording is corrupt",
-                        self.path.display(),
-                        bytes.len()
-                    ),
-                });
-            }
-            let due = Due {
-                channel_id,
-                offset_ns: since_first - self.from_ns.unwrap_or(0),
-                latency_ns: publish_time.saturating_sub(log_time),
-                status: frame.status,
-                bytes,
-            };
+            let offset_ns = since_first - self.from_ns.unwrap_or(0);
+            let latency_ns = publish_time.saturating_sub(log_time);
+            let due = self.decode(&self.parts[from_part], channel_id, offset_ns, latency_ns, &data)?;
             if sender.send(Ok(due)).is_err() {
                 return Ok(());
             }
             sent += 1;
         }
         Ok(())
+    }
+}
+
+impl Loader {
+    /// The frame of channel `channel_id` recorded in `data` (CDR, from the
+    /// file at `path`), due `offset_ns` into the replay.
+    fn decode(
+        &self,
+        path: &Path,
+        channel_id: u16,
+        offset_ns: u64,
+        latency_ns: u64,
+        data: &[u8],
+    ) -> Result<Due, RecordError> {
+        let (channel, size) = &self.sizes[&channel_id];
+        let frame: SkinFrame = skinware_ros2::decode(data, skinware_ros2::SKIN_FRAME)
+            .map_err(|source| RecordError::BadFrame { path: path.to_owned(), channel: channel.clone(), source })?;
+        let mut bytes = self.recycled.try_recv().unwrap_or_default();
+        frame.channel_bytes_into(&mut bytes);
+        if bytes.len() != *size {
+            return Err(RecordError::Mismatch {
+                context: format!(
+                    "{}: a frame of channel {channel} holds {} bytes, but the channel's frames are {size} bytes: \
+                     the recording is corrupt",
+                    path.display(),
+                    bytes.len()
+                ),
+            });
+        }
+        Ok(Due { channel_id, offset_ns, latency_ns, status: frame.status, bytes })
+    }
+
+    /// Opens part `index` and reads its header; a part after the first must
+    /// record the replayed channels under the same ids, names and frame
+    /// sizes as the first (it is the same recording going on).
+    fn open_part(&self, index: usize) -> Result<(RecordStream<std::fs::File>, Option<RawMessage>), RecordError> {
+        let path = &self.parts[index];
+        let mut stream = RecordStream::open(path)?;
+        let (header, first) = read_header(&mut stream)?;
+        if index > 0 {
+            for (id, (channel, size)) in &self.sizes {
+                let same = header.channels.get(id).is_some_and(|c| &c.channel == channel && c.payload_bytes == *size);
+                if !same {
+                    return Err(RecordError::Mismatch {
+                        context: format!(
+                            "{} does not go on from {}: it does not record channel {channel} ({size}-byte frames) \
+                             as channel id {id}; give the parts of one recording, in order",
+                            path.display(),
+                            self.parts[0].display()
+                        ),
+                    });
+                }
+            }
+        }
+        Ok((stream, first))
     }
 }
 

@@ -672,3 +672,52 @@ fn a_split_recording_goes_on_in_whole_files_and_loses_no_frame_between_them() {
         assert!(error.contains("cannot split the recording"), "{error}");
     }
 }
+
+/// A split recording replays whole, as one, under the name it was recorded
+/// under: every part's frames in turn, at their times, each once. Parts of
+/// two recordings are refused where the second begins.
+#[test]
+fn a_split_recording_replays_whole_under_its_recorded_name() {
+    let dir = TempDir::new("split-replay");
+    let by_time = skinware_record::Split { max_duration: Some(Duration::from_millis(250)), max_bytes: None };
+    let summary = split_recording(&dir.0, "spr", 200, by_time);
+    check_parts(&summary, "spr", 200);
+    let named = dir.0.join("spr.mcap");
+    assert_eq!(
+        skinware_record::recording_parts(&named),
+        summary.parts,
+        "the name it was recorded under finds its parts"
+    );
+    let replay_options = ReplayOptions {
+        skin: Some("spr2".into()),
+        start_delay: Duration::from_millis(300),
+        dir: Some(dir.0.clone()),
+        ..ReplayOptions::default()
+    };
+    let mut replay = Replay::open(&named, replay_options.clone()).unwrap();
+    let again = dir.0.join("again.mcap");
+    let recorder = Recorder::start(&again, options(&dir.0, "spr2")).unwrap();
+    let report = replay.run().unwrap();
+    drop(replay);
+    std::thread::sleep(Duration::from_millis(100));
+    let summary_again = recorder.finish().unwrap();
+    let replayed: u64 = report.channels.iter().filter(|(c, _)| c.as_str() == "touch").map(|(_, n)| n).sum();
+    assert_eq!(replayed, 200, "every part's frames were replayed: {report:?}");
+    let touch = frames(&again).remove("touch").unwrap_or_default();
+    assert_eq!(touch.len() as u64 + summary_again.channels["touch"].lost, 200, "{summary_again:?}");
+    for (bytes, _, seq, _) in &touch {
+        let responses: Vec<u16> = bytes.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect();
+        assert_eq!(responses, layer_frame(*seq, 50), "the replay's frame {seq} is the recording's");
+    }
+
+    // The first part of one recording, then a part of another (other
+    // channels): refused when the replay reaches it, naming it.
+    let (_other, _other_service) = channels_with_slots(&dir.0, "oth", 10, 4);
+    let other = dir.0.join("oth.mcap");
+    let other_options = RecordOptions { flush_interval: Duration::from_millis(100), ..options(&dir.0, "oth") };
+    Recorder::start(&other, other_options).unwrap().finish().unwrap();
+    let mixed = [summary.parts[0].clone(), other.clone()];
+    let replay_options = ReplayOptions { skin: Some("spr3".into()), ..replay_options };
+    let error = Replay::open_parts(&mixed, replay_options).unwrap().run().unwrap_err().to_string();
+    assert!(error.contains("oth.mcap does not go on from") && error.contains("touch"), "{error}");
+}

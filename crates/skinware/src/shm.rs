@@ -155,6 +155,42 @@ fn not_regular(path: &Path, file_type: rustix::fs::FileType) -> std::io::Error {
     )
 }
 
+/// Opens for reading a file that the user named (a recording, a
+/// configuration, a calibration), following symbolic links (the user's
+/// own), but refusing at once anything there that is not a regular file:
+/// opening a FIFO waits until some writer opens its other end (forever, if
+/// none does), a device may do anything, and a directory cannot be read.
+/// As in [`open_regular`], the path is looked at through an `O_PATH` handle
+/// first, and the file checked is the file opened, without waiting.
+pub fn open_named_file(path: &Path) -> std::io::Result<File> {
+    use rustix::fs::{FileType, Mode, OFlags};
+    let handle = rustix::fs::open(path, OFlags::PATH | OFlags::CLOEXEC, Mode::empty())?;
+    let file_type = FileType::from_raw_mode(rustix::fs::fstat(&handle)?.st_mode);
+    if file_type != FileType::RegularFile {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!(
+                "{} is a {}, not a regular file: give the path of a file",
+                path.display(),
+                describe_file_type(file_type)
+            ),
+        ));
+    }
+    open_through_handle(path, &handle, false)
+}
+
+/// [`open_named_file`], read whole, refusing a file longer than `max_bytes`.
+pub fn read_named_file(path: &Path, max_bytes: u64) -> std::io::Result<Vec<u8>> {
+    read_bounded(path, open_named_file(path)?, max_bytes)
+}
+
+/// [`read_named_file`] as UTF-8 text.
+pub fn read_named_text(path: &Path, max_bytes: u64) -> std::io::Result<String> {
+    String::from_utf8(read_named_file(path, max_bytes)?).map_err(|_| {
+        std::io::Error::new(std::io::ErrorKind::InvalidData, format!("{} is not UTF-8 text", path.display()))
+    })
+}
+
 /// Opens the regular file at `path`, read-only or read-write, without ever
 /// opening anything else there, and without waiting.
 ///
@@ -212,8 +248,15 @@ pub(crate) fn open_regular_as(path: &Path, writable: bool, expected: Option<Expe
             return Err(refuse(format!("holds {} bytes, more than the {} expected", stat.st_size, expected.max_bytes)));
         }
     }
+    open_through_handle(path, &handle, writable)
+}
+
+/// Opens the file that the `O_PATH` `handle` (of `path`, for messages)
+/// holds, without waiting: a file its owner holds a lease on refuses.
+fn open_through_handle(path: &Path, handle: &std::os::fd::OwnedFd, writable: bool) -> std::io::Result<File> {
+    use rustix::fs::{Mode, OFlags};
     let access = if writable { OFlags::RDWR } else { OFlags::RDONLY };
-    let through_handle = format!("/proc/self/fd/{}", std::os::fd::AsRawFd::as_raw_fd(&handle));
+    let through_handle = format!("/proc/self/fd/{}", std::os::fd::AsRawFd::as_raw_fd(handle));
     let flags = access | OFlags::CLOEXEC | OFlags::NOCTTY | OFlags::NONBLOCK;
     let file = match rustix::fs::open(through_handle.as_str(), flags, Mode::empty()) {
         Ok(file) => file,
@@ -232,8 +275,12 @@ pub(crate) fn open_regular_as(path: &Path, writable: bool, expected: Option<Expe
 /// (see [`open_regular`]) and any file longer than `max_bytes`: its size is
 /// somebody else's number.
 pub fn read_regular(path: &Path, max_bytes: u64) -> std::io::Result<Vec<u8>> {
+    read_bounded(path, open_regular(path, false)?, max_bytes)
+}
+
+/// `file` (at `path`, for messages) read whole, if it holds at most `max_bytes`.
+fn read_bounded(path: &Path, file: File, max_bytes: u64) -> std::io::Result<Vec<u8>> {
     use std::io::Read;
-    let file = open_regular(path, false)?;
     let size = file.metadata()?.len();
     if size > max_bytes {
         return Err(std::io::Error::new(

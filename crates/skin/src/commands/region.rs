@@ -201,7 +201,7 @@ fn region_block(name: &str, layers: &[LayerWatch], touched: &BTreeSet<(usize, u3
 /// Appends `block` to the config at `path`, and puts the file back as it was
 /// if the config no longer loads.
 fn append_to_config(path: &Path, block: &str) -> Result<()> {
-    let original = std::fs::read_to_string(path)?;
+    let original = skinware::shm::read_named_text(path, 16 << 20)?;
     let mut file = std::fs::OpenOptions::new().append(true).open(path)?;
     file.write_all(block.as_bytes())?;
     drop(file);

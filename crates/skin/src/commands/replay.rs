@@ -1,4 +1,5 @@
-//! `skin replay FILE.mcap`: a recording back into live channels.
+//! `skin replay FILE.mcap`: a recording back into live channels (a split
+//! recording's parts one after the other).
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -10,8 +11,11 @@ use skinware_record::{AtEnd, Replay, ReplayOptions};
 /// Arguments of `skin replay`.
 #[derive(clap::Args)]
 pub struct Args {
-    /// The recording.
-    file: PathBuf,
+    /// The recording: one file, or the name it was recorded under with
+    /// `--split-seconds`/`--split-mb` (`run.mcap` plays `run_000.mcap`,
+    /// `run_001.mcap`, ... in turn), or its parts, in order.
+    #[arg(required = true, num_args = 1..)]
+    files: Vec<PathBuf>,
     /// Publish under this skin name (default: the recorded one).
     #[arg(long)]
     skin: Option<String>,
@@ -52,6 +56,21 @@ pub struct Args {
     json: bool,
 }
 
+/// The files to replay, in order (a split recording's parts found from the
+/// name it was recorded under), and how to name them in messages.
+fn recording_files(given: &[PathBuf]) -> Result<(Vec<PathBuf>, String)> {
+    let parts = match given {
+        [one] => skinware_record::recording_parts(one),
+        several => several.to_vec(),
+    };
+    let named = match parts.as_slice() {
+        [one] => one.display().to_string(),
+        [first, .., last] => format!("{} to {} ({} parts)", first.display(), last.display(), parts.len()),
+        [] => anyhow::bail!("give the recording to replay: skin replay FILE.mcap"),
+    };
+    Ok((parts, named))
+}
+
 /// Runs `skin replay`.
 pub fn run(args: &Args) -> Result<()> {
     if !args.start_delay.is_finite() {
@@ -85,20 +104,20 @@ pub fn run(args: &Args) -> Result<()> {
         },
         ..ReplayOptions::default()
     };
-    let mut replay = match Replay::open(&args.file, options) {
+    let (parts, file) = recording_files(&args.files)?;
+    let mut replay = match Replay::open_parts(&parts, options) {
         Ok(replay) => replay,
         Err(e @ skinware_record::RecordError::Channel(skinware::Error::Busy { .. })) => {
             return Err(anyhow::Error::new(e).context(format!(
                 "cannot replay {}: that skin is running here; stop it, or replay beside it under another name \
                  (--skin replayed)",
-                args.file.display()
+                file
             )));
         }
-        Err(e) => return Err(anyhow::Error::new(e).context(format!("cannot replay {}", args.file.display()))),
+        Err(e) => return Err(anyhow::Error::new(e).context(format!("cannot replay {file}"))),
     };
     eprintln!(
-        "replaying {} as skin {} (recorded as {}): {}; Ctrl-C stops",
-        args.file.display(),
+        "replaying {file} as skin {} (recorded as {}): {}; Ctrl-C stops",
         replay.skin(),
         replay.recorded_skin(),
         replay.channels().join(", ")
@@ -111,7 +130,7 @@ pub fn run(args: &Args) -> Result<()> {
             stop.stop();
         }
     });
-    let report = replay.run().with_context(|| format!("replaying {} stopped", args.file.display()))?;
+    let report = replay.run().with_context(|| format!("replaying {file} stopped"))?;
     let mut out = std::io::stdout().lock();
     if args.json {
         serde_json::to_writer_pretty(&mut out, &report)?;

@@ -71,7 +71,9 @@ impl Config {
     /// Reads and checks a configuration file: syntax errors come with
     /// file:line:column, and every driver is built once to check its topology.
     pub fn load(path: &Path) -> Result<Config> {
-        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read config {}", path.display()))?;
+        // A configuration is text a person writes: 16 MiB is far beyond one.
+        let text = skinware::shm::read_named_text(path, 16 << 20)
+            .with_context(|| format!("cannot read config {}", path.display()))?;
         Config::parse(&text, path)
     }
 

@@ -241,6 +241,47 @@ fn skin_that_is_not_there(place: &Place) {
     assert!(stderr(&layer).contains("skin cli has no layer v-2; its layers: bus, v-0, v-1"), "{}", stderr(&layer));
 }
 
+/// Files the user names that are not files: `skin info` and `skin replay`
+/// of a FIFO waited forever for a writer at its other end. Each command
+/// that reads a named file now refuses a FIFO (and a directory) at once,
+/// naming what it found.
+#[test]
+fn a_fifo_or_a_directory_named_as_a_file_is_refused_at_once() {
+    let place = Place::new("fifo");
+    let fifo = place.dir.join("pipe.mcap");
+    rustix::fs::mknodat(rustix::fs::CWD, &fifo, rustix::fs::FileType::Fifo, rustix::fs::Mode::from(0o600), 0).unwrap();
+    let fifo = fifo.to_str().unwrap();
+    let folder = place.dir.to_str().unwrap();
+    let unused = place.dir.join("unused.mcap");
+    let unused = unused.to_str().unwrap();
+    let commands: [(&[&str], &str); 6] = [
+        (&["info", fifo], "FIFO (named pipe)"),
+        (&["replay", fifo, "--skin", "replayed"], "FIFO (named pipe)"),
+        (&["run", fifo], "FIFO (named pipe)"),
+        (&["record", "--recover", fifo, unused], "FIFO (named pipe)"),
+        (&["info", folder], "directory"),
+        (&["run", folder], "directory"),
+    ];
+    for (args, found) in commands {
+        let mut child = place.skin().args(args).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
+        let started = Instant::now();
+        let status = loop {
+            if let Some(status) = child.try_wait().unwrap() {
+                break status;
+            }
+            if started.elapsed() > Duration::from_secs(30) {
+                let _ = child.kill();
+                panic!("skin {args:?} still waits after 30 s");
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        let mut err = String::new();
+        std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+        assert!(!status.success(), "skin {args:?} succeeded: {err}");
+        assert!(err.contains(&format!("is a {found}, not a regular file")), "skin {args:?}: {err}");
+    }
+}
+
 /// With no skin at all, the error says so and how to start one.
 #[test]
 fn no_skin_at_all_says_how_to_start_one() {

@@ -115,6 +115,7 @@ fn the_paper_skin_is_recorded_replayed_and_read_by_an_independent_reader() {
     interrupt(&mut supervisor.0);
 
     replay_is_recorded_bit_for_bit(d, &a);
+    a_split_recording_replays_whole(d, &parts);
     the_demo_shows_a_recording(d, &a);
     the_python_oracle_reads_what_was_written(&a);
     rosbags_reads_the_offered_qos(&a);
@@ -155,6 +156,15 @@ fn a_split_recording_is_whole_files(d: &Path) -> Vec<PathBuf> {
         assert!(seq.windows(2).all(|w| w[0] < w[1]), "{channel}: each frame once, in order, over the parts");
     }
     parts
+}
+
+/// `skin replay split.mcap`, the name the split recording was made under,
+/// plays every part in turn: as many frames as the parts hold together.
+fn a_split_recording_replays_whole(d: &Path, parts: &[PathBuf]) {
+    let split = d.join("split.mcap");
+    let report = json(d, &["replay", split.to_str().unwrap(), "--skin", "splitback", "--speed", "4", "--json"]);
+    let recorded: usize = parts.iter().map(|part| frames(part).values().map(Vec::len).sum::<usize>()).sum();
+    assert_eq!(report["frames"].as_u64().unwrap() as usize, recorded, "{report}");
 }
 
 fn killed_recorder_leaves_a_readable_file(d: &Path) {

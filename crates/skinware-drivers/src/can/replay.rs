@@ -37,7 +37,8 @@ impl CandumpReplay {
         }
         let looping: bool = url.option("loop", false)?;
         let path = PathBuf::from(url.path);
-        let file = File::open(&path).map_err(|source| {
+        // A log file: a FIFO there would hold the driver at its start.
+        let file = skinware::shm::open_named_file(&path).map_err(|source| {
             let hint = open_hint(&source, url.path);
             BusError::Open { url: url.url.to_owned(), source, hint }
         })?;
@@ -70,7 +71,8 @@ impl CandumpReplay {
                 if !self.looping || rewound {
                     return Ok(None);
                 }
-                let file = File::open(&self.path).map_err(|source| BusError::Lost { url: self.url.clone(), source })?;
+                let file = skinware::shm::open_named_file(&self.path)
+                    .map_err(|source| BusError::Lost { url: self.url.clone(), source })?;
                 self.reader = BufReader::new(file);
                 self.origin = None;
                 self.line_number = 0;

@@ -3,7 +3,7 @@
 //! on the code before the fix.
 
 use std::os::unix::fs::FileExt;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
@@ -187,6 +187,46 @@ fn a_fifo_at_a_channels_paths_hangs_nobody() {
     .unwrap_err();
     assert!(matches!(err, Error::UntrustedFile { .. }), "{err}");
     assert!(err.to_string().contains("FIFO"), "{err}");
+}
+
+/// A file the user names (a recording, a configuration) is opened if it is a
+/// regular file, through a symbolic link too; a FIFO there is refused at
+/// once, by name, where a plain open waited for a writer forever (`skin
+/// info` and `skin replay` of a FIFO hung), and so are directories and
+/// devices.
+#[test]
+fn a_named_file_that_is_not_a_regular_file_is_refused_without_waiting() {
+    let dir = SegmentDir::new("named");
+    let regular = dir.path.join("recording.mcap");
+    std::fs::write(&regular, b"bytes").unwrap();
+    let link = dir.path.join("link.mcap");
+    std::os::unix::fs::symlink(&regular, &link).unwrap();
+    assert_eq!(skinware::shm::read_named_file(&link, 5).unwrap(), b"bytes", "a link to a file is followed");
+    let err = skinware::shm::read_named_file(&regular, 4).unwrap_err();
+    assert!(err.to_string().contains("more than the 4 such a file can have"), "{err}");
+
+    let fifo = dir.path.join("fifo.mcap");
+    rustix::fs::mknodat(rustix::fs::CWD, &fifo, rustix::fs::FileType::Fifo, rustix::fs::Mode::from(0o600), 0).unwrap();
+    let pipe = fifo.clone();
+    let err = within(Duration::from_secs(10), "open_named_file of a FIFO", move || {
+        skinware::shm::open_named_file(&pipe).map(|_| ())
+    })
+    .unwrap_err();
+    assert!(err.to_string().contains("is a FIFO (named pipe), not a regular file"), "{err}");
+    let through_link = dir.path.join("to-fifo.mcap");
+    std::os::unix::fs::symlink(&fifo, &through_link).unwrap();
+    let err = within(Duration::from_secs(10), "open_named_file of a link to a FIFO", move || {
+        skinware::shm::open_named_file(&through_link).map(|_| ())
+    })
+    .unwrap_err();
+    assert!(err.to_string().contains("FIFO"), "{err}");
+
+    for (path, what) in [(dir.path.clone(), "directory"), (PathBuf::from("/dev/null"), "character device")] {
+        let err = skinware::shm::read_named_text(&path, 1 << 20).unwrap_err();
+        assert!(err.to_string().contains(&format!("is a {what}, not a regular file")), "{err}");
+    }
+    let err = skinware::shm::open_named_file(&dir.path.join("absent")).unwrap_err();
+    assert_eq!(err.kind(), std::io::ErrorKind::NotFound, "{err}");
 }
 
 /// A name lock planted by another user is refused: they could hold it
