@@ -190,7 +190,18 @@ pub fn recording_parts(path: &Path) -> Vec<PathBuf> {
     if here(path) || !here(&crate::part_path(path, 0)) {
         return vec![path.to_owned()];
     }
-    (0..).map(|index| crate::part_path(path, index)).take_while(|part| here(part)).collect()
+    let parts: Vec<PathBuf> = (0..).map(|index| crate::part_path(path, index)).take_while(|part| here(part)).collect();
+    let missing = crate::part_path(path, parts.len());
+    if let Some(later) =
+        (parts.len() + 1..parts.len() + 100).map(|index| crate::part_path(path, index)).find(|p| here(p))
+    {
+        tracing::warn!(
+            missing = %missing.display(),
+            found = %later.display(),
+            "a part of the recording is missing: replaying the parts before it only (name the parts to replay the others)"
+        );
+    }
+    parts
 }
 
 /// A recording being replayed.
@@ -558,17 +569,16 @@ impl Loader {
                     Err(e) => return Err(e),
                 };
                 if end_of_part {
-                    if part + 1 == self.parts.len() {
-                        exhausted = true;
-                    } else {
-                        part += 1;
-                        let first;
-                        (stream, first) = self.open_part(part)?;
-                        if let Some((header, data)) = first
-                            && self.sizes.contains_key(&header.channel_id)
-                        {
-                            newest_read = newest_read.max(header.publish_time);
-                            push(&mut pending, part, header, data);
+                    match self.next_part(&mut part)? {
+                        None => exhausted = true,
+                        Some((next, first)) => {
+                            stream = next;
+                            if let Some((header, data)) = first
+                                && self.sizes.contains_key(&header.channel_id)
+                            {
+                                newest_read = newest_read.max(header.publish_time);
+                                push(&mut pending, part, header, data);
+                            }
                         }
                     }
                 }
@@ -594,6 +604,9 @@ impl Loader {
         Ok(())
     }
 }
+
+/// A part of the recording, open after its header, and its first message.
+type OpenedPart = (RecordStream<std::fs::File>, Option<RawMessage>);
 
 impl Loader {
     /// The frame of channel `channel_id` recorded in `data` (CDR, from the
@@ -624,10 +637,30 @@ impl Loader {
         Ok(Due { channel_id, offset_ns, latency_ns, status: frame.status, bytes })
     }
 
+    /// Opens the part after `part` that can be read, moving `part` on to it;
+    /// `None` after the last. A part that cannot be read at all (a recorder
+    /// killed as it began the part leaves an empty or cut file) is passed
+    /// over with a warning; one that records other channels stops the replay.
+    fn next_part(&self, part: &mut usize) -> Result<Option<OpenedPart>, RecordError> {
+        while *part + 1 < self.parts.len() {
+            *part += 1;
+            match self.open_part(*part) {
+                Ok(opened) => return Ok(Some(opened)),
+                Err(e @ RecordError::Mismatch { .. }) => return Err(e),
+                Err(e) => tracing::warn!(
+                    part = %self.parts[*part].display(),
+                    error = %e,
+                    "a part of the recording cannot be read; going on with the next"
+                ),
+            }
+        }
+        Ok(None)
+    }
+
     /// Opens part `index` and reads its header; a part after the first must
     /// record the replayed channels under the same ids, names and frame
     /// sizes as the first (it is the same recording going on).
-    fn open_part(&self, index: usize) -> Result<(RecordStream<std::fs::File>, Option<RawMessage>), RecordError> {
+    fn open_part(&self, index: usize) -> Result<OpenedPart, RecordError> {
         let path = &self.parts[index];
         let mut stream = RecordStream::open(path)?;
         let (header, first) = read_header(&mut stream)?;

@@ -710,6 +710,17 @@ fn a_split_recording_replays_whole_under_its_recorded_name() {
         assert_eq!(responses, layer_frame(*seq, 50), "the replay's frame {seq} is the recording's");
     }
 
+    // A part that cannot be read at all (an empty file: a recorder killed as
+    // it began the part) is passed over, and the next goes on.
+    let damaged = dir.0.join("dmg.mcap");
+    std::fs::copy(&summary.parts[0], skinware_record::part_path(&damaged, 0)).unwrap();
+    std::fs::write(skinware_record::part_path(&damaged, 1), b"").unwrap();
+    std::fs::copy(&summary.parts[1], skinware_record::part_path(&damaged, 2)).unwrap();
+    let fast = ReplayOptions { skin: Some("spr4".into()), speed: 4.0, ..replay_options.clone() };
+    let report = Replay::open(&damaged, fast).unwrap().run().unwrap();
+    let held: usize = summary.parts[..2].iter().map(|part| frames(part).values().map(Vec::len).sum::<usize>()).sum();
+    assert_eq!(report.frames as usize, held, "the parts on both sides of the empty one: {report:?}");
+
     // The first part of one recording, then a part of another (other
     // channels): refused when the replay reaches it, naming it.
     let (_other, _other_service) = channels_with_slots(&dir.0, "oth", 10, 4);

@@ -176,7 +176,12 @@ pub fn open_named_file(path: &Path) -> std::io::Result<File> {
             ),
         ));
     }
-    open_through_handle(path, &handle, false)
+    let file = open_through_handle(path, &handle, false)?;
+    // Non-blocking was for the open (a lease refuses rather than waits); the
+    // reads of a file the user named go as usual (a FUSE file system sees
+    // the flag too).
+    rustix::fs::fcntl_setfl(&file, OFlags::empty())?;
+    Ok(file)
 }
 
 /// [`open_named_file`], read whole, refusing a file longer than `max_bytes`.
@@ -264,6 +269,16 @@ fn open_through_handle(path: &Path, handle: &std::os::fd::OwnedFd, writable: boo
             return Err(std::io::Error::new(
                 std::io::ErrorKind::InvalidData,
                 format!("{} is leased by another process: opening it would wait for the lease", path.display()),
+            ));
+        }
+        // The handle is open, so a missing /proc/self/fd/N means no /proc.
+        Err(rustix::io::Errno::NOENT) if !Path::new("/proc/self/fd").exists() => {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::Unsupported,
+                format!(
+                    "cannot open {}: skinware opens files through /proc/self/fd, and /proc is not mounted here",
+                    path.display()
+                ),
             ));
         }
         Err(e) => return Err(e.into()),

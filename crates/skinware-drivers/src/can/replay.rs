@@ -39,7 +39,15 @@ impl CandumpReplay {
         let path = PathBuf::from(url.path);
         // A log file: a FIFO there would hold the driver at its start.
         let file = skinware::shm::open_named_file(&path).map_err(|source| {
-            let hint = open_hint(&source, url.path);
+            // A log file, not an adapter: the message of a refused FIFO or
+            // directory says what is there; a missing file, that it is missing.
+            let hint = match source.kind() {
+                std::io::ErrorKind::NotFound => {
+                    format!("{} does not exist: give the path of a `candump -l` log", url.path)
+                }
+                std::io::ErrorKind::InvalidData => String::new(),
+                _ => open_hint(&source, url.path),
+            };
             BusError::Open { url: url.url.to_owned(), source, hint }
         })?;
         Ok(CandumpReplay {

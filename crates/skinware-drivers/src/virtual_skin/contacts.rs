@@ -53,7 +53,18 @@ impl ScriptedContact {
             .iter()
             .position(|p| p.name == self.part)
             .ok_or_else(|| format!("contact on part {:?}: the parts are {}", self.part, part_names()))?;
-        let numbers = [self.at_s, self.angle_deg, self.height, self.velocity[0], self.velocity[1], self.peak];
+        let numbers = [
+            self.at_s,
+            self.angle_deg,
+            self.height,
+            self.velocity[0],
+            self.velocity[1],
+            self.peak,
+            self.press_s,
+            self.slide_s,
+            self.release_s,
+            self.sigma,
+        ];
         if !numbers.iter().all(|v| v.is_finite())
             || self.at_s < 0.0
             || !(self.press_s > 0.0 && self.slide_s >= 0.0 && self.release_s > 0.0 && self.sigma > 0.0)
@@ -277,13 +288,62 @@ mod tests {
             -7.5 * TAU,
             1e-300,
             -1e-300,
+            f64::MIN_POSITIVE / 4.0,
+            -f64::MIN_POSITIVE / 4.0,
             1e9,
             -1e9,
+            f64::MAX,
+            f64::MIN,
         ];
         let drawn = (0..100_000).map(|_| random.range(-40.0, 40.0));
         for x in edges.into_iter().chain(drawn) {
             assert_eq!(rem_tau(x).to_bits(), x.rem_euclid(TAU).to_bits(), "x = {x:e}");
         }
+        for x in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            assert!(rem_tau(x).is_nan() && x.rem_euclid(TAU).is_nan(), "x = {x}");
+        }
+    }
+
+    /// The skip of taxels whose pressure is below 1 at the edges: presses
+    /// of no, tiny, negative and enormous peak, and responses at 0 and at
+    /// saturation.
+    #[test]
+    fn pressing_at_the_edges_of_the_skip_changes_nothing() {
+        let body = VirtualBody::new(30_848);
+        let press = |peak: f64, at_s: f64, sigma: f64| ScriptedContact {
+            part: BODY[2].name.to_owned(),
+            at_s,
+            angle_deg: 40.0,
+            height: 0.5 * BODY[2].height,
+            velocity: [0.05, 0.01],
+            press_s: 0.3,
+            slide_s: 1.0,
+            release_s: 0.3,
+            peak,
+            sigma,
+        };
+        let scripted = [
+            press(0.0, 0.0, 0.015),
+            press(0.5, 0.0, 0.015),
+            press(1.0, 0.1, 0.02),
+            press(-300.0, 0.2, 0.02),
+            press(2.5, 0.3, 1e-6),
+            press(1e12, 0.4, 0.03),
+        ];
+        let contacts = Contacts::new(3, 0.0, &scripted, false);
+        assert_eq!(contacts.blobs.len(), scripted.len(), "every scripted press is valid");
+        let mut pressed = 0;
+        for step in 0..80 {
+            let t = step as f64 * 0.025;
+            let mut fast: Vec<u16> = (0..body.places.len()).map(|i| [0, 1, 1000, 65_534, 65_535][i % 5]).collect();
+            let mut everywhere = fast.clone();
+            contacts.press(t, &body.places, &mut fast);
+            press_everywhere(&contacts, t, &body.places, &mut everywhere);
+            assert_eq!(fast, everywhere, "t = {t}");
+            pressed +=
+                usize::from(fast.iter().zip([0u16, 1, 1000, 65_534, 65_535].iter().cycle()).any(|(a, b)| a != b));
+        }
+        assert!(pressed > 40, "the presses changed responses at only {pressed} instants");
     }
 
     #[test]
