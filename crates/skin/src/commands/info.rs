@@ -11,22 +11,50 @@ use super::record::format_wall;
 /// Arguments of `skin info`.
 #[derive(clap::Args)]
 pub struct Args {
-    /// The recording.
+    /// The recording (for a split recording, the name it was recorded
+    /// under: each of its parts is described in turn).
     file: PathBuf,
-    /// Print JSON for scripts.
+    /// Print JSON for scripts (a split recording's name: an array, a part each).
     #[arg(long)]
     json: bool,
 }
 
 /// Runs `skin info`.
 pub fn run(args: &Args) -> Result<()> {
-    let info = skinware_record::scan(&args.file)?;
+    let parts = skinware_record::recording_parts(&args.file);
+    let split = parts != [args.file.clone()];
+    let infos = parts.iter().map(|part| skinware_record::scan(part)).collect::<Result<Vec<_>, _>>()?;
     let mut out = std::io::stdout().lock();
     if args.json {
-        serde_json::to_writer_pretty(&mut out, &info)?;
+        if split {
+            serde_json::to_writer_pretty(&mut out, &infos)?;
+        } else {
+            serde_json::to_writer_pretty(&mut out, &infos[0])?;
+        }
         writeln!(out)?;
         return Ok(());
     }
+    if split {
+        let frames: u64 = infos.iter().map(|info| info.frames).sum();
+        writeln!(
+            out,
+            "{}: recorded in {} parts, {} frames in all ({} to {}); `skin replay {}` plays them in turn",
+            args.file.display(),
+            infos.len(),
+            frames,
+            parts[0].display(),
+            parts[parts.len() - 1].display(),
+            args.file.display()
+        )?;
+    }
+    for info in &infos {
+        describe(&mut out, info)?;
+    }
+    Ok(())
+}
+
+/// One file's description, as `skin info` prints it.
+fn describe(out: &mut impl Write, info: &skinware_record::RecordingInfo) -> Result<()> {
     let first = info.channels.values().filter(|c| c.frames > 0).map(|c| c.first_ns).min().unwrap_or(0);
     writeln!(out, "{}: skin {}, {:.1} MB", info.path.display(), info.skin, info.file_bytes as f64 / 1e6)?;
     writeln!(

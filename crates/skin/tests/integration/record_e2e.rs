@@ -155,6 +155,11 @@ fn a_split_recording_is_whole_files(d: &Path) -> Vec<PathBuf> {
     for (channel, seq) in &seqs {
         assert!(seq.windows(2).all(|w| w[0] < w[1]), "{channel}: each frame once, in order, over the parts");
     }
+    // `skin info` of the name it was recorded under describes every part.
+    let described = json(d, &["info", split.to_str().unwrap(), "--json"]);
+    assert_eq!(described.as_array().map(Vec::len), Some(parts.len()), "{described}");
+    let text = String::from_utf8(skin(d, &["info", split.to_str().unwrap()]).stdout).unwrap();
+    assert!(text.contains(&format!("recorded in {} parts", parts.len())), "{text}");
     parts
 }
 
