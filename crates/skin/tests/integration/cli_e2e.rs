@@ -264,17 +264,7 @@ fn a_fifo_or_a_directory_named_as_a_file_is_refused_at_once() {
     ];
     for (args, found) in commands {
         let mut child = place.skin().args(args).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
-        let started = Instant::now();
-        let status = loop {
-            if let Some(status) = child.try_wait().unwrap() {
-                break status;
-            }
-            if started.elapsed() > Duration::from_secs(30) {
-                let _ = child.kill();
-                panic!("skin {args:?} still waits after 30 s");
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        };
+        let status = crate::util::exit_within(&mut child, &format!("skin {args:?}"), Duration::from_secs(30));
         let mut err = String::new();
         std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
         assert!(!status.success(), "skin {args:?} succeeded: {err}");

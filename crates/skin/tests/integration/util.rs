@@ -40,6 +40,12 @@ pub fn interrupt_and_wait(child: &mut Child, what: &str, within: Duration) -> Ex
     if let Some(pid) = rustix::process::Pid::from_raw(child.id() as i32) {
         let _ = rustix::process::kill_process(pid, rustix::process::Signal::INT);
     }
+    exit_within(child, &format!("{what}, sent SIGINT,"), within)
+}
+
+/// Waits up to `within` for `child` to exit; one still running then is
+/// killed, and the test fails naming `what`.
+pub fn exit_within(child: &mut Child, what: &str, within: Duration) -> ExitStatus {
     let started = Instant::now();
     loop {
         if let Some(status) = child.try_wait().unwrap() {
@@ -48,7 +54,7 @@ pub fn interrupt_and_wait(child: &mut Child, what: &str, within: Duration) -> Ex
         if started.elapsed() > within {
             let _ = child.kill();
             let _ = child.wait();
-            panic!("{what} did not stop within {within:?} of SIGINT");
+            panic!("{what} did not exit within {within:?}");
         }
         std::thread::sleep(Duration::from_millis(20));
     }
