@@ -7,9 +7,11 @@
 use std::ops::Range;
 
 use crate::framework::ServicePayload;
+use memory::{Layout, Placed, TaxelMemory};
 use skinware_geometry::SkinGeometry;
 use taxels::{Limits, TaxelTracks, list_non_idle};
 
+mod memory;
 mod taxels;
 
 /// Contacts reported per region and frame; more are counted in `flags`.
@@ -147,8 +149,10 @@ pub struct ContactDetector {
     params: ContactParams,
     /// Region names (the geometry's, or one `skin` region for the whole skin).
     names: Vec<String>,
+    /// Every per-taxel array below that is [`Placed`], in one block.
+    memory: TaxelMemory,
     /// What the contacts need of each taxel, in one record per taxel.
-    sites: Vec<Site>,
+    sites: Placed<Site>,
     /// Each taxel's regions: `member_regions[site.regions[0]..site.regions[1]]`.
     member_regions: Vec<u32>,
     /// Each region's layers.
@@ -157,8 +161,21 @@ pub struct ContactDetector {
     layer_ranges: Vec<Range<usize>>,
     /// Whether each layer's baselines have been set from its first frame.
     layer_initialized: Vec<bool>,
+    /// Whether each layer's states, lists and residuals are those of its
+    /// current frame (it was classified and has had input since).
+    layer_classified: Vec<bool>,
+    /// Seconds since each layer's baselines last stepped: a layer without a
+    /// new frame is not classified again, so its next frame steps them by
+    /// all the time since, and their time constant stays in seconds
+    /// whatever the layer's rate against the service's.
+    layer_elapsed_s: Vec<f32>,
+    /// Each layer's touched taxels (global indices) as its last
+    /// classification listed them.
+    layer_touched: Vec<Vec<u32>>,
+    /// Each layer's dead and stuck taxels, likewise.
+    layer_dead_or_stuck: Vec<Vec<u32>>,
     tracks: TaxelTracks,
-    states: Vec<TaxelState>,
+    states: Placed<TaxelState>,
     /// The touched taxels of the last frame, in global order: where the
     /// component search starts, so that it does not scan the whole skin.
     touched: Vec<u32>,
@@ -169,7 +186,7 @@ pub struct ContactDetector {
     /// skin demo's 1,100-1,600 touched taxels a frame, a binary search of
     /// `touched` for each cost the service more than the search for the
     /// components itself.
-    residuals: Vec<f32>,
+    residuals: Placed<f32>,
     /// The dead and stuck taxels of the last frame, for the regions' counts.
     dead_or_stuck: Vec<u32>,
     /// One bit per taxel: touched this frame and not yet in a component.
@@ -208,22 +225,24 @@ impl ContactDetector {
                 per_sensor[s as usize].push(r as u32);
             }
         }
+        // The arrays walked every frame first, then those of touched taxels.
+        let mut layout = Layout::default();
+        let (tracks, states) = TaxelTracks::place(&mut layout, n, params.dead_frames, params.stuck_frames);
+        let (residuals, sites) = (layout.place(n), layout.place(n));
+        let mut memory = TaxelMemory::new(&layout);
         let mut member_regions = Vec::new();
-        let sites = per_sensor
-            .iter()
-            .enumerate()
-            .map(|(i, regions)| {
-                let first = member_regions.len() as u32;
-                member_regions.extend_from_slice(regions);
-                Site {
-                    position: geometry.positions.get(i).copied().unwrap_or_default(),
-                    normal: geometry.normals.get(i).copied().unwrap_or_default(),
-                    map: geometry.map.positions.get(i).copied().unwrap_or_default(),
-                    radius: geometry.radii.get(i).copied().unwrap_or_default(),
-                    regions: [first, member_regions.len() as u32],
-                }
-            })
-            .collect();
+        for (i, (site, regions)) in memory.get_mut(sites).iter_mut().zip(&per_sensor).enumerate() {
+            let first = member_regions.len() as u32;
+            member_regions.extend_from_slice(regions);
+            *site = Site {
+                position: geometry.positions.get(i).copied().unwrap_or_default(),
+                normal: geometry.normals.get(i).copied().unwrap_or_default(),
+                map: geometry.map.positions.get(i).copied().unwrap_or_default(),
+                radius: geometry.radii.get(i).copied().unwrap_or_default(),
+                regions: [first, member_regions.len() as u32],
+                unused: 0,
+            };
+        }
         let layer_ranges: Vec<Range<usize>> =
             (0..geometry.layers.len()).map(|l| geometry.layer_starts[l]..geometry.layer_starts[l + 1]).collect();
         let mut layer_of = vec![0usize; n];
@@ -240,19 +259,23 @@ impl ContactDetector {
             })
             .collect();
         let regions = names.len();
-        let tracks = TaxelTracks::new(n, params.dead_frames, params.stuck_frames);
         ContactDetector {
             params,
             names,
+            memory,
             sites,
             member_regions,
             region_layers,
             layer_initialized: vec![false; layer_ranges.len()],
+            layer_classified: vec![false; layer_ranges.len()],
+            layer_elapsed_s: vec![0.0; layer_ranges.len()],
+            layer_touched: vec![Vec::new(); layer_ranges.len()],
+            layer_dead_or_stuck: vec![Vec::new(); layer_ranges.len()],
             layer_ranges,
             tracks,
-            states: vec![TaxelState::IDLE; n],
+            states,
             touched: Vec::new(),
-            residuals: vec![0.0; n],
+            residuals,
             dead_or_stuck: Vec::new(),
             pending: vec![0; n.div_ceil(64)],
             queue: Vec::new(),
@@ -269,14 +292,19 @@ impl ContactDetector {
 
     /// Every taxel's state after the last [`update`](Self::update).
     pub fn taxel_states(&self) -> &[TaxelState] {
-        &self.states
+        self.memory.get(self.states)
     }
 
     /// Processes one frame of the whole skin: `responses` in global order,
     /// `layer_ok` per layer, `layer_fresh` per layer (a new frame since the
-    /// previous update: dead and stuck taxels are counted in frames, not in
-    /// updates), `dt_s` seconds since the previous update. Writes one record
-    /// per region into `out`.
+    /// previous update), `dt_s` seconds since the previous update. Writes one
+    /// record per region into `out`.
+    ///
+    /// A layer that is not fresh holds the frame the previous update saw: its
+    /// taxels keep the states they had, and its baselines step when its next
+    /// frame comes, by the time since they last did. So a baseline follows
+    /// each new response once, dead and stuck taxels are counted in frames,
+    /// and a layer slower than the service costs nothing between its frames.
     pub fn update(
         &mut self,
         geometry: &SkinGeometry,
@@ -321,42 +349,58 @@ impl ContactDetector {
         dt_s: f32,
     ) {
         let p = &self.params;
-        let alpha = 1.0 - (-dt_s.max(0.0) / p.baseline_tau_s.max(1e-3)).exp();
-        let limits = Limits {
+        let tau_s = p.baseline_tau_s.max(1e-3);
+        let mut limits = Limits {
             threshold_sigma: p.threshold_sigma,
             min_threshold: p.min_threshold,
             saturation: p.saturation,
             stuck_frames: p.stuck_frames,
             dead_frames: p.dead_frames,
-            alpha,
+            alpha: 0.0,
         };
         self.touched.clear();
         self.dead_or_stuck.clear();
         let covered_end = self.layer_ranges.last().map_or(0, |r| r.end);
-        self.states[covered_end..].fill(TaxelState::NO_INPUT);
+        self.memory.get_mut(self.states)[covered_end..].fill(TaxelState::NO_INPUT);
         for (layer, range) in self.layer_ranges.iter().enumerate() {
             // A layer whose responses are not all there (inputs shorter than
             // the skin: a caller's mistake) has no input, rather than a panic.
             let input = layer_responses(layer).filter(|input| input.len() == range.len());
             let (Some(input), true) = (input, layer_ok.get(layer).copied().unwrap_or(false)) else {
-                self.states[range.clone()].fill(TaxelState::NO_INPUT);
+                self.memory.get_mut(self.states)[range.clone()].fill(TaxelState::NO_INPUT);
+                self.layer_classified[layer] = false;
+                self.layer_elapsed_s[layer] = 0.0;
+                self.layer_touched[layer].clear();
+                self.layer_dead_or_stuck[layer].clear();
                 continue;
             };
-            if !self.layer_initialized[layer] {
-                self.layer_initialized[layer] = true;
-                self.tracks.initialize(range.clone(), input);
-            }
+            self.layer_elapsed_s[layer] += dt_s.max(0.0);
             let fresh = layer_fresh.get(layer).copied().unwrap_or(false);
-            self.tracks.classify(range.clone(), input, fresh, &limits, &mut self.states[range.clone()]);
-            let listed = self.touched.len();
-            list_non_idle(&self.states[range.clone()], range.start, &mut self.touched, &mut self.dead_or_stuck);
-            // A touched taxel's baseline was not moved by this frame: its
-            // residual now is the one it was classified with.
-            let (tracks, residuals) = (&self.tracks, &mut self.residuals);
-            for &i in &self.touched[listed..] {
-                let i = i as usize;
-                residuals[i] = tracks.residual(i, input[i - range.start]);
+            if fresh || !self.layer_classified[layer] {
+                if !self.layer_initialized[layer] {
+                    self.layer_initialized[layer] = true;
+                    self.tracks.initialize(&mut self.memory, range.clone(), input);
+                }
+                limits.alpha = 1.0 - (-self.layer_elapsed_s[layer] / tau_s).exp();
+                self.layer_elapsed_s[layer] = 0.0;
+                self.layer_classified[layer] = true;
+                self.tracks.classify(&mut self.memory, self.states, range.clone(), input, fresh, &limits);
+                let (touched, dead_or_stuck) = (&mut self.layer_touched[layer], &mut self.layer_dead_or_stuck[layer]);
+                touched.clear();
+                dead_or_stuck.clear();
+                let states = &self.memory.get(self.states)[range.clone()];
+                list_non_idle(states, range.start, touched, dead_or_stuck);
+                // A touched taxel's baseline was not moved by this frame: its
+                // residual now is the one it was classified with, and stays
+                // so until the layer's next classification.
+                for &i in touched.iter() {
+                    let i = i as usize;
+                    let residual = self.tracks.residual(&self.memory, i, input[i - range.start]);
+                    self.memory.get_mut(self.residuals)[i] = residual;
+                }
             }
+            self.touched.extend_from_slice(&self.layer_touched[layer]);
+            self.dead_or_stuck.extend_from_slice(&self.layer_dead_or_stuck[layer]);
         }
     }
 
@@ -373,13 +417,16 @@ impl ContactDetector {
             set(&mut self.pending, i as usize);
         }
         self.load_contact_data(geometry);
+        // A component holds each touched taxel at most once, and the search
+        // writes one slot past the component's end.
+        self.queue.resize(self.touched.len() + 1, 0);
         for k in 0..self.touched.len() {
             let start = self.touched[k] as usize;
             if !is_set(&self.pending, start) {
                 continue;
             }
-            self.collect_component(geometry, start);
-            self.accumulate_component();
+            let taxels = self.collect_component(geometry, start);
+            self.accumulate_component(taxels);
         }
     }
 
@@ -394,9 +441,10 @@ impl ContactDetector {
     /// CPU has many misses in flight at once.
     fn load_contact_data(&self, geometry: &SkinGeometry) {
         let mut bits = 0u32;
+        let sites = self.memory.get(self.sites);
         for &i in &self.touched {
             let i = i as usize;
-            let site = &self.sites[i];
+            let site = &sites[i];
             bits ^= site.position[0].to_bits()
                 ^ self.member_regions.get(site.regions[0] as usize).copied().unwrap_or(0)
                 ^ geometry.neighbours_of(i).first().copied().unwrap_or(0);
@@ -405,22 +453,30 @@ impl ContactDetector {
     }
 
     /// Breadth-first search from `start` over pending taxels (touched, not
-    /// yet in a component), clearing their bits and leaving them in `queue`.
-    fn collect_component(&mut self, geometry: &SkinGeometry, start: usize) {
-        self.queue.clear();
-        self.queue.push(start as u32);
-        clear(&mut self.pending, start);
-        let mut k = 0;
-        while k < self.queue.len() {
-            let i = self.queue[k] as usize;
-            for &j in geometry.neighbours_of(i) {
-                if is_set(&self.pending, j as usize) {
-                    clear(&mut self.pending, j as usize);
-                    self.queue.push(j);
-                }
+    /// yet in a component), clearing their bits and leaving them in
+    /// `queue[..taxels]`; returns `taxels`.
+    ///
+    /// Without a branch on the neighbour's bit: every neighbour is written
+    /// at the queue's end and its bit cleared, and the end moves on only if
+    /// the bit was set. Whether a neighbour is pending is as good as random,
+    /// and a mispredicted branch per neighbour cost more than the search's
+    /// memory once `load_contact_data` has brought it in.
+    fn collect_component(&mut self, geometry: &SkinGeometry, start: usize) -> usize {
+        let (queue, pending) = (&mut self.queue, &mut self.pending);
+        queue[0] = start as u32;
+        clear(pending, start);
+        let (mut k, mut taxels) = (0, 1);
+        while k < taxels {
+            for &j in geometry.neighbours_of(queue[k] as usize) {
+                let (word, bit) = (&mut pending[j as usize / 64], j % 64);
+                let was_pending = (*word >> bit) & 1;
+                *word &= !(1 << bit);
+                queue[taxels] = j;
+                taxels += was_pending as usize;
             }
             k += 1;
         }
+        taxels
     }
 
     /// Writes each region's largest contacts and its flags into `out`.
@@ -445,17 +501,18 @@ impl ContactDetector {
 
     /// The regions of taxel `i`.
     fn regions_of(&self, i: usize) -> &[u32] {
-        let [first, end] = self.sites[i].regions;
+        let [first, end] = self.memory.get(self.sites)[i].regions;
         &self.member_regions[first as usize..end as usize]
     }
 
     /// Adds the dead and stuck taxels to the counts of their regions' records.
     fn count_dead_and_stuck(&self, out: &mut [RegionContacts]) {
+        let states = self.memory.get(self.states);
         for &i in &self.dead_or_stuck {
             let i = i as usize;
             for &r in self.regions_of(i) {
                 let Some(record) = out.get_mut(r as usize) else { continue };
-                if self.states[i] == TaxelState::DEAD {
+                if states[i] == TaxelState::DEAD {
                     record.dead += 1;
                 } else {
                     record.stuck += 1;
@@ -464,17 +521,19 @@ impl ContactDetector {
         }
     }
 
-    /// Splits the component in `queue` by region and adds one contact to each.
-    fn accumulate_component(&mut self) {
+    /// Splits the component in `queue[..taxels]` by region and adds one
+    /// contact to each.
+    fn accumulate_component(&mut self, taxels: usize) {
+        let component = &self.queue[..taxels];
         self.touched_regions.clear();
         // Every taxel of the component is touched: its residual is this frame's.
-        let residuals = &self.residuals;
+        let (residuals, sites) = (self.memory.get(self.residuals), self.memory.get(self.sites));
         let residual = |i: usize| residuals.get(i).copied().unwrap_or(0.0);
-        for &i in &self.queue {
+        for &i in component {
             let i = i as usize;
             let residual = residual(i);
             let w = f64::from(residual.max(0.0));
-            let site = &self.sites[i];
+            let site = &sites[i];
             let position = site.position.map(f64::from);
             let normal = site.normal.map(f64::from);
             let radius = f64::from(site.radius);
@@ -499,19 +558,19 @@ impl ContactDetector {
         }
         // The map centroid, relative to the peak: a contact across a seam of
         // the map keeps the taxels on the peak's side only.
-        for &i in &self.queue {
+        for &i in component {
             let i = i as usize;
             let w = f64::from(residual(i).max(0.0));
-            let site = &self.sites[i];
+            let site = &sites[i];
             let m = site.map;
             let [first, end] = site.regions;
             for &r in &self.member_regions[first as usize..end as usize] {
                 let a = &mut self.accumulators[r as usize];
                 let peak = a.peak_sensor as usize;
-                let pm = self.sites[peak].map;
+                let pm = sites[peak].map;
                 let map_step = ((m[0] - pm[0]).powi(2) + (m[1] - pm[1]).powi(2)).sqrt();
                 let p = site.position;
-                let pp = self.sites[peak].position;
+                let pp = sites[peak].position;
                 let step = ((p[0] - pp[0]).powi(2) + (p[1] - pp[1]).powi(2) + (p[2] - pp[2]).powi(2)).sqrt();
                 if map_step <= 2.0 * step + 1e-3 {
                     a.map[0] += w * f64::from(m[0]);
@@ -542,8 +601,8 @@ impl ContactDetector {
 /// What contact accumulation needs of one taxel, from the geometry, in one
 /// place: a touched taxel costs one or two cache lines rather than one in each
 /// of the geometry's arrays.
-#[derive(Clone, Copy, Debug, Default)]
-#[repr(C, align(16))]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 struct Site {
     position: [f32; 3],
     normal: [f32; 3],
@@ -551,6 +610,8 @@ struct Site {
     radius: f32,
     /// Its regions' range in `member_regions`.
     regions: [u32; 2],
+    /// Whole words (48 bytes), as the detector's memory holds them.
+    unused: u32,
 }
 
 fn is_set(bits: &[u64], i: usize) -> bool {
@@ -647,6 +708,38 @@ mod tests {
         assert!(out_whole[0].count >= 2, "the presses are found: {:?}", out_whole[0]);
         assert_ne!(out_whole[0].flags & contact_flags::INPUT_FAULTED, 0, "layer b is down");
         assert!(whole.taxel_states()[12..24].iter().all(|s| *s == TaxelState::NO_INPUT));
+    }
+
+    /// A service at twice a layer's rate reads each of its frames twice. The
+    /// second read is not classified again: the layer's taxels must keep
+    /// their states, touched lists and residuals, and the next frame must
+    /// step the baselines by both reads' time, so that the detector publishes
+    /// what a detector at the layer's own rate does.
+    #[test]
+    fn a_frame_read_twice_gives_what_reading_it_once_does() {
+        let geometry = three_layers();
+        let mut twice = ContactDetector::new(&geometry, ContactParams::default());
+        let mut once = ContactDetector::new(&geometry, ContactParams::default());
+        let regions = twice.region_names().len();
+        let (mut out_twice, mut out_once) =
+            (vec![RegionContacts::default(); regions], vec![RegionContacts::default(); regions]);
+        let ok = [true; 3];
+        for frame in 0..200u32 {
+            let mut responses: Vec<u16> = (0..36u32).map(|i| (1000 + (i * 7 + frame * 13) % 23) as u16).collect();
+            if frame >= 150 {
+                for i in [9, 10, 11, 12, 13] {
+                    responses[i] = 1400 + (frame % 7) as u16;
+                }
+            }
+            // Once at the layers' 50 Hz; twice at 100 Hz, the second time with
+            // no new frame (the same responses, as a reader would hold them).
+            once.update(&geometry, &responses, &ok, &[true; 3], 0.02, &mut out_once);
+            twice.update(&geometry, &responses, &ok, &[true; 3], 0.01, &mut out_twice);
+            twice.update(&geometry, &responses, &ok, &[false; 3], 0.01, &mut out_twice);
+            assert_eq!(out_twice, out_once, "frame {frame}");
+            assert_eq!(twice.taxel_states(), once.taxel_states(), "frame {frame}");
+        }
+        assert!(out_once[0].count >= 1, "the press is found: {:?}", out_once[0]);
     }
 
     #[test]

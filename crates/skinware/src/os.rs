@@ -208,6 +208,109 @@ pub fn lock_current_memory() -> io::Result<()> {
     mlockall(MlockAllFlags::CURRENT).map_err(Into::into)
 }
 
+/// The size of an x86-64 (and most arm64) transparent huge page.
+const HUGE_PAGE_BYTES: usize = 2 << 20;
+
+/// Zeroed memory of the process's own, in a private anonymous mapping whose
+/// every 2 MiB the kernel is asked to back with one transparent huge page
+/// (`madvise(MADV_HUGEPAGE)`).
+///
+/// For state that a thread walks through once a period, long after its
+/// lines and its page-table entries have left the caches: with 4 KiB pages
+/// each page of it costs a page walk too (on a virtual machine, a walk of
+/// two tables), and the hardware's prefetchers stop at each page's end.
+/// Whether huge pages are given is the kernel's choice
+/// (`/sys/kernel/mm/transparent_hugepage/enabled`: `always` or `madvise`
+/// give them, `never` does not); without them this is plain memory.
+pub struct HugePageMemory {
+    /// The start of the mapping, 2 MiB-aligned.
+    start: std::ptr::NonNull<u64>,
+    /// The mapping's length, bytes: a whole number of huge pages.
+    mapped: usize,
+    /// The words asked for.
+    words: usize,
+}
+
+// SAFETY: the mapping is owned by this value alone (nothing else holds its
+// address) and is plain memory, so it may move to and be shared with other
+// threads like a `Vec<u64>`; `&mut` access goes through `&mut self`.
+unsafe impl Send for HugePageMemory {}
+// SAFETY: as above; shared access gives `&[u64]` only.
+unsafe impl Sync for HugePageMemory {}
+
+impl HugePageMemory {
+    /// `words` zeroed words. Fails only if the kernel refuses the mapping
+    /// (address space or a memory limit); a refused huge-page advice is not
+    /// an error.
+    pub fn zeroed(words: usize) -> io::Result<HugePageMemory> {
+        let too_large = || io::Error::new(io::ErrorKind::OutOfMemory, format!("{words} words do not fit in memory"));
+        let bytes = words.max(1).checked_mul(8).ok_or_else(too_large)?;
+        let mapped = bytes.checked_next_multiple_of(HUGE_PAGE_BYTES).ok_or_else(too_large)?;
+        // One huge page more than needed, so that a 2 MiB-aligned stretch of
+        // `mapped` bytes lies inside; the rest is given back at once.
+        let reserved = mapped.checked_add(HUGE_PAGE_BYTES).ok_or_else(too_large)?;
+        if cfg!(miri) {
+            return Err(io::Error::new(io::ErrorKind::Unsupported, "no mappings under Miri"));
+        }
+        use rustix::mm::{Advice, MapFlags, ProtFlags, madvise, mmap_anonymous, munmap};
+        // SAFETY: a new private anonymous mapping at an address the kernel
+        // chooses: it cannot overlap memory anything else uses.
+        let base = unsafe {
+            mmap_anonymous(std::ptr::null_mut(), reserved, ProtFlags::READ | ProtFlags::WRITE, MapFlags::PRIVATE)
+        }?;
+        let head = (base as usize).next_multiple_of(HUGE_PAGE_BYTES) - base as usize;
+        let tail = reserved - head - mapped;
+        // SAFETY: `base..base + head` and the `tail` bytes after the aligned
+        // stretch are parts of the mapping just made, used by nothing; both
+        // lengths are multiples of the page size (the mapping and the huge
+        // page are), as munmap requires.
+        unsafe {
+            let start = base.cast::<u8>().add(head);
+            if head > 0 {
+                munmap(base, head)?;
+            }
+            if tail > 0 {
+                munmap(start.add(mapped).cast(), tail)?;
+            }
+            // Advice only: where the kernel gives no huge pages, the memory
+            // is as good, and nothing is lost but the speed.
+            let _ = madvise(start.cast(), mapped, Advice::LinuxHugepage);
+        }
+        let start = std::ptr::NonNull::new(base.cast::<u8>().wrapping_add(head).cast::<u64>())
+            .ok_or_else(|| io::Error::other("the kernel mapped memory at address 0"))?;
+        Ok(HugePageMemory { start, mapped, words })
+    }
+
+    /// The words.
+    pub fn words(&self) -> &[u64] {
+        // SAFETY: `start` is the 2 MiB-aligned start of a readable, writable
+        // mapping of `mapped` >= 8 * `words` bytes that this value owns and
+        // keeps until it drops; anonymous memory starts zeroed, so every word
+        // is initialised, and `&self` rules out a `&mut` alive at once.
+        unsafe { std::slice::from_raw_parts(self.start.as_ptr(), self.words) }
+    }
+
+    /// The words, to write.
+    pub fn words_mut(&mut self) -> &mut [u64] {
+        // SAFETY: as in `words`; `&mut self` makes this the only reference.
+        unsafe { std::slice::from_raw_parts_mut(self.start.as_ptr(), self.words) }
+    }
+}
+
+impl Drop for HugePageMemory {
+    fn drop(&mut self) {
+        // SAFETY: the mapping this value made and owns; no reference into it
+        // outlives `self`. A failed munmap leaks the memory, nothing worse.
+        let _ = unsafe { rustix::mm::munmap(self.start.as_ptr().cast(), self.mapped) };
+    }
+}
+
+impl std::fmt::Debug for HugePageMemory {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("HugePageMemory").field("words", &self.words).field("mapped", &self.mapped).finish()
+    }
+}
+
 /// The CPUs the calling thread may run on.
 pub(crate) fn allowed_cpus() -> io::Result<Vec<usize>> {
     let set = rustix::thread::sched_getaffinity(None)?;
@@ -229,6 +332,39 @@ pub fn pin_to_cpus(cpus: &[usize]) -> io::Result<()> {
 #[cfg(all(test, not(miri)))]
 mod tests {
     use super::*;
+
+    /// The memory is zeroed, whole, writable, aligned for huge pages, and
+    /// given back on drop; where the kernel gives transparent huge pages
+    /// for it, `smaps` shows them.
+    #[test]
+    fn huge_page_memory_is_zeroed_aligned_and_backed_by_huge_pages_where_the_kernel_gives_them() {
+        let words = 300_000; // 2.3 MiB: two huge pages
+        let mut memory = HugePageMemory::zeroed(words).expect("map 2.3 MiB");
+        assert_eq!(memory.words().len(), words);
+        assert!(memory.words().iter().all(|&w| w == 0));
+        assert_eq!(memory.words().as_ptr() as usize % HUGE_PAGE_BYTES, 0);
+        for (k, word) in memory.words_mut().iter_mut().enumerate() {
+            *word = k as u64;
+        }
+        assert_eq!(memory.words()[words - 1], words as u64 - 1);
+        let start = memory.words().as_ptr() as usize;
+        let policy = std::fs::read_to_string("/sys/kernel/mm/transparent_hugepage/enabled").unwrap_or_default();
+        let smaps = std::fs::read_to_string("/proc/self/smaps").unwrap_or_default();
+        let huge_kb = smaps
+            .split_inclusive('\n')
+            .skip_while(|line| !line.starts_with(&format!("{start:x}-")))
+            .find_map(|line| line.strip_prefix("AnonHugePages:"))
+            .and_then(|kb| kb.trim().trim_end_matches("kB").trim().parse::<u64>().ok());
+        match huge_kb {
+            Some(kb) if !policy.contains("[never]") => {
+                assert!(kb >= 2048, "no huge page backs the memory: {kb} kB (policy {policy})")
+            }
+            _ => println!("SKIPPED the huge-page check: transparent huge pages `{}`, smaps {huge_kb:?}", policy.trim()),
+        }
+        drop(memory);
+        let after = std::fs::read_to_string("/proc/self/smaps").unwrap_or_default();
+        assert!(!after.contains(&format!("{start:x}-")), "the mapping outlived its value");
+    }
 
     /// Threads and processes started by a SCHED_FIFO thread run in the normal
     /// scheduler. Needs CAP_SYS_NICE (root here); skipped, saying so, without.

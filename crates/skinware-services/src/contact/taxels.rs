@@ -9,6 +9,7 @@
 use std::ops::Range;
 
 use super::TaxelState;
+use super::memory::{Layout, Placed, TaxelMemory};
 
 /// The parameters of one frame's classification.
 pub(super) struct Limits {
@@ -21,11 +22,12 @@ pub(super) struct Limits {
     pub alpha: f32,
 }
 
-/// Every taxel's tracked quantities, in global order.
+/// Where every taxel's tracked quantities are, in global order, in the
+/// detector's [`TaxelMemory`].
 pub(super) struct TaxelTracks {
-    baseline: Vec<f32>,
-    variance: Vec<f32>,
-    last: Vec<u16>,
+    baseline: Placed<f32>,
+    variance: Placed<f32>,
+    last: Placed<u16>,
     runs: RunLengths,
     /// The widest vector instructions this CPU has, found once.
     arch: pulp::Arch,
@@ -36,76 +38,87 @@ pub(super) struct TaxelTracks {
 /// integer's maximum, which is at least both thresholds, so every comparison
 /// with a threshold gives what an unbounded count would; a narrower integer
 /// is less memory to stream through every frame.
+#[derive(Clone, Copy)]
 enum RunLengths {
-    Byte { unchanged: Vec<u8>, saturated: Vec<u8> },
-    Short { unchanged: Vec<u16>, saturated: Vec<u16> },
-    Word { unchanged: Vec<u32>, saturated: Vec<u32> },
+    Byte { unchanged: Placed<u8>, saturated: Placed<u8> },
+    Short { unchanged: Placed<u16>, saturated: Placed<u16> },
+    Word { unchanged: Placed<u32>, saturated: Placed<u32> },
 }
 
 impl TaxelTracks {
-    /// Tracks for `taxels` taxels whose run lengths are compared with
-    /// `dead_frames` and `stuck_frames`.
-    pub fn new(taxels: usize, dead_frames: u32, stuck_frames: u32) -> TaxelTracks {
+    /// Places the tracks of `taxels` taxels, whose run lengths are compared
+    /// with `dead_frames` and `stuck_frames`, in `layout`; the taxels'
+    /// `states` are placed right after them (the classification writes
+    /// them in the same pass).
+    pub fn place(
+        layout: &mut Layout,
+        taxels: usize,
+        dead_frames: u32,
+        stuck_frames: u32,
+    ) -> (TaxelTracks, Placed<TaxelState>) {
+        let (baseline, variance, last) = (layout.place(taxels), layout.place(taxels), layout.place(taxels));
         let longest = dead_frames.max(stuck_frames);
         let runs = if longest <= u32::from(u8::MAX) {
-            RunLengths::Byte { unchanged: vec![0; taxels], saturated: vec![0; taxels] }
+            RunLengths::Byte { unchanged: layout.place(taxels), saturated: layout.place(taxels) }
         } else if longest <= u32::from(u16::MAX) {
-            RunLengths::Short { unchanged: vec![0; taxels], saturated: vec![0; taxels] }
+            RunLengths::Short { unchanged: layout.place(taxels), saturated: layout.place(taxels) }
         } else {
-            RunLengths::Word { unchanged: vec![0; taxels], saturated: vec![0; taxels] }
+            RunLengths::Word { unchanged: layout.place(taxels), saturated: layout.place(taxels) }
         };
-        TaxelTracks {
-            baseline: vec![0.0; taxels],
-            variance: vec![0.0; taxels],
-            last: vec![0; taxels],
-            runs,
-            arch: pulp::Arch::new(),
-        }
+        let tracks = TaxelTracks { baseline, variance, last, runs, arch: pulp::Arch::new() };
+        (tracks, layout.place(taxels))
     }
 
     /// Starts the baselines of taxels `range` at their first `responses`.
-    pub fn initialize(&mut self, range: Range<usize>, responses: &[u16]) {
-        for (baseline, &r) in self.baseline[range.clone()].iter_mut().zip(responses) {
+    pub fn initialize(&self, memory: &mut TaxelMemory, range: Range<usize>, responses: &[u16]) {
+        for (baseline, &r) in memory.get_mut(self.baseline)[range.clone()].iter_mut().zip(responses) {
             *baseline = f32::from(r);
         }
-        self.last[range].copy_from_slice(responses);
+        memory.get_mut(self.last)[range].copy_from_slice(responses);
     }
 
     /// The response above baseline of a taxel whose baseline this frame's
     /// [`classify`](Self::classify) did not move (a touched one).
-    pub fn residual(&self, taxel: usize, response: u16) -> f32 {
-        f32::from(response) - self.baseline[taxel]
+    pub fn residual(&self, memory: &TaxelMemory, taxel: usize, response: u16) -> f32 {
+        f32::from(response) - memory.get(self.baseline)[taxel]
     }
 
     /// Follows the baselines and noise of taxels `range`, whose `responses`
     /// are new (`fresh`: a new frame, which counts towards dead and stuck)
-    /// or read again, and writes their `states`.
+    /// or read again, and writes their states into `states` (what
+    /// [`place`](Self::place) placed).
     pub fn classify(
-        &mut self,
+        &self,
+        memory: &mut TaxelMemory,
+        states: Placed<TaxelState>,
         range: Range<usize>,
         responses: &[u16],
         fresh: bool,
         limits: &Limits,
-        states: &mut [TaxelState],
     ) {
-        let baseline = &mut self.baseline[range.clone()];
-        let variance = &mut self.variance[range.clone()];
-        let last = &mut self.last[range.clone()];
         macro_rules! classify_with {
             ($unchanged:expr, $saturated:expr) => {{
+                let [baseline, variance, last, unchanged, saturated, states_words] = memory.words_of_mut([
+                    self.baseline.words(),
+                    self.variance.words(),
+                    self.last.words(),
+                    $unchanged.words(),
+                    $saturated.words(),
+                    states.words(),
+                ]);
                 let layer = Layer {
                     responses,
-                    baseline,
-                    variance,
-                    last,
-                    unchanged: &mut $unchanged[range.clone()],
-                    saturated: &mut $saturated[range.clone()],
-                    states,
+                    baseline: &mut self.baseline.view_mut(baseline)[range.clone()],
+                    variance: &mut self.variance.view_mut(variance)[range.clone()],
+                    last: &mut self.last.view_mut(last)[range.clone()],
+                    unchanged: &mut $unchanged.view_mut(unchanged)[range.clone()],
+                    saturated: &mut $saturated.view_mut(saturated)[range.clone()],
+                    states: &mut states.view_mut(states_words)[range.clone()],
                 };
                 self.arch.dispatch(ClassifyLayer { layer, limits, fresh })
             }};
         }
-        match &mut self.runs {
+        match self.runs {
             RunLengths::Byte { unchanged, saturated } => classify_with!(unchanged, saturated),
             RunLengths::Short { unchanged, saturated } => classify_with!(unchanged, saturated),
             RunLengths::Word { unchanged, saturated } => classify_with!(unchanged, saturated),
@@ -255,20 +268,30 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
+    /// Tracks of `taxels` taxels, their states, and the memory they are in.
+    fn tracks(taxels: usize, dead_frames: u32, stuck_frames: u32) -> (TaxelTracks, Placed<TaxelState>, TaxelMemory) {
+        let mut layout = Layout::default();
+        let (tracks, states) = TaxelTracks::place(&mut layout, taxels, dead_frames, stuck_frames);
+        (tracks, states, TaxelMemory::new(&layout))
+    }
+
     /// Everything a classification leaves behind, as bits.
-    fn snapshot(tracks: &TaxelTracks, states: &[TaxelState]) -> Vec<u32> {
-        let mut bits: Vec<u32> = tracks.baseline.iter().chain(&tracks.variance).map(|v| v.to_bits()).collect();
-        bits.extend(tracks.last.iter().map(|&r| u32::from(r)));
-        match &tracks.runs {
+    fn snapshot(tracks: &TaxelTracks, states: Placed<TaxelState>, memory: &TaxelMemory) -> Vec<u32> {
+        let floats = memory.get(tracks.baseline).iter().chain(memory.get(tracks.variance));
+        let mut bits: Vec<u32> = floats.map(|v| v.to_bits()).collect();
+        bits.extend(memory.get(tracks.last).iter().map(|&r| u32::from(r)));
+        match tracks.runs {
             RunLengths::Byte { unchanged, saturated } => {
-                bits.extend(unchanged.iter().chain(saturated).map(|&c| u32::from(c)))
+                bits.extend(memory.get(unchanged).iter().chain(memory.get(saturated)).map(|&c| u32::from(c)))
             }
             RunLengths::Short { unchanged, saturated } => {
-                bits.extend(unchanged.iter().chain(saturated).map(|&c| u32::from(c)))
+                bits.extend(memory.get(unchanged).iter().chain(memory.get(saturated)).map(|&c| u32::from(c)))
             }
-            RunLengths::Word { unchanged, saturated } => bits.extend(unchanged.iter().chain(saturated)),
+            RunLengths::Word { unchanged, saturated } => {
+                bits.extend(memory.get(unchanged).iter().chain(memory.get(saturated)))
+            }
         }
-        bits.extend(states.iter().map(|s| u32::from(s.0)));
+        bits.extend(memory.get(states).iter().map(|s| u32::from(s.0)));
         bits
     }
 
@@ -292,7 +315,7 @@ mod tests {
 
     #[test]
     fn the_widest_instruction_set_is_chosen_where_the_cpu_has_it() {
-        let tracks = TaxelTracks::new(1, 100, 50);
+        let (tracks, _, _) = tracks(1, 100, 50);
         if has_x86_64_v3() {
             assert!(matches!(tracks.arch, pulp::Arch::V3(_)), "AVX2 CPU, but {:?} chosen", tracks.arch);
         } else {
@@ -323,16 +346,15 @@ mod tests {
                 dead_frames,
                 alpha: 0.05,
             };
-            let mut widest = TaxelTracks::new(taxels, dead_frames, stuck_frames);
-            let mut baseline_isa = TaxelTracks::new(taxels, dead_frames, stuck_frames);
+            let (widest, states_a, mut memory_a) = tracks(taxels, dead_frames, stuck_frames);
+            let (mut baseline_isa, states_b, mut memory_b) = tracks(taxels, dead_frames, stuck_frames);
             baseline_isa.arch = pulp::Arch::Scalar;
-            widest.initialize(0..taxels, &frames[0].0[..taxels]);
-            baseline_isa.initialize(0..taxels, &frames[0].0[..taxels]);
-            let (mut states_a, mut states_b) = (vec![TaxelState::IDLE; taxels], vec![TaxelState::IDLE; taxels]);
+            widest.initialize(&mut memory_a, 0..taxels, &frames[0].0[..taxels]);
+            baseline_isa.initialize(&mut memory_b, 0..taxels, &frames[0].0[..taxels]);
             for (responses, fresh) in &frames {
-                widest.classify(0..taxels, &responses[..taxels], *fresh, &limits, &mut states_a);
-                baseline_isa.classify(0..taxels, &responses[..taxels], *fresh, &limits, &mut states_b);
-                prop_assert_eq!(snapshot(&widest, &states_a), snapshot(&baseline_isa, &states_b));
+                widest.classify(&mut memory_a, states_a, 0..taxels, &responses[..taxels], *fresh, &limits);
+                baseline_isa.classify(&mut memory_b, states_b, 0..taxels, &responses[..taxels], *fresh, &limits);
+                prop_assert_eq!(snapshot(&widest, states_a, &memory_a), snapshot(&baseline_isa, states_b, &memory_b));
             }
         }
     }

@@ -41,6 +41,29 @@ fn latest_returns_newest_with_metadata_and_skips() {
     assert!(reader.stats().read_ns_max >= reader.stats().read_ns_min);
 }
 
+/// A frame read again is not copied again: the reader gives its own copy,
+/// which must then be that frame's, also after a read into a caller's
+/// buffer (which leaves the reader's own copy behind).
+#[test]
+fn a_frame_read_again_is_the_readers_copy_of_that_frame() {
+    let dir = SegmentDir::new("again");
+    let mut writer = Writer::create("skin", "layer", 16, b"", &dir.writer()).unwrap();
+    let mut reader = Reader::open_with("skin", "layer", &dir.reader()).unwrap();
+    publish(&mut writer, 1);
+    assert_eq!(reader.latest().unwrap().responses(), &[1; 8]);
+    publish(&mut writer, 2);
+    let mut out = [0u8; 16];
+    assert_eq!(reader.latest_into(&mut out).unwrap().seq, 2);
+    let after_into = reader.latest().unwrap();
+    assert_eq!((after_into.seq(), after_into.is_fresh()), (2, false));
+    assert_eq!(after_into.responses(), &[2; 8], "frame 2's bytes, not the copy of frame 1");
+    let again = reader.latest().unwrap();
+    assert_eq!((again.seq(), again.is_fresh(), again.responses()), (2, false, &[2u16; 8][..]));
+    publish(&mut writer, 3);
+    assert_eq!(reader.latest().unwrap().responses(), &[3; 8]);
+    assert_eq!(reader.stats().reads, 5);
+}
+
 #[test]
 fn reads_into_a_callers_buffer_copy_the_frame_once_at_any_alignment() {
     let dir = SegmentDir::new("into");
