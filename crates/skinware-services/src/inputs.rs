@@ -15,6 +15,9 @@ pub struct SkinInputs {
     pub layer_ok: Vec<bool>,
     /// Whether each layer published a new frame since the previous update.
     pub layer_fresh: Vec<bool>,
+    /// Whether each layer's newest frame was new at the previous update or
+    /// published within one period of its writer.
+    layer_recent: Vec<bool>,
     last_seq: Vec<u64>,
     /// The newest acquisition time over the layers, monotonic ns.
     pub acquired_ns: u64,
@@ -32,6 +35,7 @@ impl SkinInputs {
             starts: geometry.layer_starts.clone(),
             layer_ok: vec![false; geometry.layers.len()],
             layer_fresh: vec![false; geometry.layers.len()],
+            layer_recent: vec![false; geometry.layers.len()],
             last_seq: vec![0; geometry.layers.len()],
             acquired_ns: 0,
         }
@@ -65,10 +69,11 @@ impl SkinInputs {
             };
             // A re-created channel matters only once the old one has stopped
             // giving new frames; asking costs a system call per layer.
-            if !self.layer_fresh[l] {
+            if !self.layer_recent[l] {
                 reader.follow_recreated();
             }
             self.layer_fresh[l] = false;
+            self.layer_recent[l] = false;
             let range = self.starts[l]..self.starts[l + 1];
             let period = reader.writer_period();
             let current = match reader.latest() {
@@ -76,14 +81,17 @@ impl SkinInputs {
                     self.layer_fresh[l] = frame.seq() != self.last_seq[l];
                     self.last_seq[l] = frame.seq();
                     self.acquired_ns = self.acquired_ns.max(frame.acquired_ns());
+                    self.layer_recent[l] = self.layer_fresh[l] || is_recent(frame.published_ns(), period);
                     !crate::is_stale(frame.published_ns(), period)
                 }
                 _ => false,
             };
-            // A writer whose new frame just came was alive a period ago: the
-            // state it stored will do. Otherwise ask the kernel whether it
-            // lives (a system call per layer).
-            let state = if self.layer_fresh[l] { reader.stored_writer_state() } else { reader.writer_state() };
+            // A writer that published within its period was alive a period
+            // ago: the state it stored will do, whether or not this frame is
+            // new here (a layer slower than the service is read again between
+            // its frames). Otherwise ask the kernel whether it lives (a system
+            // call per layer).
+            let state = if self.layer_recent[l] { reader.stored_writer_state() } else { reader.writer_state() };
             self.layer_ok[l] = current && state == WriterState::Running;
         }
         self.layer_ok.iter().all(|&ok| ok)
@@ -116,4 +124,14 @@ impl SkinInputs {
         let layer = self.layer_of(sensor);
         self.layer_responses(layer)?.get(sensor - self.starts[layer]).copied()
     }
+}
+
+/// Whether a frame published at `published_ns` by a writer of `period` is
+/// younger than one period, and than a second: a period and a time read
+/// from shared memory may be forged, and a writer that died must not pass
+/// for alive for longer than that. A time from the future is not recent.
+fn is_recent(published_ns: u64, period: Option<std::time::Duration>) -> bool {
+    let now = skinware::os::monotonic_ns();
+    let longest = period.map_or(0, |period| period.min(std::time::Duration::from_secs(1)).as_nanos());
+    published_ns <= now && u128::from(now - published_ns) < longest
 }
