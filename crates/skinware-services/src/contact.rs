@@ -176,18 +176,20 @@ pub struct ContactDetector {
     layer_dead_or_stuck: Vec<Vec<u32>>,
     tracks: TaxelTracks,
     states: Placed<TaxelState>,
-    /// The touched taxels of the last frame, in global order: where the
-    /// component search starts, so that it does not scan the whole skin.
+    /// The touched taxels of the last update (each layer's as of its last
+    /// classification), in global order: where the component search
+    /// starts, so that it does not scan the whole skin.
     touched: Vec<u32>,
     /// Each taxel's response above its baseline, by taxel, written for the
-    /// touched taxels of the frame only (the others' are stale and never
-    /// read: a component holds touched taxels only). By taxel rather than
+    /// touched taxels of each layer's last classification only (the
+    /// others' are stale and never read: a component holds touched taxels
+    /// only). By taxel rather than
     /// beside `touched`: the accumulation looks each one up twice, and on
     /// skin demo's 1,100-1,600 touched taxels a frame, a binary search of
     /// `touched` for each cost the service more than the search for the
     /// components itself.
     residuals: Placed<f32>,
-    /// The dead and stuck taxels of the last frame, for the regions' counts.
+    /// The dead and stuck taxels of the last update, for the regions' counts.
     dead_or_stuck: Vec<u32>,
     /// One bit per taxel: touched this frame and not yet in a component.
     /// Set from `touched` before the search, cleared as the search reaches
@@ -230,19 +232,7 @@ impl ContactDetector {
         let (tracks, states) = TaxelTracks::place(&mut layout, n, params.dead_frames, params.stuck_frames);
         let (residuals, sites) = (layout.place(n), layout.place(n));
         let mut memory = TaxelMemory::new(&layout);
-        let mut member_regions = Vec::new();
-        for (i, (site, regions)) in memory.get_mut(sites).iter_mut().zip(&per_sensor).enumerate() {
-            let first = member_regions.len() as u32;
-            member_regions.extend_from_slice(regions);
-            *site = Site {
-                position: geometry.positions.get(i).copied().unwrap_or_default(),
-                normal: geometry.normals.get(i).copied().unwrap_or_default(),
-                map: geometry.map.positions.get(i).copied().unwrap_or_default(),
-                radius: geometry.radii.get(i).copied().unwrap_or_default(),
-                regions: [first, member_regions.len() as u32],
-                unused: 0,
-            };
-        }
+        let member_regions = fill_sites(geometry, &per_sensor, memory.get_mut(sites));
         let layer_ranges: Vec<Range<usize>> =
             (0..geometry.layers.len()).map(|l| geometry.layer_starts[l]..geometry.layer_starts[l + 1]).collect();
         let mut layer_of = vec![0usize; n];
@@ -374,9 +364,15 @@ impl ContactDetector {
                 self.layer_dead_or_stuck[layer].clear();
                 continue;
             };
-            self.layer_elapsed_s[layer] += dt_s.max(0.0);
-            let fresh = layer_fresh.get(layer).copied().unwrap_or(false);
-            if fresh || !self.layer_classified[layer] {
+            // At most one time constant: a layer without a period (sporadic)
+            // may hold one frame for minutes, and one step by all that time
+            // would set each noise estimate from one response.
+            self.layer_elapsed_s[layer] = (self.layer_elapsed_s[layer] + dt_s.max(0.0)).min(tau_s);
+            // A caller that says nothing of a layer's freshness (a short
+            // `layer_fresh`) gets it classified, as a frame read again.
+            let said = layer_fresh.get(layer).copied();
+            let fresh = said.unwrap_or(false);
+            if said != Some(false) || !self.layer_classified[layer] {
                 if !self.layer_initialized[layer] {
                     self.layer_initialized[layer] = true;
                     self.tracks.initialize(&mut self.memory, range.clone(), input);
@@ -526,7 +522,8 @@ impl ContactDetector {
     fn accumulate_component(&mut self, taxels: usize) {
         let component = &self.queue[..taxels];
         self.touched_regions.clear();
-        // Every taxel of the component is touched: its residual is this frame's.
+        // Every taxel of the component is touched: its residual is the one
+        // its layer's last classification found.
         let (residuals, sites) = (self.memory.get(self.residuals), self.memory.get(self.sites));
         let residual = |i: usize| residuals.get(i).copied().unwrap_or(0.0);
         for &i in component {
@@ -596,6 +593,26 @@ impl ContactDetector {
             });
         }
     }
+}
+
+/// Writes each taxel's site from `geometry` and its regions (`per_sensor`)
+/// into `sites`; returns every taxel's regions, one after another, which
+/// the sites' `regions` index.
+fn fill_sites(geometry: &SkinGeometry, per_sensor: &[Vec<u32>], sites: &mut [Site]) -> Vec<u32> {
+    let mut member_regions = Vec::new();
+    for (i, (site, regions)) in sites.iter_mut().zip(per_sensor).enumerate() {
+        let first = member_regions.len() as u32;
+        member_regions.extend_from_slice(regions);
+        *site = Site {
+            position: geometry.positions.get(i).copied().unwrap_or_default(),
+            normal: geometry.normals.get(i).copied().unwrap_or_default(),
+            map: geometry.map.positions.get(i).copied().unwrap_or_default(),
+            radius: geometry.radii.get(i).copied().unwrap_or_default(),
+            regions: [first, member_regions.len() as u32],
+            unused: 0,
+        };
+    }
+    member_regions
 }
 
 /// What contact accumulation needs of one taxel, from the geometry, in one

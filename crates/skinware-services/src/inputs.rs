@@ -18,7 +18,6 @@ pub struct SkinInputs {
     /// Whether each layer's newest frame was new at the previous update or
     /// published within one period of its writer.
     layer_recent: Vec<bool>,
-    last_seq: Vec<u64>,
     /// The newest acquisition time over the layers, monotonic ns.
     pub acquired_ns: u64,
 }
@@ -36,7 +35,6 @@ impl SkinInputs {
             layer_ok: vec![false; geometry.layers.len()],
             layer_fresh: vec![false; geometry.layers.len()],
             layer_recent: vec![false; geometry.layers.len()],
-            last_seq: vec![0; geometry.layers.len()],
             acquired_ns: 0,
         }
     }
@@ -50,6 +48,10 @@ impl SkinInputs {
     /// be opened, its writer is not running, its frame is faulted or of the
     /// wrong size, or its newest frame is stale; it then has no responses
     /// until it is up again. Returns whether every layer is up.
+    ///
+    /// A writer that dies is seen as gone within one of its periods (at most
+    /// a second): while its newest frame is younger than that, the state it
+    /// stored stands in for asking the kernel.
     ///
     /// Each frame stays in its reader's own copy, where
     /// [`layer_responses`](Self::layer_responses) shows it: copying all the
@@ -78,10 +80,12 @@ impl SkinInputs {
             let period = reader.writer_period();
             let current = match reader.latest() {
                 Ok(frame) if !frame.status().is_fault() && frame.responses().len() == range.len() => {
-                    self.layer_fresh[l] = frame.seq() != self.last_seq[l];
-                    self.last_seq[l] = frame.seq();
+                    // The reader's own freshness: a successor writer's frames
+                    // start again at 1, and its first is new whatever its number.
+                    self.layer_fresh[l] = frame.is_fresh();
                     self.acquired_ns = self.acquired_ns.max(frame.acquired_ns());
-                    self.layer_recent[l] = self.layer_fresh[l] || is_recent(frame.published_ns(), period);
+                    let now = skinware::os::monotonic_ns();
+                    self.layer_recent[l] = self.layer_fresh[l] || is_recent(frame.published_ns(), period, now);
                     !crate::is_stale(frame.published_ns(), period)
                 }
                 _ => false,
@@ -130,8 +134,25 @@ impl SkinInputs {
 /// younger than one period, and than a second: a period and a time read
 /// from shared memory may be forged, and a writer that died must not pass
 /// for alive for longer than that. A time from the future is not recent.
-fn is_recent(published_ns: u64, period: Option<std::time::Duration>) -> bool {
-    let now = skinware::os::monotonic_ns();
+fn is_recent(published_ns: u64, period: Option<std::time::Duration>, now: u64) -> bool {
     let longest = period.map_or(0, |period| period.min(std::time::Duration::from_secs(1)).as_nanos());
     published_ns <= now && u128::from(now - published_ns) < longest
+}
+
+#[cfg(test)]
+mod tests {
+    use super::is_recent;
+    use std::time::Duration;
+
+    #[test]
+    fn recent_is_within_one_period_at_most_a_second_and_never_from_the_future() {
+        let now = 100_000_000_000;
+        let ms = |n: u64| Duration::from_millis(n);
+        assert!(is_recent(now - 19_000_000, Some(ms(20)), now));
+        assert!(!is_recent(now - 21_000_000, Some(ms(20)), now), "older than one period");
+        assert!(!is_recent(now - 2_000_000_000, Some(ms(3_600_000)), now), "a forged hour-long period counts as 1 s");
+        assert!(is_recent(now - 900_000_000, Some(ms(3_600_000)), now));
+        assert!(!is_recent(now + 1, Some(ms(20)), now), "a time from the future");
+        assert!(!is_recent(now, None, now), "a sporadic writer's frame is as fresh as its request");
+    }
 }

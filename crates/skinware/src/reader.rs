@@ -310,8 +310,9 @@ impl Reader {
 
     /// The state the writer last stored, without asking the kernel whether
     /// it still lives (which [`writer_state`](Self::writer_state) does, with
-    /// a system call): enough while new frames keep coming, since a writer
-    /// that just published was alive a period ago.
+    /// a system call): enough while new frames keep coming, or while the
+    /// newest is younger than the writer's period, since a writer that
+    /// published that recently was alive a period ago.
     pub fn stored_writer_state(&self) -> WriterState {
         self.shared.stored_state()
     }

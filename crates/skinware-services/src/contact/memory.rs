@@ -55,8 +55,9 @@ impl<T> Placed<T> {
     }
 }
 
-/// Lays arrays out one after another, each from the start of a cache line
-/// (so that no two share one).
+/// Lays arrays out one after another, each from a multiple of 64 bytes
+/// into the block: on its own cache lines where the block is mapped (from a
+/// huge page's start); in the heap's fallback, from 8-byte words.
 #[derive(Default)]
 pub(super) struct Layout {
     words: usize,
@@ -72,7 +73,8 @@ impl Layout {
             assert!(std::mem::align_of::<T>() <= 8 && size > 0 && (size.is_multiple_of(8) || 8 % size == 0));
         };
         let start = self.words.next_multiple_of(LINE_WORDS);
-        let end = start + (len * std::mem::size_of::<T>()).div_ceil(8);
+        let bytes = len.checked_mul(std::mem::size_of::<T>()).expect("an array larger than the address space");
+        let end = start + bytes.div_ceil(8);
         self.words = end;
         Placed { start, end, len, _type: PhantomData }
     }

@@ -157,7 +157,7 @@ run_length!(u8);
 run_length!(u16);
 run_length!(u32);
 
-/// One layer's slice of every per-taxel vector, all of the same length.
+/// One layer's slice of every per-taxel array, all of the same length.
 struct Layer<'a, C> {
     responses: &'a [u16],
     baseline: &'a mut [f32],

@@ -4,7 +4,7 @@
 # usage: demo-ab.sh ROUNDS WINDOW_S SKIN_EXE...
 #
 # For each round and each `skin` executable given: starts `skin run
-# examples/demo.toml` with it, waits 8 s, and over the next WINDOW_S seconds
+# examples/demo.toml` with it, waits DELAY seconds (8 unless set), and over the next WINDOW_S seconds
 # reads what `skin services --json` reports for the contact service at both
 # ends (frames and running mean: the window's own mean from the two) and the
 # service thread's CPU time from /proc (schedstat: its whole loop, waking and
@@ -22,7 +22,7 @@ for _ in $(seq "$rounds"); do
   for exe in "$@"; do
     "$exe" run examples/demo.toml > "$log" 2>&1 &
     pid=$!
-    sleep 8
+    sleep "${DELAY:-8}"
     service=$(pgrep -f "service $PWD/examples/demo.toml --name contact")
     before=$(contact_stats "$exe"); cpu_before=$(cut -d' ' -f1 "/proc/$service/task/$service/schedstat")
     sleep "$window"
