@@ -698,14 +698,19 @@ mod tests {
         SkinGeometry::build("s", &topologies, &calibration, &regions).unwrap()
     }
 
+    /// Two detectors of `geometry` to compare, each with its records.
+    fn two_detectors(geometry: &SkinGeometry) -> [(ContactDetector, Vec<RegionContacts>); 2] {
+        [(); 2].map(|()| {
+            let detector = ContactDetector::new(geometry, ContactParams::default());
+            let records = vec![RegionContacts::default(); detector.region_names().len()];
+            (detector, records)
+        })
+    }
+
     #[test]
     fn layers_given_apart_detect_what_one_array_does() {
         let geometry = three_layers();
-        let mut whole = ContactDetector::new(&geometry, ContactParams::default());
-        let mut apart = ContactDetector::new(&geometry, ContactParams::default());
-        let regions = whole.region_names().len();
-        let (mut out_whole, mut out_apart) =
-            (vec![RegionContacts::default(); regions], vec![RegionContacts::default(); regions]);
+        let [(mut whole, mut out_whole), (mut apart, mut out_apart)] = two_detectors(&geometry);
         let ok = [true, false, true];
         for frame in 0..60u16 {
             let mut responses: Vec<u16> = (0..36u16).map(|i| 1000 + (i * 7 + frame * 3) % 11).collect();
@@ -735,11 +740,7 @@ mod tests {
     #[test]
     fn a_frame_read_twice_gives_what_reading_it_once_does() {
         let geometry = three_layers();
-        let mut twice = ContactDetector::new(&geometry, ContactParams::default());
-        let mut once = ContactDetector::new(&geometry, ContactParams::default());
-        let regions = twice.region_names().len();
-        let (mut out_twice, mut out_once) =
-            (vec![RegionContacts::default(); regions], vec![RegionContacts::default(); regions]);
+        let [(mut twice, mut out_twice), (mut once, mut out_once)] = two_detectors(&geometry);
         let ok = [true; 3];
         for frame in 0..200u32 {
             let mut responses: Vec<u16> = (0..36u32).map(|i| (1000 + (i * 7 + frame * 13) % 23) as u16).collect();
