@@ -9,7 +9,7 @@ use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
-use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError, sync_channel};
+use std::sync::mpsc::{RecvTimeoutError, SyncSender, TrySendError, sync_channel};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -17,6 +17,7 @@ use mcap::records::{MessageHeader, Metadata};
 
 use super::discovery::Sources;
 use super::file_start::{ChannelIds, McapWriter, Part, write_start};
+use super::queue::QueueReceiver;
 use super::summary::Recorded;
 use super::{Item, RecordOptions, Shared, Split, part_path};
 use crate::error::{mcap_write_error, write_hint};
@@ -31,7 +32,7 @@ pub(super) struct FileJob {
     pub(super) writer: McapWriter,
     /// The same file, to sync what was flushed.
     pub(super) sync: File,
-    pub(super) receiver: Receiver<Item>,
+    pub(super) receiver: QueueReceiver<Item>,
     pub(super) flush_interval: Duration,
     pub(super) shared: Arc<Shared>,
     pub(super) channels: Vec<Recorded>,

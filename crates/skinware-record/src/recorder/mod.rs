@@ -14,7 +14,7 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::mpsc::sync_channel;
+
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -27,6 +27,7 @@ use crate::RecordError;
 mod discovery;
 mod file_start;
 mod file_writer;
+mod queue;
 mod reading;
 mod ros_view;
 mod summary;
@@ -326,7 +327,7 @@ impl Recorder {
         });
         let channels: Vec<Recorded> = sources.readers.iter().map(Recorded::of).collect();
         let queue_frames = queue_frames(sources.readers.iter().map(skinware::Reader::payload_bytes));
-        let (sender, receiver) = sync_channel::<Item>(queue_frames);
+        let (sender, receiver) = queue::bounded::<Item>(queue_frames);
         let mut threads =
             reading::start_readers(sources.readers, &channels, &started, &sender, &shared, options.reader_priority)?;
         let Started { writer, stats_channels, map, ros, clock_offset_ns, .. } = started;

@@ -5,13 +5,14 @@
 
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
-use std::sync::mpsc::{SyncSender, TrySendError};
+use std::sync::mpsc::TrySendError;
 use std::thread::JoinHandle;
 
 use skinware::{ChannelKind, Error, FrameStatus, Reader};
 use skinware_ros2::{Gap, SkinFrameRef, Time, unix_ns};
 
 use super::file_start::Started;
+use super::queue::QueueSender;
 use super::summary::{Counters, Recorded};
 use super::{Item, READ_SLICE, Shared, spawn};
 use crate::RecordError;
@@ -23,7 +24,7 @@ pub(super) fn start_readers(
     readers: Vec<Reader>,
     channels: &[Recorded],
     started: &Started,
-    sender: &SyncSender<Item>,
+    sender: &QueueSender<Item>,
     shared: &Arc<Shared>,
     priority: u8,
 ) -> Result<Vec<JoinHandle<()>>, RecordError> {
@@ -73,7 +74,7 @@ struct Emitter {
     gap_channel: u16,
     counters: Arc<Counters>,
     clock_offset_ns: i64,
-    sender: SyncSender<Item>,
+    sender: QueueSender<Item>,
     shared: Arc<Shared>,
     is_layer: bool,
     /// A layer's responses as `u16`s, reused from frame to frame.

@@ -22,7 +22,7 @@
 use std::collections::BTreeMap;
 use std::io::{Seek, Write};
 use std::path::PathBuf;
-use std::sync::mpsc::SyncSender;
+
 use std::time::Duration;
 
 use mcap::records::MessageHeader;
@@ -37,6 +37,7 @@ use skinware_ros2::{Time, unix_ns};
 use skinware_services::RegionContacts;
 
 use super::discovery::Sources;
+use super::queue::QueueSender;
 use super::{Item, RecordOptions, add_schema};
 use crate::MESSAGE_ENCODING;
 
@@ -178,7 +179,7 @@ impl RosView {
     /// `newest[l]` is geometry layer `l`'s newest frame (responses, sequence
     /// number, acquisition time in Unix ns), if read. `false` once the file
     /// is gone.
-    pub(super) fn send_clouds(&mut self, newest: &[Option<(&[u16], u64, u64)>], sender: &SyncSender<Item>) -> bool {
+    pub(super) fn send_clouds(&mut self, newest: &[Option<(&[u16], u64, u64)>], sender: &QueueSender<Item>) -> bool {
         for layer in &mut self.clouds {
             let Some(Some((responses, seq, acquired_unix_ns))) = newest.get(layer.layer) else { continue };
             if *seq == layer.last_seq {
@@ -207,7 +208,7 @@ impl RosView {
         &mut self,
         geometry: Option<&SkinGeometry>,
         clock_offset_ns: i64,
-        sender: &SyncSender<Item>,
+        sender: &QueueSender<Item>,
     ) -> bool {
         let drawing = ContactMarkers { geometry, root: &self.root_frame, lifetime: self.marker_lifetime };
         for source in &mut self.contacts {
@@ -241,7 +242,7 @@ impl RosView {
         states: &[WriterState],
         rates_hz: &[f64],
         now_ns: u64,
-        sender: &SyncSender<Item>,
+        sender: &QueueSender<Item>,
     ) -> bool {
         let mut channels = Vec::new();
         for (((name, reader), &state), &rate_hz) in self.health.iter_mut().zip(states).zip(rates_hz) {

@@ -7,7 +7,7 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
-use std::sync::mpsc::SyncSender;
+
 use std::time::{Duration, Instant};
 
 use skinware::rt::Ticker;
@@ -16,6 +16,7 @@ use skinware_geometry::SkinGeometry;
 use skinware_ros2::rate::Every;
 use skinware_ros2::{Header, HeatMap, LayerLook, LayerStats, Time, now_unix_ns, unix_ns};
 
+use super::queue::QueueSender;
 use super::ros_view::RosView;
 use super::summary::Recorded;
 use super::{Item, STATS_INTERVAL, Shared};
@@ -35,7 +36,7 @@ pub(super) struct Watcher {
     /// The MCAP channel of each recorded channel's statistics.
     pub(super) stats_channels: Vec<u16>,
     pub(super) clock_offset_ns: i64,
-    pub(super) sender: SyncSender<Item>,
+    pub(super) sender: QueueSender<Item>,
     pub(super) shared: Arc<Shared>,
 }
 
