@@ -229,6 +229,9 @@ pub struct HugePageMemory {
     mapped: usize,
     /// The words asked for.
     words: usize,
+    /// What to unmap when dropped, start and length: the aligned stretch,
+    /// or more of the reservation where giving back its head or tail failed.
+    owned: (std::ptr::NonNull<u8>, usize),
 }
 
 // SAFETY: the mapping is owned by this value alone (nothing else holds its
@@ -260,25 +263,29 @@ impl HugePageMemory {
         }?;
         let head = (base as usize).next_multiple_of(HUGE_PAGE_BYTES) - base as usize;
         let tail = reserved - head - mapped;
+        let base = std::ptr::NonNull::new(base.cast::<u8>())
+            .ok_or_else(|| io::Error::other("the kernel mapped memory at address 0"))?;
         // SAFETY: `base..base + head` and the `tail` bytes after the aligned
         // stretch are parts of the mapping just made, used by nothing; both
         // lengths are multiples of the page size (the mapping and the huge
-        // page are), as munmap requires.
-        unsafe {
-            let start = base.cast::<u8>().add(head);
-            if head > 0 {
-                munmap(base, head)?;
-            }
-            if tail > 0 {
-                munmap(start.add(mapped).cast(), tail)?;
+        // page are), as munmap requires. A part that could not be given back
+        // (at the kernel's limit of mappings) stays in `owned`, to be
+        // unmapped with the rest: larger than asked, never leaked.
+        let (start, owned) = unsafe {
+            let start = base.add(head);
+            let mut owned = (base, reserved);
+            if head == 0 || munmap(base.as_ptr().cast(), head).is_ok() {
+                owned = (start, mapped + tail);
+                if tail == 0 || munmap(start.add(mapped).as_ptr().cast(), tail).is_ok() {
+                    owned = (start, mapped);
+                }
             }
             // Advice only: where the kernel gives no huge pages, the memory
             // is as good, and nothing is lost but the speed.
-            let _ = madvise(start.cast(), mapped, Advice::LinuxHugepage);
-        }
-        let start = std::ptr::NonNull::new(base.cast::<u8>().wrapping_add(head).cast::<u64>())
-            .ok_or_else(|| io::Error::other("the kernel mapped memory at address 0"))?;
-        Ok(HugePageMemory { start, mapped, words })
+            let _ = madvise(start.as_ptr().cast(), mapped, Advice::LinuxHugepage);
+            (start.cast::<u64>(), owned)
+        };
+        Ok(HugePageMemory { start, mapped, words, owned })
     }
 
     /// The words.
@@ -301,7 +308,7 @@ impl Drop for HugePageMemory {
     fn drop(&mut self) {
         // SAFETY: the mapping this value made and owns; no reference into it
         // outlives `self`. A failed munmap leaks the memory, nothing worse.
-        let _ = unsafe { rustix::mm::munmap(self.start.as_ptr().cast(), self.mapped) };
+        let _ = unsafe { rustix::mm::munmap(self.owned.0.as_ptr().cast(), self.owned.1) };
     }
 }
 

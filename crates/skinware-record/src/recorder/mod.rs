@@ -54,6 +54,8 @@ pub const DEFAULT_READER_PRIORITY: u8 = 20;
 /// and compresses (zstd takes about half a core at 100 MB/s of messages),
 /// and beside busy programs of nice 0 (a browser, a compiler) it got too
 /// little of a core to keep up. -10 weighs about 9 times a nice-0 thread.
+/// SCHED_FIFO below the readers was tried, and lost more frames
+/// (`docs/bench/record.md`, "The queue that spun").
 const FILE_THREAD_NICE: i32 = -10;
 /// Uncompressed bytes per chunk, at most (a chunk is also finished every
 /// flush interval). The MCAP writer keeps an index entry per chunk in memory
