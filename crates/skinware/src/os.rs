@@ -193,6 +193,20 @@ pub fn set_normal_scheduling() -> io::Result<()> {
     if rc == 0 { Ok(()) } else { Err(io::Error::last_os_error()) }
 }
 
+/// Limits how long any real-time thread of this process may run without a
+/// blocking system call (`RLIMIT_RTTIME`, the soft limit): past `limit` the
+/// kernel sends SIGXCPU, which ends the process unless handled. A guard for
+/// code that must never spin in SCHED_FIFO, such as a test of it: a thread
+/// that spins is ended rather than holding its CPU for good. The hard limit
+/// is left as it is; a soft limit above it is cut to it.
+pub fn limit_realtime_run(limit: Duration) -> io::Result<()> {
+    use rustix::process::{Resource, getrlimit, setrlimit};
+    let mut rlimit = getrlimit(Resource::Rttime);
+    let micros = u64::try_from(limit.as_micros()).unwrap_or(u64::MAX);
+    rlimit.current = Some(rlimit.maximum.map_or(micros, |maximum| maximum.min(micros)));
+    setrlimit(Resource::Rttime, rlimit).map_err(Into::into)
+}
+
 /// Locks all current and future pages of the process in RAM.
 pub fn lock_memory() -> io::Result<()> {
     use rustix::mm::{MlockAllFlags, mlockall};
@@ -225,7 +239,7 @@ const HUGE_PAGE_BYTES: usize = 2 << 20;
 pub struct HugePageMemory {
     /// The start of the mapping, 2 MiB-aligned.
     start: std::ptr::NonNull<u64>,
-    /// The mapping's length, bytes: a whole number of huge pages.
+    /// The aligned stretch's length, bytes: a whole number of huge pages.
     mapped: usize,
     /// The words asked for.
     words: usize,
@@ -263,12 +277,15 @@ impl HugePageMemory {
         }?;
         let head = (base as usize).next_multiple_of(HUGE_PAGE_BYTES) - base as usize;
         let tail = reserved - head - mapped;
+        // Only a mapping with MAP_FIXED is placed at address 0, which this is not.
         let base = std::ptr::NonNull::new(base.cast::<u8>())
             .ok_or_else(|| io::Error::other("the kernel mapped memory at address 0"))?;
         // SAFETY: `base..base + head` and the `tail` bytes after the aligned
         // stretch are parts of the mapping just made, used by nothing; both
         // lengths are multiples of the page size (the mapping and the huge
-        // page are), as munmap requires. A part that could not be given back
+        // page are), as munmap requires; `head` is below one huge page and
+        // `head + mapped + tail` is `reserved`, so both `add`s stay inside the
+        // mapping. A part that could not be given back
         // (at the kernel's limit of mappings) stays in `owned`, to be
         // unmapped with the rest: larger than asked, never leaked.
         let (start, owned) = unsafe {
@@ -319,7 +336,7 @@ impl std::fmt::Debug for HugePageMemory {
 }
 
 /// The CPUs the calling thread may run on.
-pub(crate) fn allowed_cpus() -> io::Result<Vec<usize>> {
+pub fn allowed_cpus() -> io::Result<Vec<usize>> {
     let set = rustix::thread::sched_getaffinity(None)?;
     Ok((0..rustix::thread::CpuSet::MAX_CPU).filter(|&cpu| set.is_set(cpu)).collect())
 }
