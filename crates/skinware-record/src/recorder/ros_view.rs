@@ -22,7 +22,6 @@
 use std::collections::BTreeMap;
 use std::io::{Seek, Write};
 use std::path::PathBuf;
-
 use std::time::Duration;
 
 use mcap::records::MessageHeader;

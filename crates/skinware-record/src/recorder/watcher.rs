@@ -7,7 +7,6 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
-
 use std::time::{Duration, Instant};
 
 use skinware::rt::Ticker;
